@@ -1,0 +1,213 @@
+"""Signal chain: chirp (Eq. 1), chirp-synchronous framing, batched spectra and features.
+
+Everything here is pure and batched: ``n`` frames go in as an ``(n, n_chirp)`` array and
+come out as ``(n, n_band)`` features with no Python loop per chirp.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+import scipy.signal
+
+from .rig import Rig
+
+__all__ = [
+    "chirp", "chirp_spectrum", "find_chirp_offset", "frame_stream", "frame_faults", "check_frames",
+    "band_response", "log_magnitude_db", "FrameError",
+]
+
+_EPS = 1e-12
+
+
+class FrameError(ValueError):
+    """Audio that cannot be turned into features (wrong length, NaN, silence, clipping)."""
+
+
+def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
+          phase_rad: float = 0.0) -> np.ndarray:
+    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T``.
+
+    The instantaneous frequency sweeps ``f_lo_hz -> f_hi_hz`` over ``T = n_samples / sr``,
+    i.e. ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper writes ``Omega_1 + a T = Omega_2``,
+    which is the same sweep with ``a`` defined on the frequency, not the phase).
+
+    Parameters
+    ----------
+    sr : sample rate in Hz.
+    f_lo_hz, f_hi_hz : start and end frequency in Hz.
+    n_samples : chirp length in samples (one period of the chirp train).
+    amplitude : peak amplitude.
+    phase_rad : initial phase ``phi``.
+
+    Returns
+    -------
+    s : ndarray, shape (n_samples,), float64
+    """
+    t = np.arange(int(n_samples)) / sr
+    duration_s = n_samples / sr
+    # scipy's chirp is a cosine; sin(x + phi) = cos(x + phi - pi/2).
+    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear",
+                                          phi=np.degrees(phase_rad) - 90.0)
+
+
+def rig_chirp(rig: Rig) -> np.ndarray:
+    """The chirp a rig transmits, shape (rig.n_chirp,)."""
+    return chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
+                 amplitude=rig.amplitude)
+
+
+def chirp_spectrum(rig: Rig) -> np.ndarray:
+    """rfft of the transmitted chirp, S(f), shape (rig.n_chirp // 2 + 1,), complex128."""
+    return scipy.fft.rfft(rig_chirp(rig))
+
+
+def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
+    """Sample index in ``[0, L)`` where the first whole chirp of a periodic chirp train starts.
+
+    The stream is cut into up to ``max_periods`` periods of ``L = len(reference)`` samples;
+    each period is circularly cross-correlated with the reference (the chirp train is
+    periodic, so a circular shift of one period is the offset), the envelopes of the
+    matched-filter outputs are averaged, and the peak is the offset.  Averaging makes the
+    estimate robust to noise bursts in single periods.
+
+    Parameters
+    ----------
+    stream : (n_samples,) received audio, at least one period long.
+    reference : (L,) the transmitted chirp.
+    """
+    L = reference.shape[-1]
+    x = np.asarray(stream, dtype=np.float64)
+    if x.ndim != 1:
+        raise FrameError(f"stream must be one-dimensional audio, got shape {x.shape}")
+    n_per = min(max_periods, x.size // L)
+    if n_per < 1:
+        raise FrameError(f"stream has {x.size} samples, fewer than one chirp period ({L}); record longer")
+    blocks = x[: n_per * L].reshape(n_per, L)
+    X = scipy.fft.fft(blocks, axis=-1)
+    S = scipy.fft.fft(reference)
+    # Analytic matched filter: keep positive frequencies so |output| is the pulse envelope.
+    H = np.zeros(L)
+    H[1 : (L + 1) // 2] = 2.0
+    H[0] = 1.0
+    if L % 2 == 0:
+        H[L // 2] = 1.0
+    env = np.abs(scipy.fft.ifft(X * np.conj(S) * H, axis=-1)).mean(axis=0)
+    return int(np.argmax(env))
+
+
+def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | None = None) -> tuple[np.ndarray, int]:
+    """Cut a received chirp train into whole, chirp-aligned frames.
+
+    Parameters
+    ----------
+    stream : (n_samples,) received audio starting at an unknown point of the chirp train.
+    reference : (L,) the transmitted chirp.
+    offset : start of the first whole chirp if already known; found by cross-correlation otherwise.
+
+    Returns
+    -------
+    frames : (n_frames, L) float32 view-free copy; the partial chirps before ``offset`` and at
+        the end are dropped.
+    offset : the sample index of the first frame in ``stream``.
+    """
+    L = reference.shape[-1]
+    if offset is None:
+        offset = find_chirp_offset(stream, reference)
+    n = (len(stream) - offset) // L
+    if n < 1:
+        raise FrameError(f"stream of {len(stream)} samples holds no whole chirp after offset {offset}")
+    frames = np.asarray(stream[offset : offset + n * L], dtype=np.float32).reshape(n, L)
+    return frames, int(offset)
+
+
+def frame_faults(frames: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> np.ndarray:
+    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped.
+
+    A frame counts as clipped when more than 0.1 % of its samples reach ``clip_level`` of full scale.
+    """
+    x = np.asarray(frames)
+    faults = np.zeros(x.shape[0], dtype=np.int8)
+    finite = np.isfinite(x).all(axis=-1)
+    faults[~finite] = 1
+    xf = np.where(np.isfinite(x), x, 0.0)
+    rms = np.sqrt(np.mean(np.square(xf, dtype=np.float64), axis=-1))
+    faults[finite & (rms < min_rms)] = 2
+    clipped = np.mean(np.abs(xf) >= clip_level, axis=-1) > 1e-3
+    faults[finite & (rms >= min_rms) & clipped] = 3
+    return faults
+
+
+_FAULT_TEXT = {
+    1: "contains NaN or inf samples (a broken driver or a bad file); drop those chirps",
+    2: "is silent (all zeros): is the transmitter playing and the receiver connected?",
+    3: "is clipped at full scale: lower the transmit amplitude or the input gain",
+}
+
+
+def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
+    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp).
+
+    Raises :class:`FrameError` naming the problem and the fix: wrong shape or frame length,
+    non-finite samples, silence, clipping.
+    """
+    x = np.asarray(frames)
+    if x.ndim == 1:
+        x = x[None, :]
+    if x.ndim != 2:
+        raise FrameError(f"frames must be (n_chirps, {rig.n_chirp}), got shape {x.shape}")
+    if x.shape[1] != rig.n_chirp:
+        raise FrameError(
+            f"frame length {x.shape[1]} does not match the rig's chirp of {rig.n_chirp} samples "
+            f"({rig.period_s * 1e3:.1f} ms at {rig.fs_hz:g} Hz); frame the stream with frame_stream() "
+            f"or load the rig the audio was recorded with"
+        )
+    if not np.issubdtype(x.dtype, np.floating):
+        raise FrameError(f"frames must be floating point in [-1, 1], got dtype {x.dtype}")
+    faults = frame_faults(x)
+    bad = np.flatnonzero(faults)
+    if bad.size:
+        k = int(bad[0])
+        raise FrameError(f"{bad.size} of {len(x)} frames are unusable; frame {k} {_FAULT_TEXT[int(faults[k])]}")
+    return x.astype(np.float32, copy=False)
+
+
+def band_response(frames: np.ndarray, rig: Rig, *, chunk: int = 512) -> np.ndarray:
+    """Channel response H(f) = R(f) / S(f) on the band bins, shape (n, rig.n_band), complex64."""
+    x = np.asarray(frames, dtype=np.float32)
+    S = chirp_spectrum(rig)[rig.band_bins]
+    out = np.empty((x.shape[0], rig.n_band), dtype=np.complex64)
+    lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
+    for i in range(0, x.shape[0], chunk):  # bounded memory; each chunk is one batched FFT
+        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=-1)[:, lo:hi]
+        out[i : i + chunk] = R / S
+    return out
+
+
+def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.ndarray:
+    """Features of a batch of chirp frames: ``20 log10 |H(f)|`` on the band bins, float32.
+
+    Parameters
+    ----------
+    frames : (n, rig.n_chirp) chirp-aligned received frames.
+    rig : the rig the frames were recorded with.
+    check : validate the frames first (see :func:`check_frames`).
+
+    Returns
+    -------
+    X : (n, rig.n_band) float32.  Column ``j`` is rfft bin ``rig.band_bins[j]``.
+    """
+    if check:
+        frames = check_frames(frames, rig)
+    H = band_response(frames, rig)
+    return (20.0 * np.log10(np.abs(H) + _EPS)).astype(np.float32)
+
+
+def relative_db(X: np.ndarray, X_ref: np.ndarray) -> np.ndarray:
+    """Delta H in dB: features minus a no-touch reference (mean of reference chirps)."""
+    ref = np.asarray(X_ref, dtype=np.float32)
+    if ref.ndim == 2:
+        ref = ref.mean(axis=0)
+    if ref.shape[-1] != X.shape[-1]:
+        raise ValueError(f"reference has {ref.shape[-1]} bins, features have {X.shape[-1]}")
+    return X - ref

@@ -1,0 +1,192 @@
+"""Touch-force estimation (paper Sec. III-D): energy over the OSPA bins -> curve model per location.
+
+``E^O`` is the energy over the selected bins.  We take it relative to the no-touch reference
+and in dB, ``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins, which removes the
+rig's gain; the paper's curve models then map ``E`` to force.
+
+Curve models (Fig. 13) share one fitting scheme, variable projection: each is linear in its
+coefficients given at most one nonlinear parameter (``omega`` for Fourier, the rate for the
+exponential, the exponent for the power law), which is scanned on a grid with a linear
+least-squares solve per point, then refined jointly with :func:`scipy.optimize.least_squares`.
+So the fit does not depend on a start value of ``omega``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+__all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce", "r2_score"]
+
+
+def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
+    """``E^O`` in dB over ``bins`` of dB-magnitude features, relative to ``ref_db`` if given.
+
+    X_db : (n, n_features) ``20 log10 |H|``;  ref_db : (n_features,) or (m, n_features) no-touch reference.
+    """
+    X = np.asarray(X_db, dtype=np.float64)[:, bins]
+    e = 10 * np.log10(np.mean(10 ** (X / 10), axis=1))
+    if ref_db is not None:
+        r = np.asarray(ref_db, dtype=np.float64)
+        r = r.mean(axis=0) if r.ndim == 2 else r
+        e = e - 10 * np.log10(np.mean(10 ** (r[bins] / 10)))
+    return e
+
+
+def r2_score(y: np.ndarray, yhat: np.ndarray) -> float:
+    ss_res = float(np.sum((y - yhat) ** 2))
+    ss_tot = float(np.sum((y - np.mean(y)) ** 2))
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
+
+
+@dataclasses.dataclass(frozen=True)
+class CurveModel:
+    """``F = sum_j c_j g_j(u; theta)`` on normalised energy ``u`` with at most one nonlinear ``theta``."""
+
+    name: str
+    basis: Callable[[np.ndarray, float], np.ndarray]  # (u, theta) -> (n, n_coef)
+    theta_grid: np.ndarray | None  # None: linear model
+
+    def design(self, u: np.ndarray, theta: float) -> np.ndarray:
+        return self.basis(np.asarray(u, float), theta)
+
+
+def _fourier(order: int):
+    def basis(u, w):
+        cols = [np.ones_like(u)]
+        for k in range(1, order + 1):
+            cols += [np.cos(k * w * u), np.sin(k * w * u)]
+        return np.column_stack(cols)
+    return basis
+
+
+def _poly(order: int):
+    return lambda u, _: np.vander(u, order + 1, increasing=True)
+
+
+# u is energy scaled to about [-1, 1]; omega up to 3 pi covers 1.5 periods over the data.
+MODELS: dict[str, CurveModel] = {
+    "fourier1": CurveModel("fourier1", _fourier(1), np.linspace(0.05, 3 * np.pi, 60)),
+    "fourier2": CurveModel("fourier2", _fourier(2), np.linspace(0.05, 1.5 * np.pi, 60)),
+    "poly1": CurveModel("poly1", _poly(1), None),
+    "poly2": CurveModel("poly2", _poly(2), None),
+    "poly3": CurveModel("poly3", _poly(3), None),
+    "exp": CurveModel("exp", lambda u, b: np.column_stack([np.ones_like(u), np.exp(b * u)]),
+                      np.r_[np.linspace(-6, -0.05, 30), np.linspace(0.05, 6, 30)]),
+    # Power law on u shifted to be positive (u + 2 >= 1 on the training range).
+    "power": CurveModel("power", lambda u, b: np.column_stack([np.ones_like(u), np.power(np.maximum(u + 2, 1e-6), b)]),
+                        np.r_[np.linspace(-4, -0.05, 30), np.linspace(0.05, 4, 30)]),
+}
+
+
+@dataclasses.dataclass
+class FittedCurve:
+    """A fitted curve model; JSON-serialisable through :meth:`to_dict`."""
+
+    model: str
+    theta: float
+    coef: np.ndarray
+    center: float
+    scale: float
+    r2: float
+
+    def predict(self, E: np.ndarray) -> np.ndarray:
+        u = (np.asarray(E, float) - self.center) / self.scale
+        return MODELS[self.model].design(u, self.theta) @ self.coef
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.model, "theta": float(self.theta), "coef": [float(c) for c in self.coef],
+                "center": float(self.center), "scale": float(self.scale), "r2": float(self.r2)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "FittedCurve":
+        if d["model"] not in MODELS:
+            raise ValueError(f"unknown force model {d['model']!r}; known: {sorted(MODELS)}")
+        return cls(d["model"], float(d["theta"]), np.asarray(d["coef"], float), float(d["center"]),
+                   float(d["scale"]), float(d["r2"]))
+
+
+def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
+    """Least-squares fit of one curve model ``F ~ f(E)`` (paper Eq. 5 for ``fourier1``).
+
+    Parameters
+    ----------
+    E : (n,) energy feature.  F : (n,) ground-truth force in N.  model : a key of :data:`MODELS`.
+    """
+    if model not in MODELS:
+        raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
+    E = np.asarray(E, float)
+    F = np.asarray(F, float)
+    if E.shape != F.shape or E.ndim != 1:
+        raise ValueError(f"E and F must be 1-D of equal length, got {E.shape} and {F.shape}")
+    if not (np.isfinite(E).all() and np.isfinite(F).all()):
+        raise ValueError("E or F contains NaN or inf")
+    m = MODELS[model]
+    n_coef = m.design(np.zeros(1), 1.0).shape[1]
+    if E.size < n_coef + (m.theta_grid is not None) + 1:
+        raise ValueError(f"{model} needs more than {n_coef + 1} force samples, got {E.size}")
+    center = float(np.median(E))
+    scale = float(np.max(np.abs(E - center))) or 1.0
+    u = (E - center) / scale
+
+    def solve(theta):
+        A = m.design(u, theta)
+        coef, *_ = np.linalg.lstsq(A, F, rcond=None)
+        return coef, float(np.sum((A @ coef - F) ** 2))
+
+    if m.theta_grid is None:
+        theta = 0.0
+        coef, _ = solve(theta)
+    else:
+        sse = [solve(t)[1] for t in m.theta_grid]
+        theta = float(m.theta_grid[int(np.argmin(sse))])
+        coef, _ = solve(theta)
+        res = least_squares(lambda p: m.design(u, p[0]) @ p[1:] - F, np.r_[theta, coef], method="lm")
+        if np.isfinite(res.x).all() and np.sum(res.fun ** 2) <= np.sum((m.design(u, theta) @ coef - F) ** 2):
+            theta, coef = float(res.x[0]), res.x[1:]
+    fitted = FittedCurve(model, theta, np.asarray(coef, float), center, scale, 0.0)
+    fitted.r2 = r2_score(F, fitted.predict(E))
+    return fitted
+
+
+class PerLocationForce:
+    """One curve per touch location (the paper's parameter set S in R^{N x 4} for Fourier-1).
+
+    Parameters
+    ----------
+    model : curve model name, default ``"fourier1"``.
+    """
+
+    def __init__(self, model: str = "fourier1"):
+        if model not in MODELS:
+            raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
+        self.model = model
+
+    def fit(self, E: np.ndarray, F: np.ndarray, location: np.ndarray) -> "PerLocationForce":
+        E, F, location = np.asarray(E, float), np.asarray(F, float), np.asarray(location)
+        if not (E.shape == F.shape == location.shape):
+            raise ValueError(f"E, F and location must have equal length, got {E.size}, {F.size}, {location.size}")
+        self.curves_ = {int(k): fit_curve(E[location == k], F[location == k], self.model)
+                        for k in np.unique(location)}
+        return self
+
+    def predict(self, E: np.ndarray, location: np.ndarray) -> np.ndarray:
+        E, location = np.asarray(E, float), np.asarray(location)
+        out = np.full(E.shape, np.nan)
+        for k, curve in self.curves_.items():
+            sel = location == k
+            if sel.any():
+                out[sel] = curve.predict(E[sel])
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.model, "curves": {str(k): c.to_dict() for k, c in self.curves_.items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "PerLocationForce":
+        obj = cls(d["model"])
+        obj.curves_ = {int(k): FittedCurve.from_dict(c) for k, c in d["curves"].items()}
+        return obj

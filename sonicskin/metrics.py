@@ -1,0 +1,56 @@
+"""Evaluation metrics of the paper's Sec. V: accuracy, confusion, distance CDF, Table I."""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.metrics import confusion_matrix
+
+from .rig import Layout
+
+__all__ = ["localization_report", "force_report", "error_cdf"]
+
+
+def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Empirical CDF of localization errors: sorted errors and cumulative shares."""
+    e = np.sort(np.asarray(err_cm, float))
+    return e, np.arange(1, e.size + 1) / max(e.size, 1)
+
+
+def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) -> dict:
+    """Accuracy, confusion matrix, and surface-distance errors (share < 2 cm and < 3 cm).
+
+    Errors are distances between the predicted and the true marker on the link surface.
+    """
+    y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
+    if y_true.shape != y_pred.shape:
+        raise ValueError(f"{y_true.size} true labels but {y_pred.size} predictions")
+    err = layout.distance_cm(layout.coords(y_true), layout.coords(y_pred))
+    return {
+        "n": int(y_true.size),
+        "accuracy": float(np.mean(y_true == y_pred)) if y_true.size else float("nan"),
+        "within_2cm": float(np.mean(err < 2.0)) if y_true.size else float("nan"),
+        "within_3cm": float(np.mean(err < 3.0)) if y_true.size else float("nan"),
+        "mean_error_cm": float(np.mean(err)) if y_true.size else float("nan"),
+        "confusion": confusion_matrix(y_true, y_pred, labels=list(layout.ids)).tolist(),
+        "errors_cm": err,
+    }
+
+
+def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
+    """Table I: RMSE, standard deviation of the error, and normalised cross-correlation (N).
+
+    The cross-correlation is the zero-lag normalised correlation of the two traces,
+    ``sum(p g) / sqrt(sum(p^2) sum(g^2))``: 1 for identical traces.
+    """
+    g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
+    if g.shape != p.shape:
+        raise ValueError(f"{g.size} true forces but {p.size} predictions")
+    e = p - g
+    denom = np.sqrt(np.sum(p * p) * np.sum(g * g))
+    return {
+        "n": int(g.size),
+        "rmse_n": float(np.sqrt(np.mean(e ** 2))),
+        "sigma_n": float(np.std(e)),
+        "xcorr": float(np.sum(p * g) / denom) if denom > 0 else float("nan"),
+        "r2": float(1 - np.sum(e ** 2) / np.sum((g - g.mean()) ** 2)) if g.size > 1 else float("nan"),
+    }

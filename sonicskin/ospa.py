@@ -1,0 +1,97 @@
+"""Optimal Spectrum Prorating Algorithm (OSPA, paper Alg. 1) as a scikit-learn selector."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.feature_selection import SelectorMixin
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+__all__ = ["OSPA"]
+
+
+class OSPA(SelectorMixin, BaseEstimator):
+    """Keep the ``gamma`` spectral bins most sensitive to touch and least sensitive to motion.
+
+    Alg. 1 of the paper: after the matched filter (``allowed``: bins outside the PWM bands
+    and the chirp band), compute over the touch chirps the touch variance
+    ``TV(f) = Var_t SR(t, f)`` (Eq. 3), over no-touch chirps recorded while the robot moves
+    the moving variance ``MV(f)``, the variance-contesting vector ``VC = MV / TV`` (Eq. 4),
+    and keep the ``gamma`` bins with the smallest ``VC``.
+
+    Parameters
+    ----------
+    gamma : int, default=300
+        Number of bins to keep (paper Sec. V-A: 300).
+    allowed : array of bool, shape (n_features,), optional
+        Matched-filter mask (OSPA step 1); ``None`` allows every bin.  Use ``rig.allowed_mask``.
+
+    Attributes
+    ----------
+    tv_, mv_, vc_ : ndarray, shape (n_features,)
+        Touch variance, moving variance and their ratio; ``vc_`` is ``inf`` on disallowed bins.
+    selected_ : ndarray of int, shape (gamma,)
+        Selected feature indices, best (lowest ``VC``) first.
+    n_features_in_ : int
+
+    Notes
+    -----
+    ``fit(X, y=None, X_moving=None)``: ``X`` are touch spectra (any features, e.g. dB
+    magnitudes), ``X_moving`` no-touch spectra recorded while the robot moves.  Without
+    ``X_moving`` (a robot that never moves while sensing) ``MV`` is taken as 1, so the bins
+    with the largest touch variance are kept.
+    """
+
+    def __init__(self, gamma: int = 300, allowed: np.ndarray | None = None):
+        self.gamma = gamma
+        self.allowed = allowed
+
+    def fit(self, X, y=None, X_moving=None):
+        X = validate_data(self, X, dtype=np.float64, ensure_min_samples=2)
+        n_features = X.shape[1]
+        if not isinstance(self.gamma, numbers.Integral) or self.gamma < 1:
+            raise ValueError(f"gamma must be a positive integer number of bins, got {self.gamma!r}")
+        allowed = np.ones(n_features, dtype=bool) if self.allowed is None else np.asarray(self.allowed, dtype=bool)
+        if allowed.shape != (n_features,):
+            raise ValueError(
+                f"allowed mask has shape {allowed.shape} but X has {n_features} features; "
+                f"build it for the same bins (rig.allowed_mask covers rig.band_bins)"
+            )
+        n_allowed = int(allowed.sum())
+        if self.gamma > n_allowed:
+            raise ValueError(
+                f"gamma={self.gamma} is larger than the {n_allowed} bins left after the matched filter "
+                f"(n_features = {n_features}); lower gamma or narrow the dropped PWM bands"
+            )
+        tv = X.var(axis=0)
+        if X_moving is None:
+            mv = np.ones(n_features)
+        else:
+            Xm = np.asarray(X_moving, dtype=np.float64)
+            if Xm.ndim != 2 or Xm.shape[1] != n_features:
+                raise ValueError(f"X_moving must be (n_chirps, {n_features}), got shape {Xm.shape}")
+            if Xm.shape[0] < 2:
+                raise ValueError("X_moving needs at least 2 chirps to estimate the moving variance")
+            if not np.isfinite(Xm).all():
+                raise ValueError("X_moving contains NaN or inf")
+            mv = Xm.var(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vc = np.where(tv > 0, mv / np.where(tv > 0, tv, 1.0), np.inf)
+        vc = np.where(allowed, vc, np.inf)
+        order = np.argsort(vc, kind="stable")
+        self.tv_, self.mv_, self.vc_ = tv, mv, vc
+        self.selected_ = order[: self.gamma]
+        return self
+
+    def _get_support_mask(self):
+        check_is_fitted(self, "selected_")
+        mask = np.zeros(self.n_features_in_, dtype=bool)
+        mask[self.selected_] = True
+        return mask
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.allow_nan = False
+        return tags

@@ -1,0 +1,239 @@
+"""Rig description: sample rate, chirp, bands and the touch-location layout.
+
+A *rig* is everything about the hardware that a model depends on: the sample
+rate, the transmitted chirp (Eq. 1 of the paper) and the frequency bands the
+matched filter of OSPA step 1 drops.  It is loaded from YAML (``configs/rigs``)
+and stored inside every dataset and deployment artifact, so a model is never
+run on a rig it was not trained for.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Rig", "Layout", "load_yaml", "CONFIG_DIR"]
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping, with an error that names the file when it is not one."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file {path} does not exist")
+    with path.open() as fh:
+        data = yaml.safe_load(fh)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
+    return data
+
+
+def _resolve_config(name_or_path: str | Path, kind: str) -> Path:
+    """A bare name (``jaco``) means ``configs/<kind>/<name>.yaml``; anything else is a path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    candidate = CONFIG_DIR / kind / f"{name_or_path}.yaml"
+    if not candidate.is_file():
+        known = sorted(q.stem for q in (CONFIG_DIR / kind).glob("*.yaml"))
+        raise FileNotFoundError(f"no {kind} config named {name_or_path!r}; known: {', '.join(known)}")
+    return candidate
+
+
+@dataclasses.dataclass(frozen=True)
+class Rig:
+    """Acquisition parameters of one transmitter/receiver pair.
+
+    Parameters
+    ----------
+    fs_hz : sample rate of the audio interface (paper: 192 kHz).
+    f_lo_hz, f_hi_hz : chirp start and end frequency (paper: 20 and 80 kHz).
+    n_chirp : samples per chirp; one chirp is one FFT frame (paper: 20480, T = 106.7 ms).
+    pwm_hz : centres of the motor-PWM bands the matched filter drops (paper: 30/60/90 kHz).
+    pwm_halfwidth_hz : half width of each dropped band.  3.25 kHz leaves 5014 bins in
+        20-80 kHz, the paper's "max number of 5013 frequency bins after the first step of OSPA".
+    amplitude : peak amplitude of the transmitted chirp, full scale = 1.
+    name : free label.
+    """
+
+    fs_hz: float = 192_000.0
+    f_lo_hz: float = 20_000.0
+    f_hi_hz: float = 80_000.0
+    n_chirp: int = 20_480
+    pwm_hz: tuple[float, ...] = (30_000.0, 60_000.0, 90_000.0)
+    pwm_halfwidth_hz: float = 3_250.0
+    amplitude: float = 0.5
+    name: str = "jaco-link"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pwm_hz", tuple(float(f) for f in self.pwm_hz))
+        nyq = self.fs_hz / 2
+        if self.fs_hz <= 0:
+            raise ValueError(f"fs_hz must be positive, got {self.fs_hz}")
+        if not 0 < self.f_lo_hz < self.f_hi_hz <= nyq:
+            raise ValueError(
+                f"need 0 < f_lo_hz < f_hi_hz <= fs_hz/2 = {nyq:g}, got f_lo_hz={self.f_lo_hz:g}, "
+                f"f_hi_hz={self.f_hi_hz:g}"
+            )
+        if int(self.n_chirp) != self.n_chirp or self.n_chirp < 64:
+            raise ValueError(f"n_chirp must be an integer >= 64 samples, got {self.n_chirp}")
+        if self.pwm_halfwidth_hz < 0:
+            raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
+        if not 0 < self.amplitude <= 1:
+            raise ValueError(f"amplitude must be in (0, 1] of full scale, got {self.amplitude}")
+        if self.allowed_mask.sum() == 0:
+            raise ValueError("the PWM bands remove every bin of the chirp band; narrow pwm_halfwidth_hz")
+
+    # -- construction -----------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Rig":
+        fields = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - fields
+        if unknown:
+            raise ValueError(f"unknown rig keys {sorted(unknown)}; valid keys: {sorted(fields)}")
+        return cls(**d)
+
+    @classmethod
+    def load(cls, name_or_path: str | Path = "jaco") -> "Rig":
+        """Load ``configs/rigs/<name>.yaml`` or a YAML file path."""
+        return cls.from_dict(load_yaml(_resolve_config(name_or_path, "rigs")))
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["pwm_hz"] = list(self.pwm_hz)
+        return d
+
+    # -- derived quantities -----------------------------------------------------------
+    @property
+    def period_s(self) -> float:
+        """Chirp period T in seconds (20480 / 192 kHz = 106.7 ms)."""
+        return self.n_chirp / self.fs_hz
+
+    @property
+    def chirps_per_s(self) -> float:
+        return self.fs_hz / self.n_chirp
+
+    def seconds_to_chirps(self, seconds: float) -> int:
+        """Whole chirps in ``seconds`` (at least one)."""
+        return max(1, int(round(seconds * self.chirps_per_s)))
+
+    @functools.cached_property
+    def freqs_hz(self) -> np.ndarray:
+        """Frequencies of the rfft bins of one chirp frame, shape (n_chirp // 2 + 1,)."""
+        return np.fft.rfftfreq(self.n_chirp, d=1.0 / self.fs_hz)
+
+    @functools.cached_property
+    def band_bins(self) -> np.ndarray:
+        """rfft bin indices inside [f_lo_hz, f_hi_hz]: the feature space, shape (n_band,)."""
+        f = self.freqs_hz
+        return np.flatnonzero((f >= self.f_lo_hz) & (f <= self.f_hi_hz))
+
+    @property
+    def n_band(self) -> int:
+        return int(self.band_bins.size)
+
+    @functools.cached_property
+    def allowed_mask(self) -> np.ndarray:
+        """Matched filter of OSPA step 1 over the band bins: False inside a PWM band."""
+        f = self.freqs_hz[self.band_bins]
+        keep = np.ones(f.shape, dtype=bool)
+        for fc in self.pwm_hz:
+            keep &= np.abs(f - fc) > self.pwm_halfwidth_hz
+        return keep
+
+    def mismatch(self, other: "Rig") -> list[str]:
+        """Fields that differ in a way that invalidates a model (everything but name/amplitude)."""
+        diffs = []
+        for f in ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz"):
+            a, b = getattr(self, f), getattr(other, f)
+            if a != b:
+                diffs.append(f"{f}: {a} vs {b}")
+        return diffs
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Predefined touch locations: ids and surface coordinates in cm.
+
+    Coordinates are on the unrolled surface: ``x_cm`` around the circumference, ``y_cm``
+    along the link axis.  When ``circumference_cm`` is set, distances wrap around it, so
+    two markers on either side of the seam are close, as they are on the tube.
+    """
+
+    ids: tuple[int, ...]
+    xy_cm: np.ndarray  # (n, 2)
+    circumference_cm: float | None = None
+
+    def __post_init__(self) -> None:
+        xy = np.asarray(self.xy_cm, dtype=float)
+        object.__setattr__(self, "xy_cm", xy)
+        object.__setattr__(self, "ids", tuple(int(i) for i in self.ids))
+        if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] != len(self.ids):
+            raise ValueError(f"xy_cm must have shape ({len(self.ids)}, 2), got {xy.shape}")
+        if len(set(self.ids)) != len(self.ids):
+            raise ValueError("location ids must be unique")
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def __hash__(self) -> int:
+        return hash((self.ids, self.xy_cm.tobytes(), self.circumference_cm))
+
+    def __eq__(self, other: object) -> bool:
+        return (isinstance(other, Layout) and self.ids == other.ids
+                and np.allclose(self.xy_cm, other.xy_cm) and self.circumference_cm == other.circumference_cm)
+
+    def index_of(self, ids: np.ndarray) -> np.ndarray:
+        """Row index in ``xy_cm`` of each location id (raises on an unknown id)."""
+        lut = {i: k for k, i in enumerate(self.ids)}
+        ids = np.asarray(ids)
+        try:
+            return np.array([lut[int(i)] for i in ids.ravel()], dtype=int).reshape(ids.shape)
+        except KeyError as e:
+            raise ValueError(f"location id {e.args[0]} is not in the layout (ids {self.ids[0]}..{self.ids[-1]})") from None
+
+    def coords(self, ids: np.ndarray) -> np.ndarray:
+        return self.xy_cm[self.index_of(ids)]
+
+    def distance_cm(self, a_xy: np.ndarray, b_xy: np.ndarray) -> np.ndarray:
+        """Surface distance between points (..., 2), wrapping around the circumference."""
+        d = np.abs(np.asarray(a_xy, float) - np.asarray(b_xy, float))
+        if self.circumference_cm:
+            d[..., 0] = np.minimum(d[..., 0], self.circumference_cm - d[..., 0])
+        return np.hypot(d[..., 0], d[..., 1])
+
+    @classmethod
+    def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
+              circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> "Layout":
+        """Rows of markers ``spacing_cm`` apart, rows ``spacing_cm`` apart, every other row
+        shifted by half a spacing.  The default, 16 + 15 = 31 markers 1.2 cm apart, is the
+        paper's touch area (Fig. 10) wrapped around a link."""
+        xy = []
+        for row, n in enumerate(counts):
+            shift = 0.5 * spacing_cm * (row % 2)
+            for k in range(n):
+                xy.append((x0_cm + shift + k * spacing_cm, y0_cm + row * spacing_cm))
+        return cls(ids=tuple(range(len(xy))), xy_cm=np.array(xy), circumference_cm=circumference_cm)
+
+    @classmethod
+    def grid(cls, nx: int, ny: int, spacing_cm: float, x0_cm: float = 0.0, y0_cm: float = 0.0,
+             circumference_cm: float | None = None) -> "Layout":
+        xs, ys = np.meshgrid(x0_cm + spacing_cm * np.arange(nx), y0_cm + spacing_cm * np.arange(ny))
+        xy = np.column_stack([xs.ravel(), ys.ravel()])
+        return cls(ids=tuple(range(len(xy))), xy_cm=xy, circumference_cm=circumference_cm)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ids": list(self.ids), "xy_cm": self.xy_cm.round(6).tolist(),
+                "circumference_cm": self.circumference_cm}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Layout":
+        return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float),
+                   circumference_cm=d.get("circumference_cm"))

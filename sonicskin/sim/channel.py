@@ -1,0 +1,253 @@
+"""Acoustic channel of a thin-walled robot link: modal synthesis of bending (A0 Lamb) waves.
+
+The link wall is a thin plate: a tube of circumference ``C`` unrolled with periodic edges
+(above its ring frequency a tube behaves like this plate) or a flat plate, simply supported
+at its ends.  Bending waves follow Mindlin plate theory (shear and rotary inertia), whose
+flexural branch is slower than Kirchhoff's at 80 kHz.  The transfer function between two
+points is the modal sum
+
+    G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2),
+
+with mass-normalised mode shapes.  Transducers and the finger are discs, so each point's
+mode shape is averaged over the disc: for a mode of wavenumber ``k`` that is
+``2 J1(k a) / (k a)``.  A finger is a contact patch of radius ``a(F)`` with a dynamic
+stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)`` (tissue damping, added mass, contact
+stiffness, all growing with the contact area); the touched response follows exactly from
+the untouched one by a rank-one (Sherman-Morrison) update:
+
+    H_touched = G_rs - G_rc K G_cs / (1 + K G_cc).
+
+So once the Green's functions at a contact point are known, each chirp costs O(bins).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+from scipy.special import j1
+
+from ..rig import Rig
+
+__all__ = ["Material", "MATERIALS", "Geometry", "ChannelModel", "mindlin_omega", "disc_average"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Material:
+    """Wall material and thickness.
+
+    kappa_per_k : relative shift of the frequency axis per kelvin, ``H_T(f) = H_0(f (1 + kappa dT))``.
+    deta_per_k : relative rise of the loss factor per kelvin.
+    """
+
+    name: str
+    youngs_pa: float
+    density: float
+    poisson: float
+    thickness_m: float
+    eta: float
+    kappa_per_k: float
+    deta_per_k: float
+
+    @property
+    def bending_stiffness(self) -> float:
+        return self.youngs_pa * self.thickness_m ** 3 / (12 * (1 - self.poisson ** 2))
+
+    @property
+    def mass_per_area(self) -> float:
+        return self.density * self.thickness_m
+
+    @property
+    def point_impedance(self) -> float:
+        """Drive-point impedance of the infinite plate, ``8 sqrt(D rho h)`` in N s / m."""
+        return 8.0 * np.sqrt(self.bending_stiffness * self.mass_per_area)
+
+    def wavenumber(self, f_hz: np.ndarray) -> np.ndarray:
+        """Mindlin flexural wavenumber at ``f_hz`` (inverse of :func:`mindlin_omega`)."""
+        w = 2 * np.pi * np.asarray(f_hz, float)
+        D, rh, rho, h = self.bending_stiffness, self.mass_per_area, self.density, self.thickness_m
+        Gk = (np.pi ** 2 / 12) * self.youngs_pa / (2 * (1 + self.poisson))
+        # (-k^2 + A w^2)(-D k^2 + B w^2) - rho h w^2 = 0, quadratic in k^2; the real root is flexural.
+        A, B = rho / Gk, rho * h ** 3 / 12
+        a, b, c = D, -(D * A * w ** 2 + B * w ** 2), A * B * w ** 4 - rh * w ** 2
+        k2 = (-b + np.sqrt(b ** 2 - 4 * a * c)) / (2 * a)
+        return np.sqrt(k2)
+
+
+MATERIALS: dict[str, Material] = {
+    # Quasi-isotropic carbon-fibre wall of a Jaco-like link (estimates, see DESIGN.md).
+    "cfrp": Material("cfrp", 45e9, 1550.0, 0.30, 2.0e-3, 0.010, -3.5e-4, 0.02),
+    "aluminium": Material("aluminium", 70e9, 2700.0, 0.33, 2.0e-3, 0.003, -2.5e-4, 0.01),
+    "abs": Material("abs", 2.2e9, 1050.0, 0.35, 3.0e-3, 0.020, -4.5e-3, 0.03),
+    "glass": Material("glass", 70e9, 2500.0, 0.22, 3.0e-3, 0.002, -1.0e-4, 0.01),
+    "wood": Material("wood", 10e9, 600.0, 0.30, 5.0e-3, 0.015, -6.0e-4, 0.02),
+}
+
+
+def mindlin_omega(k: np.ndarray, mat: Material) -> np.ndarray:
+    """Angular frequency of the flexural Mindlin branch at wavenumber ``k`` (rad/s).
+
+    Solves ``(-k^2 + rho w^2 / (kappa^2 G)) (-D k^2 + rho h^3 w^2 / 12) - rho h w^2 = 0`` for
+    the lower root in ``w^2``, with shear correction ``kappa^2 = pi^2 / 12``.
+    """
+    k = np.asarray(k, float)
+    D, rh, rho, h = mat.bending_stiffness, mat.mass_per_area, mat.density, mat.thickness_m
+    Gk = (np.pi ** 2 / 12) * mat.youngs_pa / (2 * (1 + mat.poisson))
+    A, B = rho / Gk, rho * h ** 3 / 12
+    a = A * B
+    b = -(k ** 2 * B + A * D * k ** 2 + rh)
+    c = D * k ** 4
+    disc = np.sqrt(b ** 2 - 4 * a * c)
+    w2 = (-b - disc) / (2 * a)
+    # Numerically stable form of the lower root.
+    w2 = np.where(np.abs(b) > 0, (2 * c) / (-b + disc), w2)
+    return np.sqrt(w2)
+
+
+def disc_average(k: np.ndarray, radius_m: float | np.ndarray) -> np.ndarray:
+    """Average of a plane wave of wavenumber ``k`` over a disc: ``2 J1(k a) / (k a)``."""
+    x = np.multiply.outer(np.atleast_1d(radius_m), np.asarray(k, float)) if np.ndim(radius_m) else np.asarray(k) * radius_m
+    x = np.asarray(x, float)
+    out = np.ones_like(x)
+    nz = x > 1e-9
+    out[nz] = 2 * j1(x[nz]) / x[nz]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Geometry:
+    """The wall's surface: ``kind="tube"`` (periodic around ``width_m`` = circumference) or ``"plate"``."""
+
+    kind: str = "tube"
+    width_m: float = 2 * np.pi * 0.0375
+    length_m: float = 0.25
+
+    def __post_init__(self):
+        if self.kind not in ("tube", "plate"):
+            raise ValueError(f"geometry kind must be 'tube' or 'plate', got {self.kind!r}")
+        if self.width_m <= 0 or self.length_m <= 0:
+            raise ValueError("geometry width_m and length_m must be positive")
+
+
+class ChannelModel:
+    """Green's functions of one link between transducers and contact points.
+
+    Parameters
+    ----------
+    rig : acquisition rig (frequency grid).
+    material, geometry : the wall.
+    tx_m, rx_m : transducer centres on the unrolled surface (x around, y along), metres.
+    transducer_radius_m : bonded radius of the piezo discs.
+    transducer_fr_hz, transducer_q : the piezo's resonance (most efficient at 20-30 kHz, paper Sec. III-B).
+    irregularity : relative random spread of modal frequencies from manufacturing and fittings;
+        it also breaks the degeneracy of a perfect tube's mode pairs, as cables and seams do.
+    margin_hz : computed band beyond the chirp band, room for the temperature stretch.
+    seed : fixes the irregularities: one seed is one physical link.
+    """
+
+    def __init__(self, rig: Rig, material: Material, geometry: Geometry, *, tx_m=(0.0, 0.025),
+                 rx_m=(0.059, 0.225), transducer_radius_m: float = 5e-3, transducer_fr_hz: float = 28e3,
+                 transducer_q: float = 1.5, irregularity: float = 3e-3, margin_hz: float = 4e3,
+                 mode_fmax_factor: float = 1.3, seed: int = 0):
+        self.rig, self.material, self.geometry = rig, material, geometry
+        self.tx_m, self.rx_m = np.asarray(tx_m, float), np.asarray(rx_m, float)
+        for name, p in (("tx_m", self.tx_m), ("rx_m", self.rx_m)):
+            if not (0 <= p[1] <= geometry.length_m and (geometry.kind == "tube" or 0 <= p[0] <= geometry.width_m)):
+                raise ValueError(f"{name}={tuple(p)} lies outside the {geometry.kind} surface")
+        f = rig.freqs_hz
+        sel = (f >= rig.f_lo_hz - margin_hz) & (f <= min(rig.f_hi_hz + margin_hz, rig.fs_hz / 2))
+        self.bins = np.flatnonzero(sel)
+        self.f_hz = f[self.bins]
+        self.df_hz = rig.fs_hz / rig.n_chirp
+        rng = np.random.default_rng(seed)
+        self._modes(mode_fmax_factor * self.f_hz[-1], irregularity, rng)
+        w = 2 * np.pi * self.f_hz
+        den = self.wn2[:, None] * (1 + 1j * material.eta) - w[None, :] ** 2
+        M = 1.0 / den
+        self._Mr = np.ascontiguousarray(M.real, dtype=np.float32)
+        self._Mi = np.ascontiguousarray(M.imag, dtype=np.float32)
+        # d/d(eta) of 1/den, for the damping rise with temperature (first order in d eta).
+        dM = -1j * self.wn2[:, None] * M * M
+        self.phi_tx = self.mode_shapes(self.tx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
+        self.phi_rx = self.mode_shapes(self.rx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
+        wrs = self.phi_tx * self.phi_rx
+        self.G_rs = (wrs @ M).astype(np.complex64)
+        self.dG_rs_deta = (wrs @ dM).astype(np.complex64)
+        s = 1j * self.f_hz / transducer_fr_hz
+        self.transducer = (1.0 / (1 + s / transducer_q + s ** 2)).astype(np.complex64)  # TX and RX alike
+
+    # -- modes ------------------------------------------------------------------------
+    def _modes(self, fmax: float, irregularity: float, rng: np.random.Generator) -> None:
+        g, mat = self.geometry, self.material
+        kmax = float(mat.wavenumber(fmax))
+        W, L = g.width_m, g.length_m
+        ny = np.arange(1, int(kmax * L / np.pi) + 2)
+        if g.kind == "tube":
+            mx = np.arange(0, int(kmax * W / (2 * np.pi)) + 2)
+            MX, NY = np.meshgrid(mx, ny, indexing="ij")
+            kx, ky = 2 * np.pi * MX.ravel() / W, np.pi * NY.ravel() / L
+            m = MX.ravel()
+            # cos and sin variants around the circumference (m = 0: cos only).
+            kx = np.r_[kx, kx[m > 0]]
+            ky = np.r_[ky, ky[m > 0]]
+            variant = np.r_[np.zeros(m.size, int), np.ones(int((m > 0).sum()), int)]
+            norm = np.where((kx == 0), np.sqrt(2 / (mat.mass_per_area * W * L)), np.sqrt(4 / (mat.mass_per_area * W * L)))
+        else:
+            mx = np.arange(1, int(kmax * W / np.pi) + 2)
+            MX, NY = np.meshgrid(mx, ny, indexing="ij")
+            kx, ky = np.pi * MX.ravel() / W, np.pi * NY.ravel() / L
+            variant = np.full(kx.size, 2, int)
+            norm = np.full(kx.size, 2 / np.sqrt(mat.mass_per_area * W * L))
+        k = np.hypot(kx, ky)
+        wn = mindlin_omega(k, mat) * (1 + irregularity * rng.standard_normal(k.size))
+        keep = wn < 2 * np.pi * fmax
+        self.kx, self.ky, self.k, self.variant, self.norm = kx[keep], ky[keep], k[keep], variant[keep], norm[keep]
+        self.wn2 = wn[keep] ** 2
+        self.n_modes = int(keep.sum())
+
+    def mode_shapes(self, pts_m: np.ndarray) -> np.ndarray:
+        """Mass-normalised mode shapes at points (P, 2) in metres, shape (P, n_modes)."""
+        x, y = np.asarray(pts_m, float)[:, :1], np.asarray(pts_m, float)[:, 1:2]
+        along = np.sin(self.ky * y)
+        around = np.where(self.variant == 0, np.cos(self.kx * x),
+                          np.where(self.variant == 1, np.sin(self.kx * x), np.sin(self.kx * x)))
+        return self.norm * around * along
+
+    def modal_density_per_hz(self) -> float:
+        """Modes per Hz in the chirp band (compare: Kirchhoff's ``A / 2 sqrt(rho h / D)`` / 2 pi)."""
+        fn = np.sqrt(self.wn2) / (2 * np.pi)
+        band = (fn >= self.rig.f_lo_hz) & (fn <= self.rig.f_hi_hz)
+        return band.sum() / (self.rig.f_hi_hz - self.rig.f_lo_hz)
+
+    # -- Green's functions ------------------------------------------------------------
+    def _project(self, weights: np.ndarray) -> np.ndarray:
+        """(R, n_modes) real weights -> (R, n_f) complex modal sums, two real GEMMs."""
+        w = np.asarray(weights, dtype=np.float32)
+        return (w @ self._Mr) + 1j * (w @ self._Mi)
+
+    def contact_greens(self, pts_m: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
+        """Green's functions of disc contacts at ``pts_m`` (P, 2) for each radius in ``radii_m`` (R,).
+
+        Returns
+        -------
+        G : (P, R, 3, n_f) complex64 with [G_rc, G_cs, G_cc] (RX-contact, contact-TX, contact-contact).
+        """
+        phi_c = self.mode_shapes(pts_m)  # (P, n)
+        A = disc_average(self.k, np.asarray(radii_m, float))  # (R, n)
+        pa = phi_c[:, None, :] * A[None, :, :]  # (P, R, n)
+        W = np.stack([pa * self.phi_rx, pa * self.phi_tx, pa * pa], axis=2)  # (P, R, 3, n)
+        P, R = W.shape[:2]
+        return self._project(W.reshape(-1, self.n_modes)).reshape(P, R, 3, -1).astype(np.complex64)
+
+    def transfer(self, pts_m: np.ndarray) -> np.ndarray:
+        """Point-to-RX transfer for a point force at each of ``pts_m`` (P, 2): (P, n_f). For checks."""
+        return self._project(self.mode_shapes(pts_m) * self.phi_rx)
+
+    def transfer_between(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
+        """G(a, b) between two points, (n_f,), point-sized; reciprocity: equal to G(b, a)."""
+        return self._project((self.mode_shapes(np.atleast_2d(a_m)) * self.mode_shapes(np.atleast_2d(b_m))))[0]
+
+    @functools.cached_property
+    def point_mobility_scale(self) -> float:
+        return 1.0 / self.material.point_impedance

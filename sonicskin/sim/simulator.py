@@ -1,0 +1,155 @@
+"""Render a scenario's timeline into received audio, chirp by chirp, in batches.
+
+Per chirp: the untouched channel at the link's temperature (frequency-axis stretch plus a
+first-order damping rise), the finger's rank-one update when touched, a small motion-dependent
+perturbation of the channel, both transducers' responses, the chirp spectrum, additive noise
+(sensor, PWM, mechanical), then one inverse FFT (steady-state periodic chirp train through a
+linear channel = circular convolution) and 24-bit quantisation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft
+
+from ..dsp import chirp_spectrum
+from ..rig import Layout, Rig
+from .channel import MATERIALS, ChannelModel, Geometry
+from .finger import make_subjects
+from .noise import NoiseConfig, motion_noise_spectrum
+from .scenario import Scenario, Timeline
+
+__all__ = ["Simulator"]
+
+_FULL_SCALE = 2 ** 23 - 1
+
+
+class Simulator:
+    """The simulated rig of one scenario.
+
+    Parameters
+    ----------
+    scenario : what the link is and what happens on it.
+    rig : acquisition parameters (sample rate, chirp).
+    target_rms : level of the untouched received signal (full scale = 1).
+    quantize_bits : ADC resolution (the paper's interface: 24 bit); ``None`` keeps float.
+    """
+
+    def __init__(self, scenario: Scenario, rig: Rig, *, target_rms: float = 0.05, quantize_bits: int | None = 24):
+        if scenario.material not in MATERIALS:
+            raise ValueError(f"unknown material {scenario.material!r}; choose one of {sorted(MATERIALS)}")
+        self.scenario, self.rig = scenario, rig
+        self.material = MATERIALS[scenario.material]
+        g = scenario.geometry
+        kind = g.get("kind", "tube")
+        width_m = 2 * np.pi * g["radius_cm"] / 100 if kind == "tube" else g["width_cm"] / 100
+        self.geometry = Geometry(kind=kind, width_m=width_m, length_m=g["length_cm"] / 100)
+        self.channel = ChannelModel(rig, self.material, self.geometry, tx_m=np.array(scenario.tx_cm) / 100,
+                                    rx_m=np.array(scenario.rx_cm) / 100, seed=scenario.link_seed, **scenario.channel)
+        self.layout: Layout = scenario.make_layout()
+        self.subjects = make_subjects()
+        self.noise = NoiseConfig.from_dict(scenario.noise)
+        self.quantize_bits = quantize_bits
+        S_full = chirp_spectrum(rig)
+        self._S = S_full[self.channel.bins].astype(np.complex64)
+        self._T2 = self.channel.transducer ** 2
+        y0 = self.channel.G_rs * self._T2 * self._S
+        rms0 = np.sqrt(2 * np.sum(np.abs(y0) ** 2)) / rig.n_chirp
+        self.gain = np.float32(target_rms / rms0)
+        f = self.channel.f_hz
+        self._f0, self._df = f[0], self.channel.df_hz
+        m = scenario.motion
+        self._perturb = float(m.get("perturbation", 0.03)) if m.get("enabled", False) else 0.0
+
+    # -- helpers ----------------------------------------------------------------------
+    def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gather indices/weights for ``G(f (1 + kappa dT))`` on the channel grid, (n, n_f)."""
+        f = self.channel.f_hz
+        pos = (f[None, :] * (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
+        pos = np.clip(pos, 0, f.size - 1.000001)
+        i0 = np.floor(pos).astype(np.int64)
+        return i0, (pos - i0).astype(np.float32)
+
+    @staticmethod
+    def _gather(G: np.ndarray, i0: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Linear interpolation of G (..., n_f) or per-row G (n, n_f) at fractional positions."""
+        if G.ndim == 1:
+            return G[i0] * (1 - w) + G[i0 + 1] * w
+        rows = np.arange(G.shape[0])[:, None]
+        return G[rows, i0] * (1 - w) + G[rows, i0 + 1] * w
+
+    def _dT(self, tl: Timeline) -> np.ndarray:
+        return tl.temperature_c - float(self.scenario.temperature.get("ambient_c", 23.0))
+
+    def untouched(self, dT: np.ndarray) -> np.ndarray:
+        """Untouched channel H_rs at temperature offsets ``dT`` (n,), shape (n, n_f)."""
+        dT = np.asarray(dT, float)
+        i0, w = self._stretch_index(dT)
+        deta = (self.material.eta * self.material.deta_per_k * dT).astype(np.float32)[:, None]
+        G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
+        return G
+
+    def channel_response(self, tl: Timeline) -> np.ndarray:
+        """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
+        n = len(tl)
+        dT = self._dT(tl)
+        H = self.untouched(dT).astype(np.complex64)
+        i0, w = self._stretch_index(dT)
+        for ev in np.unique(tl.event[tl.event >= 0]):
+            idx = np.flatnonzero((tl.event == ev) & (tl.force_n > 0))
+            if idx.size == 0:
+                continue
+            who = self.subjects[int(tl.subject[idx[0]])]
+            pt = np.array([[tl.x_cm[idx[0]], tl.y_cm[idx[0]]]]) / 100
+            F = tl.force_n[idx]
+            a = who.radius_m(F)
+            radii = np.linspace(a.min(), a.max(), 5) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
+            G = self.channel.contact_greens(pt, radii)[0]  # (R, 3, n_f)
+            # Linear interpolation in radius per chirp.
+            r = np.interp(a, radii, np.arange(radii.size))
+            r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
+            rw = (r - r0).astype(np.float32)[:, None, None]
+            Gc = G[r0] * (1 - rw) + G[r0 + 1] * rw  # (m, 3, n_f)
+            ii, ww = i0[idx], w[idx]
+            rows = np.arange(idx.size)[:, None]
+            Gs = [Gc[rows, j, ii] * (1 - ww) + Gc[rows, j, ii + 1] * ww for j in range(3)]
+            K = who.dynamic_stiffness(F, self.channel.f_hz)
+            H[idx] -= Gs[0] * K * Gs[1] / (1 + K * Gs[2])
+        if self._perturb > 0 and np.any(tl.moving > 0):
+            H *= 1 + self._motion_ripple(tl)
+        return H
+
+    def _motion_ripple(self, tl: Timeline) -> np.ndarray:
+        """Small smooth change of H while the robot moves (joint poses load the link), (n, n_f)."""
+        rng = np.random.default_rng([self.scenario.seed, 7, int(tl.session[0]), int(tl.chirp[0])])
+        n, J = len(tl), 6
+        tau = rng.uniform(0.02e-3, 0.4e-3, J)
+        a = 0.9
+        c = np.empty((n, J), complex)
+        acc = (rng.standard_normal(J) + 1j * rng.standard_normal(J)) / np.sqrt(2)
+        e = (rng.standard_normal((n, J)) + 1j * rng.standard_normal((n, J))) / np.sqrt(2) * np.sqrt(1 - a * a)
+        for i in range(n):
+            acc = a * acc + e[i]
+            c[i] = acc
+        basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz))  # (J, n_f)
+        return ((self._perturb / np.sqrt(J)) * tl.moving[:, None] * (c @ basis)).astype(np.complex64)
+
+    # -- rendering --------------------------------------------------------------------
+    def render(self, tl: Timeline, *, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order)."""
+        if rng is None:
+            rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
+        rig = self.rig
+        n = len(tl)
+        nb = rig.n_chirp // 2 + 1
+        H = self.channel_response(tl)
+        # Sensor noise, and the robot's own noise while it moves, in one draw.
+        Y = motion_noise_spectrum(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
+                                  floor_rms=self.noise.sensor_rms)
+        Y[:, self.channel.bins] += self.gain * H * self._T2 * self._S
+        assert Y.shape == (n, nb)
+        x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1).astype(np.float32)
+        if self.quantize_bits:
+            q = float(2 ** (self.quantize_bits - 1) - 1)
+            x = np.round(np.clip(x, -1.0, 1.0) * q) / q
+        return x.astype(np.float32)
