@@ -32,7 +32,7 @@ class ScoreCalibrator:
         self._cps = float(chirps_per_s)
 
     @classmethod
-    def from_seconds(cls, *, beta_s: float, alpha_s: float | None, chirps_per_s: float) -> "ScoreCalibrator":
+    def from_seconds(cls, *, beta_s: float, alpha_s: float | None, chirps_per_s: float) -> ScoreCalibrator:
         return cls(max(1, round(beta_s * chirps_per_s)),
                    None if alpha_s is None else max(1, round(alpha_s * chirps_per_s)), chirps_per_s)
 
@@ -40,23 +40,28 @@ class ScoreCalibrator:
         """When each reference becomes valid and which chirps it averages.
 
         Returns a list of ``(valid_from, chirp_indices)``: the first reference uses the first
-        ``beta`` quiet chirps; each later one starts collecting ``alpha`` chirps after the
-        previous refresh began and takes the next ``beta`` quiet chirps (a touch only delays it).
+        ``beta`` consecutive quiet chirps; each later one falls due ``alpha`` chirps after the
+        previous one began and takes the next ``beta`` consecutive quiet chirps (a touch only
+        delays it).
         """
         quiet = np.asarray(quiet, dtype=bool)
         # Stream time in chirp periods; recordings with gaps pass their clock as time_s.
         clock = np.arange(quiet.size, dtype=float) if time_s is None else np.asarray(time_s, float) * self._cps
-        qidx = np.flatnonzero(quiet)
+        # Starts of runs of beta consecutive quiet chirps (a reference is 3 s of uninterrupted rest).
+        c = np.r_[0, np.cumsum(quiet)]
+        b = self.beta_chirps
+        starts = np.flatnonzero(c[b:] - c[:-b] == b) if quiet.size >= b else np.empty(0, int)
         out: list[tuple[int, np.ndarray]] = []
         due = -np.inf
         while True:
-            cand = qidx[clock[qidx] >= due][: self.beta_chirps]
-            if cand.size < self.beta_chirps:
+            cand = starts[clock[starts] >= due]
+            if cand.size == 0:
                 break
-            out.append((int(cand[-1]) + 1, cand))
+            first = int(cand[0])
+            out.append((first + b, np.arange(first, first + b)))
             if self.alpha_chirps is None:
                 break
-            due = clock[cand[0]] + self.alpha_chirps
+            due = clock[first] + self.alpha_chirps
         return out
 
     def run(self, scores: np.ndarray, quiet: np.ndarray, *, initial: np.ndarray | None = None,
@@ -105,7 +110,7 @@ class TouchDetector:
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold
 
-    def fit(self, scores_touch: np.ndarray, scores_quiet: np.ndarray) -> "TouchDetector":
+    def fit(self, scores_touch: np.ndarray, scores_quiet: np.ndarray) -> TouchDetector:
         st = np.max(np.atleast_2d(scores_touch), axis=1)
         sq = np.max(np.atleast_2d(scores_quiet), axis=1)
         if st.size == 0 or sq.size == 0:

@@ -22,8 +22,9 @@ import io
 import json
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -138,7 +139,7 @@ class FeatureTable:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.labels[name]
 
-    def select(self, mask: np.ndarray) -> "FeatureTable":
+    def select(self, mask: np.ndarray) -> FeatureTable:
         return FeatureTable(self.X[mask], {k: v[mask] for k, v in self.labels.items()})
 
     @property
@@ -151,7 +152,7 @@ class FeatureTable:
         np.savez(path, X=self.X, **arrays)
 
     @classmethod
-    def load_npz(cls, path: str | Path) -> "FeatureTable":
+    def load_npz(cls, path: str | Path) -> FeatureTable:
         with np.load(path, allow_pickle=False) as z:
             return cls(z["X"], {k[6:]: z[k] for k in z.files if k.startswith("label_")})
 
@@ -263,7 +264,7 @@ class Dataset:
         if not names:
             raise DatasetError(f"{self.root}: no session with a complete part")
         Xs, labs = [], []
-        for s, frames, lab in tqdm(self.iter_sessions(names), total=len(names), desc="features", unit="session",
+        for _, frames, lab in tqdm(self.iter_sessions(names), total=len(names), desc="features", unit="session",
                                    disable=not progress):
             Xs.append(log_magnitude_db(frames, self.rig))
             labs.append(lab)

@@ -14,7 +14,8 @@ So the fit does not depend on a start value of ``omega``.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -102,7 +103,7 @@ class FittedCurve:
                 "center": float(self.center), "scale": float(self.scale), "r2": float(self.r2)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "FittedCurve":
+    def from_dict(cls, d: dict[str, Any]) -> FittedCurve:
         if d["model"] not in MODELS:
             raise ValueError(f"unknown force model {d['model']!r}; known: {sorted(MODELS)}")
         return cls(d["model"], float(d["theta"]), np.asarray(d["coef"], float), float(d["center"]),
@@ -165,7 +166,7 @@ class PerLocationForce:
             raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
         self.model = model
 
-    def fit(self, E: np.ndarray, F: np.ndarray, location: np.ndarray) -> "PerLocationForce":
+    def fit(self, E: np.ndarray, F: np.ndarray, location: np.ndarray) -> PerLocationForce:
         E, F, location = np.asarray(E, float), np.asarray(F, float), np.asarray(location)
         if not (E.shape == F.shape == location.shape):
             raise ValueError(f"E, F and location must have equal length, got {E.size}, {F.size}, {location.size}")
@@ -186,7 +187,7 @@ class PerLocationForce:
         return {"model": self.model, "curves": {str(k): c.to_dict() for k, c in self.curves_.items()}}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "PerLocationForce":
+    def from_dict(cls, d: dict[str, Any]) -> PerLocationForce:
         obj = cls(d["model"])
         obj.curves_ = {int(k): FittedCurve.from_dict(c) for k, c in d["curves"].items()}
         return obj

@@ -93,7 +93,7 @@ class Rig:
 
     # -- construction -----------------------------------------------------------------
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Rig":
+    def from_dict(cls, d: dict[str, Any]) -> Rig:
         fields = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - fields
         if unknown:
@@ -101,7 +101,7 @@ class Rig:
         return cls(**d)
 
     @classmethod
-    def load(cls, name_or_path: str | Path = "jaco") -> "Rig":
+    def load(cls, name_or_path: str | Path = "jaco") -> Rig:
         """Load ``configs/rigs/<name>.yaml`` or a YAML file path."""
         return cls.from_dict(load_yaml(_resolve_config(name_or_path, "rigs")))
 
@@ -148,7 +148,7 @@ class Rig:
             keep &= np.abs(f - fc) > self.pwm_halfwidth_hz
         return keep
 
-    def mismatch(self, other: "Rig") -> list[str]:
+    def mismatch(self, other: Rig) -> list[str]:
         """Fields that differ in a way that invalidates a model (everything but name/amplitude)."""
         diffs = []
         for f in ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz"):
@@ -211,7 +211,7 @@ class Layout:
 
     @classmethod
     def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
-              circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> "Layout":
+              circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> Layout:
         """Rows of markers ``spacing_cm`` apart, rows ``spacing_cm`` apart, every other row
         shifted by half a spacing.  The default, 16 + 15 = 31 markers 1.2 cm apart, is the
         paper's touch area (Fig. 10) wrapped around a link."""
@@ -224,7 +224,7 @@ class Layout:
 
     @classmethod
     def grid(cls, nx: int, ny: int, spacing_cm: float, x0_cm: float = 0.0, y0_cm: float = 0.0,
-             circumference_cm: float | None = None) -> "Layout":
+             circumference_cm: float | None = None) -> Layout:
         xs, ys = np.meshgrid(x0_cm + spacing_cm * np.arange(nx), y0_cm + spacing_cm * np.arange(ny))
         xy = np.column_stack([xs.ravel(), ys.ravel()])
         return cls(ids=tuple(range(len(xy))), xy_cm=xy, circumference_cm=circumference_cm)
@@ -234,6 +234,6 @@ class Layout:
                 "circumference_cm": self.circumference_cm}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Layout":
+    def from_dict(cls, d: dict[str, Any]) -> Layout:
         return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float),
                    circumference_cm=d.get("circumference_cm"))

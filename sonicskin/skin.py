@@ -63,7 +63,7 @@ class SkinSVM:
         return np.column_stack([S, E])
 
     def fit(self, X: np.ndarray, location: np.ndarray, force_n: np.ndarray, *, quiet: np.ndarray,
-            X_moving: np.ndarray | None = None) -> "SkinSVM":
+            X_moving: np.ndarray | None = None) -> SkinSVM:
         """Train on one-shot data.
 
         X : (n, n_band) features of a training session; location (n,) id or -1; force_n (n,).

@@ -13,11 +13,16 @@ mode shape is averaged over the disc: for a mode of wavenumber ``k`` that is
 ``2 J1(k a) / (k a)``.  A finger is a contact patch of radius ``a(F)`` with a dynamic
 stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)`` (tissue damping, added mass, contact
 stiffness, all growing with the contact area); the touched response follows exactly from
-the untouched one by a rank-one (Sherman-Morrison) update:
+the untouched one by a Woodbury update.  A single rigid piston (rank one,
+``G_rs - G_rc K G_cs / (1 + K G_cc)``) would average the wall's motion over the whole pad, and
+for pads wider than half a wavelength (a firm press at 60-80 kHz) it would make the finger
+vanish; a finger is a soft, distributed load, so the pad is split into P sub-contacts (a centre
+and a ring) each carrying its share of the impedance, coupled exactly through the wall:
 
-    H_touched = G_rs - G_rc K G_cs / (1 + K G_cc).
+    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s.
 
-So once the Green's functions at a contact point are known, each chirp costs O(bins).
+The update is computed at a few contact radii per press and interpolated in radius, so once a
+press is set up each chirp costs O(bins).
 """
 
 from __future__ import annotations
@@ -37,7 +42,8 @@ __all__ = ["Material", "MATERIALS", "Geometry", "ChannelModel", "mindlin_omega",
 class Material:
     """Wall material and thickness.
 
-    kappa_per_k : relative shift of the frequency axis per kelvin, ``H_T(f) = H_0(f (1 + kappa dT))``.
+    kappa_per_k : relative shift of every modal frequency per kelvin, ``f_n(T) = f_n (1 + kappa dT)``,
+        i.e. ``H_T(f) = H_0(f / (1 + kappa dT))``; negative: a warmer wall is softer and rings lower.
     deta_per_k : relative rise of the loss factor per kelvin.
     """
 
@@ -240,13 +246,29 @@ class ChannelModel:
         P, R = W.shape[:2]
         return self._project(W.reshape(-1, self.n_modes)).reshape(P, R, 3, -1).astype(np.complex64)
 
+    def patch_greens(self, pts_m: np.ndarray, sub_radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Green's functions of P sub-contacts (discs of ``sub_radius_m``) at ``pts_m`` (P, 2).
+
+        Returns ``g_r`` (P, n_f) contact->RX, ``g_s`` (P, n_f) TX->contact and ``G_pp`` (P, P, n_f)
+        between sub-contacts, for the rank-P (Woodbury) update of a distributed contact.
+        """
+        phi = self.mode_shapes(pts_m) * disc_average(self.k, sub_radius_m)  # (P, n)
+        P = phi.shape[0]
+        iu, ju = np.triu_indices(P)
+        W = np.concatenate([phi * self.phi_rx, phi * self.phi_tx, phi[iu] * phi[ju]])
+        G = self._project(W).astype(np.complex64)
+        G_pp = np.empty((P, P, G.shape[1]), np.complex64)
+        G_pp[iu, ju] = G[2 * P:]
+        G_pp[ju, iu] = G[2 * P:]
+        return G[:P], G[P:2 * P], G_pp
+
     def transfer(self, pts_m: np.ndarray) -> np.ndarray:
         """Point-to-RX transfer for a point force at each of ``pts_m`` (P, 2): (P, n_f). For checks."""
         return self._project(self.mode_shapes(pts_m) * self.phi_rx)
 
     def transfer_between(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
         """G(a, b) between two points, (n_f,), point-sized; reciprocity: equal to G(b, a)."""
-        return self._project((self.mode_shapes(np.atleast_2d(a_m)) * self.mode_shapes(np.atleast_2d(b_m))))[0]
+        return self._project(self.mode_shapes(np.atleast_2d(a_m)) * self.mode_shapes(np.atleast_2d(b_m)))[0]
 
     @functools.cached_property
     def point_mobility_scale(self) -> float:

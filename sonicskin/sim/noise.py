@@ -42,7 +42,7 @@ class NoiseConfig:
     impact_rms: float = 0.02
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "NoiseConfig":
+    def from_dict(cls, d: dict | None) -> NoiseConfig:
         d = dict(d or {})
         names = {f.name for f in dataclasses.fields(cls)}
         bad = set(d) - names

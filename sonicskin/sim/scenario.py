@@ -57,7 +57,7 @@ class Scenario:
     link_seed: int = 7
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Scenario":
+    def from_dict(cls, d: dict[str, Any]) -> Scenario:
         names = {f.name for f in dataclasses.fields(cls)}
         bad = set(d) - names
         if bad:
@@ -71,7 +71,7 @@ class Scenario:
         return sc
 
     @classmethod
-    def load(cls, name_or_path: str | Path) -> "Scenario":
+    def load(cls, name_or_path: str | Path) -> Scenario:
         return cls.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
 
     def to_dict(self) -> dict[str, Any]:
@@ -80,7 +80,7 @@ class Scenario:
             d[k] = list(d[k])
         return d
 
-    def replace(self, **kw) -> "Scenario":
+    def replace(self, **kw) -> Scenario:
         return dataclasses.replace(self, **kw)
 
     def validate(self) -> None:
@@ -138,7 +138,7 @@ class Timeline:
     def __len__(self) -> int:
         return self.session.size
 
-    def select(self, mask: np.ndarray) -> "Timeline":
+    def select(self, mask: np.ndarray) -> Timeline:
         return Timeline(**{f.name: getattr(self, f.name)[mask] for f in dataclasses.fields(self)})
 
 

@@ -63,9 +63,13 @@ class Simulator:
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gather indices/weights for ``G(f (1 + kappa dT))`` on the channel grid, (n, n_f)."""
+        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f).
+
+        Every modal frequency moves to ``f_n (1 + kappa dT)``: with kappa < 0 a warmer (softer)
+        wall rings lower.  (Writing it ``G_0(f (1 + kappa dT))`` would move them up.)
+        """
         f = self.channel.f_hz
-        pos = (f[None, :] * (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
+        pos = (f[None, :] / (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
         pos = np.clip(pos, 0, f.size - 1.000001)
         i0 = np.floor(pos).astype(np.int64)
         return i0, (pos - i0).astype(np.float32)
@@ -91,7 +95,6 @@ class Simulator:
 
     def channel_response(self, tl: Timeline) -> np.ndarray:
         """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
-        n = len(tl)
         dT = self._dT(tl)
         H = self.untouched(dT).astype(np.complex64)
         i0, w = self._stretch_index(dT)
@@ -100,24 +103,33 @@ class Simulator:
             if idx.size == 0:
                 continue
             who = self.subjects[int(tl.subject[idx[0]])]
-            pt = np.array([[tl.x_cm[idx[0]], tl.y_cm[idx[0]]]]) / 100
-            F = tl.force_n[idx]
-            a = who.radius_m(F)
-            radii = np.linspace(a.min(), a.max(), 5) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
-            G = self.channel.contact_greens(pt, radii)[0]  # (R, 3, n_f)
-            # Linear interpolation in radius per chirp.
+            centre = np.array([tl.x_cm[idx[0]], tl.y_cm[idx[0]]]) / 100
+            a = who.radius_m(tl.force_n[idx])
+            radii = np.linspace(a.min(), a.max(), 4) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
+            theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
+            dH = np.stack([self._contact_delta(who, centre, r, theta0) for r in radii])  # (R, n_f)
             r = np.interp(a, radii, np.arange(radii.size))
             r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
-            rw = (r - r0).astype(np.float32)[:, None, None]
-            Gc = G[r0] * (1 - rw) + G[r0 + 1] * rw  # (m, 3, n_f)
-            ii, ww = i0[idx], w[idx]
-            rows = np.arange(idx.size)[:, None]
-            Gs = [Gc[rows, j, ii] * (1 - ww) + Gc[rows, j, ii + 1] * ww for j in range(3)]
-            K = who.dynamic_stiffness(F, self.channel.f_hz)
-            H[idx] -= Gs[0] * K * Gs[1] / (1 + K * Gs[2])
+            rw = (r - r0).astype(np.float32)[:, None]
+            D = dH[r0] * (1 - rw) + dH[r0 + 1] * rw  # (m, n_f), then the temperature stretch:
+            H[idx] += self._gather(D, i0[idx], w[idx])
         if self._perturb > 0 and np.any(tl.moving > 0):
             H *= 1 + self._motion_ripple(tl)
         return H
+
+    _RING = 0.6  # sub-contacts: the centre and three on a ring at 0.6 a, each a disc of radius a / 2
+
+    def _contact_delta(self, who, centre_m: np.ndarray, radius_m: float, theta0: float) -> np.ndarray:
+        """Change of H (n_f,) by a press of contact radius ``radius_m`` (Woodbury, 4 sub-contacts)."""
+        ang = theta0 + np.arange(3) * 2 * np.pi / 3
+        pts = np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
+        g_r, g_s, G_pp = self.channel.patch_greens(pts, radius_m / 2)
+        F = (radius_m / who.radius_1n_m) ** (1 / who.radius_exp)  # force at this radius
+        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz)[0] / pts.shape[0]  # (n_f,) per sub-contact
+        P = pts.shape[0]
+        A = np.eye(P, dtype=np.complex64)[None] + K[:, None, None] * np.moveaxis(G_pp, -1, 0)  # (n_f, P, P)
+        y = np.linalg.solve(A, (K * g_s).T[..., None])[..., 0]  # (n_f, P)
+        return -np.sum(g_r.T * y, axis=1).astype(np.complex64)
 
     def _motion_ripple(self, tl: Timeline) -> np.ndarray:
         """Small smooth change of H while the robot moves (joint poses load the link), (n, n_f)."""

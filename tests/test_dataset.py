@@ -1,0 +1,78 @@
+import json
+
+import numpy as np
+import pytest
+import soundfile as sf
+
+from sonicskin.dataset import Dataset, DatasetError, DatasetWriter
+from sonicskin.sim.generate import simulate_dataset
+from sonicskin.sim.scenario import Scenario
+
+TINY = dict(sessions=2, layout={"kind": "grid", "nx": 2, "ny": 1, "spacing_cm": 1.2, "x0_cm": 8, "y0_cm": 12},
+            touch_s=0.6, gap_s=0.2, calibration_s=0.4, part_s=0.5, seed=3)
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory, rig):
+    out = tmp_path_factory.mktemp("ds") / "tiny"
+    simulate_dataset(Scenario(**TINY), rig, out, progress=False, log=lambda *_: None)
+    return out
+
+
+def test_roundtrip_frames_and_labels(tiny, rig):
+    ds = Dataset(tiny)
+    assert ds.sessions == ["s000", "s001"] and ds.rig == rig and len(ds.layout) == 2
+    assert len(ds.parts("s000")) > 2  # several parts per session
+    frames, lab = ds.read_session("s000")
+    assert frames.shape[1] == rig.n_chirp
+    np.testing.assert_array_equal(lab["chirp"], np.arange(frames.shape[0]))  # every chirp found, in order
+    assert set(lab["segment"]) == {"calibration", "touch", "gap"}
+    assert (lab["force_n"][lab["location"] < 0] == 0).all() and lab["force_n"].max() > 0.5
+    t = ds.features(progress=False)
+    assert t.X.shape == (len(t), rig.n_band) and np.isfinite(t.X).all()
+
+
+def test_interrupted_session_keeps_written_parts(tiny, tmp_path, rig):
+    import shutil
+    d = tmp_path / "cut"
+    shutil.copytree(tiny, d)
+    full = Dataset(d).read_session("s001")[0].shape[0]
+    last = Dataset(d).parts("s001")[-1]
+    (d / "s001" / f"part-{last:05d}.csv").unlink()  # killed while writing the last part
+    (d / "s001" / "session.json").unlink()
+    kept = Dataset(d).read_session("s001")[0].shape[0]
+    assert 0 < kept < full
+    # --resume re-renders the unfinished session and leaves the finished one alone.
+    before = (d / "s000" / "part-00000.flac").stat().st_mtime_ns
+    simulate_dataset(Scenario(**TINY), rig, d, mode="resume", progress=False, log=lambda *_: None)
+    assert Dataset(d).read_session("s001")[0].shape[0] == full
+    assert (d / "s000" / "part-00000.flac").stat().st_mtime_ns == before
+
+
+def test_bad_datasets_are_named(tiny, tmp_path, rig):
+    import shutil
+    with pytest.raises(DatasetError, match="dataset.json is missing"):
+        Dataset(tmp_path)
+    d = tmp_path / "bad"
+    shutil.copytree(tiny, d)
+    (d / "dataset.json").write_text("{not json")
+    with pytest.raises(DatasetError, match="not valid JSON"):
+        Dataset(d)
+    shutil.copy(tiny / "dataset.json", d / "dataset.json")
+    meta = json.loads((d / "dataset.json").read_text())
+    meta["version"] = 99
+    (d / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match="version 99 is not supported"):
+        Dataset(d)
+    shutil.copy(tiny / "dataset.json", d / "dataset.json")
+    x, sr = sf.read(d / "s000" / "part-00000.flac")
+    sf.write(d / "s000" / "part-00000.flac", x, 48000, format="FLAC", subtype="PCM_24")
+    with pytest.raises(DatasetError, match="sample rate 48000 Hz, but the dataset's rig runs at 192000 Hz"):
+        Dataset(d).read_session("s000")
+    (d / "s001" / "part-00000.csv").write_text("chirp,time\n1,2\n")
+    with pytest.raises(DatasetError, match="header must be"):
+        Dataset(d).read_session("s001")
+    with pytest.raises(FileExistsError, match="--resume"):
+        DatasetWriter(tiny, rig, Dataset(tiny).layout)
+    with pytest.raises(DatasetError, match="other settings"):
+        simulate_dataset(Scenario(**{**TINY, "seed": 4}), rig, tiny, mode="resume", progress=False)
