@@ -246,21 +246,29 @@ class ChannelModel:
         P, R = W.shape[:2]
         return self._project(W.reshape(-1, self.n_modes)).reshape(P, R, 3, -1).astype(np.complex64)
 
+    def patch_weights(self, pts_m: np.ndarray, sub_radius_m: float) -> np.ndarray:
+        """Modal weights of a P-point patch, (2P + P(P+1)/2, n_modes): rows g_r, g_s, upper G_pp."""
+        phi = self.mode_shapes(pts_m) * disc_average(self.k, sub_radius_m)  # (P, n)
+        iu, ju = np.triu_indices(phi.shape[0])
+        return np.concatenate([phi * self.phi_rx, phi * self.phi_tx, phi[iu] * phi[ju]])
+
+    @staticmethod
+    def unpack_patch(G: np.ndarray, P: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Split projected patch weights into ``g_r`` (P, n_f), ``g_s`` (P, n_f), ``G_pp`` (P, P, n_f)."""
+        iu, ju = np.triu_indices(P)
+        G_pp = np.empty((P, P, G.shape[1]), np.complex64)
+        G_pp[iu, ju] = G[2 * P:]
+        G_pp[ju, iu] = G[2 * P:]
+        return G[:P], G[P:2 * P], G_pp
+
     def patch_greens(self, pts_m: np.ndarray, sub_radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Green's functions of P sub-contacts (discs of ``sub_radius_m``) at ``pts_m`` (P, 2).
 
         Returns ``g_r`` (P, n_f) contact->RX, ``g_s`` (P, n_f) TX->contact and ``G_pp`` (P, P, n_f)
         between sub-contacts, for the rank-P (Woodbury) update of a distributed contact.
         """
-        phi = self.mode_shapes(pts_m) * disc_average(self.k, sub_radius_m)  # (P, n)
-        P = phi.shape[0]
-        iu, ju = np.triu_indices(P)
-        W = np.concatenate([phi * self.phi_rx, phi * self.phi_tx, phi[iu] * phi[ju]])
-        G = self._project(W).astype(np.complex64)
-        G_pp = np.empty((P, P, G.shape[1]), np.complex64)
-        G_pp[iu, ju] = G[2 * P:]
-        G_pp[ju, iu] = G[2 * P:]
-        return G[:P], G[P:2 * P], G_pp
+        G = self._project(self.patch_weights(pts_m, sub_radius_m)).astype(np.complex64)
+        return self.unpack_patch(G, len(pts_m))
 
     def transfer(self, pts_m: np.ndarray) -> np.ndarray:
         """Point-to-RX transfer for a point force at each of ``pts_m`` (P, 2): (P, n_f). For checks."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.fft
+import scipy.signal
 
 from ..dsp import chirp_spectrum
 from ..rig import Layout, Rig
@@ -85,19 +86,23 @@ class Simulator:
     def _dT(self, tl: Timeline) -> np.ndarray:
         return tl.temperature_c - float(self.scenario.temperature.get("ambient_c", 23.0))
 
+    _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
+
     def untouched(self, dT: np.ndarray) -> np.ndarray:
         """Untouched channel H_rs at temperature offsets ``dT`` (n,), shape (n, n_f)."""
-        dT = np.asarray(dT, float)
-        i0, w = self._stretch_index(dT)
-        deta = (self.material.eta * self.material.deta_per_k * dT).astype(np.float32)[:, None]
+        q, inv = np.unique(np.round(np.asarray(dT, float) / self._DT_STEP_K), return_inverse=True)
+        dTu = q * self._DT_STEP_K
+        i0, w = self._stretch_index(dTu)
+        deta = (self.material.eta * self.material.deta_per_k * dTu).astype(np.float32)[:, None]
         G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
-        return G
+        return G[inv.ravel()]
 
     def channel_response(self, tl: Timeline) -> np.ndarray:
         """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
         dT = self._dT(tl)
         H = self.untouched(dT).astype(np.complex64)
-        i0, w = self._stretch_index(dT)
+        # Every press of the batch: contact radii nodes and sub-contact layouts, then ONE projection.
+        presses = []
         for ev in np.unique(tl.event[tl.event >= 0]):
             idx = np.flatnonzero((tl.event == ev) & (tl.force_n > 0))
             if idx.size == 0:
@@ -105,28 +110,43 @@ class Simulator:
             who = self.subjects[int(tl.subject[idx[0]])]
             centre = np.array([tl.x_cm[idx[0]], tl.y_cm[idx[0]]]) / 100
             a = who.radius_m(tl.force_n[idx])
-            radii = np.linspace(a.min(), a.max(), 4) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
+            radii = np.linspace(a.min(), a.max(), 3) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
-            dH = np.stack([self._contact_delta(who, centre, r, theta0) for r in radii])  # (R, n_f)
-            r = np.interp(a, radii, np.arange(radii.size))
-            r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
-            rw = (r - r0).astype(np.float32)[:, None]
-            D = dH[r0] * (1 - rw) + dH[r0 + 1] * rw  # (m, n_f), then the temperature stretch:
-            H[idx] += self._gather(D, i0[idx], w[idx])
+            presses.append((idx, who, a, radii, [self._patch_points(centre, r, theta0) for r in radii]))
+        if presses:
+            W = [self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)]
+            rows = W[0].shape[0]
+            G_all = self.channel._project(np.concatenate(W)).astype(np.complex64)
+            k = 0
+            for idx, who, a, radii, _ in presses:
+                dH = []
+                for r in radii:
+                    dH.append(self._contact_delta(who, r, *self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)))
+                    k += rows
+                # Temperature stretch at the press's temperature (constant over 3 s to 1e-3 K),
+                # then interpolation in contact radius chirp by chirp.
+                i0, w = self._stretch_index(np.full(len(radii), dT[idx].mean()))
+                dH = self._gather(np.stack(dH), i0, w)  # (R, n_f)
+                r = np.interp(a, radii, np.arange(radii.size))
+                r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
+                rw = (r - r0).astype(np.float32)[:, None]
+                H[idx] += dH[r0] * (1 - rw) + dH[r0 + 1] * rw
         if self._perturb > 0 and np.any(tl.moving > 0):
             H *= 1 + self._motion_ripple(tl)
         return H
 
     _RING = 0.6  # sub-contacts: the centre and three on a ring at 0.6 a, each a disc of radius a / 2
+    _N_SUB = 4
 
-    def _contact_delta(self, who, centre_m: np.ndarray, radius_m: float, theta0: float) -> np.ndarray:
-        """Change of H (n_f,) by a press of contact radius ``radius_m`` (Woodbury, 4 sub-contacts)."""
-        ang = theta0 + np.arange(3) * 2 * np.pi / 3
-        pts = np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
-        g_r, g_s, G_pp = self.channel.patch_greens(pts, radius_m / 2)
-        F = (radius_m / who.radius_1n_m) ** (1 / who.radius_exp)  # force at this radius
-        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz)[0] / pts.shape[0]  # (n_f,) per sub-contact
-        P = pts.shape[0]
+    def _patch_points(self, centre_m: np.ndarray, radius_m: float, theta0: float) -> np.ndarray:
+        ang = theta0 + np.arange(self._N_SUB - 1) * 2 * np.pi / (self._N_SUB - 1)
+        return np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
+
+    def _contact_delta(self, who, radius_m: float, g_r: np.ndarray, g_s: np.ndarray, G_pp: np.ndarray) -> np.ndarray:
+        """Change of H (n_f,) by a press of contact radius ``radius_m``: Woodbury over the sub-contacts."""
+        P = g_r.shape[0]
+        F = (radius_m / who.radius_1n_m) ** (1 / who.radius_exp)  # the force that gives this radius
+        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz)[0] / P  # (n_f,) per sub-contact
         A = np.eye(P, dtype=np.complex64)[None] + K[:, None, None] * np.moveaxis(G_pp, -1, 0)  # (n_f, P, P)
         y = np.linalg.solve(A, (K * g_s).T[..., None])[..., 0]  # (n_f, P)
         return -np.sum(g_r.T * y, axis=1).astype(np.complex64)
@@ -136,14 +156,11 @@ class Simulator:
         rng = np.random.default_rng([self.scenario.seed, 7, int(tl.session[0]), int(tl.chirp[0])])
         n, J = len(tl), 6
         tau = rng.uniform(0.02e-3, 0.4e-3, J)
-        a = 0.9
-        c = np.empty((n, J), complex)
-        acc = (rng.standard_normal(J) + 1j * rng.standard_normal(J)) / np.sqrt(2)
+        a = 0.9  # AR(1) per chirp: the pose changes smoothly
         e = (rng.standard_normal((n, J)) + 1j * rng.standard_normal((n, J))) / np.sqrt(2) * np.sqrt(1 - a * a)
-        for i in range(n):
-            acc = a * acc + e[i]
-            c[i] = acc
-        basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz))  # (J, n_f)
+        e[0] /= np.sqrt(1 - a * a)  # start in the stationary distribution
+        c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0).astype(np.complex64)
+        basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz)).astype(np.complex64)  # (J, n_f)
         return ((self._perturb / np.sqrt(J)) * tl.moving[:, None] * (c @ basis)).astype(np.complex64)
 
     # -- rendering --------------------------------------------------------------------
