@@ -1,1 +1,1 @@
-"""ONNX export of the network and the SVM baseline (the learned-model issue fills this package)."""
+"""ONNX export of the network and the SVM baseline into one deployment artifact."""

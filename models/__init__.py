@@ -1,1 +1,5 @@
-"""Torch networks over the OSPA-selected bins (the learned-model issue fills this package)."""
+"""Torch networks over the OSPA-selected bins."""
+
+from .net import SkinNet
+
+__all__ = ["SkinNet"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -12,8 +13,11 @@ from . import __version__
 
 EPILOG = """\
 typical session on the simulated rig:
-  sonicskin simulate --scenario moving --out data/moving
-  sonicskin evaluate --data data/moving --out reports/moving
+  sonicskin simulate --scenario moving --out data/moving      # received audio + labels
+  sonicskin evaluate --data data/moving                       # the paper's SVM pipeline + ablations
+  sonicskin train --config configs/train/moving.yaml          # the network (Lightning)
+  sonicskin export --run runs/moving --out artifacts/moving   # both models -> ONNX + skin.json
+  sonicskin compare --data data/moving --artifact artifacts/moving
 """
 
 
@@ -58,6 +62,74 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     print(format_report(res))
     out = Path(a.out or Path("reports") / ds.root.name)
     paths = save_report(res, out, ds.layout)
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def _need_train_extra(verb: str):
+    try:
+        import lightning  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError:
+        raise SystemExit(f"sonicskin {verb} needs the training extra: pip install -c constraints.txt 'sonicskin[train]'") from None
+
+
+def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
+    _need_train_extra("train")
+    from training.cli import main as train_main
+
+    args = ["--config", a.config] + (["--data.data", a.data] if a.data else []) + extra
+    cli = train_main(args)
+    ckpt = cli.trainer.checkpoint_callback
+    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    return 0
+
+
+def _latest_checkpoint(run: Path) -> Path:
+    if run.is_file():
+        return run
+    last = sorted(run.rglob("last.ckpt"), key=lambda p: p.stat().st_mtime)
+    if not last:
+        raise FileNotFoundError(f"no checkpoint under {run}; run `sonicskin train` first")
+    d = last[-1].parent
+    best = sorted(d.glob("best-*.ckpt"), key=lambda p: p.stat().st_mtime)
+    return best[-1] if best else last[-1]
+
+
+def cmd_export(a: argparse.Namespace) -> int:
+    _need_train_extra("export")
+    from export.onnx import export_artifact
+
+    ckpt = _latest_checkpoint(Path(a.run))
+    export_artifact(ckpt, a.out, data=a.data)
+    return 0
+
+
+def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
+    from .compare import compare_artifact, format_comparison, save_comparison
+    from .rig import Layout
+
+    artifact = a.artifact
+    if artifact is None:  # train and export both models on the same split first
+        _need_train_extra("compare")
+        from export.onnx import export_artifact
+        from training.cli import main as train_main
+
+        name = Path(a.data).name
+        run = Path(a.runs) / f"compare-{name}"
+        args = ["--config", a.config, "--data.data", a.data, "--trainer.default_root_dir", str(run),
+                "--trainer.logger.init_args.save_dir", str(run)]
+        if a.test_subjects:
+            args += ["--data.test_subjects", json.dumps(a.test_subjects)]
+        cli = train_main(args + extra)
+        artifact = run / "artifact"
+        export_artifact(_latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
+    res = compare_artifact(artifact, a.data)
+    title = f"{Path(a.data).name}: network vs SVM"
+    print(format_comparison(res, title))
+    meta = json.loads((Path(artifact) / "skin.json").read_text())
+    out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
+    paths = save_comparison(res, out, Layout.from_dict(meta["layout"]), title)
     print("wrote " + ", ".join(str(p) for p in paths))
     return 0
 
@@ -107,6 +179,30 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--no-ablations", action="store_true", help="skip the no-OSPA / no-calibration / total-energy runs")
     e.set_defaults(func=cmd_evaluate)
 
+    t = sub.add_parser("train", help="train the network (Lightning; any --trainer.* / --model.* / --data.* override)",
+                       description="Train SkinNet jointly for location and force with LightningCLI. Unknown options "
+                                   "go to LightningCLI, e.g. --trainer.max_epochs 5 --trainer.devices 2 --trainer.strategy ddp.")
+    t.add_argument("--config", default="configs/train/moving.yaml", help="training YAML (default: configs/train/moving.yaml)")
+    t.add_argument("--data", help="dataset folder (overrides data.data)")
+    t.set_defaults(func=cmd_train, passthrough=True)
+
+    x = sub.add_parser("export", help="export the network and the SVM baseline into one ONNX artifact")
+    x.add_argument("--run", required=True, help="a checkpoint, or a run folder (its newest best/last checkpoint)")
+    x.add_argument("--out", required=True, help="artifact folder to write")
+    x.add_argument("--data", help="dataset (default: the one the checkpoint was trained on)")
+    x.set_defaults(func=cmd_export)
+
+    c = sub.add_parser("compare", help="network vs SVM on the same splits: table, JSON and PNG",
+                       description="Train + export both models (or load --artifact) and compare them on the test "
+                                   "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size.")
+    c.add_argument("--data", required=True, help="dataset folder")
+    c.add_argument("--artifact", help="use this artifact instead of training")
+    c.add_argument("--config", default="configs/train/moving.yaml", help="training YAML when training")
+    c.add_argument("--test-subjects", type=int, nargs="+", help="leave-subjects-out: these people are the test set")
+    c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
+    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>)")
+    c.set_defaults(func=cmd_compare, passthrough=True)
+
     i = sub.add_parser("info", help="show the rig and the available configs")
     i.add_argument("--rig", default="jaco")
     i.set_defaults(func=cmd_info)
@@ -115,12 +211,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     p = build_parser()
-    a = p.parse_args(argv)
+    a, extra = p.parse_known_args(argv)
     if not getattr(a, "func", None):
         p.print_help()
         return 2
+    if extra and not getattr(a, "passthrough", False):
+        p.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
-        return a.func(a)
+        return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:  # user errors: one clear line, no traceback
         print(f"sonicskin {a.verb}: error: {exc}", file=sys.stderr)
         return 2

@@ -1,1 +1,1 @@
-"""Lightning training of the networks in ``models`` (the learned-model issue fills this package)."""
+"""Lightning training of the networks in ``models``: ``sonicskin train --config configs/train/<name>.yaml``."""

@@ -1,0 +1,161 @@
+"""What both models see: the OSPA-selected bins, absolute or relative to the no-touch reference.
+
+``mode="absolute"``: dB magnitudes of the selected bins (the paper's input).
+``mode="relative"``: the same minus the running no-touch reference of the stream, i.e. Alg. 2's
+online updating applied to the *features* (mean of 3 s of rest, refreshed every 20 min), so
+a slow drift of the channel is removed before either model sees it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from .calibration import ScoreCalibrator
+from .dataset import Dataset, FeatureTable
+
+__all__ = ["FeatureSpec", "relative_features", "load_features_cached", "quiet_mask", "touch_mask"]
+
+MODES = ("absolute", "relative")
+
+
+def quiet_mask(t: FeatureTable) -> np.ndarray:
+    """No-touch chirps with the robot at rest: Alg. 2's calibration chirps."""
+    return (t["location"] < 0) & (t["moving"] == 0)
+
+
+def touch_mask(t: FeatureTable, min_force_n: float = 0.5) -> np.ndarray:
+    return (t["location"] >= 0) & (t["force_n"] >= min_force_n)
+
+
+@dataclasses.dataclass(frozen=True)
+class FeatureSpec:
+    """Model input definition, stored in every artifact."""
+
+    bins: tuple[int, ...]          # indices into the rig's band bins (rig.band_bins[bins] are rfft bins)
+    mode: str = "relative"
+    beta_s: float = 3.0
+    alpha_s: float = 1200.0
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"feature mode must be one of {MODES}, got {self.mode!r}")
+
+    def calibrator(self, chirps_per_s: float) -> ScoreCalibrator:
+        return ScoreCalibrator.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s)
+
+    def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
+        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams)."""
+        X = t.X[:, list(self.bins)]
+        if self.mode == "absolute":
+            return X.astype(np.float32)
+        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.calibrator(chirps_per_s),
+                                 online=online)
+
+    def to_dict(self) -> dict:
+        return {"bins": [int(b) for b in self.bins], "mode": self.mode, "beta_s": self.beta_s, "alpha_s": self.alpha_s}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FeatureSpec:
+        return cls(tuple(int(b) for b in d["bins"]), d["mode"], float(d["beta_s"]), float(d["alpha_s"]))
+
+
+def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
+                      calibrator: ScoreCalibrator, *, online: bool = True) -> np.ndarray:
+    """``X`` minus the running no-touch reference of its own session (Alg. 2 on features)."""
+    out = np.empty(X.shape, np.float32)
+    cal = calibrator if online else ScoreCalibrator(calibrator.beta_chirps, None, calibrator._cps)
+    for s in np.unique(session):
+        m = session == s
+        out[m] = cal.run(X[m], quiet[m], time_s=time_s[m])
+    return out
+
+
+def _signature(ds: Dataset) -> str:
+    h = hashlib.sha256()
+    for s in ds.sessions:
+        for p in ds.parts(s):
+            f = ds.root / s / f"part-{p:05d}.flac"
+            h.update(f"{s}/{p}:{f.stat().st_size}:{f.stat().st_mtime_ns}".encode())
+    return h.hexdigest()[:16]
+
+
+def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
+    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache`` (rebuilt when parts change)."""
+    cache = ds.root / ".cache" / f"features-{_signature(ds)}.npz"
+    if cache.is_file():
+        return FeatureTable.load_npz(cache)
+    t = ds.features(progress=progress)
+    cache.parent.mkdir(exist_ok=True)
+    for old in cache.parent.glob("features-*.npz"):
+        old.unlink()
+    tmp = cache.with_suffix(".tmp.npz")
+    t.save_npz(tmp)
+    Path(tmp).replace(cache)
+    return t
+
+
+def select_bins(t: FeatureTable, rig, n_bins: int = 300, min_force_n: float = 0.5) -> np.ndarray:
+    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
+    the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
+    best first."""
+    from .ospa import OSPA
+
+    touch = touch_mask(t, min_force_n)
+    moving = (t["location"] < 0) & (t["moving"] > 0)
+    ref = moving if moving.sum() >= 2 else quiet_mask(t)
+    if touch.sum() < 2 or ref.sum() < 2:
+        raise ValueError(f"OSPA needs touch and no-touch chirps in the training split; got {int(touch.sum())} "
+                         f"touch and {int(ref.sum())} no-touch chirps")
+    return OSPA(gamma=n_bins, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=t.X[ref]).selected_
+
+
+@dataclasses.dataclass(frozen=True)
+class Split:
+    """Which sessions train, validate and test.  Never a random split of chirps: sessions (or
+    people, for leave-subjects-out) are the unit, so nothing of a test press leaks into training."""
+
+    train: tuple[str, ...]
+    val: tuple[str, ...]
+    test: tuple[str, ...]
+
+    @classmethod
+    def make(cls, t: FeatureTable, *, train_sessions=None, val_sessions=None, test_subjects=None) -> Split:
+        sessions = sorted(set(t["session"]))
+        if test_subjects:
+            subj = {s: set(t["subject"][(t["session"] == s) & (t["location"] >= 0)]) for s in sessions}
+            test = [s for s in sessions if subj[s] & set(test_subjects)]
+            rest = [s for s in sessions if s not in test]
+            if not test or len(rest) < 2:
+                raise ValueError(f"leave-subjects-out with test subjects {list(test_subjects)} leaves "
+                                 f"{len(rest)} training and {len(test)} test sessions; need >= 2 and >= 1")
+            return cls(tuple(rest[:-1]), tuple(rest[-1:]), tuple(test))
+        train = list(train_sessions or sessions[:1])
+        unknown = set(train) - set(sessions)
+        if unknown:
+            raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({sessions})")
+        rest = [s for s in sessions if s not in train]
+        if val_sessions is None:
+            val = rest[:1] if len(rest) >= 2 else []
+        else:
+            val = list(val_sessions)
+        test = [s for s in rest if s not in val]
+        if not test:
+            raise ValueError(f"no session left to test on (sessions {sessions}, train {train}, val {val})")
+        return cls(tuple(train), tuple(val), tuple(test))
+
+    def mask(self, t: FeatureTable, part: str) -> np.ndarray:
+        return np.isin(t["session"], getattr(self, part))
+
+    def to_dict(self) -> dict:
+        return {"train": list(self.train), "val": list(self.val), "test": list(self.test)}
+
+
+def model_inputs(data, spec: FeatureSpec, *, progress: bool = True) -> tuple[Dataset, FeatureTable, np.ndarray]:
+    """A dataset's features table and the model inputs ``spec`` defines, for every chirp."""
+    ds = data if isinstance(data, Dataset) else Dataset(data)
+    t = load_features_cached(ds, progress=progress)
+    return ds, t, spec.transform(t, ds.rig.chirps_per_s)

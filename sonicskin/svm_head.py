@@ -1,0 +1,47 @@
+"""The SVM baseline on model inputs (selected bins), with its detector and per-location force.
+
+This is :class:`sonicskin.skin.SkinSVM` with the OSPA step factored out, so the SVM and the
+network see exactly the same inputs and the SVM exports to a 2-node ONNX graph
+(scaler + ``SVC(decision_function_shape="ovo")``); per-location scores come from
+:func:`sonicskin.baseline.ovr_scores_from_ovo` in numpy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+
+from .baseline import ovr_scores_from_ovo
+from .calibration import TouchDetector
+from .force import PerLocationForce, energy_db
+
+__all__ = ["fit_svm_head"]
+
+
+def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.ndarray, *, n_locations: int,
+                 location_ids, C: float = 10.0, force_model: str = "fourier1") -> tuple[Pipeline, dict]:
+    """Fit scaler + SVC on touch chirps (``cls < n_locations``), then the Alg. 2 reference scores,
+    the detection threshold and the per-location force curves.  Returns the sklearn pipeline and
+    its JSON-able parameters."""
+    touch = cls < n_locations
+    pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, gamma="scale",
+                                                              decision_function_shape="ovo"))])
+    pipe.fit(X[touch], cls[touch])
+    classes = pipe.classes_
+    if len(classes) != n_locations:
+        raise ValueError(f"training data touches {len(classes)} of the {n_locations} locations; "
+                         f"record every location at least once")
+    S = ovr_scores_from_ovo(pipe.decision_function(X), n_locations)
+    ref = S[quiet].mean(axis=0)
+    det = TouchDetector().fit(S[touch] - ref, S[~touch] - ref)
+    all_bins = np.arange(X.shape[1])
+    e_ref = float(energy_db(X[quiet], all_bins).mean())
+    E = energy_db(X, all_bins) - e_ref
+    ids = np.asarray(location_ids)
+    fm = PerLocationForce(force_model).fit(E[touch], force[touch], ids[cls[touch]])
+    params = {"reference_scores": ref.tolist(), "threshold": det.threshold_, "energy_ref_db": e_ref,
+              "train_false_touch_rate": det.false_touch_rate_, "train_missed_touch_rate": det.missed_touch_rate_,
+              "force": fm.to_dict()}
+    return pipe, params

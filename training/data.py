@@ -1,0 +1,95 @@
+"""DataModule over the sonicskin dataset format."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from sonicskin.dataset import Dataset
+from sonicskin.features import FeatureSpec, Split, load_features_cached, select_bins, touch_mask
+
+__all__ = ["SkinDataModule", "prepare"]
+
+
+def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
+            val_sessions=None, test_subjects=None, min_force_n: float = 0.5, progress: bool = True) -> dict:
+    """Load a dataset, split it by session/subject, select OSPA bins on the training split and build
+    model inputs for every chirp.  Shared by the DataModule, the SVM baseline and ``compare``."""
+    ds = Dataset(data)
+    t = load_features_cached(ds, progress=progress)
+    split = Split.make(t, train_sessions=train_sessions, val_sessions=val_sessions, test_subjects=test_subjects)
+    tr = t.select(split.mask(t, "train"))
+    bins = select_bins(tr, ds.rig, n_bins, min_force_n)
+    spec = FeatureSpec(tuple(int(b) for b in bins), mode)
+    X = spec.transform(t, ds.rig.chirps_per_s)
+    loc = t["location"]
+    n_loc = len(ds.layout)
+    cls = np.where(loc >= 0, ds.layout.index_of(np.where(loc >= 0, loc, ds.layout.ids[0])), n_loc)
+    # Light presses (0 < F < min_force_n) are neither a clear touch nor no touch: left out of training.
+    usable = (loc < 0) | touch_mask(t, min_force_n)
+    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls.astype(np.int64),
+            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": n_loc}
+
+
+class SkinDataModule(L.LightningDataModule):
+    """Chirps of a dataset as (features, class, force) tensors; class N means no touch.
+
+    Parameters
+    ----------
+    data : dataset folder (``sonicskin simulate`` / ``sonicskin record``).
+    n_bins : OSPA's gamma; bins are selected on the training split only.
+    mode : ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
+    train_sessions, val_sessions : sessions for training / validation (default: first / second).
+    test_subjects : leave-subjects-out instead: sessions of these people are the test set.
+    batch_size : chirps per step.
+    noise_db : std of Gaussian noise added to training features (augmentation), in dB.
+    """
+
+    def __init__(self, data: str, n_bins: int = 300, mode: str = "relative", train_sessions: list[str] | None = None,
+                 val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
+                 min_force_n: float = 0.5, batch_size: int = 256, noise_db: float = 0.0):
+        super().__init__()
+        self.save_hyperparameters()
+        meta = json.loads((Path(data) / "dataset.json").read_text()) if (Path(data) / "dataset.json").is_file() else None
+        if meta is None:
+            raise FileNotFoundError(f"{data} is not a sonicskin dataset (dataset.json missing); run `sonicskin simulate` first")
+        self._n_locations = len(meta["layout"]["ids"])
+        self.prepared: dict | None = None
+
+    @property
+    def n_locations(self) -> int:
+        return self._n_locations
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.prepared is not None:
+            return
+        h = self.hparams
+        p = prepare(h.data, n_bins=h.n_bins, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
+                    test_subjects=h.test_subjects, min_force_n=h.min_force_n)
+        self.prepared = p
+        tr = p["split"].mask(p["table"], "train") & p["usable"]
+        self.mean = p["X"][tr].mean(axis=0)
+        self.std = p["X"][tr].std(axis=0) + 1e-3
+        ds = p["dataset"]
+        self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
+                     "spec": p["spec"].to_dict(), "split": p["split"].to_dict(), "min_force_n": h.min_force_n}
+
+    def _loader(self, part: str, shuffle: bool) -> DataLoader:
+        p = self.prepared
+        m = p["split"].mask(p["table"], part) & p["usable"]
+        tensors = [torch.from_numpy(np.ascontiguousarray(p[k][m])) for k in ("X", "cls", "force")]
+        return DataLoader(TensorDataset(*tensors), batch_size=self.hparams.batch_size, shuffle=shuffle)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader("train", True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader("val" if self.prepared["split"].val else "train", False)
+
+    def test_dataloader(self) -> DataLoader:
+        return self._loader("test", False)
