@@ -23,14 +23,16 @@ class SkinNet(nn.Module):
     n_locations : N.
     hidden : widths of the trunk's layers.
     dropout : dropout after each trunk layer (training only).
+    input_dropout : dropout on the input bins (training only): no single bin can be relied on,
+        as when motion noise corrupts a few of them.
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
-                 dropout: float = 0.1):
+                 dropout: float = 0.1, input_dropout: float = 0.0):
         super().__init__()
         if n_in < 1 or n_locations < 2:
             raise ValueError(f"need n_in >= 1 and n_locations >= 2, got {n_in}, {n_locations}")
-        layers: list[nn.Module] = []
+        layers: list[nn.Module] = [nn.Dropout(input_dropout)] if input_dropout > 0 else []
         width = n_in
         for h in hidden:
             layers += [nn.Linear(width, h), nn.GELU(), nn.Dropout(dropout)]

@@ -128,8 +128,9 @@ class SkinRuntime:
         X = X[:, list(self.spec.bins)]
         if self.spec.mode == "absolute":
             return X
-        if reference is not None:
-            return X - np.asarray(reference, np.float32)[list(self.spec.bins)] if np.shape(reference)[-1] == self.rig.n_band else X - reference
+        if reference is not None:  # a no-touch reference over the band bins, e.g. from a live calibration
+            ref = np.asarray(reference, np.float32)
+            return X - (ref[list(self.spec.bins)] if ref.shape[-1] == self.rig.n_band else ref)
         if quiet is None:
             raise ValueError("relative features need the no-touch chirps of the stream (quiet) or a reference")
         return self.calibrator.run(X, quiet, time_s=time_s).astype(np.float32)

@@ -22,14 +22,15 @@ class SkinLitModule(L.LightningModule):
     lr, weight_decay : AdamW.
     force_weight : weight of the force loss (N^2) against the cross-entropy.
     noise_db : Gaussian noise on training inputs (dB), a cheap augmentation against sensor noise.
+    input_dropout : dropout on the input bins.  label_smoothing : for the cross-entropy.
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.1, lr: float = 2e-3, weight_decay: float = 1e-4, force_weight: float = 0.1,
-                 noise_db: float = 0.3):
+                 noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0):
         super().__init__()
         self.save_hyperparameters()
-        self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout)
+        self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout)
         self.meta: dict | None = None
 
     def setup(self, stage: str) -> None:
@@ -61,7 +62,7 @@ class SkinLitModule(L.LightningModule):
         if stage == "train" and self.hparams.noise_db > 0:
             x = x + self.hparams.noise_db * torch.randn_like(x)
         logits, f_all = self.model(x)
-        ce = F.cross_entropy(logits, cls)
+        ce = F.cross_entropy(logits, cls, label_smoothing=self.hparams.label_smoothing if stage == "train" else 0.0)
         touched = cls < self.hparams.n_locations
         if touched.any():
             f_hat = f_all[touched].gather(1, cls[touched, None])[:, 0]
