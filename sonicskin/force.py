@@ -93,21 +93,26 @@ class FittedCurve:
     center: float
     scale: float
     r2: float
+    e_lo: float = -np.inf
+    e_hi: float = np.inf
 
     def predict(self, E: np.ndarray) -> np.ndarray:
-        u = (np.asarray(E, float) - self.center) / self.scale
+        """Force at energy ``E``; outside the training range of ``E`` the curve is held at its edge
+        value (a Fourier or polynomial curve extrapolated from one press swings wildly)."""
+        u = (np.clip(np.asarray(E, float), self.e_lo, self.e_hi) - self.center) / self.scale
         return MODELS[self.model].design(u, self.theta) @ self.coef
 
     def to_dict(self) -> dict[str, Any]:
         return {"model": self.model, "theta": float(self.theta), "coef": [float(c) for c in self.coef],
-                "center": float(self.center), "scale": float(self.scale), "r2": float(self.r2)}
+                "center": float(self.center), "scale": float(self.scale), "r2": float(self.r2),
+                "e_lo": float(self.e_lo), "e_hi": float(self.e_hi)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> FittedCurve:
         if d["model"] not in MODELS:
             raise ValueError(f"unknown force model {d['model']!r}; known: {sorted(MODELS)}")
         return cls(d["model"], float(d["theta"]), np.asarray(d["coef"], float), float(d["center"]),
-                   float(d["scale"]), float(d["r2"]))
+                   float(d["scale"]), float(d["r2"]), float(d.get("e_lo", -np.inf)), float(d.get("e_hi", np.inf)))
 
 
 def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
@@ -148,7 +153,7 @@ def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCu
         res = least_squares(lambda p: m.design(u, p[0]) @ p[1:] - F, np.r_[theta, coef], method="lm")
         if np.isfinite(res.x).all() and np.sum(res.fun ** 2) <= np.sum((m.design(u, theta) @ coef - F) ** 2):
             theta, coef = float(res.x[0]), res.x[1:]
-    fitted = FittedCurve(model, theta, np.asarray(coef, float), center, scale, 0.0)
+    fitted = FittedCurve(model, theta, np.asarray(coef, float), center, scale, 0.0, float(E.min()), float(E.max()))
     fitted.r2 = r2_score(F, fitted.predict(E))
     return fitted
 

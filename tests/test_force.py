@@ -45,3 +45,10 @@ def test_energy_is_relative_to_reference():
     X[1] += 3.0
     e = energy_db(X, np.arange(6), ref_db=np.full(6, -20.0))
     np.testing.assert_allclose(e, [0.0, 3.0], atol=1e-9)
+
+
+def test_curve_is_held_outside_its_training_range(rng):
+    E = rng.uniform(-3, 0, 200)
+    fit = fit_curve(E, E ** 3 + 5, "poly3")
+    assert fit.predict(np.array([-30.0]))[0] == pytest.approx(fit.predict(np.array([E.min()]))[0])
+    assert abs(fit.predict(np.array([-30.0]))[0]) < 30  # not (-30)^3
