@@ -28,7 +28,8 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
 
     Parameters
     ----------
-    ovo : (n, K (K-1) / 2) pairwise decision values, libsvm pair order.
+    ovo : (n, K (K-1) / 2) pairwise decision values, libsvm pair order; for K = 2 also scikit-learn's
+        1-D binary decision values.
     n_classes : K.
 
     Returns
@@ -36,6 +37,12 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
     scores : (n, K) float64.
     """
     ovo = np.asarray(ovo, dtype=np.float64)
+    if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
+        ovo = ovo[:, 1]  # skl2onnx's binary SVM output is [-d, d] with scikit-learn's d
+    if ovo.ndim == 1:
+        # scikit-learn's binary decision value is positive for classes_[1]; libsvm's pair value
+        # is positive for the first class of the pair.
+        ovo = -ovo[:, None]
     i, j = _pair_index(n_classes)
     if ovo.ndim != 2 or ovo.shape[1] != i.size:
         raise ValueError(f"expected (n, {i.size}) pairwise scores for {n_classes} classes, got {ovo.shape}")

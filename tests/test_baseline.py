@@ -21,6 +21,13 @@ def test_ovr_from_ovo_matches_sklearn(rng):
         ovr_scores_from_ovo(ovo[:, :3], 6)
 
 
+def test_two_locations(rng):
+    X, y = _clusters(rng, k=2, spread=1.5)
+    svc = SVC(decision_function_shape="ovo").fit(X, y)
+    S = ovr_scores_from_ovo(svc.decision_function(X), 2)
+    np.testing.assert_array_equal(svc.classes_[S.argmax(1)], svc.predict(X))
+
+
 def test_localizer_learns_clusters_and_keeps_ids(rng):
     X, y = _clusters(rng)
     Xm = rng.normal(0, 0.1, (50, X.shape[1])).astype(np.float32)
