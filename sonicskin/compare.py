@@ -94,7 +94,7 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("inputs -> touch/xy/force, median", lambda r: f"{r['latency']['median_ms'] * 1e3:.0f} us"),
         ("inputs -> touch/xy/force, p99", lambda r: f"{r['latency']['p99_ms'] * 1e3:.0f} us"),
         ("model size", lambda r: f"{r['model_bytes'] / 1e3:.0f} kB"),
-        ("training time", lambda r: "n/a" if r["train_time_s"] is None else f"{r['train_time_s']:.1f} s"),
+        ("training time (to exported epoch)", lambda r: "n/a" if r["train_time_s"] is None else f"{r['train_time_s']:.1f} s"),
     ]
     net, svm = res["models"]["net"], res["models"]["svm"]
     w = max(len(r[0]) for r in rows)
