@@ -3,40 +3,20 @@ each checked for parity against the original right after export."""
 
 from __future__ import annotations
 
-import hashlib
-import json
-import time
-import warnings
 from pathlib import Path
 
 import numpy as np
-import onnxruntime as ort
 import torch
-from skl2onnx import to_onnx
-from sklearn.svm import SVC
 
 import sonicskin
-from sonicskin.baseline import ovr_scores_from_ovo
-from sonicskin.features import FeatureSpec, Split, model_inputs, quiet_mask, touch_mask
+from sonicskin.artifact import PARITY_TOL, ort_session, skin_json, svm_entry
+from sonicskin.features import FeatureSpec, Split, model_inputs, touch_mask
 from sonicskin.rig import Layout
-from sonicskin.svm_head import fit_svm_head
 from training.module import SkinLitModule
 
-__all__ = ["export_artifact", "ARTIFACT_FORMAT"]
+__all__ = ["export_artifact", "export_net"]
 
-ARTIFACT_FORMAT = "sonicskin-artifact"
-TOL = 1e-4
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _session(path: Path) -> ort.InferenceSession:
-    so = ort.SessionOptions()
-    so.intra_op_num_threads = 1
-    so.log_severity_level = 3
-    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+TOL = PARITY_TOL
 
 
 def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarray) -> dict:
@@ -45,7 +25,7 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
     example = torch.from_numpy(X_check[:2].astype(np.float32))
     torch.onnx.export(model, (example,), str(path), input_names=["features"], output_names=["logits", "force"],
                       dynamic_shapes=({0: torch.export.Dim("batch", min=1)},), dynamo=True, external_data=False)
-    sess = _session(path)
+    sess = ort_session(path)
     with torch.no_grad():
         ref_logits, ref_force = (t.numpy() for t in model(torch.from_numpy(X_check.astype(np.float32))))
     logits, force = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
@@ -54,23 +34,6 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
               "labels_equal": bool(np.array_equal(logits.argmax(1), ref_logits.argmax(1)))}
     if not (parity["labels_equal"] and parity["max_abs_logits"] < TOL and parity["max_abs_force_n"] < TOL):
         raise RuntimeError(f"ONNX export of the network does not match torch: {parity}")
-    return parity
-
-
-def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
-    """sklearn scaler + SVC(ovo) -> ONNX (2 nodes), then parity of labels and per-location scores."""
-    with warnings.catch_warnings():  # skl2onnx reads SVC's deprecated probA_/probB_
-        warnings.simplefilter("ignore", FutureWarning)
-        onx = to_onnx(pipe, X_check[:1].astype(np.float32), options={SVC: {"zipmap": False}}, target_opset=17)
-    path.write_bytes(onx.SerializeToString())
-    sess = _session(path)
-    label, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
-    ref_ovo = pipe.decision_function(X_check.astype(np.float32))
-    S, S_ref = ovr_scores_from_ovo(ovo, n_locations), ovr_scores_from_ovo(ref_ovo, n_locations)
-    parity = {"max_abs_scores": float(np.abs(S - S_ref).max()),
-              "labels_equal": bool(np.array_equal(label, pipe.predict(X_check.astype(np.float32))))}
-    if not (parity["labels_equal"] and parity["max_abs_scores"] < TOL):
-        raise RuntimeError(f"ONNX export of the SVM does not match scikit-learn: {parity}")
     return parity
 
 
@@ -96,31 +59,18 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     loc = t["location"]
     cls = np.where(loc >= 0, layout.index_of(np.where(loc >= 0, loc, layout.ids[0])), n_loc)
     usable = (loc < 0) | touch_mask(t, meta["min_force_n"])
-    tr = split.mask(t, "train") & usable
-    t0 = time.perf_counter()
-    pipe, svm_params = fit_svm_head(X[tr], cls[tr], t["force_n"][tr], quiet_mask(t)[tr], n_locations=n_loc,
-                                    location_ids=layout.ids)
-    svm_train_s = time.perf_counter() - t0
+    p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
+    svm, svm_train_s = svm_entry(p, out, split.mask(t, "train") & usable)
     rng = np.random.default_rng(0)
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     net_parity = export_net(lit.model, X.shape[1], out / "net.onnx", check)
-    svm_parity = export_svm(pipe, n_loc, out / "svm.onnx", check)
-    skin = {
-        "format": ARTIFACT_FORMAT, "version": 1, "sonicskin_version": sonicskin.__version__,
-        "rig": meta["rig"], "layout": meta["layout"], "features": spec.to_dict(), "min_force_n": meta["min_force_n"],
-        "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s},
-        "training": {"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
-                     "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
-        "models": {
-            "net": {"file": "net.onnx", "sha256": _sha256(out / "net.onnx"), "kind": "skinnet",
-                    "n_in": X.shape[1], "n_locations": n_loc, "parity": net_parity,
-                    "hparams": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lit.hparams.items()}},
-            "svm": {"file": "svm.onnx", "sha256": _sha256(out / "svm.onnx"), "kind": "svc-ovo",
-                    "n_in": X.shape[1], "n_locations": n_loc, "parity": svm_parity, **svm_params},
-        },
-    }
-    (out / "skin.json").write_text(json.dumps(skin, indent=1))
+    net = {"file": "net.onnx", "kind": "skinnet", "n_in": int(X.shape[1]), "n_locations": n_loc, "parity": net_parity,
+           "hparams": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lit.hparams.items()}}
+    skin = skin_json(out, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
+                     training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
+                               "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
+                     models={"net": net, "svm": svm})
     log(f"exported {out}: net.onnx ({(out / 'net.onnx').stat().st_size / 1e3:.0f} kB, parity max |d logits| "
         f"{net_parity['max_abs_logits']:.1e}), svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max "
-        f"|d scores| {svm_parity['max_abs_scores']:.1e})")
+        f"|d scores| {svm['parity']['max_abs_scores']:.1e})")
     return skin

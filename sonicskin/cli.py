@@ -134,6 +134,13 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
+def cmd_fit_svm(a: argparse.Namespace) -> int:
+    from .artifact import build_svm_artifact
+
+    build_svm_artifact(a.data, a.out, n_bins=a.n_bins, mode=a.mode, train_sessions=a.train)
+    return 0
+
+
 def cmd_info(a: argparse.Namespace) -> int:
     from .rig import CONFIG_DIR, Rig
 
@@ -202,6 +209,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
     c.add_argument("--out", help="report folder (default: reports/compare-<dataset>)")
     c.set_defaults(func=cmd_compare, passthrough=True)
+
+    f = sub.add_parser("fit-svm", help="SVM-only artifact from a recording, no torch needed",
+                       description="The paper's system as a deployment artifact (svm.onnx + skin.json), trained on "
+                                   "every session of a dataset (or --train) on a machine without torch.")
+    f.add_argument("--data", required=True, help="dataset folder")
+    f.add_argument("--out", required=True, help="artifact folder to write")
+    f.add_argument("--train", nargs="+", metavar="SESSION", help="training sessions (default: all)")
+    f.add_argument("--n-bins", type=int, default=300, help="OSPA gamma (default 300)")
+    f.add_argument("--mode", choices=("relative", "absolute"), default="relative", help="model inputs (default relative)")
+    f.set_defaults(func=cmd_fit_svm)
 
     i = sub.add_parser("info", help="show the rig and the available configs")
     i.add_argument("--rig", default="jaco")

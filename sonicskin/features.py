@@ -17,7 +17,8 @@ import numpy as np
 from .calibration import ScoreCalibrator
 from .dataset import Dataset, FeatureTable
 
-__all__ = ["FeatureSpec", "relative_features", "load_features_cached", "quiet_mask", "touch_mask"]
+__all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
+           "select_bins", "model_inputs", "prepare"]
 
 MODES = ("absolute", "relative")
 
@@ -123,7 +124,8 @@ class Split:
     test: tuple[str, ...]
 
     @classmethod
-    def make(cls, t: FeatureTable, *, train_sessions=None, val_sessions=None, test_subjects=None) -> Split:
+    def make(cls, t: FeatureTable, *, train_sessions=None, val_sessions=None, test_subjects=None,
+             allow_no_test: bool = False) -> Split:
         sessions = sorted(set(t["session"]))
         if test_subjects:
             subj = {s: set(t["subject"][(t["session"] == s) & (t["location"] >= 0)]) for s in sessions}
@@ -143,7 +145,7 @@ class Split:
         else:
             val = list(val_sessions)
         test = [s for s in rest if s not in val]
-        if not test:
+        if not test and not allow_no_test:
             raise ValueError(f"no session left to test on (sessions {sessions}, train {train}, val {val})")
         return cls(tuple(train), tuple(val), tuple(test))
 
@@ -159,3 +161,25 @@ def model_inputs(data, spec: FeatureSpec, *, progress: bool = True) -> tuple[Dat
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = load_features_cached(ds, progress=progress)
     return ds, t, spec.transform(t, ds.rig.chirps_per_s)
+
+
+def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
+            val_sessions=None, test_subjects=None, min_force_n: float = 0.5, progress: bool = True,
+            allow_no_test: bool = False) -> dict:
+    """Load a dataset, split it by session/subject, select OSPA bins on the training split and build
+    model inputs for every chirp.  Shared by the DataModule, the SVM baseline and ``compare``."""
+    ds = Dataset(data)
+    t = load_features_cached(ds, progress=progress)
+    split = Split.make(t, train_sessions=train_sessions, val_sessions=val_sessions, test_subjects=test_subjects,
+                       allow_no_test=allow_no_test)
+    tr = t.select(split.mask(t, "train"))
+    bins = select_bins(tr, ds.rig, n_bins, min_force_n)
+    spec = FeatureSpec(tuple(int(b) for b in bins), mode)
+    X = spec.transform(t, ds.rig.chirps_per_s)
+    loc = t["location"]
+    n_loc = len(ds.layout)
+    cls = np.where(loc >= 0, ds.layout.index_of(np.where(loc >= 0, loc, ds.layout.ids[0])), n_loc)
+    # Light presses (0 < F < min_force_n) are neither a clear touch nor no touch: left out of training.
+    usable = (loc < 0) | touch_mask(t, min_force_n)
+    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls.astype(np.int64),
+            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": n_loc}

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .artifact import ARTIFACT_FORMAT
 from .baseline import ovr_scores_from_ovo
 from .calibration import ScoreCalibrator
 from .dsp import log_magnitude_db
@@ -24,7 +25,6 @@ from .rig import Layout, Rig
 
 __all__ = ["ArtifactError", "SkinRuntime", "Predictions", "ARTIFACT_FORMAT"]
 
-ARTIFACT_FORMAT = "sonicskin-artifact"
 
 
 class ArtifactError(ValueError):

@@ -38,3 +38,35 @@ def test_simulate_then_evaluate_end_to_end(tmp_path, capsys):
     # The pipeline on arrays predicts a location and a force for every touched chirp.
     r = evaluate_svm(Dataset(data), ablations=False, log=lambda *_: None)
     assert r["force"]["n"] == r["localization"]["n"] > 0 and np.isfinite(r["force"]["rmse_n"])
+
+
+def test_fit_svm_artifact_without_torch(tmp_path):
+    """The paper's system as an artifact on a machine without torch: fit-svm, then the runtime."""
+    data = tmp_path / "d"
+    layout = "{kind: grid, nx: 3, ny: 1, spacing_cm: 1.2, x0_cm: 8, y0_cm: 12}"
+    assert main(["simulate", "--scenario", "stationary", "--out", str(data), "--sessions", "2", "--quiet",
+                 "--set", f"layout={layout}", "--set", "touch_s=1.0", "--set", "repeats=2"]) == 0
+    code = f"""
+import sys, importlib.abc
+class NoTorch(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split('.')[0] == 'torch':
+            raise ImportError('torch is not installed on this machine')
+sys.meta_path.insert(0, NoTorch())
+from sonicskin.cli import main
+assert main(['fit-svm', '--data', {str(data)!r}, '--out', {str(tmp_path / 'art')!r}, '--train', 's000', '--n-bins', '50']) == 0
+from sonicskin.runtime import SkinRuntime
+from sonicskin.features import model_inputs, quiet_mask
+import numpy as np
+rt = SkinRuntime({str(tmp_path / 'art')!r}, 'svm')
+ds, t, X = model_inputs({str(data)!r}, rt.spec, progress=False)
+s = t['session'] == 's001'
+p = rt.predict_inputs(X[s], quiet=quiet_mask(t)[s], time_s=t['time_s'][s])
+touch = (t['location'][s] >= 0) & (t['force_n'][s] > 1)
+assert np.mean(p.location[touch] == t['location'][s][touch]) > 0.6
+assert 'torch' not in sys.modules
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-3000:]
+    meta = json.loads((tmp_path / "art" / "skin.json").read_text())
+    assert set(meta["models"]) == {"svm"} and len(meta["features"]["bins"]) == 50

@@ -10,30 +10,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
-from sonicskin.dataset import Dataset
-from sonicskin.features import FeatureSpec, Split, load_features_cached, select_bins, touch_mask
+from sonicskin.features import prepare
 
-__all__ = ["SkinDataModule", "prepare"]
-
-
-def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
-            val_sessions=None, test_subjects=None, min_force_n: float = 0.5, progress: bool = True) -> dict:
-    """Load a dataset, split it by session/subject, select OSPA bins on the training split and build
-    model inputs for every chirp.  Shared by the DataModule, the SVM baseline and ``compare``."""
-    ds = Dataset(data)
-    t = load_features_cached(ds, progress=progress)
-    split = Split.make(t, train_sessions=train_sessions, val_sessions=val_sessions, test_subjects=test_subjects)
-    tr = t.select(split.mask(t, "train"))
-    bins = select_bins(tr, ds.rig, n_bins, min_force_n)
-    spec = FeatureSpec(tuple(int(b) for b in bins), mode)
-    X = spec.transform(t, ds.rig.chirps_per_s)
-    loc = t["location"]
-    n_loc = len(ds.layout)
-    cls = np.where(loc >= 0, ds.layout.index_of(np.where(loc >= 0, loc, ds.layout.ids[0])), n_loc)
-    # Light presses (0 < F < min_force_n) are neither a clear touch nor no touch: left out of training.
-    usable = (loc < 0) | touch_mask(t, min_force_n)
-    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls.astype(np.int64),
-            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": n_loc}
+__all__ = ["SkinDataModule"]
 
 
 class SkinDataModule(L.LightningDataModule):

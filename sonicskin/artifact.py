@@ -1,0 +1,109 @@
+"""Writing deployment artifacts (ONNX + ``skin.json``) without torch.
+
+``export/onnx.py`` adds the network; everything about the SVM, the metadata and checksums is
+here, so a machine without torch can still build an SVM-only artifact from a recording
+(``sonicskin fit-svm``), as the paper's system does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .baseline import ovr_scores_from_ovo
+from .features import prepare, quiet_mask
+from .svm_head import fit_svm_head
+
+__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "sha256", "ort_session", "export_svm", "skin_json", "build_svm_artifact"]
+
+ARTIFACT_FORMAT = "sonicskin-artifact"
+PARITY_TOL = 1e-4
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def ort_session(path: Path):
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = 1
+    so.log_severity_level = 3
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
+    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity of labels and per-location scores."""
+    from skl2onnx import to_onnx
+    from sklearn.svm import SVC
+
+    with warnings.catch_warnings():  # skl2onnx reads SVC's deprecated probA_/probB_
+        warnings.simplefilter("ignore", FutureWarning)
+        onx = to_onnx(pipe, X_check[:1].astype(np.float32), options={SVC: {"zipmap": False}}, target_opset=17)
+    Path(path).write_bytes(onx.SerializeToString())
+    sess = ort_session(path)
+    label, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
+    ref_ovo = pipe.decision_function(X_check.astype(np.float32))
+    S, S_ref = ovr_scores_from_ovo(ovo, n_locations), ovr_scores_from_ovo(ref_ovo, n_locations)
+    parity = {"max_abs_scores": float(np.abs(S - S_ref).max()),
+              "labels_equal": bool(np.array_equal(label, pipe.predict(X_check.astype(np.float32))))}
+    if not (parity["labels_equal"] and parity["max_abs_scores"] < PARITY_TOL):
+        raise RuntimeError(f"ONNX export of the SVM does not match scikit-learn: {parity}")
+    return parity
+
+
+def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict) -> dict:
+    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters)."""
+    for entry in models.values():
+        entry["sha256"] = sha256(Path(out) / entry["file"])
+    skin = {"format": ARTIFACT_FORMAT, "version": 1, "sonicskin_version": __version__, "rig": rig, "layout": layout,
+            "features": spec.to_dict(), "min_force_n": min_force_n,
+            "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training, "models": models}
+    (Path(out) / "skin.json").write_text(json.dumps(skin, indent=1))
+    return skin
+
+
+def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0) -> tuple[dict, float]:
+    """Fit the SVM head on the training chirps of a :func:`sonicskin.features.prepare` result, export
+    ``svm.onnx`` with parity, and return its ``skin.json`` entry and the fit time."""
+    t, X = p["table"], p["X"]
+    t0 = time.perf_counter()
+    pipe, params = fit_svm_head(X[train_mask], p["cls"][train_mask], p["force"][train_mask], quiet_mask(t)[train_mask],
+                                n_locations=p["n_locations"], location_ids=p["dataset"].layout.ids, C=C)
+    fit_s = time.perf_counter() - t0
+    rng = np.random.default_rng(0)
+    check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
+    parity = export_svm(pipe, p["n_locations"], Path(out) / "svm.onnx", check)
+    return {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(X.shape[1]), "n_locations": p["n_locations"],
+            "parity": parity, **params}, fit_s
+
+
+def build_svm_artifact(data, out, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
+                       min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
+    """SVM-only artifact from a dataset, torch-free: OSPA on the training sessions (default: all),
+    scaler + RBF SVM, Alg. 2 reference, detection threshold, per-location force curves."""
+    from .dataset import Dataset
+
+    ds = Dataset(data)
+    sessions = ds.sessions
+    train = list(train_sessions or sessions)
+    # Every session may train here (no test split): give Split one dummy test session if needed.
+    p = prepare(data, n_bins=n_bins, mode=mode, train_sessions=train, val_sessions=[],
+                min_force_n=min_force_n, progress=progress, allow_no_test=True)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    tr = p["split"].mask(p["table"], "train") & p["usable"]
+    entry, fit_s = svm_entry(p, out, tr)
+    skin = skin_json(out, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=p["spec"], min_force_n=min_force_n,
+                     training={"data": str(Path(data).resolve()), "split": p["split"].to_dict(), "svm_train_time_s": fit_s},
+                     models={"svm": entry})
+    log(f"wrote {out}/svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max |d scores| "
+        f"{entry['parity']['max_abs_scores']:.1e}) and skin.json")
+    return skin
