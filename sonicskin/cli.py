@@ -141,6 +141,69 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_devices(a: argparse.Namespace) -> int:
+    from .acquire import list_devices
+
+    devs = list_devices()
+    if not devs:
+        print("no audio devices (PortAudio sees none); `sonicskin live` runs on the simulated device by default")
+        return 0
+    print(f"{'index':>5}  {'name':40s} {'host API':28s} {'in':>3} {'out':>3}  default rate")
+    for d in devs:
+        print(f"{d['index']:>5}  {d['name'][:40]:40s} {d['hostapi'][:28]:28s} {d['inputs']:>3} {d['outputs']:>3}  "
+              f"{d['default_rate_hz']:g} Hz")
+    return 0
+
+
+def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
+    """One-shot training on the simulated link (cached): what `sonicskin record` + `fit-svm` do on a real rig."""
+    from .artifact import build_svm_artifact
+    from .sim.generate import simulate_dataset
+
+    art = root / f"artifacts/sim-{scenario.name}-svm"
+    if (art / "skin.json").is_file():
+        return art
+    data = root / f"data/sim-{scenario.name}-oneshot"
+    print(f"no --artifact: one-shot training on the simulated link first ({data} -> {art})", file=sys.stderr)
+    simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False,
+                     log=lambda m: print(m, file=sys.stderr))
+    build_svm_artifact(data, art, progress=False, log=lambda m: print(m, file=sys.stderr))
+    return art
+
+
+def cmd_live(a: argparse.Namespace) -> int:
+    from .acquire import Link, SimulatedSource, SoundDeviceSource
+    from .live import LiveLoop, UdpSink
+    from .rig import Rig
+    from .runtime import SkinRuntime
+
+    rig = Rig.load(a.rig)
+    if a.device == "sim":
+        from .sim import Scenario, Simulator, build_timeline
+
+        sc = Scenario.load(a.scenario)
+        artifact = Path(a.artifact) if a.artifact else _sim_svm_artifact(sc, rig, Path("."))
+        # The same simulated link (link_seed), a new person-session of scripted touches (seed).
+        live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
+        timeline = build_timeline(live_sc, rig)
+        source = SimulatedSource(Simulator(live_sc, rig), timeline, realtime=not a.fast, drop_every=a.drop_every)
+    else:
+        if not a.artifact:
+            raise ValueError("a real rig needs a model trained on it: `sonicskin record`, then `sonicskin fit-svm` "
+                             "(or train + export), then `sonicskin live --device ... --artifact DIR`")
+        artifact = Path(a.artifact)
+        source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
+    rt = SkinRuntime(artifact, a.model, rig=rig)
+    sinks = [lambda line: print(line, flush=True)]
+    if a.udp:
+        sinks.append(UdpSink(a.udp))
+    loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
+    with source:
+        summary = loop.run(duration_s=a.duration)
+    print(json.dumps({"summary": summary}), file=sys.stderr)
+    return 0
+
+
 def cmd_info(a: argparse.Namespace) -> int:
     from .rig import CONFIG_DIR, Rig
 
@@ -220,6 +283,28 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--mode", choices=("relative", "absolute"), default="relative", help="model inputs (default relative)")
     f.set_defaults(func=cmd_fit_svm)
 
+    lv = sub.add_parser("live", help="real-time touch sensing: audio -> touch events (JSON lines)",
+                        description="Run the live loop. By default on the simulated device with scripted touches; "
+                                    "--device NAME|INDEX uses a real audio interface (see `sonicskin devices`).")
+    lv.add_argument("--device", default="sim", help="'sim' (default) or an audio device name/index")
+    lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm); on the simulated device one is "
+                                       "trained on the spot when omitted")
+    lv.add_argument("--model", choices=("svm", "net"), default="svm", help="which model of the artifact (default svm)")
+    lv.add_argument("--scenario", default="stationary", help="simulated device: scenario of the link and the touches")
+    lv.add_argument("--rig", default="jaco")
+    lv.add_argument("--duration", type=float, default=30.0, help="seconds of stream to run (default 30)")
+    lv.add_argument("--udp", metavar="[HOST:]PORT", help="also send events as UDP datagrams (host defaults to 127.0.0.1)")
+    lv.add_argument("--tx", type=int, default=0, help="transmit channel (0-based)")
+    lv.add_argument("--rx", type=int, default=0, help="receive channel (0-based)")
+    lv.add_argument("--blocksize", type=int, default=1024)
+    lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time")
+    lv.add_argument("--drop-every", type=int, help="simulated device: drop one audio block in N (fault injection)")
+    lv.add_argument("--no-status", action="store_true", help="no status line on stderr")
+    lv.set_defaults(func=cmd_live)
+
+    dv = sub.add_parser("devices", help="list audio devices")
+    dv.set_defaults(func=cmd_devices)
+
     i = sub.add_parser("info", help="show the rig and the available configs")
     i.add_argument("--rig", default="jaco")
     i.set_defaults(func=cmd_info)
@@ -236,13 +321,15 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unrecognized arguments: {' '.join(extra)}")
     try:
         return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
-    except (ValueError, FileNotFoundError, FileExistsError) as exc:  # user errors: one clear line, no traceback
-        print(f"sonicskin {a.verb}: error: {exc}", file=sys.stderr)
-        return 2
+    except BrokenPipeError:  # `sonicskin live | head`: the reader went away
+        sys.stdout = None
+        return 0
     except KeyboardInterrupt:
         print(f"\nsonicskin {a.verb}: interrupted; everything written so far is kept", file=sys.stderr)
         return 130
-
+    except (ValueError, FileNotFoundError, FileExistsError, RuntimeError, OSError) as exc:  # user errors: one line
+        print(f"sonicskin {a.verb}: error: {exc}", file=sys.stderr)
+        return 2
 
 if __name__ == "__main__":
     raise SystemExit(main())

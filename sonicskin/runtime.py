@@ -156,8 +156,12 @@ class SkinRuntime:
         return out
 
     def predict_inputs(self, inputs: np.ndarray, *, quiet: np.ndarray | None = None,
-                       time_s: np.ndarray | None = None) -> Predictions:
-        """Predictions from model inputs (see :meth:`inputs`)."""
+                       time_s: np.ndarray | None = None, score_reference: np.ndarray | None = None) -> Predictions:
+        """Predictions from model inputs (see :meth:`inputs`).
+
+        For the SVM, Alg. 2's ``S_c`` comes from the ``quiet`` chirps of the stream (replayed), or
+        is given as ``score_reference`` (the live loop's), or is the training session's.
+        """
         if self.kind == "net":
             logits, force_all = self.run(inputs)
             p = _softmax(logits)
@@ -177,15 +181,21 @@ class SkinRuntime:
                                           self.rig.chirps_per_s).run(S, quiet, initial=self.reference_scores,
                                                                      time_s=time_s)
             else:
-                S_final = S - self.reference_scores
+                S_final = S - (self.reference_scores if score_reference is None else score_reference)
             touch = S_final.max(axis=1) >= self.m["threshold"]
             E = energy_db(inputs, np.arange(inputs.shape[1])) - self.m["energy_ref_db"]
             f = self.force_model.predict(E, self.ids[idx])
-            conf = np.max(S, axis=1) / max(self.n_locations - 1, 1)
+            conf = np.clip(np.max(S, axis=1) / max(self.n_locations - 1, 1), 0, 1)  # share of pairwise votes won
             w = _softmax(4.0 * S)  # S counts votes: sharpen so the centroid stays among neighbours
             scores = S_final
         f = np.where(touch, np.clip(f, 0, None), 0.0)
         return Predictions(touch, self.ids[idx], self._centroid(w), f, conf, scores)
+
+    def raw_scores(self, inputs: np.ndarray) -> np.ndarray:
+        """Per-location SVM scores S before calibration (for Alg. 2's reference), (n, N)."""
+        if self.kind != "svm":
+            raise ValueError("raw scores are the SVM's; the network needs no score reference")
+        return ovr_scores_from_ovo(self.run(inputs)[1], self.n_locations)
 
     def predict_frames(self, frames: np.ndarray, *, quiet: np.ndarray | None = None,
                        reference: np.ndarray | None = None) -> Predictions:

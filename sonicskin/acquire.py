@@ -1,0 +1,277 @@
+"""Audio acquisition: the only module that touches audio hardware (through sounddevice).
+
+A *source* delivers the receiver's audio as blocks through :meth:`read`; the transmitter plays
+the chirp back to back.  :class:`SoundDeviceSource` is a duplex PortAudio stream whose callback
+only copies into a queue (all work happens in the consumer, as in sounddevice's
+``rec_unlimited.py``); :class:`SimulatedSource` has the same interface and is backed by the
+simulated rig, so every command runs on a machine with no sound card.
+
+Overflows (the consumer fell behind, or the driver dropped input) are counted and flagged on
+the next block as a discontinuity, never fatal; the live loop re-locks its framing on them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import queue
+import threading
+import time
+
+import numpy as np
+
+from .dsp import rig_chirp
+from .rig import Rig
+
+__all__ = ["Block", "AudioError", "Link", "import_sounddevice", "list_devices", "SoundDeviceSource", "SimulatedSource"]
+
+
+class AudioError(RuntimeError):
+    """No usable audio device, rate or library; the message says what to do."""
+
+
+@dataclasses.dataclass
+class Block:
+    samples: np.ndarray     # (n,) float32, the receiver channel
+    index: int              # sequence number of the block (gaps mean lost blocks)
+    start: int              # sample index of the first sample in the stream
+    discontinuity: bool     # samples before this block were lost (overflow, dropped block)
+
+
+@dataclasses.dataclass(frozen=True)
+class Link:
+    """One transmitter/receiver pair: 0-based channel indices on the audio interface.
+
+    Several links on one interface (one per robot link, paper Sec. IV) share the chirp by
+    *time* duplexing (``slot``: link k transmits in chirp periods where ``period % n_slots == slot``)
+    or *frequency* duplexing (each link its own rig with a disjoint chirp band).
+    """
+
+    tx: int = 0
+    rx: int = 0
+    slot: int = 0
+    n_slots: int = 1
+
+
+def import_sounddevice():
+    """Import sounddevice lazily, with an actionable error when PortAudio is missing."""
+    try:
+        import sounddevice as sd
+    except OSError as e:  # sounddevice raises OSError when libportaudio cannot be loaded
+        raise AudioError(f"the PortAudio library is not installed ({e}); on Debian/Ubuntu: "
+                         f"sudo apt-get install libportaudio2") from None
+    return sd
+
+
+def list_devices() -> list[dict]:
+    """Audio devices PortAudio sees: index, name, host API, channel counts, default rate."""
+    sd = import_sounddevice()
+    apis = sd.query_hostapis()
+    return [{"index": i, "name": d["name"], "hostapi": apis[d["hostapi"]]["name"],
+             "inputs": d["max_input_channels"], "outputs": d["max_output_channels"],
+             "default_rate_hz": d["default_samplerate"]} for i, d in enumerate(sd.query_devices())]
+
+
+def find_device(spec: str | int | None, rig: Rig, n_in: int, n_out: int) -> int:
+    """Resolve a device name (substring) or index and check it runs the rig's rate and channels."""
+    sd = import_sounddevice()
+    devs = list_devices()
+    if not devs:
+        raise AudioError("no audio device found; connect the audio interface (or start JACK), "
+                         "or run with the simulated device: --device sim")
+    if spec is None:
+        idx = sd.default.device[0] if sd.default.device[0] is not None and sd.default.device[0] >= 0 else devs[0]["index"]
+    elif isinstance(spec, int) or str(spec).isdigit():
+        idx = int(spec)
+        if idx >= len(devs):
+            raise AudioError(f"no audio device with index {idx}; `sonicskin devices` lists {len(devs)}")
+    else:
+        hits = [d for d in devs if str(spec).lower() in d["name"].lower()]
+        if not hits:
+            raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: "
+                             + ", ".join(d["name"] for d in devs))
+        idx = hits[0]["index"]
+    d = devs[idx]
+    if d["inputs"] < n_in or d["outputs"] < n_out:
+        raise AudioError(f"device {d['name']!r} has {d['inputs']} inputs / {d['outputs']} outputs; "
+                         f"the links need {n_in} / {n_out}")
+    try:
+        sd.check_input_settings(device=idx, channels=n_in, samplerate=rig.fs_hz, dtype="float32")
+        sd.check_output_settings(device=idx, channels=n_out, samplerate=rig.fs_hz, dtype="float32")
+    except Exception as e:  # sounddevice.PortAudioError and ValueError
+        raise AudioError(f"device {d['name']!r} cannot run at {rig.fs_hz:g} Hz ({e}); set the interface to "
+                         f"{rig.fs_hz:g} Hz or use a rig config with its rate") from None
+    return idx
+
+
+class _QueueSource:
+    """Shared consumer side: a bounded queue of blocks, counters, and a clean shutdown."""
+
+    def __init__(self, rig: Rig, blocksize: int, max_queued_s: float = 2.0):
+        self.rig, self.blocksize = rig, int(blocksize)
+        self.queue: queue.Queue = queue.Queue(maxsize=max(4, int(max_queued_s * rig.fs_hz / blocksize)))
+        self.overflows = 0       # driver-reported input overflows
+        self.underflows = 0      # driver-reported output underflows
+        self.dropped_blocks = 0  # blocks the consumer was too slow to take
+        self._index = 0
+        self._pos = 0
+        self._lost = False
+
+    def _deliver(self, samples: np.ndarray, lost_before: bool = False) -> None:
+        """Called by the producer (audio callback or simulator thread): copy into the queue, never block."""
+        lost = lost_before or self._lost
+        try:
+            self.queue.put_nowait(Block(samples, self._index, self._pos, lost))
+            self._lost = False
+        except queue.Full:
+            self.dropped_blocks += 1
+            self._lost = True
+        self._index += 1
+        self._pos += len(samples)
+
+    def read(self, timeout: float = 1.0) -> Block | None:
+        try:
+            return self.queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def counters(self) -> dict:
+        return {"overflows": self.overflows, "underflows": self.underflows, "dropped_blocks": self.dropped_blocks}
+
+    def __enter__(self):
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+
+
+class SoundDeviceSource(_QueueSource):
+    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx``.
+
+    Parameters
+    ----------
+    rig : sample rate and chirp.
+    device : name substring or index (``sonicskin devices``); default device when ``None``.
+    link : channels of the TX/RX pair.
+    blocksize : frames per callback.
+    playback : one period of what to play on the TX channel (default: the rig's chirp).  Tests
+        pass a simulated received signal here to run the real audio path through a loopback.
+    """
+
+    def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), blocksize: int = 1024,
+                 playback: np.ndarray | None = None):
+        super().__init__(rig, blocksize)
+        self.sd = import_sounddevice()
+        self.link = link
+        n_in, n_out = link.rx + 1, link.tx + 1
+        self.device = find_device(device, rig, n_in, n_out)
+        tx = rig_chirp(rig).astype(np.float32) if playback is None else np.asarray(playback, np.float32)
+        if link.n_slots > 1:  # time duplexing: silent in the other links' chirp periods
+            L = rig.n_chirp
+            period = np.zeros(L * link.n_slots, np.float32)
+            period[link.slot * L:(link.slot + 1) * L] = tx[:L]
+            tx = period
+        self._tx = tx
+        self._tx_pos = 0
+        self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
+                                     channels=(n_in, n_out), dtype="float32", callback=self._callback)
+
+    def _callback(self, indata, outdata, frames, time_info, status) -> None:
+        # Audio thread: copy only.
+        n = len(self._tx)
+        idx = (self._tx_pos + np.arange(frames)) % n
+        outdata[:] = 0
+        outdata[:, self.link.tx] = self._tx[idx]
+        self._tx_pos = (self._tx_pos + frames) % n
+        if status.input_overflow:
+            self.overflows += 1
+        if status.output_underflow:
+            self.underflows += 1
+        self._deliver(indata[:, self.link.rx].copy(), lost_before=bool(status.input_overflow))
+
+    def start(self) -> None:
+        self.stream.start()
+
+    def stop(self) -> None:
+        self.stream.stop()
+        self.stream.close()
+
+
+class SimulatedSource(_QueueSource):
+    """The simulated rig as an audio source: scripted touches from a scenario, rendered ahead in
+    a producer thread and delivered block by block, in real time or as fast as it is read.
+
+    Parameters
+    ----------
+    simulator : :class:`sonicskin.sim.Simulator` of the link.
+    timeline : the chirps to play (one session of :func:`sonicskin.sim.build_timeline`).
+    realtime : pace the blocks at the rig's sample rate; otherwise deliver as fast as read.
+    drop_every : drop one block in every ``drop_every`` (fault injection: the consumer must re-lock).
+    offset : the stream starts this many samples into the first chirp (unknown to the consumer).
+    """
+
+    def __init__(self, simulator, timeline, *, blocksize: int = 1024, realtime: bool = True,
+                 drop_every: int | None = None, offset: int = 4321, chunk_chirps: int = 64):
+        super().__init__(simulator.rig, blocksize)
+        self.sim, self.timeline = simulator, timeline
+        self.realtime, self.drop_every = realtime, drop_every
+        self.offset, self.chunk = int(offset) % simulator.rig.n_chirp, int(chunk_chirps)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._produce, name="sonicskin-sim-audio", daemon=True)
+        self.finished = threading.Event()
+
+    def chirp_start(self, k: int) -> int:
+        """Stream sample index where chirp ``k`` of the timeline starts."""
+        return k * self.rig.n_chirp - self.offset
+
+    def _produce(self) -> None:
+        L, B = self.rig.n_chirp, self.blocksize
+        pending = np.zeros(0, np.float32)
+        t_next = time.perf_counter()
+        n_block = 0
+        for a in range(0, len(self.timeline), self.chunk):
+            if self._stop.is_set():
+                break
+            frames = self.sim.render(self.timeline.select(np.arange(a, min(a + self.chunk, len(self.timeline)))))
+            audio = frames.ravel()
+            if a == 0:
+                audio = audio[self.offset:]
+            pending = np.concatenate([pending, audio])
+            while len(pending) >= B and not self._stop.is_set():
+                block, pending = pending[:B], pending[B:]
+                n_block += 1
+                if self.drop_every and n_block % self.drop_every == 0:
+                    self.overflows += 1  # what a driver reports when input is lost
+                    self._index += 1
+                    self._pos += B
+                    self._lost = True
+                else:
+                    if self.realtime:
+                        self._deliver(block)
+                    else:
+                        self._put_blocking(block)
+                if self.realtime:
+                    t_next += B / self.rig.fs_hz
+                    delay = t_next - time.perf_counter()
+                    if delay > 0:
+                        time.sleep(delay)
+        _ = L
+        self.finished.set()
+
+    def _put_blocking(self, block: np.ndarray) -> None:
+        while not self._stop.is_set():
+            try:
+                self.queue.put(Block(block, self._index, self._pos, self._lost), timeout=0.1)
+                self._lost = False
+                break
+            except queue.Full:
+                continue
+        self._index += 1
+        self._pos += len(block)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)

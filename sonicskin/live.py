@@ -1,0 +1,259 @@
+"""The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
+
+The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs one FFT,
+one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
+
+- **Framing** locks onto the chirp train by cross-correlation over one period, then cuts frames
+  every ``n_chirp`` samples; a discontinuity (overflow, dropped block) or a drift of the
+  correlation peak makes it discard what it holds and lock again.
+- **Calibration** (Alg. 2): the first ``beta`` seconds are taken as no-touch (the system starts
+  with hands off, as in the paper); their mean features (and, for the SVM, scores) are the
+  reference.  Every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected
+  become the new reference.
+- **Faults**: frames with NaN/inf, silence or clipping are skipped and counted; overflows and
+  underflows are counted; nothing is fatal.
+- **Output**: :class:`TouchEvent` per touched chirp (and one ``release``), as JSON lines and
+  optionally as UDP datagrams to localhost.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import socket
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
+from .runtime import SkinRuntime
+
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink"]
+
+
+@dataclasses.dataclass
+class TouchEvent:
+    t_s: float            # stream time of the chirp's start
+    kind: str             # "touch" (every touched chirp) or "release" (first chirp after a touch)
+    location: int
+    x_cm: float
+    y_cm: float
+    force_n: float
+    confidence: float
+    model: str
+    latency_ms: float     # frame complete -> event
+
+    def to_json(self) -> str:
+        d = dataclasses.asdict(self)
+        for k in ("t_s", "x_cm", "y_cm", "force_n", "confidence", "latency_ms"):
+            d[k] = round(float(d[k]), 4)
+        return json.dumps(d)
+
+
+class Framer:
+    """Chirp-synchronous framing of a block stream that re-locks after lost audio.
+
+    Parameters
+    ----------
+    reference : the transmitted chirp (one period).
+    check_every : verify the lock every this many frames (an FFT of one period).
+    tolerance : samples the correlation peak may wander before re-locking.  A firm touch on a moving
+        robot moves the peak of the simulated CFRP link by up to ~80 samples; a small slip is
+        harmless anyway (in steady state it is a circular shift, which leaves |H| unchanged).
+    """
+
+    def __init__(self, reference: np.ndarray, *, check_every: int = 16, tolerance: int = 256):
+        self.ref = np.asarray(reference, np.float64)
+        self.L = self.ref.size
+        self.check_every, self.tolerance = check_every, tolerance
+        self.buf = np.zeros(0, np.float32)
+        self.buf_start = 0          # stream sample index of buf[0]
+        self.next_start: int | None = None
+        self.relocks = 0
+        self.n_frames = 0
+
+    def reset(self) -> None:
+        self.buf = np.zeros(0, np.float32)
+        self.next_start = None
+
+    def push(self, samples: np.ndarray, start: int, discontinuity: bool = False) -> list[tuple[int, np.ndarray]]:
+        """Add a block (starting at stream sample ``start``); return the complete ``(start, frame)`` pairs."""
+        if discontinuity or (self.buf.size and start != self.buf_start + self.buf.size):
+            if self.next_start is not None:
+                self.relocks += 1
+            self.reset()
+        if self.buf.size == 0:
+            self.buf_start = start
+        self.buf = np.concatenate([self.buf, np.asarray(samples, np.float32)])
+        out = []
+        if self.next_start is None:
+            if self.buf.size < self.L:
+                return out
+            off = find_chirp_offset(self.buf[: self.L], self.ref, max_periods=1)
+            self.next_start = self.buf_start + off
+        while self.next_start + self.L <= self.buf_start + self.buf.size:
+            a = self.next_start - self.buf_start
+            frame = self.buf[a:a + self.L]
+            self.n_frames += 1
+            if self.n_frames % self.check_every == 0:
+                drift = find_chirp_offset(frame, self.ref, max_periods=1)
+                drift = min(drift, self.L - drift)
+                if drift > self.tolerance:  # lost lock without a reported gap
+                    self.relocks += 1
+                    keep = self.buf[a:]
+                    self.buf_start += a
+                    self.buf = keep
+                    self.next_start = None
+                    return out
+            out.append((self.next_start, frame.copy()))
+            self.next_start += self.L
+        cut = self.next_start - self.buf_start
+        if cut > 0:
+            self.buf = self.buf[cut:]
+            self.buf_start += cut
+        return out
+
+
+class UdpSink:
+    """Send event JSON as UDP datagrams; localhost unless told otherwise."""
+
+    def __init__(self, target: str):
+        host, _, port = target.rpartition(":")
+        self.addr = (host or "127.0.0.1", int(port))
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def __call__(self, line: str) -> None:
+        self.sock.sendto(line.encode(), self.addr)
+
+
+class LiveLoop:
+    """Consume a source, emit touch events.
+
+    Parameters
+    ----------
+    runtime : a loaded artifact model (:class:`sonicskin.runtime.SkinRuntime`).
+    source : an audio source (:mod:`sonicskin.acquire`).
+    emit : called with each event's JSON line (default: print to stdout).
+    status : write a status line to stderr about once a second.
+    """
+
+    def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
+                 status: bool = False):
+        self.rt, self.source = runtime, source
+        self.rig = runtime.rig
+        if source.rig.mismatch(self.rig):
+            raise ValueError(f"the audio source runs another rig than the model ({'; '.join(source.rig.mismatch(self.rig))})")
+        self.emit = emit or (lambda line: print(line, flush=True))
+        self.status = status
+        self.framer = Framer(rig_chirp(self.rig))
+        cps = self.rig.chirps_per_s
+        cal = runtime.spec.calibrator(cps)
+        self.beta, self.alpha_chirps = cal.beta_chirps, cal.alpha_chirps
+        self.bins = list(runtime.spec.bins)
+        self.relative = runtime.spec.mode == "relative"
+        self._cal_X: list[np.ndarray] = []
+        self._ref_X: np.ndarray | None = None
+        self._ref_S: np.ndarray | None = None
+        self._since_ref = 0
+        self._quiet_run: list[np.ndarray] = []
+        self.touching = False
+        self.events: list[TouchEvent] = []
+        self.latencies_ms: list[float] = []
+        self.skipped = {"nan": 0, "silent": 0, "clipped": 0}
+        self.n_chirps = 0
+        self.refreshes = 0
+
+    # -- per chirp ---------------------------------------------------------------------
+    def _inputs(self, Xb: np.ndarray) -> np.ndarray:
+        x = Xb[:, self.bins]
+        return x - self._ref_X if self.relative else x
+
+    def _set_reference(self, Xb: np.ndarray) -> None:
+        self._ref_X = Xb[:, self.bins].mean(axis=0)
+        if self.rt.kind == "svm":
+            self._ref_S = self.rt.raw_scores(self._inputs(Xb)).mean(axis=0)
+        self.refreshes += 1
+        self._since_ref = 0
+
+    def process_frame(self, start: int, frame: np.ndarray, t_ready: float) -> TouchEvent | None:
+        fault = int(frame_faults(frame[None])[0])
+        if fault:
+            self.skipped[{1: "nan", 2: "silent", 3: "clipped"}[fault]] += 1
+            return None
+        self.n_chirps += 1
+        Xb = log_magnitude_db(frame[None], self.rig, check=False)
+        if self._ref_X is None:  # Alg. 2 start-up: beta chirps with hands off
+            self._cal_X.append(Xb)
+            if len(self._cal_X) >= self.beta:
+                self._set_reference(np.concatenate(self._cal_X))
+                self._cal_X = []
+            return None
+        p = self.rt.predict_inputs(self._inputs(Xb), score_reference=self._ref_S)
+        self._since_ref += 1
+        touch = bool(p.touch[0])
+        # Alg. 2 refresh: after alpha chirps, the next beta consecutive no-touch chirps.
+        if self.alpha_chirps is not None and self._since_ref >= self.alpha_chirps:
+            self._quiet_run = [] if touch else self._quiet_run + [Xb]
+            if len(self._quiet_run) >= self.beta:
+                self._set_reference(np.concatenate(self._quiet_run))
+                self._quiet_run = []
+        t_s = start / self.rig.fs_hz
+        ev = None
+        if touch or self.touching:
+            ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
+                            float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
+                            (time.perf_counter() - t_ready) * 1e3)
+        self.touching = touch
+        self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
+        return ev
+
+    # -- loop --------------------------------------------------------------------------
+    def run(self, *, duration_s: float | None = None, max_chirps: int | None = None, idle_timeout_s: float = 2.0) -> dict:
+        """Run until ``duration_s`` of stream time, ``max_chirps``, Ctrl-C, or the source ends."""
+        t_last_status = time.perf_counter()
+        started = time.perf_counter()
+        cpu0 = time.process_time()
+        stream_s = 0.0
+        try:
+            while True:
+                block = self.source.read(timeout=idle_timeout_s)
+                if block is None:
+                    if getattr(self.source, "finished", None) is not None and self.source.finished.is_set():
+                        break
+                    continue
+                for start, frame in self.framer.push(block.samples, block.start, block.discontinuity):
+                    ev = self.process_frame(start, frame, time.perf_counter())
+                    if ev is not None:
+                        self.events.append(ev)
+                        self.emit(ev.to_json())
+                stream_s = (block.start + len(block.samples)) / self.rig.fs_hz
+                if self.status and time.perf_counter() - t_last_status > 1.0:
+                    t_last_status = time.perf_counter()
+                    print("\r" + self.status_line(), end="", file=sys.stderr, flush=True)
+                if (duration_s is not None and stream_s >= duration_s) or (max_chirps and self.n_chirps >= max_chirps):
+                    break
+        except KeyboardInterrupt:
+            pass
+        if self.status:
+            print("\r" + self.status_line(), file=sys.stderr, flush=True)
+        wall = time.perf_counter() - started
+        return self.summary(wall, time.process_time() - cpu0, stream_s)
+
+    def status_line(self) -> str:
+        lat = np.asarray(self.latencies_ms[-200:]) if self.latencies_ms else np.zeros(1)
+        last = next((e for e in reversed(self.events) if e.kind == "touch"), None)
+        c = self.source.counters()
+        touch = f"last touch: loc {last.location} ({last.x_cm:.1f}, {last.y_cm:.1f}) cm {last.force_n:.1f} N" if last else "no touch yet"
+        state = "calibrating" if self._ref_X is None else "running"
+        return (f"{state}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
+                f"{touch}  relocks {self.framer.relocks} overflows {c['overflows']} dropped {c['dropped_blocks']} "
+                f"skipped {sum(self.skipped.values())}   ")
+
+    def summary(self, wall_s: float, cpu_s: float, stream_s: float) -> dict:
+        lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.full(1, np.nan)
+        return {"chirps": self.n_chirps, "stream_s": stream_s, "wall_s": wall_s, "cpu_share": cpu_s / max(wall_s, 1e-9),
+                "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
+                "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
+                "reference_refreshes": self.refreshes, "skipped": dict(self.skipped), **self.source.counters()}

@@ -1,0 +1,235 @@
+"""The live system: framing with re-lock, the loop on the simulated device, faults, UDP, and an
+end-to-end run through a real audio server (JACK with its dummy driver)."""
+
+import json
+import shutil
+import socket
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from sonicskin import acquire
+from sonicskin.acquire import AudioError, SimulatedSource
+from sonicskin.artifact import build_svm_artifact
+from sonicskin.dsp import rig_chirp
+from sonicskin.live import Framer, LiveLoop, UdpSink
+from sonicskin.runtime import SkinRuntime
+from sonicskin.sim import Scenario, Simulator, build_timeline
+from sonicskin.sim.generate import simulate_dataset
+
+LAYOUT = {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 2.4, "x0_cm": 6, "y0_cm": 12}
+SC = Scenario(sessions=1, layout=LAYOUT, touch_s=2.0, gap_s=0.8, calibration_s=3.0, repeats=2, seed=21)
+
+
+@pytest.fixture(scope="module")
+def artifact(tmp_path_factory, rig):
+    root = tmp_path_factory.mktemp("live")
+    simulate_dataset(SC, rig, root / "data", progress=False, log=lambda *_: None)
+    build_svm_artifact(root / "data", root / "art", progress=False, log=lambda *_: None)
+    return root / "art"
+
+
+def _live_timeline(rig, seed=77, calibration_s=3.0):
+    sc = SC.replace(seed=seed, repeats=1, calibration_s=calibration_s)
+    return Simulator(sc, rig), build_timeline(sc, rig)
+
+
+def _score(events, tl, rig, first_sample_of_chirp0):
+    """Share of touch events on scripted touches that name the touched location."""
+    L = rig.n_chirp
+    hits = n = 0
+    for e in events:
+        if e.kind != "touch":
+            continue
+        k = int(round((e.t_s * rig.fs_hz - first_sample_of_chirp0) / L))
+        if 0 <= k < len(tl) and tl.force_n[k] >= 0.5:
+            n += 1
+            hits += e.location == tl.location[k]
+    return hits / max(n, 1), n
+
+
+@pytest.mark.parametrize("offset", [0, 777, 20_000])
+def test_framer_locks_and_relocks(rig, offset):
+    s = rig_chirp(rig).astype(np.float32)
+    L = rig.n_chirp
+    stream = np.tile(s, 8)[offset:]
+    f = Framer(s)
+    got = []
+    for i in range(0, 4 * L, 1000):
+        got += f.push(stream[i:i + 1000], i)
+    assert got and all((st + offset) % L == 0 for st, _ in got)
+    np.testing.assert_array_equal(got[0][1], s)
+    # Lose 1500 samples: the next block is flagged, the framer locks again on the true chirp grid.
+    after = []
+    for i in range(4 * L + 1500, 8 * L - offset - 1000, 1000):
+        after += f.push(stream[i:i + 1000], i, discontinuity=(i == 4 * L + 1500))
+    assert f.relocks == 1 and after and all((st + offset) % L == 0 for st, _ in after)
+
+
+def test_live_loop_on_the_simulated_device(rig, artifact):
+    sim, tl = _live_timeline(rig)
+    src = SimulatedSource(sim, tl, realtime=False, offset=5000)
+    lines = []
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lines.append)
+    with src:
+        summary = loop.run()
+    acc, n = _score(loop.events, tl, rig, -5000)
+    touched = int((tl.force_n >= 0.5).sum())
+    assert n > 0.9 * touched and acc > 0.9
+    assert summary["reference_refreshes"] == 1 and summary["relocks"] == 0
+    ev = json.loads(lines[0])
+    assert set(ev) >= {"t_s", "kind", "location", "x_cm", "y_cm", "force_n", "confidence", "model", "latency_ms"}
+    assert any(json.loads(x)["kind"] == "release" for x in lines)
+
+
+def test_dropouts_are_counted_and_survived(rig, artifact):
+    sim, tl = _live_timeline(rig)
+    src = SimulatedSource(sim, tl, realtime=False, drop_every=150, offset=100)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    with src:
+        summary = loop.run()
+    assert summary["overflows"] == len(tl) * rig.n_chirp // 1024 // 150
+    assert summary["relocks"] == summary["overflows"]
+    acc, n = _score(loop.events, tl, rig, -100)
+    assert n > 0.7 * int((tl.force_n >= 0.5).sum()) and acc > 0.85
+
+
+def test_bad_frames_are_skipped_and_counted(rig, artifact):
+    sim, tl = _live_timeline(rig)
+    frames = sim.render(tl.select(np.arange(60)))
+    frames[40, 100] = np.nan
+    frames[45] = np.clip(frames[45] * 100, -1, 1)
+
+    class Replay(acquire._QueueSource):
+        def start(self):
+            for k in range(0, frames.size, 1024):
+                self._deliver(frames.ravel()[k:k + 1024])
+            self.finished = type("E", (), {"is_set": lambda self: True})()
+
+        def stop(self):
+            pass
+
+    src = Replay(rig, 1024, max_queued_s=30)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    src.start()
+    summary = loop.run(idle_timeout_s=0.1)
+    assert summary["skipped"] == {"nan": 1, "silent": 0, "clipped": 1}
+    assert summary["chirps"] == loop.framer.n_frames - 2 >= 57  # the last chirp is cut by the channel delay
+
+
+def test_udp_sink_sends_to_localhost():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(2)
+    UdpSink(str(rx.getsockname()[1]))('{"kind": "touch"}')
+    assert json.loads(rx.recv(1000)) == {"kind": "touch"}
+
+
+def test_audio_errors_say_what_to_do(monkeypatch, rig):
+    def no_portaudio():
+        raise OSError("PortAudio library not found")
+
+    monkeypatch.setattr(acquire, "import_sounddevice", lambda: (_ for _ in ()).throw(
+        AudioError("the PortAudio library is not installed; on Debian/Ubuntu: sudo apt-get install libportaudio2")))
+    with pytest.raises(AudioError, match="apt-get install libportaudio2"):
+        acquire.list_devices()
+    monkeypatch.undo()
+    import builtins
+    real_import = builtins.__import__
+
+    def fake_import(name, *a, **k):
+        if name == "sounddevice":
+            no_portaudio()
+        return real_import(name, *a, **k)
+
+    monkeypatch.setattr(builtins, "__import__", fake_import)
+    with pytest.raises(AudioError, match="PortAudio library is not installed"):
+        acquire.import_sounddevice()
+    monkeypatch.undo()
+    monkeypatch.setattr(acquire, "list_devices", lambda: [])
+    monkeypatch.setattr(acquire, "import_sounddevice", lambda: None)
+    with pytest.raises(AudioError, match="no audio device found.*--device sim"):
+        acquire.find_device(None, rig, 1, 1)
+    monkeypatch.setattr(acquire, "list_devices", lambda: [{"index": 0, "name": "USB Audio", "hostapi": "ALSA",
+                                                          "inputs": 2, "outputs": 2, "default_rate_hz": 48000.0}])
+    with pytest.raises(AudioError, match="no audio device matches 'Fireface'"):
+        acquire.find_device("Fireface", rig, 1, 1)
+
+
+# -- end to end through JACK -------------------------------------------------------------------
+
+JACK_PERIOD = 4096
+
+@pytest.fixture(scope="module")
+def jack(rig):
+    if shutil.which("jackd") is None:
+        pytest.skip("JACK is not installed (apt-get install jackd2); .ci/run installs it")
+    if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
+        proc = None  # a server is already running
+    else:
+        # 4096-frame periods (21 ms): without real-time scheduling on 2 shared cores, a Python
+        # callback can miss 5 ms deadlines and JACK then repeats or drops a period (an xrun).
+        proc = subprocess.Popen(["jackd", "--no-realtime", "-d", "dummy", "-r", str(int(rig.fs_hz)), "-p", str(JACK_PERIOD)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for _ in range(50):
+            if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
+                break
+            time.sleep(0.1)
+        else:
+            proc.kill()
+            pytest.skip("jackd did not start with the dummy driver at 192 kHz")
+    sd = acquire.import_sounddevice()
+    sd._terminate()  # PortAudio enumerates host APIs at initialisation: look again now JACK runs
+    sd._initialize()
+    yield
+    if proc is not None:
+        sd._terminate()  # leave JACK before the server goes (PortAudio asserts at exit otherwise)
+        proc.terminate()
+        proc.wait(timeout=5)
+        sd._initialize()
+
+
+def _wire_loopback() -> str:
+    """Connect every PortAudio client's out_0 to its own in_0, away from the dummy system ports.
+    (A client of an earlier run that is still closing makes JACK name ours PortAudio-01.)"""
+    ports = subprocess.run(["jack_lsp"], capture_output=True, text=True).stdout.split()
+    clients = sorted({p.split(":")[0] for p in ports if p.startswith("PortAudio")})
+    assert clients, f"no PortAudio client in JACK: {ports}"
+    for c in clients:
+        for sys_port in ("system:capture_1", "system:capture_2"):
+            subprocess.run(["jack_disconnect", sys_port, f"{c}:in_0"], capture_output=True)
+        for sys_port in ("system:playback_1", "system:playback_2"):
+            subprocess.run(["jack_disconnect", f"{c}:out_0", sys_port], capture_output=True)
+        assert subprocess.run(["jack_connect", f"{c}:out_0", f"{c}:in_0"], capture_output=True).returncode == 0
+    return subprocess.run(["jack_lsp", "-c"], capture_output=True, text=True).stdout
+
+
+def test_end_to_end_through_jack(rig, artifact, jack):
+    """Real sounddevice duplex stream at 192 kHz through JACK: what the simulated receiver would
+    hear is played on the output, looped back to the input, framed and classified live."""
+    # Hands off for 4.5 s: the loop calibrates on its first 3 s of audio, which starts a moment
+    # after playback (until the loopback is wired, the input is silent and skipped).
+    sim, tl = _live_timeline(rig, seed=78, calibration_s=4.5)
+    play = sim.render(tl).ravel()
+    src = acquire.SoundDeviceSource(rig, "system", playback=play, blocksize=JACK_PERIOD)
+    lines = []
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lines.append)
+    with src:
+        time.sleep(0.2)
+        lsp = _wire_loopback()
+        summary = loop.run(duration_s=len(tl) * rig.period_s + 0.5)
+    touches = [e for e in loop.events if e.kind == "touch"]
+    runs0 = [(e.location, round(e.t_s, 1)) for e in touches[::5]]
+    assert len(touches) > 0.6 * int((tl.force_n >= 0.5).sum()), (len(touches), runs0, summary, lsp)
+    # Scripted order of touched locations vs the order of detected runs.
+    order = [int(e) for e in dict.fromkeys(tl.event[tl.event >= 0])]
+    scripted = [int(tl.location[tl.event == e][0]) for e in order]
+    runs = []
+    for e in touches:
+        if not runs or runs[-1][0] != e.location:
+            runs.append([e.location, 0])
+        runs[-1][1] += 1
+    detected = [loc for loc, n in runs if n >= 5]
+    assert detected == scripted, (detected, scripted, summary)
