@@ -229,21 +229,25 @@ class SimulatedSource(_QueueSource):
         pending = np.zeros(0, np.float32)
         t_next = time.perf_counter()
         n_block = 0
-        for a in range(0, len(self.timeline), self.chunk):
+        last = None
+        for a in [*range(0, len(self.timeline), self.chunk), None]:
             if self._stop.is_set():
                 break
-            frames = self.sim.render(self.timeline.select(np.arange(a, min(a + self.chunk, len(self.timeline)))))
-            audio = frames.ravel()
-            if a == 0:
-                audio = audio[self.offset:]
+            final = a is None
+            if not final:
+                frames = self.sim.render(self.timeline.select(np.arange(a, min(a + self.chunk, len(self.timeline)))))
+                last = frames[-1]
+                audio = frames.ravel()[self.offset:] if a == 0 else frames.ravel()
+            else:  # the stream goes on a little into the next chirp, as a recording would
+                audio = last[: L // 2] if last is not None else np.zeros(0, np.float32)
             pending = np.concatenate([pending, audio])
-            while len(pending) >= B and not self._stop.is_set():
+            while (len(pending) >= B or (final and len(pending))) and not self._stop.is_set():
                 block, pending = pending[:B], pending[B:]
                 n_block += 1
                 if self.drop_every and n_block % self.drop_every == 0:
                     self.overflows += 1  # what a driver reports when input is lost
                     self._index += 1
-                    self._pos += B
+                    self._pos += len(block)
                     self._lost = True
                 else:
                     if self.realtime:
@@ -251,11 +255,10 @@ class SimulatedSource(_QueueSource):
                     else:
                         self._put_blocking(block)
                 if self.realtime:
-                    t_next += B / self.rig.fs_hz
+                    t_next += len(block) / self.rig.fs_hz
                     delay = t_next - time.perf_counter()
                     if delay > 0:
                         time.sleep(delay)
-        _ = L
         self.finished.set()
 
     def _put_blocking(self, block: np.ndarray) -> None:

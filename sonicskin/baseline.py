@@ -38,7 +38,7 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
     """
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
-        ovo = ovo[:, 1]  # skl2onnx's binary SVM output is [-d, d] with scikit-learn's d
+        ovo = ovo[:, 0]  # skl2onnx's binary SVM output is [d, -d] with scikit-learn's d
     if ovo.ndim == 1:
         # scikit-learn's binary decision value is positive for classes_[1]; libsvm's pair value
         # is positive for the first class of the pair.

@@ -204,6 +204,58 @@ def cmd_live(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_record(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .acquire import Link, SimulatedSource, SoundDeviceSource
+    from .dataset import DatasetWriter
+    from .record import CsvForce, NoForce, Recorder, SerialForce, TimelineForce, make_schedule, next_session, recorded_locations
+    from .rig import Rig
+    from .sim import Scenario, Simulator, build_timeline
+    from .sim.scenario import SEGMENTS
+
+    rig = Rig.load(a.rig)
+    sc = Scenario.load(a.scenario)  # the layout (and, on the simulated device, the link and the person)
+    layout = sc.make_layout()
+    out = Path(a.out)
+    mode = "resume" if a.resume else ("overwrite" if a.overwrite else "create")
+    writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": sc.name}, mode=mode)
+    todo = list(a.locations) if a.locations else list(layout.ids)
+    if a.resume:
+        done = recorded_locations(out)
+        todo = [loc for loc in todo if loc not in done]
+        if not todo:
+            print(f"{out}: every location is recorded; nothing to do", file=sys.stderr)
+            return 0
+    session = next_session(out)
+    schedule = make_schedule(layout, todo, rig, calibration_s=a.calibration_s, moving_s=a.moving_s,
+                             touch_s=a.touch_s, gap_s=a.gap_s)
+    if a.device == "sim":
+        # The simulated person follows the prompts: same segments, same order, one extra chirp in front
+        # (the stream starts inside a chirp).
+        psc = sc.replace(sessions=1, order="sequential", repeats=1, seed=sc.seed + 500 + int(session[1:]),
+                         calibration_s=a.calibration_s + rig.period_s, touch_s=a.touch_s, gap_s=a.gap_s,
+                         moving_s=a.moving_s, motion={**sc.motion, "enabled": a.moving_s > 0},
+                         layout={**sc.layout})
+        tl = build_timeline(psc, rig)
+        keep = np.isin(tl.location, [-1, *todo]) | (tl.segment != SEGMENTS.index("touch"))
+        # Only the prompted locations, in the prompted order; the robot moves only when asked to.
+        tl = tl.select(np.isin(tl.event, [-1, *[e for e in np.unique(tl.event) if e >= 0
+                                                  and tl.location[tl.event == e][0] in todo]]) & keep)
+        tl.moving[tl.segment != SEGMENTS.index("moving")] = 0.0
+        src = SimulatedSource(Simulator(psc, rig), tl, realtime=not a.fast, offset=4321)
+        force = TimelineForce(tl, -4321, rig.fs_hz, rig.n_chirp, seed=int(session[1:]))
+    else:
+        src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
+        force = CsvForce(a.force_csv) if a.force_csv else SerialForce(a.force_serial) if a.force_serial else NoForce()
+    print(f"recording session {session} of {out}: {len(todo)} locations, "
+          f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s", file=sys.stderr)
+    with src:
+        res = Recorder(writer, session, src, schedule, force).run()
+    print(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}", file=sys.stderr)
+    return 0
+
+
 def cmd_info(a: argparse.Namespace) -> int:
     from .rig import CONFIG_DIR, Rig
 
@@ -301,6 +353,29 @@ def build_parser() -> argparse.ArgumentParser:
     lv.add_argument("--drop-every", type=int, help="simulated device: drop one audio block in N (fault injection)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr")
     lv.set_defaults(func=cmd_live)
+
+    rc = sub.add_parser("record", help="guided one-shot training session -> dataset (resumable)",
+                        description="Prompt through hands-off, robot-moving and one touch per location, and write the "
+                                    "dataset format as it goes. Ctrl-C keeps every finished prompt; --resume records the "
+                                    "locations still missing.")
+    rc.add_argument("--out", required=True, help="dataset folder")
+    rc.add_argument("--device", default="sim", help="'sim' (default: a simulated person follows the prompts) or an audio device")
+    rc.add_argument("--scenario", default="stationary", help="layout of the markers (and the simulated link/person)")
+    rc.add_argument("--rig", default="jaco")
+    rc.add_argument("--locations", type=int, nargs="+", help="only these location ids (default: all)")
+    rc.add_argument("--calibration-s", type=float, default=3.0)
+    rc.add_argument("--moving-s", type=float, default=10.0, help="robot moving, hands off (0 skips)")
+    rc.add_argument("--touch-s", type=float, default=3.0)
+    rc.add_argument("--gap-s", type=float, default=1.0)
+    rc.add_argument("--force-csv", help="force log with columns t_s,force_n (real device)")
+    rc.add_argument("--force-serial", help="serial port of a force sensor printing newtons per line (real device)")
+    rc.add_argument("--tx", type=int, default=0)
+    rc.add_argument("--rx", type=int, default=0)
+    g2 = rc.add_mutually_exclusive_group()
+    g2.add_argument("--resume", action="store_true", help="add a session with the locations not recorded yet")
+    g2.add_argument("--overwrite", action="store_true")
+    rc.add_argument("--fast", action="store_true", help="simulated device: faster than real time")
+    rc.set_defaults(func=cmd_record)
 
     dv = sub.add_parser("devices", help="list audio devices")
     dv.set_defaults(func=cmd_devices)

@@ -29,7 +29,9 @@ def quiet_mask(t: FeatureTable) -> np.ndarray:
 
 
 def touch_mask(t: FeatureTable, min_force_n: float = 0.5) -> np.ndarray:
-    return (t["location"] >= 0) & (t["force_n"] >= min_force_n)
+    """Touch chirps: a location and a force of at least ``min_force_n`` (or no force sensor: NaN)."""
+    f = t["force_n"]
+    return (t["location"] >= 0) & ((f >= min_force_n) | np.isnan(f))
 
 
 @dataclasses.dataclass(frozen=True)

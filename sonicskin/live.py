@@ -48,7 +48,7 @@ class TouchEvent:
     def to_json(self) -> str:
         d = dataclasses.asdict(self)
         for k in ("t_s", "x_cm", "y_cm", "force_n", "confidence", "latency_ms"):
-            d[k] = round(float(d[k]), 4)
+            d[k] = round(float(d[k]), 4) if np.isfinite(d[k]) else None  # no force model: null
         return json.dumps(d)
 
 

@@ -40,7 +40,12 @@ def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.nd
     e_ref = float(energy_db(X[quiet], all_bins).mean())
     E = energy_db(X, all_bins) - e_ref
     ids = np.asarray(location_ids)
-    fm = PerLocationForce(force_model).fit(E[touch], force[touch], ids[cls[touch]])
+    has_f = touch & np.isfinite(force)  # recordings without a force sensor carry NaN forces
+    fm = PerLocationForce(force_model)
+    if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations:
+        fm.fit(E[has_f], force[has_f], ids[cls[has_f]])
+    else:
+        fm.curves_ = {}
     params = {"reference_scores": ref.tolist(), "threshold": det.threshold_, "energy_ref_db": e_ref,
               "train_false_touch_rate": det.false_touch_rate_, "train_missed_touch_rate": det.missed_touch_rate_,
               "force": fm.to_dict()}

@@ -50,3 +50,16 @@ def test_localizer_errors(rng):
         SVMLocalizer(n_bins=5).fit(Xn, y)
     with pytest.raises(ValueError, match="gamma=500 is larger than the 40 bins"):
         SVMLocalizer(n_bins=500).fit(X, y)
+
+
+def test_two_locations_through_onnx(rng, tmp_path):
+    """skl2onnx's binary SVM output has its own layout; the scores must still match scikit-learn."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    from sonicskin.artifact import export_svm
+
+    X, y = _clusters(rng, k=2, spread=1.5)
+    pipe = make_pipeline(StandardScaler(), SVC(decision_function_shape="ovo")).fit(X, y)
+    parity = export_svm(pipe, 2, tmp_path / "svm.onnx", X)
+    assert parity["labels_equal"] and parity["max_abs_scores"] < 1e-4

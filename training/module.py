@@ -64,9 +64,10 @@ class SkinLitModule(L.LightningModule):
         logits, f_all = self.model(x)
         ce = F.cross_entropy(logits, cls, label_smoothing=self.hparams.label_smoothing if stage == "train" else 0.0)
         touched = cls < self.hparams.n_locations
-        if touched.any():
-            f_hat = f_all[touched].gather(1, cls[touched, None])[:, 0]
-            f_loss = F.mse_loss(f_hat, force[touched])
+        has_f = touched & torch.isfinite(force)  # no force sensor: NaN, no force loss
+        if has_f.any():
+            f_hat = f_all[has_f].gather(1, cls[has_f, None])[:, 0]
+            f_loss = F.mse_loss(f_hat, force[has_f])
         else:
             f_loss = torch.zeros((), device=x.device)
         loss = ce + self.hparams.force_weight * f_loss

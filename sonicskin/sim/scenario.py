@@ -46,6 +46,7 @@ class Scenario:
     start_s: float = 3600.0
     subjects: tuple = (0,)
     subject_per_session: bool = False
+    order: str = "random"  # "random" or "sequential" (the guided recording prompts in order)
     peak_force_n: tuple = (1.0, 10.0)
     motion: dict = dataclasses.field(default_factory=lambda: {"enabled": False})
     temperature: dict = dataclasses.field(default_factory=lambda: {
@@ -90,6 +91,8 @@ class Scenario:
             raise ValueError(f"peak_force_n must be (low, high) with 0 < low <= high, got {self.peak_force_n}")
         if any(not 0 <= s < 12 for s in self.subjects):
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
+        if self.order not in ("random", "sequential"):
+            raise ValueError(f"order must be 'random' or 'sequential', got {self.order!r}")
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
 
@@ -174,7 +177,8 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
             segs.append(("moving", rig.seconds_to_chirps(sc.moving_s), -1, np.nan, np.nan, None))
         n_touch = rig.seconds_to_chirps(sc.touch_s)
         order = [(loc, subj) for loc in range(len(layout)) for subj in subj_ids for _ in range(sc.repeats)]
-        rng.shuffle(order)
+        if sc.order == "random":
+            rng.shuffle(order)
         subj_of_seg = []
         for loc_idx, subj in order:
             who = subjects[subj]
