@@ -256,6 +256,13 @@ def cmd_record(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(a: argparse.Namespace) -> int:
+    from .reproduce import reproduce
+
+    reproduce(a.out, quick=a.quick)
+    return 0
+
+
 def cmd_info(a: argparse.Namespace) -> int:
     from .rig import CONFIG_DIR, Rig
 
@@ -376,6 +383,13 @@ def build_parser() -> argparse.ArgumentParser:
     g2.add_argument("--overwrite", action="store_true")
     rc.add_argument("--fast", action="store_true", help="simulated device: faster than real time")
     rc.set_defaults(func=cmd_record)
+
+    rp = sub.add_parser("reproduce", help="the paper's Sec. V on the simulated rig, SVM and network side by side",
+                        description="Simulate every dataset the paper's experiments need (cached under OUT/data), train "
+                                    "both models, write PNG figures and report.md with the paper's numbers beside ours.")
+    rp.add_argument("--out", default="reports/reproduce", help="report folder (default reports/reproduce)")
+    rp.add_argument("--quick", action="store_true", help="small datasets and short training: a few minutes on 2 cores")
+    rp.set_defaults(func=cmd_reproduce)
 
     dv = sub.add_parser("devices", help="list audio devices")
     dv.set_defaults(func=cmd_devices)
