@@ -263,6 +263,24 @@ def cmd_reproduce(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_wav(a: argparse.Namespace) -> int:
+    from .importers import import_wav
+
+    mode = "overwrite" if a.overwrite else "create"
+    import_wav(a.wav_dir, a.labels, a.out, sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
+               period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()), pwm_halfwidth_hz=a.pwm_halfwidth,
+               mode=mode)
+    return 0
+
+
+def cmd_import_spectra(a: argparse.Namespace) -> int:
+    from .importers import import_spectra
+    from .rig import Rig
+
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig), mode="overwrite" if a.overwrite else "create")
+    return 0
+
+
 def cmd_info(a: argparse.Namespace) -> int:
     from .rig import CONFIG_DIR, Rig
 
@@ -390,6 +408,31 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--out", default="reports/reproduce", help="report folder (default reports/reproduce)")
     rp.add_argument("--quick", action="store_true", help="small datasets and short training: a few minutes on 2 cores")
     rp.set_defaults(func=cmd_reproduce)
+
+    iw = sub.add_parser("import-wav", help="import WAV recordings of any sweep and rate (labels in CSV)",
+                        description="One WAV/FLAC per continuous recording; labels CSV: file,start_s,end_s,location,"
+                                    "x_cm,y_cm[,force_n,moving,subject]. The sweep as a WAV of one period, or --chirp/--period.")
+    iw.add_argument("--wav-dir", required=True)
+    iw.add_argument("--labels", required=True)
+    iw.add_argument("--out", required=True)
+    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep")
+    iw.add_argument("--chirp", type=float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"), help="linear chirp band")
+    iw.add_argument("--period", type=float, help="linear chirp period in seconds")
+    iw.add_argument("--amplitude", type=float, default=1.0, help="linear chirp peak amplitude (full scale 1)")
+    iw.add_argument("--channel", type=int, default=0, help="receiver channel in the files (0-based)")
+    iw.add_argument("--pwm-hz", type=float, nargs="*", help="motor PWM lines to notch (Hz)")
+    iw.add_argument("--pwm-halfwidth", type=float, default=0.0)
+    iw.add_argument("--overwrite", action="store_true")
+    iw.set_defaults(func=cmd_import_wav)
+
+    isp = sub.add_parser("import-spectra", help="import a table of magnitude spectra with labels (.npz)",
+                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, x_cm, y_cm, session "
+                                     "[, force_n, moving, subject]; each row becomes one chirp of --rig.")
+    isp.add_argument("--table", required=True)
+    isp.add_argument("--out", required=True)
+    isp.add_argument("--rig", default="jaco")
+    isp.add_argument("--overwrite", action="store_true")
+    isp.set_defaults(func=cmd_import_spectra)
 
     dv = sub.add_parser("devices", help="list audio devices")
     dv.set_defaults(func=cmd_devices)

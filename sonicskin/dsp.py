@@ -52,7 +52,10 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
 
 
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The chirp a rig transmits, shape (rig.n_chirp,)."""
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep."""
+    stored = rig.sweep()
+    if stored is not None:
+        return stored.astype(np.float64)
     return chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
                  amplitude=rig.amplitude)
 

@@ -73,7 +73,12 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     cal = calibrator if online else ScoreCalibrator(calibrator.beta_chirps, None, calibrator._cps)
     for s in np.unique(session):
         m = session == s
-        out[m] = cal.run(X[m], quiet[m], time_s=time_s[m])
+        try:
+            out[m] = cal.run(X[m], quiet[m], time_s=time_s[m])
+        except ValueError as e:
+            raise ValueError(f"session {s}: {e}; relative features need {cal.beta_chirps} consecutive hands-off chirps "
+                             f"({cal.beta_chirps / cal._cps:.0f} s) in every session, or use absolute features "
+                             f"(--mode absolute / data.mode: absolute)") from None
     return out
 
 

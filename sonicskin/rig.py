@@ -61,6 +61,9 @@ class Rig:
         20-80 kHz, the paper's "max number of 5013 frequency bins after the first step of OSPA".
     amplitude : peak amplitude of the transmitted chirp, full scale = 1.
     name : free label.
+    sweep_b64 : a transmitted sweep other than Eq. 1's linear chirp (recordings imported from other
+        rigs): one period of float32 samples, base64; ``n_chirp`` is its length and
+        ``f_lo_hz``/``f_hi_hz`` its band.  ``None``: the linear chirp of Eq. 1.
     """
 
     fs_hz: float = 192_000.0
@@ -71,6 +74,7 @@ class Rig:
     pwm_halfwidth_hz: float = 3_250.0
     amplitude: float = 0.5
     name: str = "jaco-link"
+    sweep_b64: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pwm_hz", tuple(float(f) for f in self.pwm_hz))
@@ -88,6 +92,8 @@ class Rig:
             raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
         if not 0 < self.amplitude <= 1:
             raise ValueError(f"amplitude must be in (0, 1] of full scale, got {self.amplitude}")
+        if self.sweep_b64 is not None and self.sweep().size != self.n_chirp:
+            raise ValueError(f"the stored sweep has {self.sweep().size} samples but n_chirp is {self.n_chirp}")
         if self.allowed_mask.sum() == 0:
             raise ValueError("the PWM bands remove every bin of the chirp band; narrow pwm_halfwidth_hz")
 
@@ -108,7 +114,23 @@ class Rig:
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         d["pwm_hz"] = list(self.pwm_hz)
+        if d["sweep_b64"] is None:
+            del d["sweep_b64"]
         return d
+
+    def sweep(self) -> np.ndarray | None:
+        """The stored transmitted sweep (float32), or ``None`` for Eq. 1's chirp."""
+        if self.sweep_b64 is None:
+            return None
+        import base64
+
+        return np.frombuffer(base64.b64decode(self.sweep_b64), dtype="<f4").copy()
+
+    @staticmethod
+    def encode_sweep(x: np.ndarray) -> str:
+        import base64
+
+        return base64.b64encode(np.asarray(x, dtype="<f4").tobytes()).decode()
 
     # -- derived quantities -----------------------------------------------------------
     @property
@@ -151,10 +173,10 @@ class Rig:
     def mismatch(self, other: Rig) -> list[str]:
         """Fields that differ in a way that invalidates a model (everything but name/amplitude)."""
         diffs = []
-        for f in ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz"):
+        for f in ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz", "sweep_b64"):
             a, b = getattr(self, f), getattr(other, f)
             if a != b:
-                diffs.append(f"{f}: {a} vs {b}")
+                diffs.append(f"{f}: {a} vs {b}" if f != "sweep_b64" else "the transmitted sweep differs")
         return diffs
 
 

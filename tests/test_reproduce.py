@@ -20,4 +20,4 @@ def test_quick_reproduction(tmp_path):
     # Physical findings that must hold on the simulated rig, whatever the exact numbers:
     assert res["fig6b"]["svm"]["ospa"] > res["fig6b"]["svm"]["all_bins"] + 0.15  # OSPA matters on a moving robot
     assert all(r["svm"]["accuracy"] >= 0.9 for k, r in res["fig16"].items() if "36" not in k)  # two points apart
-    assert "net" in res["fig14"] and "svm" in res["fig15"]
+    assert "net" in res["table1"]["fig14"] and "svm" in res["table1"]["fig15"]
