@@ -183,7 +183,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
         raise ValueError(f"{table}: spectra cover {f[0]:g}-{f[-1]:g} Hz but the rig's band is {fb[0]:g}-{fb[-1]:g} Hz; "
                          f"pass a rig whose chirp band lies inside the table")
     loc = np.asarray(z["location"], int)
-    rows = [{"location": int(l), "x_cm": float(x), "y_cm": float(y)} for l, x, y in zip(loc, z["x_cm"], z["y_cm"])]
+    rows = [{"location": int(i), "x_cm": float(x), "y_cm": float(y)} for i, x, y in zip(loc, z["x_cm"], z["y_cm"])]
     layout = _layout_from(rows, table)
     w = DatasetWriter(out, rig, layout, source={"kind": "import-spectra", "from": str(table.resolve())}, mode=mode)
     S = chirp_spectrum(rig)

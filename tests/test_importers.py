@@ -48,7 +48,10 @@ def source(tmp_path_factory, rig):
 @pytest.mark.parametrize("how", ["chirp", "sweep"])
 def test_wav_import_round_trip(source, tmp_path, how, rig):
     root, ds = source
-    kw = {"chirp_hz": (rig.f_lo_hz, rig.f_hi_hz), "period_s": rig.period_s, "amplitude": rig.amplitude} if how == "chirp" else {"sweep_wav": root / "sweep.wav"}
+    if how == "chirp":
+        kw = {"chirp_hz": (rig.f_lo_hz, rig.f_hi_hz), "period_s": rig.period_s, "amplitude": rig.amplitude}
+    else:
+        kw = {"sweep_wav": root / "sweep.wav"}
     out = import_wav(root / "wavs", root / "labels.csv", tmp_path / "imp", log=lambda *_: None, **kw)
     imp = Dataset(out)
     assert imp.sessions == ds.sessions and imp.rig.n_chirp == rig.n_chirp and imp.rig.fs_hz == rig.fs_hz
