@@ -74,11 +74,18 @@ def _need_train_extra(verb: str):
         raise SystemExit(f"sonicskin {verb} needs the training extra: pip install -c constraints.txt 'sonicskin[train]'") from None
 
 
+def _train_config(name: str) -> str:
+    """A training YAML path, or a name under configs/train (works from any directory)."""
+    from .rig import _resolve_config
+
+    return str(_resolve_config(name, "train"))
+
+
 def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     _need_train_extra("train")
     from training.cli import main as train_main
 
-    args = ["--config", a.config] + (["--data.data", a.data] if a.data else []) + extra
+    args = ["--config", _train_config(a.config)] + (["--data.data", a.data] if a.data else []) + extra
     cli = train_main(args)
     ckpt = cli.trainer.checkpoint_callback
     print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
@@ -117,7 +124,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
 
         name = Path(a.data).name
         run = Path(a.runs) / f"compare-{name}"
-        args = ["--config", a.config, "--data.data", a.data, "--trainer.default_root_dir", str(run),
+        args = ["--config", _train_config(a.config), "--data.data", a.data, "--trainer.default_root_dir", str(run),
                 "--trainer.logger.init_args.save_dir", str(run)]
         if a.test_subjects:
             args += ["--data.test_subjects", json.dumps(a.test_subjects)]
@@ -329,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
     t = sub.add_parser("train", help="train the network (Lightning; any --trainer.* / --model.* / --data.* override)",
                        description="Train SkinNet jointly for location and force with LightningCLI. Unknown options "
                                    "go to LightningCLI, e.g. --trainer.max_epochs 5 --trainer.devices 2 --trainer.strategy ddp.")
-    t.add_argument("--config", default="configs/train/moving.yaml", help="training YAML (default: configs/train/moving.yaml)")
+    t.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     t.add_argument("--data", help="dataset folder (overrides data.data)")
     t.set_defaults(func=cmd_train, passthrough=True)
 
@@ -344,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size.")
     c.add_argument("--data", required=True, help="dataset folder")
     c.add_argument("--artifact", help="use this artifact instead of training")
-    c.add_argument("--config", default="configs/train/moving.yaml", help="training YAML when training")
+    c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     c.add_argument("--test-subjects", type=int, nargs="+", help="leave-subjects-out: these people are the test set")
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
     c.add_argument("--out", help="report folder (default: reports/compare-<dataset>)")
