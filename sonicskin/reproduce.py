@@ -123,6 +123,14 @@ def _split_first(t) -> tuple[np.ndarray, np.ndarray]:
     return t["session"] == s[0], t["session"] != s[0]
 
 
+def _first_session_split(ctx, name: str, scenario: str, **over):
+    """A simulated dataset, its features, the one-shot split (first session trains) and OSPA's bins."""
+    ds = ctx.dataset(name, scenario, **over)
+    t = load_features_cached(ds, progress=False)
+    train, test = _split_first(t)
+    return ds, t, train, test, select_bins(t.select(train), ds.rig, 300)
+
+
 def _inputs(t, rig, bins, mode="relative"):
     return FeatureSpec(tuple(int(b) for b in bins), mode).transform(t, rig.chirps_per_s)
 
@@ -137,10 +145,7 @@ def _plt():
 # -- experiments ----------------------------------------------------------------------------------
 
 def fig6b(ctx) -> dict:
-    ds = ctx.dataset("moving", "moving", sessions=3)
-    t = load_features_cached(ds, progress=False)
-    train, test = _split_first(t)
-    bins = select_bins(t.select(train), ds.rig, 300)
+    ds, t, train, test, bins = _first_session_split(ctx, "moving", "moving", sessions=3)
     res = {}
     for k in _kinds(ctx):
         res[k] = {
@@ -258,10 +263,7 @@ def _two_months(ctx) -> dict:
 
 
 def fig13(ctx) -> dict:
-    ds = ctx.dataset("stationary", "stationary", sessions=3)
-    t = load_features_cached(ds, progress=False)
-    train, test = _split_first(t)
-    bins = select_bins(t.select(train), ds.rig, 300)
+    ds, t, train, test, bins = _first_session_split(ctx, "stationary", "stationary", sessions=3)
     tr = t.select(train)
     touch = touch_mask(tr)
     ref = tr.X[quiet_mask(tr)].mean(axis=0)
@@ -295,10 +297,8 @@ def fig13(ctx) -> dict:
 def table1_fig14_15(ctx) -> dict:
     res: dict = {"table1": {}, "fig14": {}, "fig15": {}}
     for name in ("stationary", "moving"):
-        ds = ctx.dataset(name, name, sessions=3)
-        t = load_features_cached(ds, progress=False)
-        train, test = _split_first(t)
-        X = _inputs(t, ds.rig, select_bins(t.select(train), ds.rig, 300))
+        ds, t, train, test, bins = _first_session_split(ctx, name, name, sessions=3)
+        X = _inputs(t, ds.rig, bins)
         for k in _kinds(ctx):
             ev = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
             res["table1"][f"{name} {k}"] = ev["force"]
@@ -341,17 +341,14 @@ def table1_fig14_15(ctx) -> dict:
 def fig16(ctx) -> dict:
     res: dict = {}
     for mat in ("cfrp", "aluminium", "abs", "glass", "wood"):
-        ds = ctx.dataset(f"two-points-{mat}", "two-points", material=mat, sessions=2 if ctx.quick else 3,
-                         repeats=3 if ctx.quick else 6)
-        t = load_features_cached(ds, progress=False)
-        train, test = _split_first(t)
-        X = _inputs(t, ds.rig, select_bins(t.select(train), ds.rig, 300))
+        ds, t, train, test, bins = _first_session_split(ctx, f"two-points-{mat}", "two-points", material=mat,
+                                                        sessions=2 if ctx.quick else 3, repeats=3 if ctx.quick else 6)
+        X = _inputs(t, ds.rig, bins)
         res[mat] = {k: _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
                     for k in _kinds(ctx)}
-    ds = ctx.dataset("plate-aluminium", "plate-aluminium", sessions=2 if ctx.quick else 3)
-    t = load_features_cached(ds, progress=False)
-    train, test = _split_first(t)
-    X = _inputs(t, ds.rig, select_bins(t.select(train), ds.rig, 300))
+    ds, t, train, test, bins = _first_session_split(ctx, "plate-aluminium", "plate-aluminium",
+                                                    sessions=2 if ctx.quick else 3)
+    X = _inputs(t, ds.rig, bins)
     res["aluminium plate, 36 markers"] = {k: _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs),
                                                        t, test, ds.layout) for k in _kinds(ctx)}
     plt = _plt()

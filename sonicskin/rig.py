@@ -35,6 +35,14 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def check_keys(cls, d: dict[str, Any], what: str) -> None:
+    """Reject config keys a dataclass does not have, naming the valid ones."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(d) - names
+    if unknown:
+        raise ValueError(f"unknown {what} keys {sorted(unknown)}; valid keys: {sorted(names)}")
+
+
 def _resolve_config(name_or_path: str | Path, kind: str) -> Path:
     """A bare name (``jaco``) means ``configs/<kind>/<name>.yaml``; anything else is a path."""
     p = Path(name_or_path)
@@ -100,10 +108,7 @@ class Rig:
     # -- construction -----------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Rig:
-        fields = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - fields
-        if unknown:
-            raise ValueError(f"unknown rig keys {sorted(unknown)}; valid keys: {sorted(fields)}")
+        check_keys(cls, d, "rig")
         return cls(**d)
 
     @classmethod

@@ -43,11 +43,10 @@ class NoiseConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None) -> NoiseConfig:
+        from ..rig import check_keys
+
         d = dict(d or {})
-        names = {f.name for f in dataclasses.fields(cls)}
-        bad = set(d) - names
-        if bad:
-            raise ValueError(f"unknown noise keys {sorted(bad)}; valid: {sorted(names)}")
+        check_keys(cls, d, "noise")
         return cls(**d)
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..rig import Layout, Rig, _resolve_config, load_yaml
+from ..rig import Layout, Rig, _resolve_config, check_keys, load_yaml
 from .finger import make_subjects, press_profile
 
 __all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS"]
@@ -59,10 +59,7 @@ class Scenario:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Scenario:
-        names = {f.name for f in dataclasses.fields(cls)}
-        bad = set(d) - names
-        if bad:
-            raise ValueError(f"unknown scenario keys {sorted(bad)}; valid keys: {sorted(names)}")
+        check_keys(cls, d, "scenario")
         d = dict(d)
         for k in ("tx_cm", "rx_cm", "subjects", "peak_force_n"):
             if k in d:
