@@ -22,7 +22,8 @@ import numpy as np
 from .dsp import rig_chirp
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "Link", "import_sounddevice", "list_devices", "SoundDeviceSource", "SimulatedSource"]
+__all__ = ["Block", "AudioError", "Link", "load_links", "import_sounddevice", "list_devices", "SoundDeviceSource",
+           "SimulatedSource"]
 
 
 class AudioError(RuntimeError):
@@ -50,6 +51,56 @@ class Link:
     rx: int = 0
     slot: int = 0
     n_slots: int = 1
+    name: str = "link0"
+    rig: Rig | None = None  # frequency duplexing: this link's own chirp band
+
+    def tx_period(self, rig: Rig) -> np.ndarray:
+        """What this link transmits over one duplex period (``n_slots`` chirps), float32."""
+        own = self.rig or rig
+        L = own.n_chirp
+        out = np.zeros(L * self.n_slots, np.float32)
+        out[self.slot * L:(self.slot + 1) * L] = rig_chirp(own)
+        return out
+
+
+def load_links(name_or_path, rig: Rig) -> list[Link]:
+    """Links of a multi-link rig from YAML (``configs/links/<name>.yaml``)::
+
+        duplex: time            # or frequency
+        links:
+          - {name: upper-arm, tx: 0, rx: 0}
+          - {name: forearm, tx: 1, rx: 1}
+
+    ``time``: link k chirps in period k of every ``N`` (each link's rate drops to 1/N).
+    ``frequency``: the chirp band is split into ``N`` equal sub-bands, one per link, all chirping at
+    once (each link's rig has its sub-band; its models are trained on that rig).
+    """
+    from .rig import _resolve_config, load_yaml
+
+    cfg = load_yaml(_resolve_config(name_or_path, "links"))
+    items = cfg.get("links") or []
+    duplex = cfg.get("duplex", "time")
+    if duplex not in ("time", "frequency"):
+        raise ValueError(f"duplex must be 'time' or 'frequency', got {duplex!r}")
+    if not items:
+        raise ValueError("a links config needs a non-empty 'links' list of {name, tx, rx}")
+    n = len(items)
+    out = []
+    for i, d in enumerate(items):
+        bad = set(d) - {"name", "tx", "rx"}
+        if bad:
+            raise ValueError(f"link {i}: unknown keys {sorted(bad)}; a link has name, tx, rx")
+        if duplex == "time":
+            out.append(Link(int(d["tx"]), int(d["rx"]), i, n, d.get("name", f"link{i}")))
+        else:
+            step = (rig.f_hi_hz - rig.f_lo_hz) / n
+            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step,
+                                      name=f"{rig.name}/{d.get('name', f'link{i}')}")
+            out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, d.get("name", f"link{i}"), sub))
+    rx = [lk.rx for lk in out]
+    if len(set(rx)) != len(rx):
+        raise ValueError(f"links share receiver channels {rx}; each link needs its own RX channel")
+    return out
 
 
 def import_sounddevice():
@@ -158,21 +209,26 @@ class SoundDeviceSource(_QueueSource):
         pass a simulated received signal here to run the real audio path through a loopback.
     """
 
-    def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), blocksize: int = 1024,
-                 playback: np.ndarray | None = None):
+    def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
+                 blocksize: int = 1024, playback: np.ndarray | None = None):
         super().__init__(rig, blocksize)
         self.sd = import_sounddevice()
-        self.link = link
-        n_in, n_out = link.rx + 1, link.tx + 1
+        self.links = list(links) if links else [link]
+        n_in = max(lk.rx for lk in self.links) + 1
+        n_out = max(lk.tx for lk in self.links) + 1
         self.device = find_device(device, rig, n_in, n_out)
-        tx = rig_chirp(rig).astype(np.float32) if playback is None else np.asarray(playback, np.float32)
-        if link.n_slots > 1:  # time duplexing: silent in the other links' chirp periods
-            L = rig.n_chirp
-            period = np.zeros(L * link.n_slots, np.float32)
-            period[link.slot * L:(link.slot + 1) * L] = tx[:L]
-            tx = period
-        self._tx = tx
+        # One period of every output channel, precomputed: the callback only indexes into it.
+        period = max(len(lk.tx_period(rig)) for lk in self.links)
+        self._tx = np.zeros((period, n_out), np.float32)
+        for lk in self.links:
+            sig = lk.tx_period(rig) if playback is None else np.asarray(playback, np.float32)
+            reps = int(np.ceil(len(self._tx) / len(sig))) if len(sig) < len(self._tx) else 1
+            if len(sig) > len(self._tx):
+                self._tx = np.zeros((len(sig), n_out), np.float32)
+            self._tx[:, lk.tx] += np.tile(sig, reps)[: len(self._tx)]
+        self._rx = [lk.rx for lk in self.links]
         self._tx_pos = 0
+        self.link = self.links[0]
         self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
                                      channels=(n_in, n_out), dtype="float32", callback=self._callback)
 
@@ -180,14 +236,14 @@ class SoundDeviceSource(_QueueSource):
         # Audio thread: copy only.
         n = len(self._tx)
         idx = (self._tx_pos + np.arange(frames)) % n
-        outdata[:] = 0
-        outdata[:, self.link.tx] = self._tx[idx]
+        outdata[:] = self._tx[idx]
         self._tx_pos = (self._tx_pos + frames) % n
         if status.input_overflow:
             self.overflows += 1
         if status.output_underflow:
             self.underflows += 1
-        self._deliver(indata[:, self.link.rx].copy(), lost_before=bool(status.input_overflow))
+        rx = indata[:, self._rx[0]].copy() if len(self._rx) == 1 else indata[:, self._rx].copy()
+        self._deliver(rx, lost_before=bool(status.input_overflow))
 
     def start(self) -> None:
         self.stream.start()

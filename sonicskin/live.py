@@ -30,7 +30,7 @@ import numpy as np
 from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
 from .runtime import SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops"]
 
 
 @dataclasses.dataclass
@@ -140,14 +140,18 @@ class LiveLoop:
     """
 
     def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
-                 status: bool = False):
+                 status: bool = False, link=None, channel: int = 0):
         self.rt, self.source = runtime, source
         self.rig = runtime.rig
-        if source.rig.mismatch(self.rig):
-            raise ValueError(f"the audio source runs another rig than the model ({'; '.join(source.rig.mismatch(self.rig))})")
+        link_rig = link.rig if link is not None and link.rig is not None else source.rig
+        if link_rig.mismatch(self.rig):
+            raise ValueError(f"the audio source runs another rig than the model ({'; '.join(link_rig.mismatch(self.rig))})")
         self.emit = emit or (lambda line: print(line, flush=True))
         self.status = status
-        self.framer = Framer(rig_chirp(self.rig))
+        # Time-duplexed links: frame whole duplex periods, keep this link's chirp slot.
+        self.channel = channel
+        self.slot = (link.slot, link.n_slots) if link is not None else (0, 1)
+        self.framer = Framer(link.tx_period(source.rig) if link is not None else rig_chirp(self.rig))
         cps = self.rig.chirps_per_s
         cal = runtime.spec.calibrator(cps)
         self.beta, self.alpha_chirps = cal.beta_chirps, cal.alpha_chirps
@@ -210,36 +214,22 @@ class LiveLoop:
         return ev
 
     # -- loop --------------------------------------------------------------------------
+    def feed(self, block) -> None:
+        """Process one block from the source (frames, features, model, events)."""
+        samples = block.samples if block.samples.ndim == 1 else block.samples[:, self.channel]
+        for start, frame in self.framer.push(samples, block.start, block.discontinuity):
+            if self.slot[1] > 1:  # this link's chirp within the duplex period
+                L = self.rig.n_chirp
+                start, frame = start + self.slot[0] * L, frame[self.slot[0] * L:(self.slot[0] + 1) * L]
+            ev = self.process_frame(start, frame, time.perf_counter())
+            if ev is not None:
+                self.events.append(ev)
+                self.emit(ev.to_json())
+
     def run(self, *, duration_s: float | None = None, max_chirps: int | None = None, idle_timeout_s: float = 2.0) -> dict:
         """Run until ``duration_s`` of stream time, ``max_chirps``, Ctrl-C, or the source ends."""
-        t_last_status = time.perf_counter()
-        started = time.perf_counter()
-        cpu0 = time.process_time()
-        stream_s = 0.0
-        try:
-            while True:
-                block = self.source.read(timeout=idle_timeout_s)
-                if block is None:
-                    if getattr(self.source, "finished", None) is not None and self.source.finished.is_set():
-                        break
-                    continue
-                for start, frame in self.framer.push(block.samples, block.start, block.discontinuity):
-                    ev = self.process_frame(start, frame, time.perf_counter())
-                    if ev is not None:
-                        self.events.append(ev)
-                        self.emit(ev.to_json())
-                stream_s = (block.start + len(block.samples)) / self.rig.fs_hz
-                if self.status and time.perf_counter() - t_last_status > 1.0:
-                    t_last_status = time.perf_counter()
-                    print("\r" + self.status_line(), end="", file=sys.stderr, flush=True)
-                if (duration_s is not None and stream_s >= duration_s) or (max_chirps and self.n_chirps >= max_chirps):
-                    break
-        except KeyboardInterrupt:
-            pass
-        if self.status:
-            print("\r" + self.status_line(), file=sys.stderr, flush=True)
-        wall = time.perf_counter() - started
-        return self.summary(wall, time.process_time() - cpu0, stream_s)
+        return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
+                         idle_timeout_s=idle_timeout_s)[0]
 
     def status_line(self) -> str:
         lat = np.asarray(self.latencies_ms[-200:]) if self.latencies_ms else np.zeros(1)
@@ -257,3 +247,34 @@ class LiveLoop:
                 "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
                 "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
                 "reference_refreshes": self.refreshes, "skipped": dict(self.skipped), **self.source.counters()}
+
+
+def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None, max_chirps: int | None = None,
+              idle_timeout_s: float = 2.0) -> list[dict]:
+    """Feed every block of one source to several loops (one per link of a multi-link rig)."""
+    t_last_status = time.perf_counter()
+    started = time.perf_counter()
+    cpu0 = time.process_time()
+    stream_s = 0.0
+    status = any(lp.status for lp in loops)
+    try:
+        while True:
+            block = source.read(timeout=idle_timeout_s)
+            if block is None:
+                if getattr(source, "finished", None) is not None and source.finished.is_set():
+                    break
+                continue
+            for lp in loops:
+                lp.feed(block)
+            stream_s = (block.start + len(block.samples)) / source.rig.fs_hz
+            if status and time.perf_counter() - t_last_status > 1.0:
+                t_last_status = time.perf_counter()
+                print("\r" + " | ".join(lp.status_line() for lp in loops), end="", file=sys.stderr, flush=True)
+            if (duration_s is not None and stream_s >= duration_s) or (max_chirps and min(lp.n_chirps for lp in loops) >= max_chirps):
+                break
+    except KeyboardInterrupt:
+        pass
+    if status:
+        print("\r" + " | ".join(lp.status_line() for lp in loops), file=sys.stderr, flush=True)
+    wall = time.perf_counter() - started
+    return [lp.summary(wall, time.process_time() - cpu0, stream_s) for lp in loops]

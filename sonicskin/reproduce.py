@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .baseline import ovr_scores_from_ovo
 from .calibration import ScoreCalibrator
 from .dataset import Dataset
 from .features import FeatureSpec, load_features_cached, quiet_mask, relative_features, select_bins, touch_mask
@@ -23,7 +22,7 @@ from .metrics import error_cdf, force_report, localization_report
 from .rig import Rig
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
-from .svm_head import fit_svm_head
+from .svm_head import fit_svm_head, score_vector, touch_statistic
 
 __all__ = ["reproduce"]
 
@@ -78,16 +77,16 @@ def _fit_predict(kind: str, X: np.ndarray, t, layout, train: np.ndarray, test: n
     ids = np.asarray(layout.ids)
     if kind == "svm":
         pipe, params = fit_svm_head(X[tr], cls[tr], force[tr], quiet_mask(t)[tr], n_locations=n, location_ids=ids)
-        S = ovr_scores_from_ovo(pipe.decision_function(X[test]), n)
-        loc = ids[np.argmax(S, axis=1)]
-        # Alg. 2 per test session (stream): S_final = S - S_c, refreshed from its own rest chirps.
+        V = score_vector(pipe.decision_function(X[test]), n, X[test])
+        loc = ids[np.argmax(V[:, :n], axis=1)]
+        # Alg. 2 per test session (stream): the reference is refreshed from its own rest chirps.
         cal = ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=cps)
-        S_final = np.empty_like(S)
+        V_cal = np.empty_like(V)
         ts = t.select(test)
         for s in np.unique(ts["session"]):
             m = ts["session"] == s
-            S_final[m] = cal.run(S[m], quiet_mask(ts)[m], initial=np.asarray(params["reference_scores"]), time_s=ts["time_s"][m])
-        touch = S_final.max(axis=1) >= params["threshold"]
+            V_cal[m] = cal.run(V[m], quiet_mask(ts)[m], initial=np.asarray(params["reference_scores"]), time_s=ts["time_s"][m])
+        touch = touch_statistic(V_cal, n) >= params["threshold"]
         fm = PerLocationForce.from_dict(params["force"])
         E = energy_db(X[test], np.arange(X.shape[1])) - params["energy_ref_db"]
         f = np.clip(fm.predict(E, ids[cls[test].clip(max=n - 1)]), 0, None)  # force at the true location

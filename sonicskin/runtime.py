@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from .artifact import ARTIFACT_FORMAT
-from .baseline import ovr_scores_from_ovo
 from .calibration import ScoreCalibrator
 from .dsp import log_magnitude_db
 from .features import FeatureSpec
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
+from .svm_head import score_vector, touch_statistic
 
 __all__ = ["ArtifactError", "SkinRuntime", "Predictions", "ARTIFACT_FORMAT"]
 
@@ -109,6 +109,9 @@ class SkinRuntime:
         self.n_locations = len(self.layout)
         self.ids = np.asarray(self.layout.ids)
         if model == "svm":
+            if self.m.get("detector") != "input-rms":
+                raise ArtifactError(f"{path}: the SVM's touch detector is from an older sonicskin; export the artifact "
+                                    f"again (sonicskin export / fit-svm)")
             self.force_model = PerLocationForce.from_dict(self.m["force"])
             self.reference_scores = np.asarray(self.m["reference_scores"])
         self.calibrator = self.spec.calibrator(self.rig.chirps_per_s)
@@ -173,16 +176,17 @@ class SkinRuntime:
             w = p[:, :-1]
             scores = w
         else:
-            _, ovo = self.run(inputs)
-            S = ovr_scores_from_ovo(ovo, self.n_locations)
+            K = self.n_locations
+            V = score_vector(self.run(inputs)[1], K, inputs)
+            S = V[:, :K]
             idx = np.argmax(S, axis=1)
             if quiet is not None:
-                S_final = ScoreCalibrator(self.calibrator.beta_chirps, self.calibrator.alpha_chirps,
-                                          self.rig.chirps_per_s).run(S, quiet, initial=self.reference_scores,
-                                                                     time_s=time_s)
+                V_cal = ScoreCalibrator(self.calibrator.beta_chirps, self.calibrator.alpha_chirps,
+                                        self.rig.chirps_per_s).run(V, quiet, initial=self.reference_scores, time_s=time_s)
             else:
-                S_final = S - (self.reference_scores if score_reference is None else score_reference)
-            touch = S_final.max(axis=1) >= self.m["threshold"]
+                V_cal = V - (self.reference_scores if score_reference is None else score_reference)
+            S_final = V_cal[:, :K]
+            touch = touch_statistic(V_cal, K) >= self.m["threshold"]
             E = energy_db(inputs, np.arange(inputs.shape[1])) - self.m["energy_ref_db"]
             f = self.force_model.predict(E, self.ids[idx])
             conf = np.clip(np.max(S, axis=1) / max(self.n_locations - 1, 1), 0, 1)  # share of pairwise votes won
@@ -192,10 +196,10 @@ class SkinRuntime:
         return Predictions(touch, self.ids[idx], self._centroid(w), f, conf, scores)
 
     def raw_scores(self, inputs: np.ndarray) -> np.ndarray:
-        """Per-location SVM scores S before calibration (for Alg. 2's reference), (n, N)."""
+        """SVM score vector before calibration (for Alg. 2's reference): per-location S and the inputs."""
         if self.kind != "svm":
             raise ValueError("raw scores are the SVM's; the network needs no score reference")
-        return ovr_scores_from_ovo(self.run(inputs)[1], self.n_locations)
+        return score_vector(self.run(inputs)[1], self.n_locations, inputs)
 
     def predict_frames(self, frames: np.ndarray, *, quiet: np.ndarray | None = None,
                        reference: np.ndarray | None = None) -> Predictions:

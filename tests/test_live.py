@@ -93,7 +93,9 @@ def test_dropouts_are_counted_and_survived(rig, artifact):
     assert summary["overflows"] == len(tl) * rig.n_chirp // 1024 // 150
     assert summary["relocks"] == summary["overflows"]
     acc, n = _score(loop.events, tl, rig, -100)
-    assert n > 0.7 * int((tl.force_n >= 0.5).sum()) and acc > 0.85
+    # A lost block costs the chirp it cut and one period to lock again: ~2 of every 7.5 chirps here.
+    assert n > 0.6 * int((tl.force_n >= 0.5).sum()) and acc > 0.85
+    assert summary["chirps"] < 0.85 * len(tl)
 
 
 def test_bad_frames_are_skipped_and_counted(rig, artifact):
@@ -233,3 +235,52 @@ def test_end_to_end_through_jack(rig, artifact, jack):
         runs[-1][1] += 1
     detected = [loc for loc, n in runs if n >= 5]
     assert detected == scripted, (detected, scripted, summary)
+
+
+def test_links_config(rig):
+    from sonicskin.acquire import load_links
+
+    t = load_links("two-links-time", rig)
+    assert [(lk.name, lk.slot, lk.n_slots) for lk in t] == [("upper-arm", 0, 2), ("forearm", 1, 2)]
+    assert np.abs(t[1].tx_period(rig)[: rig.n_chirp]).max() == 0 and np.abs(t[1].tx_period(rig)[rig.n_chirp:]).max() > 0
+    f = load_links("two-links-frequency", rig)
+    assert (f[0].rig.f_lo_hz, f[0].rig.f_hi_hz, f[1].rig.f_lo_hz, f[1].rig.f_hi_hz) == (20e3, 50e3, 50e3, 80e3)
+
+
+def test_two_time_duplexed_links_from_one_stream(rig, artifact):
+    """Two links share one interface, taking turns chirp by chirp; one loop per link reads its own channel."""
+    from sonicskin.acquire import load_links
+    from sonicskin.live import run_loops
+
+    links = load_links("two-links-time", rig)
+    # 4.5 s hands-off: the loops calibrate on their first 3 s of whole chirps (the stream starts mid-period).
+    (sim_a, tl_a), (sim_b, tl_b) = _live_timeline(rig, 80, 4.5), _live_timeline(rig, 81, 4.5)
+    n = min(len(tl_a), len(tl_b))
+    fa, fb = sim_a.render(tl_a.select(np.arange(n))), sim_b.render(tl_b.select(np.arange(n)))
+    noise = np.random.default_rng(0).normal(0, 1e-5, fa.shape).astype(np.float32)  # the other link's turn
+    col_a = np.stack([fa, noise], axis=1).ravel()
+    col_b = np.stack([noise, fb], axis=1).ravel()
+    stream = np.stack([col_a, col_b], axis=1)[3000:]
+
+    class Replay(acquire._QueueSource):
+        def start(self):
+            for k in range(0, len(stream), 1024):
+                self._deliver(stream[k:k + 1024])
+            self.finished = type("E", (), {"is_set": lambda self: True})()
+
+        def stop(self):
+            pass
+
+    src = Replay(rig, 1024, max_queued_s=60)
+    loops = [LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None, link=lk, channel=i) for i, lk in enumerate(links)]
+    src.start()
+    run_loops(loops, src, idle_timeout_s=0.1)
+    L = rig.n_chirp
+    for lp, tl, lk in zip(loops, (tl_a, tl_b), links):
+        hits = n_ev = 0
+        for e in lp.events:
+            k = int(round((e.t_s * rig.fs_hz + 3000 - lk.slot * L) / (2 * L)))
+            if e.kind == "touch" and 0 <= k < n and tl.force_n[k] >= 0.5:
+                n_ev += 1
+                hits += e.location == tl.location[k]
+        assert n_ev > 0.8 * int((tl.force_n[:n] >= 0.5).sum()) and hits / n_ev > 0.9
