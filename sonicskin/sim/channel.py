@@ -28,7 +28,6 @@ press is set up each chirp costs O(bins).
 from __future__ import annotations
 
 import dataclasses
-import functools
 
 import numpy as np
 from scipy.special import j1
@@ -270,14 +269,6 @@ class ChannelModel:
         G = self._project(self.patch_weights(pts_m, sub_radius_m)).astype(np.complex64)
         return self.unpack_patch(G, len(pts_m))
 
-    def transfer(self, pts_m: np.ndarray) -> np.ndarray:
-        """Point-to-RX transfer for a point force at each of ``pts_m`` (P, 2): (P, n_f). For checks."""
-        return self._project(self.mode_shapes(pts_m) * self.phi_rx)
-
     def transfer_between(self, a_m: np.ndarray, b_m: np.ndarray) -> np.ndarray:
         """G(a, b) between two points, (n_f,), point-sized; reciprocity: equal to G(b, a)."""
         return self._project(self.mode_shapes(np.atleast_2d(a_m)) * self.mode_shapes(np.atleast_2d(b_m)))[0]
-
-    @functools.cached_property
-    def point_mobility_scale(self) -> float:
-        return 1.0 / self.material.point_impedance
