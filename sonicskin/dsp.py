@@ -6,6 +6,8 @@ come out as ``(n, n_band)`` features with no Python loop per chirp.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.fft
 import scipy.signal
@@ -51,18 +53,28 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
                                           phi=np.degrees(phase_rad) - 90.0)
 
 
+@functools.lru_cache(maxsize=8)
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep."""
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep.
+
+    Computed once per rig (it is on every chirp's path); the array is read-only.
+    """
     stored = rig.sweep()
     if stored is not None:
-        return stored.astype(np.float64)
-    return chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
-                 amplitude=rig.amplitude)
+        x = stored.astype(np.float64)
+    else:
+        x = chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
+                  amplitude=rig.amplitude)
+    x.setflags(write=False)
+    return x
 
 
+@functools.lru_cache(maxsize=8)
 def chirp_spectrum(rig: Rig) -> np.ndarray:
-    """rfft of the transmitted chirp, S(f), shape (rig.n_chirp // 2 + 1,), complex128."""
-    return scipy.fft.rfft(rig_chirp(rig))
+    """rfft of the transmitted chirp, S(f), shape (rig.n_chirp // 2 + 1,), complex128, read-only."""
+    S = scipy.fft.rfft(rig_chirp(rig))
+    S.setflags(write=False)
+    return S
 
 
 def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
