@@ -10,7 +10,7 @@ import torch
 
 import sonicskin
 from sonicskin.artifact import PARITY_TOL, ort_session, skin_json, svm_entry
-from sonicskin.features import FeatureSpec, Split, model_inputs, touch_mask
+from sonicskin.features import FeatureSpec, Split, model_inputs, training_targets
 from sonicskin.rig import Layout
 from training.module import SkinLitModule
 
@@ -56,9 +56,7 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     layout = Layout.from_dict(meta["layout"])
     split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
     n_loc = len(layout)
-    loc = t["location"]
-    cls = np.where(loc >= 0, layout.index_of(np.where(loc >= 0, loc, layout.ids[0])), n_loc)
-    usable = (loc < 0) | touch_mask(t, meta["min_force_n"])
+    cls, usable = training_targets(t, layout, meta["min_force_n"])
     p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
     svm, svm_train_s = svm_entry(p, out, split.mask(t, "train") & usable)
     rng = np.random.default_rng(0)

@@ -218,14 +218,11 @@ class SoundDeviceSource(_QueueSource):
         n_out = max(lk.tx for lk in self.links) + 1
         self.device = find_device(device, rig, n_in, n_out)
         # One period of every output channel, precomputed: the callback only indexes into it.
-        period = max(len(lk.tx_period(rig)) for lk in self.links)
+        signals = [lk.tx_period(rig) if playback is None else np.asarray(playback, np.float32) for lk in self.links]
+        period = max(len(sig) for sig in signals)
         self._tx = np.zeros((period, n_out), np.float32)
-        for lk in self.links:
-            sig = lk.tx_period(rig) if playback is None else np.asarray(playback, np.float32)
-            reps = int(np.ceil(len(self._tx) / len(sig))) if len(sig) < len(self._tx) else 1
-            if len(sig) > len(self._tx):
-                self._tx = np.zeros((len(sig), n_out), np.float32)
-            self._tx[:, lk.tx] += np.tile(sig, reps)[: len(self._tx)]
+        for lk, sig in zip(self.links, signals):
+            self._tx[:, lk.tx] += np.resize(sig, period)  # a shorter period repeats
         self._rx = [lk.rx for lk in self.links]
         self._tx_pos = 0
         self.link = self.links[0]

@@ -106,6 +106,14 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
     return t
 
 
+def training_targets(t: FeatureTable, layout, min_force_n: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Class per chirp (layout row of the touched location, ``len(layout)`` = no touch) and which chirps
+    may train: light presses (0 < F < ``min_force_n``) are neither a clear touch nor no touch."""
+    loc = t["location"]
+    cls = np.where(loc >= 0, layout.index_of(np.where(loc >= 0, loc, layout.ids[0])), len(layout))
+    return cls.astype(np.int64), (loc < 0) | touch_mask(t, min_force_n)
+
+
 def select_bins(t: FeatureTable, rig, n_bins: int = 300, min_force_n: float = 0.5) -> np.ndarray:
     """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
     the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
@@ -183,10 +191,6 @@ def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", trai
     bins = select_bins(tr, ds.rig, n_bins, min_force_n)
     spec = FeatureSpec(tuple(int(b) for b in bins), mode)
     X = spec.transform(t, ds.rig.chirps_per_s)
-    loc = t["location"]
-    n_loc = len(ds.layout)
-    cls = np.where(loc >= 0, ds.layout.index_of(np.where(loc >= 0, loc, ds.layout.ids[0])), n_loc)
-    # Light presses (0 < F < min_force_n) are neither a clear touch nor no touch: left out of training.
-    usable = (loc < 0) | touch_mask(t, min_force_n)
-    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls.astype(np.int64),
-            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": n_loc}
+    cls, usable = training_targets(t, ds.layout, min_force_n)
+    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls,
+            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": len(ds.layout)}

@@ -16,7 +16,7 @@ import numpy as np
 
 from .calibration import ScoreCalibrator
 from .dataset import Dataset
-from .features import FeatureSpec, load_features_cached, quiet_mask, relative_features, select_bins, touch_mask
+from .features import FeatureSpec, load_features_cached, quiet_mask, relative_features, select_bins, touch_mask, training_targets
 from .force import MODELS, PerLocationForce, energy_db, fit_curve
 from .metrics import error_cdf, force_report, localization_report
 from .rig import Rig
@@ -61,18 +61,12 @@ class _Ctx:
         return Dataset(path)
 
 
-def _cls(t, layout):
-    loc = t["location"]
-    return np.where(loc >= 0, layout.index_of(np.where(loc >= 0, loc, layout.ids[0])), len(layout))
-
-
 def _fit_predict(kind: str, X: np.ndarray, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
                  seed: int = 0, cps: float = 9.375) -> dict:
     """Train ``kind`` on the usable chirps of ``train``, predict every chirp of ``test``."""
     n = len(layout)
-    cls = _cls(t, layout)
+    cls, usable = training_targets(t, layout)
     force = t["force_n"].astype(np.float32)
-    usable = (t["location"] < 0) | touch_mask(t)
     tr = train & usable
     ids = np.asarray(layout.ids)
     if kind == "svm":
