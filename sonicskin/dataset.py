@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
+from .errors import SonicskinError
 from .rig import Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "DatasetError", "DatasetWriter", "Dataset", "FeatureTable"]
@@ -43,7 +44,7 @@ COLUMNS: dict[str, type] = {
 _PART = re.compile(r"part-(\d{5})\.csv$")
 
 
-class DatasetError(ValueError):
+class DatasetError(SonicskinError):
     """A dataset folder that cannot be read as it is; the message says what and where."""
 
 

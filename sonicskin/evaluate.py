@@ -46,8 +46,14 @@ def _touch(t: FeatureTable, min_force_n: float) -> np.ndarray:
 
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
-                 ablations: bool = True, min_force_n: float = 0.5, log=print) -> dict:
-    """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest."""
+                 ablations: bool = True, min_force_n: float = 0.5, n_bins: int = 300, mode: str = "relative",
+                 log=print) -> dict:
+    """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest.
+
+    ``n_bins`` is OSPA's gamma; ``mode="relative"`` calibrates the scores online (Alg. 2),
+    ``"absolute"`` keeps the training session's reference throughout."""
+    if mode not in ("relative", "absolute"):
+        raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()
     sessions = sorted(set(table["session"]))
     train_sessions = train_sessions or sessions[:1]
@@ -55,7 +61,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     moving_tr = (tr["location"] < 0) & (tr["moving"] > 0)
     X_moving = tr.X[moving_tr] if moving_tr.sum() >= 2 else None
     t0 = time.perf_counter()
-    model = SkinSVM(ds.rig, ds.layout, min_force_n=min_force_n)
+    model = SkinSVM(ds.rig, ds.layout, n_bins=n_bins, min_force_n=min_force_n)
     model.fit(tr.X, tr["location"], tr["force_n"], quiet=_quiet(tr), X_moving=X_moving)
     train_s = time.perf_counter() - t0
     res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions),
@@ -65,7 +71,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     preds = {k: [] for k in ("location", "touch", "force", "location_offline")}
     for s in res["test_sessions"]:
         t = te.select(te["session"] == s)
-        p = model.predict(t.X, quiet=_quiet(t), time_s=t["time_s"], online=True)
+        p = model.predict(t.X, quiet=_quiet(t), time_s=t["time_s"], online=mode == "relative")
         p0 = model.predict(t.X, online=False)
         preds["location"].append(p.location)
         preds["touch"].append(p.touch)

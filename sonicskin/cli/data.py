@@ -1,0 +1,198 @@
+"""Verbs that write datasets: ``simulate``, ``record``, ``import-wav``, ``import-spectra``.
+
+Every writer takes ``--overwrite`` / ``--resume`` and leaves nothing behind when it fails before
+the first complete session (see :func:`._common.clean_on_failure`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import UsageError
+from ._common import (
+    add_writer_options,
+    check_overrides,
+    clean_on_failure,
+    key_value,
+    nonneg_float,
+    nonneg_int,
+    positive_float,
+    positive_int,
+    staged_output,
+    writer_mode,
+)
+
+
+def cmd_simulate(a: argparse.Namespace) -> int:
+    from ..rig import Rig
+    from ..sim.generate import simulate_dataset
+    from ..sim.scenario import Scenario
+
+    sc = Scenario.load(a.scenario)
+    over = check_overrides(Scenario, a.set, "scenario")
+    if a.seed is not None:
+        over["seed"] = a.seed
+    if a.sessions is not None:
+        over["sessions"] = a.sessions
+    if over:
+        sc = Scenario.from_dict({**sc.to_dict(), **over})
+    rig = Rig.load(a.rig)
+    out = Path(a.out or f"data/{sc.name}")
+    mode = writer_mode(a)
+    with clean_on_failure(out, mode):
+        simulate_dataset(sc, rig, out, mode=mode, progress=not a.quiet)
+    print(f"dataset written to {out}")
+    return 0
+
+
+def cmd_record(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from ..acquire import Link, SimulatedSource, SoundDeviceSource
+    from ..dataset import DatasetWriter
+    from ..record import CsvForce, NoForce, Recorder, SerialForce, TimelineForce, make_schedule, next_session, recorded_locations
+    from ..rig import Rig
+    from ..sim import Scenario, Simulator, build_timeline
+    from ..sim.scenario import SEGMENTS
+
+    rig = Rig.load(a.rig)
+    sc = Scenario.load(a.scenario)  # the layout (and, on the simulated device, the link and the person)
+    layout = sc.make_layout()
+    unknown = sorted(set(a.locations or ()) - set(layout.ids))
+    if unknown:
+        raise UsageError(f"--locations {' '.join(map(str, unknown))}: not in the layout of {sc.name} "
+                         f"(ids {min(layout.ids)}-{max(layout.ids)})")
+    out = Path(a.out)
+    mode = writer_mode(a)
+    if a.device != "sim":
+        from ..acquire import check_portaudio
+
+        check_portaudio()  # before anything is written
+    with clean_on_failure(out, mode):
+        writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": sc.name}, mode=mode)
+        todo = list(a.locations) if a.locations else list(layout.ids)
+        if a.resume:
+            done = recorded_locations(out)
+            todo = [loc for loc in todo if loc not in done]
+            if not todo:
+                print(f"{out}: every location is recorded; nothing to do", file=sys.stderr)
+                return 0
+        session = next_session(out)
+        schedule = make_schedule(layout, todo, rig, calibration_s=a.calibration_s, moving_s=a.moving_s,
+                                 touch_s=a.touch_s, gap_s=a.gap_s)
+        if a.device == "sim":
+            # The simulated person follows the prompts: same segments, same order, one extra chirp in front
+            # (the stream starts inside a chirp).
+            psc = sc.replace(sessions=1, order="sequential", repeats=1, seed=sc.seed + 500 + int(session[1:]),
+                             calibration_s=a.calibration_s + rig.period_s, touch_s=a.touch_s, gap_s=a.gap_s,
+                             moving_s=a.moving_s, motion={**sc.motion, "enabled": a.moving_s > 0},
+                             layout={**sc.layout})
+            tl = build_timeline(psc, rig)
+            keep = np.isin(tl.location, [-1, *todo]) | (tl.segment != SEGMENTS.index("touch"))
+            # Only the prompted locations, in the prompted order; the robot moves only when asked to.
+            tl = tl.select(np.isin(tl.event, [-1, *[e for e in np.unique(tl.event) if e >= 0
+                                                      and tl.location[tl.event == e][0] in todo]]) & keep)
+            tl.moving[tl.segment != SEGMENTS.index("moving")] = 0.0
+            src = SimulatedSource(Simulator(psc, rig), tl, realtime=not a.fast, offset=4321)
+            force = TimelineForce(tl, -4321, rig.fs_hz, rig.n_chirp, seed=int(session[1:]))
+        else:
+            src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
+            force = CsvForce(a.force_csv) if a.force_csv else SerialForce(a.force_serial) if a.force_serial else NoForce()
+        print(f"recording session {session} of {out}: {len(todo)} locations, "
+              f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s", file=sys.stderr)
+        with src:
+            res = Recorder(writer, session, src, schedule, force).run()
+    print(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}", file=sys.stderr)
+    return 0
+
+
+def _log_as(tmp: Path, out: str | Path):
+    """A log that names the final folder, not the staging folder the importer writes to."""
+    return lambda msg: print(str(msg).replace(str(tmp), str(out)))
+
+
+def cmd_import_wav(a: argparse.Namespace) -> int:
+    from ..importers import import_wav
+
+    mode = writer_mode(a)
+    with staged_output(a.out, mode) as out:
+        import_wav(a.wav_dir, a.labels, out, log=_log_as(out, a.out), sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
+                   period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
+                   pwm_halfwidth_hz=a.pwm_halfwidth, mode="resume" if mode == "resume" else "create")
+    return 0
+
+
+def cmd_import_spectra(a: argparse.Namespace) -> int:
+    from ..importers import import_spectra
+    from ..rig import Rig
+
+    mode = writer_mode(a)
+    rig = Rig.load(a.rig)
+    with staged_output(a.out, mode) as out:
+        import_spectra(a.table, out, rig=rig, mode="resume" if mode == "resume" else "create", log=_log_as(out, a.out))
+    return 0
+
+
+def add_parsers(sub) -> None:
+    s = sub.add_parser("simulate", help="render a scenario of the simulated rig into a dataset",
+                       description="Render a scenario (configs/scenarios/<name>.yaml or a path) into the dataset format.")
+    s.add_argument("--scenario", default="stationary", help="scenario name or YAML path (default: stationary)")
+    s.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    s.add_argument("--out", help="dataset folder (default: data/<scenario>)")
+    s.add_argument("--seed", type=nonneg_int, help="override the scenario's seed (default: the scenario's)")
+    s.add_argument("--sessions", type=positive_int, help="override the number of sessions (default: the scenario's)")
+    s.add_argument("--set", action="append", type=key_value, metavar="KEY=VALUE",
+                   help="override any scenario key, value in YAML (e.g. motion={enabled: true}; default: none)")
+    add_writer_options(s)
+    s.add_argument("--quiet", action="store_true", help="no progress bar (default: a bar on a terminal)")
+    s.set_defaults(func=cmd_simulate)
+
+    rc = sub.add_parser("record", help="guided one-shot training session -> dataset (resumable)",
+                        description="Prompt through hands-off, robot-moving and one touch per location, and write the "
+                                    "dataset format as it goes. Ctrl-C keeps every finished prompt; --resume records the "
+                                    "locations still missing.")
+    rc.add_argument("--out", required=True, help="dataset folder")
+    rc.add_argument("--device", default="sim",
+                    help="'sim' (a simulated person follows the prompts) or an audio device name/index (default: sim)")
+    rc.add_argument("--scenario", default="stationary",
+                    help="layout of the markers (and the simulated link/person) (default: stationary)")
+    rc.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    rc.add_argument("--locations", type=nonneg_int, nargs="+", metavar="ID", help="only these location ids (default: all)")
+    rc.add_argument("--calibration-s", type=positive_float, default=3.0, help="hands-off calibration, seconds (default: 3)")
+    rc.add_argument("--moving-s", type=nonneg_float, default=10.0, help="robot moving, hands off, seconds; 0 skips (default: 10)")
+    rc.add_argument("--touch-s", type=positive_float, default=3.0, help="press per location, seconds (default: 3)")
+    rc.add_argument("--gap-s", type=nonneg_float, default=1.0, help="pause between presses, seconds (default: 1)")
+    rc.add_argument("--force-csv", help="force log with columns t_s,force_n (real device; default: no force sensor)")
+    rc.add_argument("--force-serial", help="serial port of a force sensor printing newtons per line (real device; default: none)")
+    rc.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    rc.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    add_writer_options(rc)
+    rc.add_argument("--fast", action="store_true", help="simulated device: faster than real time (default: real time)")
+    rc.set_defaults(func=cmd_record)
+
+    iw = sub.add_parser("import-wav", help="import WAV recordings of any sweep and rate (labels in CSV)",
+                        description="One WAV/FLAC per continuous recording; labels CSV: file,start_s,end_s,location,"
+                                    "x_cm,y_cm[,force_n,moving,subject]. The sweep as a WAV of one period, or --chirp/--period.")
+    iw.add_argument("--wav-dir", required=True, help="folder of the WAV/FLAC recordings")
+    iw.add_argument("--labels", required=True, help="labels CSV")
+    iw.add_argument("--out", required=True, help="dataset folder to write")
+    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep (default: --chirp/--period)")
+    iw.add_argument("--chirp", type=positive_float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"),
+                    help="linear chirp band, Hz (default: --sweep)")
+    iw.add_argument("--period", type=positive_float, help="linear chirp period in seconds (default: --sweep)")
+    iw.add_argument("--amplitude", type=positive_float, default=1.0, help="linear chirp peak amplitude, full scale 1 (default: 1)")
+    iw.add_argument("--channel", type=nonneg_int, default=0, help="receiver channel in the files, 0-based (default: 0)")
+    iw.add_argument("--pwm-hz", type=positive_float, nargs="*", help="motor PWM lines to notch, Hz (default: none)")
+    iw.add_argument("--pwm-halfwidth", type=nonneg_float, default=0.0, help="half width of each PWM notch, Hz (default: 0)")
+    add_writer_options(iw)
+    iw.set_defaults(func=cmd_import_wav)
+
+    isp = sub.add_parser("import-spectra", help="import a table of magnitude spectra with labels (.npz)",
+                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, x_cm, y_cm, session "
+                                     "[, force_n, moving, subject]; each row becomes one chirp of --rig.")
+    isp.add_argument("--table", required=True, help="the .npz table")
+    isp.add_argument("--out", required=True, help="dataset folder to write")
+    isp.add_argument("--rig", default="jaco", help="rig name or YAML path the rows become chirps of (default: jaco)")
+    add_writer_options(isp)
+    isp.set_defaults(func=cmd_import_spectra)
