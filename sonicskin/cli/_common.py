@@ -235,6 +235,19 @@ def staged_output(out: str | Path, mode: str) -> Iterator[Path]:
     os.replace(tmp, out)
 
 
+@contextlib.contextmanager
+def removed_on_failure(out: str | Path) -> Iterator[Path]:
+    """An output folder this run creates is removed again if the run fails: no half-made artifact."""
+    out = Path(out)
+    existed = out.exists()
+    try:
+        yield out
+    except BaseException:
+        if not existed and out.is_dir():
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
 # -- training helpers ------------------------------------------------------------------------------------
 def need_train_extra(verb: str) -> None:
     try:

@@ -65,10 +65,8 @@ def cmd_record(a: argparse.Namespace) -> int:
                          f"(ids {min(layout.ids)}-{max(layout.ids)})")
     out = Path(a.out)
     mode = writer_mode(a)
-    if a.device != "sim":
-        from ..acquire import check_portaudio
-
-        check_portaudio()  # before anything is written
+    if a.device != "sim":  # the audio device (and PortAudio) is checked before anything is written
+        src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
     with clean_on_failure(out, mode):
         writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": sc.name}, mode=mode)
         todo = list(a.locations) if a.locations else list(layout.ids)
@@ -97,7 +95,6 @@ def cmd_record(a: argparse.Namespace) -> int:
             src = SimulatedSource(Simulator(psc, rig), tl, realtime=not a.fast, offset=4321)
             force = TimelineForce(tl, -4321, rig.fs_hz, rig.n_chirp, seed=int(session[1:]))
         else:
-            src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
             force = CsvForce(a.force_csv) if a.force_csv else SerialForce(a.force_serial) if a.force_serial else NoForce()
         print(f"recording session {session} of {out}: {len(todo)} locations, "
               f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s", file=sys.stderr)

@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from ._common import (
     latest_checkpoint,
     lightning_overrides,
     need_train_extra,
+    removed_on_failure,
     resolve_n_bins,
     train_config,
 )
@@ -74,8 +76,10 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     if a.test or a.test_subjects:
         raise UsageError("fit-svm trains the deployment model on every session it is given; choose them with "
                          "--train (test it with `sonicskin compare --artifact`)")
-    build_svm_artifact(a.data, a.out, n_bins=resolve_n_bins(a, a.data), mode=a.mode or "relative",
-                       train_sessions=(a.train or []) + (a.val or []) or None)
+    n_bins = resolve_n_bins(a, a.data)
+    with removed_on_failure(a.out):
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative",
+                           train_sessions=(a.train or []) + (a.val or []) or None)
     return 0
 
 
@@ -109,8 +113,28 @@ def cmd_export(a: argparse.Namespace) -> int:
     from export.onnx import export_artifact
 
     ckpt = latest_checkpoint(run)
-    export_artifact(ckpt, a.out, data=a.data)
+    with readable_checkpoint(ckpt), removed_on_failure(a.out):
+        export_artifact(ckpt, a.out, data=a.data)
     return 0
+
+
+@contextlib.contextmanager
+def readable_checkpoint(ckpt: Path):
+    """A checkpoint torch cannot read (not a checkpoint, truncated, or refused by ``weights_only``
+    loading) becomes one user error naming the file."""
+    import pickle
+    import zipfile
+
+    try:
+        yield
+    except (pickle.UnpicklingError, EOFError, zipfile.BadZipFile) as e:
+        raise UsageError(f"{ckpt} is not a readable sonicskin checkpoint ({' '.join(str(e).split())[:200]}); "
+                         f"pass a .ckpt written by `sonicskin train`") from None
+    except RuntimeError as e:
+        if "PytorchStreamReader" not in str(e) and "checkpoint" not in str(e).lower():
+            raise
+        raise UsageError(f"{ckpt} is not a readable sonicskin checkpoint ({' '.join(str(e).split())[:200]}); "
+                         f"pass a .ckpt written by `sonicskin train`") from None
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
@@ -141,7 +165,9 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
                                        "--trainer.logger.init_args.save_dir", str(run)] + extra)
         cli = train_main(args)
         artifact = run / "artifact"
-        export_artifact(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
+        ckpt = latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath))
+        with readable_checkpoint(ckpt):
+            export_artifact(ckpt, artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
     title = f"{Path(a.data).name}: network vs SVM"
     print(format_comparison(res, title))
