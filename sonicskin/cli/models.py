@@ -21,9 +21,6 @@ from ._common import (
     train_config,
 )
 
-TRAIN_HELP_TIP = ("LightningCLI options (model, data, trainer): `sonicskin train --help` lists them all, e.g. "
-                  "--trainer.max_epochs 5 --model.hidden '[64, 64]' --data.batch_size 64")
-
 
 def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
     """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on
@@ -96,6 +93,12 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     from training.cli import main as train_main
 
     cli = train_main(_train_args(a, a.data, extra))
+    if not cli.trainer.is_global_zero:  # DDP: rank zero reports
+        return 0
+    res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
+    if res:
+        metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
+        print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
     ckpt = cli.trainer.checkpoint_callback
     print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
     return 0
@@ -207,9 +210,10 @@ def add_parsers(sub) -> None:
     f.set_defaults(func=cmd_fit_svm)
 
     t = sub.add_parser("train", help="train the network (Lightning; any --trainer.* / --model.* / --data.* override)",
-                       description="Train SkinNet jointly for location and force with LightningCLI. Other options go "
-                                   "to LightningCLI: " + TRAIN_HELP_TIP.split(": ", 1)[1] + ". "
-                                   "Its full list (model, data, trainer) follows below when a training install is present.")
+                       description="Train SkinNet jointly for location and force with LightningCLI. Options not "
+                                   "listed here go to LightningCLI, e.g. --trainer.max_epochs 5 --model.hidden '[64, 64]' "
+                                   "--data.batch_size 64; their full list (model, data, trainer) follows below when "
+                                   "the training extra is installed.")
     t.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     t.add_argument("--data", help="dataset folder (default: data.data of the config)")
     add_model_options(t)
