@@ -247,8 +247,12 @@ class Dataset:
         return out
 
     def _read_labels(self, path: Path) -> dict[str, np.ndarray]:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
+        try:
+            with open(path, newline="", encoding="utf-8") as fh:
+                rows = list(csv.reader(fh))
+        except (UnicodeDecodeError, csv.Error) as e:
+            raise DatasetError(f"{path}: not a readable labels CSV ({e}); delete this part and the ones after it "
+                               f"and record them again (--resume)") from None
         if not rows or rows[0] != list(COLUMNS):
             raise DatasetError(f"{path}: header must be {','.join(COLUMNS)}; got {','.join(rows[0]) if rows else 'nothing'}")
         body = rows[1:]
@@ -261,6 +265,20 @@ class Dataset:
                 raise DatasetError(f"{path}: column {name!r} has a bad value ({e})") from None
         return out
 
+    def _check_session_json(self, session: str) -> None:
+        """``session.json`` (written last, when the session is complete) must be a JSON object
+        ``{"complete": true, ...}`` when present."""
+        path = self.root / session / "session.json"
+        if not path.exists():
+            return
+        try:
+            info = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError, OSError) as e:
+            raise DatasetError(f"{path} is corrupt ({e}); delete it to treat the session as unfinished") from None
+        if not isinstance(info, dict) or info.get("complete") is not True:
+            raise DatasetError(f"{path}: expected a JSON object with \"complete\": true; delete it to treat the "
+                               f"session as unfinished")
+
     def read_session(self, session: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The session's chirp-aligned frames (n, n_chirp) float32 and their labels."""
         import soundfile as sf
@@ -268,6 +286,7 @@ class Dataset:
         parts = self.parts(session)
         if not parts:
             raise DatasetError(f"{self.root / session}: no complete part")
+        self._check_session_json(session)
         audio, labels = [], []
         for p in parts:
             fpath = self.root / session / f"part-{p:05d}.flac"

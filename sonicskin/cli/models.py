@@ -82,6 +82,10 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
 
 def _train_args(a: argparse.Namespace, data: str | None, extra: list[str]) -> list[str]:
     check_split_options(a)
+    if data:
+        from ..dataset import Dataset
+
+        Dataset(data)  # refused here, in one line, before Lightning starts
     n_bins = resolve_n_bins(a, data) if data else a.n_bins
     if data and a.test:
         a.train, a.val = _sessions_for_test(a, data)
