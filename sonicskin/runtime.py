@@ -18,7 +18,6 @@ import numpy as np
 from .artifact import ARTIFACT_FORMAT
 from .calibration import ScoreCalibrator
 from .dsp import log_magnitude_db
-from .errors import SonicskinError
 from .features import FeatureSpec
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
@@ -28,7 +27,7 @@ __all__ = ["ArtifactError", "SkinRuntime", "Predictions", "ARTIFACT_FORMAT"]
 
 
 
-class ArtifactError(SonicskinError):
+class ArtifactError(ValueError):
     """An artifact that cannot run here; the message says what does not match and what to do."""
 
 
