@@ -372,6 +372,9 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     for name, v in (("moving-s", moving_s), ("gap-s", gap_s)):
         if not v >= 0:
             raise ValueError(f"--{name} must be >= 0 s, got {v:g}")
+    if calibration_s < 3.0:
+        log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "
+            f"fit-svm will need --mode absolute on this recording")
     mode = "resume" if resume else ("overwrite" if overwrite else "create")
     writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": scenario.name}, mode=mode)
     todo = wanted
