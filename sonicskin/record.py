@@ -172,9 +172,10 @@ class Recorder:
         self.settle = self.rig.seconds_to_chirps(settle_s)  # reaction time at the start of a touch prompt
         self.parts_written = 0      # finished prompts on disk
         self.chirps_written = 0
+        self.interrupted_at = None  # the prompt in progress when Ctrl-C came
 
-    def _row(self, t_s: float, seg: str, loc: int, touching: bool) -> dict:
-        row = {"chirp": self.chirps_written, "t_s": t_s, "time_s": t_s, "segment": seg,
+    def _row(self, chirp: int, t_s: float, seg: str, loc: int, touching: bool) -> dict:
+        row = {"chirp": chirp, "t_s": t_s, "time_s": t_s, "segment": seg,
                "location": loc if touching else -1, "x_cm": np.nan, "y_cm": np.nan,
                "force_n": self.forcesrc.force(t_s) if seg == "touch" else 0.0,
                "moving": self.moving_level if seg == "moving" else 0.0, "temperature_c": np.nan, "subject": 0}
@@ -235,7 +236,8 @@ class Recorder:
                     if seg_i >= len(self.schedule):
                         break
                     seg, loc, n, _ = self.schedule[seg_i]
-                    rows.append(self._row(start / rig.fs_hz, seg, loc, seg == "touch" and j >= self.settle))
+                    touching = seg == "touch" and j >= self.settle
+                    rows.append(self._row(self.chirps_written + len(rows), start / rig.fs_hz, seg, loc, touching))
                     if j >= n - 1:
                         close_prompt()
                         if seg_i >= len(self.schedule):

@@ -94,6 +94,8 @@ def test_subsets_label_only_real_presses(tmp_path, small, locations):
     _, lab = Dataset(out).read_session("s000")
     loc = lab["location"][lab["location"] >= 0]
     assert list(dict.fromkeys(loc.tolist())) == locations  # prompted order
+    assert np.array_equal(lab["chirp"], np.arange(lab["chirp"].size))  # one row per chirp, in stream order
+    assert np.allclose(np.diff(lab["t_s"]), Dataset(out).rig.period_s)  # no chirp skipped or doubled
 
 
 def _interrupt_after(monkeypatch, n_blocks: int) -> None:
