@@ -21,8 +21,11 @@ trained).
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -206,9 +209,10 @@ class Recorder:
             audio = np.concatenate(stream)
             cut = end - stream_start
             labels = {c: np.array([r[c] for r in rows]) for c in COLUMNS}
-            self.w.write_part(self.session, self.parts_written, audio[:cut], labels)
-            self.parts_written += 1
-            self.chirps_written += len(rows)
+            with _sigint_deferred():  # a finished prompt is written whole, whenever Ctrl-C comes
+                self.w.write_part(self.session, self.parts_written, audio[:cut], labels)
+                self.parts_written += 1
+                self.chirps_written += len(rows)
             rows, stream, stream_start = [], [audio[cut:]], end
             seg_i, seg_start = seg_i + 1, end
             if seg_i < len(self.schedule):
@@ -250,6 +254,29 @@ class Recorder:
             self.w.finish_session(self.session, {"n_chirps": self.chirps_written, "prompts": len(self.schedule)})
         return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete,
                 "wall_s": time.perf_counter() - t_wall}
+
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`.
+
+    Writing a part runs libsndfile callbacks through cffi, which swallows an exception raised in
+    them ("Exception ignored from cffi callback"): a Ctrl-C landing there would be lost and the
+    part could be cut short.  Outside the main thread (no signal handlers there) this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    old = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if caught and callable(old):
+        old(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+    elif caught and old == signal.SIG_DFL:
+        raise KeyboardInterrupt
 
 
 def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):

@@ -181,15 +181,18 @@ def test_sigint_at_a_random_moment_keeps_every_finished_prompt(tmp_path, small):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")])),
            "OMP_NUM_THREADS": "1"}
     p = subprocess.Popen(args, env=env, stderr=subprocess.PIPE, text=True)
-    # Wait for the first touch prompt, then interrupt after a random delay.
+    # Interrupt somewhere in the k-th touch prompt (k random), a random moment after it is shown.
+    rng = np.random.default_rng()
+    k, seen = int(rng.integers(1, 6)), 0
     for line in p.stderr:
-        if "touch location" in line:
+        seen += "touch location" in line
+        if seen == k:
             break
-    time.sleep(float(np.random.default_rng().uniform(0.0, 1.5)))
+    time.sleep(float(rng.uniform(0.0, 0.2)))
     p.send_signal(signal.SIGINT)
     err = p.communicate(timeout=60)[1]
     assert p.returncode in (0, 130), err
-    assert "Traceback" not in err
+    assert "Traceback" not in err, err
     before = recorded_locations(out)
     if before:
         assert_real_presses(out, sorted(before))
@@ -213,3 +216,25 @@ def test_force_log(tmp_path):
     p.write_text("time,newton\n0,0\n")
     with pytest.raises(ValueError, match="t_s,force_n"):
         CsvForce(p)
+
+
+def test_ctrl_c_while_a_part_is_written_keeps_that_part_whole(tmp_path, small, monkeypatch):
+    """SIGINT inside the FLAC encoder (cffi callbacks swallow exceptions) must neither be lost nor cut the part."""
+    from sonicskin.dataset import DatasetWriter
+
+    real_write = DatasetWriter.write_part
+    calls = []
+
+    def write_part(self, session, part, audio, labels):
+        calls.append(part)
+        if len(calls) == 2:  # Ctrl-C as the first touch prompt's part starts to be written
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_write(self, session, part, audio, labels)
+
+    monkeypatch.setattr(DatasetWriter, "write_part", write_part)
+    out = tmp_path / "rec"
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", "2", "3", *FAST]) == 130
+    assert calls == [0, 1]  # stopped right after the part that was being written
+    assert Dataset(out).parts("s000") == [0, 1]
+    assert recorded_locations(out) == {1}
+    assert_real_presses(out, [1])
