@@ -404,8 +404,13 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     if calibration_s < 3.0:
         log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "
             f"fit-svm will need --mode absolute on this recording")
+    if device != "sim":  # the device and the force sensor open before anything is written
+        src = SoundDeviceSource(rig, device, link=Link(tx=tx, rx=rx))
+        force = CsvForce(force_csv) if force_csv else SerialForce(force_serial) if force_serial else NoForce()
     mode = "resume" if resume else ("overwrite" if overwrite else "create")
+    new_dir, new_dataset = not out.exists(), not (out / "dataset.json").exists()
     writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": scenario.name}, mode=mode)
+    new_dataset = new_dataset or overwrite
     todo = wanted
     if resume:
         have = location_chirps(out, min_force_n=min_force_n)
@@ -423,19 +428,27 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s)
     if device == "sim":
         src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
-    else:
-        src = SoundDeviceSource(rig, device, link=Link(tx=tx, rx=rx))
-        force = CsvForce(force_csv) if force_csv else SerialForce(force_serial) if force_serial else NoForce()
     log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
         f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s")
     rec = Recorder(writer, session, src, schedule, force, prompt=prompt)
     try:
         with src:
             res = rec.run()
-    except KeyboardInterrupt:
-        at = getattr(rec, "interrupted_at", None)
-        log(f"interrupted{f' during {at[3]!r}' if at else ''}: {rec.parts_written} finished prompts "
-            f"({rec.chirps_written} chirps) are kept in {out / session}; `--resume` records what is missing")
+    except BaseException as exc:
+        if rec.parts_written == 0 and new_dataset:  # nothing recorded: leave no dataset that blocks a retry
+            import shutil
+
+            if new_dir:
+                shutil.rmtree(out, ignore_errors=True)
+            else:
+                shutil.rmtree(out / session, ignore_errors=True)
+                (out / "dataset.json").unlink(missing_ok=True)
+            kept = f"nothing was recorded, so the new dataset {out} is removed"
+        else:
+            kept = (f"{rec.parts_written} finished prompts ({rec.chirps_written} chirps) are kept in {out / session}; "
+                    f"`--resume` records what is missing")
+        if isinstance(exc, KeyboardInterrupt):
+            log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
         raise
     log(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
     return {**res, "session": session, "locations": todo}

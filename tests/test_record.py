@@ -238,3 +238,24 @@ def test_ctrl_c_while_a_part_is_written_keeps_that_part_whole(tmp_path, small, m
     assert Dataset(out).parts("s000") == [0, 1]
     assert recorded_locations(out) == {1}
     assert_real_presses(out, [1])
+
+
+def test_a_run_that_records_nothing_leaves_nothing_behind(tmp_path, small, monkeypatch, capsys):
+    """A device that does not open, or Ctrl-C before the first prompt is done: no lone dataset.json
+    that would block the retry (the issue's `record --device 0` without PortAudio)."""
+    import sonicskin.acquire as acquire
+
+    def no_device(*a, **k):
+        raise ValueError("no audio device matches 'Fireface'")
+
+    out = tmp_path / "rec"
+    monkeypatch.setattr(acquire, "SoundDeviceSource", no_device)
+    assert main(["record", "--out", str(out), "--device", "Fireface", "--scenario", small, *FAST]) == 2
+    assert "no audio device matches" in capsys.readouterr().err and not out.exists()
+    monkeypatch.undo()
+    _interrupt_after(monkeypatch, 5)
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", *FAST]) == 130
+    assert "nothing was recorded" in capsys.readouterr().err and not out.exists()
+    monkeypatch.undo()
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", *FAST]) == 0
+    assert recorded_locations(out) == {1}
