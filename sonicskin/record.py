@@ -287,7 +287,9 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
     moves only during the ``moving`` prompt; each touch prompt is one press-hold-release of the
     scenario's first subject at the prompted marker (aim bias and jitter of that person, peak
     force from ``scenario.peak_force_n``).  ``lead_chirps`` extra no-touch chirps go in front:
-    the stream starts inside chirp 0, so the recorder's first whole chirp is chirp ``lead_chirps``.
+    the stream starts inside chirp 0, so the recorder's first whole chirp is usually chirp 1 (chirp 0
+    when the stream starts within the link's delay): the person is never ahead of a prompt and at
+    most one chirp behind it, well inside the recorder's reaction time.
 
     Returns a one-session :class:`sonicskin.sim.Timeline`.
     """
@@ -335,9 +337,10 @@ def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realti
     moving = any(seg == "moving" for seg, *_ in schedule)
     psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
                            motion={**scenario.motion, "enabled": moving})
-    tl = person_timeline(psc, rig, schedule, seed=psc.seed)
+    offset %= rig.n_chirp
+    tl = person_timeline(psc, rig, schedule, seed=psc.seed, lead_chirps=1 if offset else 0)
     src = SimulatedSource(Simulator(psc, rig), tl, realtime=realtime, offset=offset)
-    return src, TimelineForce(tl, -(offset % rig.n_chirp), rig.fs_hz, rig.n_chirp, seed=session_index), tl
+    return src, TimelineForce(tl, -offset, rig.fs_hz, rig.n_chirp, seed=session_index), tl
 
 
 def next_session(root: Path) -> str:
