@@ -6,10 +6,8 @@ the first complete session (see :func:`._common.clean_on_failure`)."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from ..errors import UsageError
 from ._common import (
     add_writer_options,
     check_overrides,
@@ -47,60 +45,18 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 
 def cmd_record(a: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ..acquire import Link, SimulatedSource, SoundDeviceSource
-    from ..dataset import DatasetWriter
-    from ..record import CsvForce, NoForce, Recorder, SerialForce, TimelineForce, make_schedule, next_session, recorded_locations
+    from ..record import record_session
     from ..rig import Rig
-    from ..sim import Scenario, Simulator, build_timeline
-    from ..sim.scenario import SEGMENTS
+    from ..sim import Scenario
 
-    rig = Rig.load(a.rig)
-    sc = Scenario.load(a.scenario)  # the layout (and, on the simulated device, the link and the person)
-    layout = sc.make_layout()
-    unknown = sorted(set(a.locations or ()) - set(layout.ids))
-    if unknown:
-        raise UsageError(f"--locations {' '.join(map(str, unknown))}: not in the layout of {sc.name} "
-                         f"(ids {min(layout.ids)}-{max(layout.ids)})")
+    # The scenario gives the layout of the markers (and, on the simulated device, the link and the person).
+    # record_session checks the device before writing and removes a dataset it could not record anything into.
     out = Path(a.out)
-    mode = writer_mode(a)
-    if a.device != "sim":  # the audio device (and PortAudio) is checked before anything is written
-        src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
-    with clean_on_failure(out, mode):
-        writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": sc.name}, mode=mode)
-        todo = list(a.locations) if a.locations else list(layout.ids)
-        if a.resume:
-            done = recorded_locations(out)
-            todo = [loc for loc in todo if loc not in done]
-            if not todo:
-                print(f"{out}: every location is recorded; nothing to do", file=sys.stderr)
-                return 0
-        session = next_session(out)
-        schedule = make_schedule(layout, todo, rig, calibration_s=a.calibration_s, moving_s=a.moving_s,
-                                 touch_s=a.touch_s, gap_s=a.gap_s)
-        if a.device == "sim":
-            # The simulated person follows the prompts: same segments, same order, one extra chirp in front
-            # (the stream starts inside a chirp).
-            psc = sc.replace(sessions=1, order="sequential", repeats=1, seed=sc.seed + 500 + int(session[1:]),
-                             calibration_s=a.calibration_s + rig.period_s, touch_s=a.touch_s, gap_s=a.gap_s,
-                             moving_s=a.moving_s, motion={**sc.motion, "enabled": a.moving_s > 0},
-                             layout={**sc.layout})
-            tl = build_timeline(psc, rig)
-            keep = np.isin(tl.location, [-1, *todo]) | (tl.segment != SEGMENTS.index("touch"))
-            # Only the prompted locations, in the prompted order; the robot moves only when asked to.
-            tl = tl.select(np.isin(tl.event, [-1, *[e for e in np.unique(tl.event) if e >= 0
-                                                      and tl.location[tl.event == e][0] in todo]]) & keep)
-            tl.moving[tl.segment != SEGMENTS.index("moving")] = 0.0
-            src = SimulatedSource(Simulator(psc, rig), tl, realtime=not a.fast, offset=4321)
-            force = TimelineForce(tl, -4321, rig.fs_hz, rig.n_chirp, seed=int(session[1:]))
-        else:
-            force = CsvForce(a.force_csv) if a.force_csv else SerialForce(a.force_serial) if a.force_serial else NoForce()
-        print(f"recording session {session} of {out}: {len(todo)} locations, "
-              f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s", file=sys.stderr)
-        with src:
-            res = Recorder(writer, session, src, schedule, force).run()
-    print(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}", file=sys.stderr)
+    with clean_on_failure(out, writer_mode(a)):
+        record_session(out, Rig.load(a.rig), Scenario.load(a.scenario), locations=a.locations, device=a.device,
+                       resume=a.resume, overwrite=a.overwrite, realtime=not a.fast, calibration_s=a.calibration_s,
+                       moving_s=a.moving_s, touch_s=a.touch_s, gap_s=a.gap_s, force_csv=a.force_csv,
+                       force_serial=a.force_serial, tx=a.tx, rx=a.rx)
     return 0
 
 
