@@ -18,7 +18,7 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
                         beta_s: finite > 0 (s); alpha_s: null or finite >= beta_s (s)
     min_force_n         finite >= 0 (N)
     calibration         optional copy of beta_s / alpha_s, equal to the features' ones
-    training            optional provenance: data (string), split {train, val, test: [session names]}, ...
+    training            provenance: data (string), split {train, val, test: [session names]}, other keys free
     models              {"net": ..., "svm": ...}, at least one:
       file              a plain file name inside the artifact folder (no directories, no symlink out of it)
       sha256            64 lowercase hex digits of that file
@@ -305,13 +305,11 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
 
 def _check_training(doc: _Doc, tr: Any) -> None:
     tr = doc.obj(tr, "training")
-    if "data" in tr:
-        doc.str(tr["data"], "training.data")
-    if "split" in tr:
-        split = doc.obj(tr["split"], "training.split")
-        for k, v in split.items():
-            for i, s in enumerate(doc.list(v, f"training.split.{k}")):
-                doc.str(s, f"training.split.{k}[{i}]")
+    doc.str(doc.get(tr, "data", "training"), "training.data")
+    split = doc.obj(doc.get(tr, "split", "training"), "training.split")
+    for k in ("train", "val", "test"):
+        for i, s in enumerate(doc.list(doc.get(split, k, "training.split"), f"training.split.{k}")):
+            doc.str(s, f"training.split.{k}[{i}]")
 
 
 def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
@@ -338,8 +336,7 @@ def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
         for k in ("beta_s", "alpha_s"):
             if k in cal and cal[k] != getattr(spec, k):
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
-    if "training" in meta:
-        _check_training(doc, meta["training"])
+    _check_training(doc, doc.get(meta, "training", ""))
     models = doc.obj(doc.get(meta, "models", ""), "models")
     if not models:
         doc.fail("models", "is empty")
