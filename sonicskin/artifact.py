@@ -18,7 +18,7 @@ import numpy as np
 from . import __version__
 from .baseline import ovr_scores_from_ovo
 from .features import prepare, quiet_mask
-from .schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, check_session, model_file, validate_skin
+from .schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, ArtifactError, check_session, model_file, validate_skin
 from .svm_head import fit_svm_head
 
 __all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "sha256", "ort_session", "export_svm", "skin_json", "build_svm_artifact"]
@@ -72,8 +72,11 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training, "models": models}
-    text = json.dumps(skin, indent=1, allow_nan=False)  # NaN/Infinity are not JSON: refuse rather than write them
-    skin = validate_skin(json.loads(text), source=str(out / "skin.json (being written)"))
+    skin = validate_skin(json.loads(json.dumps(skin)), source=str(out / "skin.json (being written)"))
+    try:
+        text = json.dumps(skin, indent=1, allow_nan=False)  # NaN/Infinity are not JSON: refuse rather than write them
+    except ValueError as e:
+        raise ArtifactError(f"{out / 'skin.json'} would hold a NaN or infinite value outside the checked fields ({e})") from None
     for name in models:
         model_file(out, skin, name)
         check_session(ort_session(out / models[name]["file"]), skin, name, source=str(out / models[name]["file"]))

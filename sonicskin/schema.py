@@ -15,7 +15,7 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
     layout              ids: N >= 1 unique ints >= 0; xy_cm: N pairs of finite cm;
                         circumference_cm: null or finite > 0
     features            bins: B >= 1 unique ints, 0 <= b < rig.n_band; mode: absolute | relative;
-                        beta_s: finite > 0 (s); alpha_s: null or finite >= beta_s (s)
+                        beta_s: finite, 0 < beta_s <= 3600 (s); alpha_s: finite, beta_s <= alpha_s <= 1e7 (s)
     min_force_n         finite >= 0 (N)
     calibration         optional copy of beta_s / alpha_s, equal to the features' ones
     training            provenance: data (string), split {train, val, test: [session names]}, other keys free
@@ -213,9 +213,8 @@ def _check_features(doc: _Doc, feats: Any, n_band: int):
     if mode not in MODES:
         doc.fail("features.mode", f"must be one of {list(MODES)}, got {_short(mode)}")
     beta = doc.num(doc.get(feats, "beta_s", "features"), "features.beta_s", lo=0, lo_open=True, hi=3600)
-    doc.get(feats, "alpha_s", "features")
-    alpha = doc.num(feats["alpha_s"], "features.alpha_s", lo=0, lo_open=True, hi=1e7, none_ok=True)
-    if alpha is not None and alpha < beta:
+    alpha = doc.num(doc.get(feats, "alpha_s", "features"), "features.alpha_s", lo=0, lo_open=True, hi=1e7)
+    if alpha < beta:
         doc.fail("features.alpha_s", f"({alpha:g} s) is shorter than the reference it refreshes (beta_s = {beta:g} s)")
     return FeatureSpec.from_dict(feats)
 
@@ -346,10 +345,6 @@ def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
     return meta
 
 
-def _no_constant(c: str):
-    raise ValueError(f"{c} is not valid JSON")
-
-
 def _no_duplicates(pairs):
     keys = [k for k, _ in pairs]
     if len(set(keys)) != len(keys):
@@ -358,7 +353,8 @@ def _no_duplicates(pairs):
 
 
 def load_skin(folder: str | Path) -> dict:
-    """Read and validate ``folder/skin.json`` (strict JSON: no NaN/Infinity, no duplicate keys)."""
+    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
+    that holds it)."""
     folder = Path(folder)
     path = folder / "skin.json"
     if not path.is_file():
@@ -368,7 +364,7 @@ def load_skin(folder: str | Path) -> dict:
         raise ArtifactError(f"{path} is {path.stat().st_size / 2**20:.0f} MB, far more than an artifact's metadata; "
                             f"{REEXPORT}")
     try:
-        meta = json.loads(path.read_bytes().decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=_no_duplicates)
+        meta = json.loads(path.read_bytes().decode("utf-8"), object_pairs_hook=_no_duplicates)
     except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise ArtifactError(f"{path} is corrupt ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
     return validate_skin(meta, source=str(path))

@@ -1,6 +1,6 @@
 """Load a training checkpoint without running code from it.
 
-A Lightning ``.ckpt`` is a pickle: ``torch.load(weights_only=False)`` (what ``load_from_checkpoint``
+A Lightning ``.ckpt`` is a pickle: ``torch.load`` with weights-only mode off (what ``load_from_checkpoint``
 did here before) executes whatever ``__reduce__`` the file names.  :func:`load_checkpoint` reads it
 with ``weights_only=True`` (tensors and plain containers only; numpy's scalar and dtype are the one
 allow-listed extra, for checkpoints written before the metadata was kept plain), then rebuilds the
@@ -10,6 +10,7 @@ module from its hyper-parameters and state dict.  Anything else in the file is r
 from __future__ import annotations
 
 import inspect
+import re
 import zipfile
 from pathlib import Path
 
@@ -39,10 +40,14 @@ def _numpy_safe_globals() -> list:
 
 
 def _first_line(e: BaseException) -> str:
-    lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()]
-    for ln in lines:  # torch's refusal names the offending global on one of its lines
-        if "Unsupported global" in ln or "Unsupported operand" in ln:
-            return ln.replace("WeightsUnpickler error: ", "")[:200]
+    text = str(e)
+    m = re.search(r"Unsupported global: GLOBAL (\S+)", text)  # torch's refusal names the offending global
+    if m:
+        return f"it names the Python global {m.group(1)}"
+    m = re.search(r"Unsupported operand \d+", text)
+    if m:
+        return m.group(0)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     return (lines[0] if lines else type(e).__name__)[:200]
 
 
