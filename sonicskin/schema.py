@@ -397,7 +397,31 @@ def read_model_file(folder: str | Path, meta: dict, model: str) -> bytes:
     if hashlib.sha256(data).hexdigest() != meta["models"][model]["sha256"]:
         raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
                             f"replaced; {REEXPORT}")
+    _no_external_data(data, path)
     return data
+
+
+def _no_external_data(data: bytes, path: Path) -> None:
+    """An ONNX file must carry its weights: external data would be read from outside the artifact folder."""
+    import onnx
+
+    m = onnx.ModelProto()
+    try:
+        m.ParseFromString(data)  # the protobuf only: nothing outside the file is read
+    except Exception:  # not parseable: onnxruntime reports it when loading
+        return
+    graphs, ext = [m.graph], []
+    while graphs:
+        g = graphs.pop()
+        ext += [t.name for t in g.initializer if t.data_location == onnx.TensorProto.EXTERNAL]
+        for node in g.node:
+            for a in node.attribute:
+                graphs += ([a.g] if a.HasField("g") else []) + list(a.graphs)
+                if a.HasField("t") and a.t.data_location == onnx.TensorProto.EXTERNAL:
+                    ext.append(node.name or node.op_type)
+    if ext:
+        raise ArtifactError(f"{path} keeps weights in external files ({ext[:3]}); an artifact's ONNX files must be "
+                            f"self-contained; {REEXPORT}")
 
 
 def _last_dim(shape) -> int | None:

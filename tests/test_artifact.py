@@ -162,6 +162,15 @@ def _net_wrong_outputs(meta, a):  # a network graph for 4 locations on a 3-marke
     _resha(a, meta, "net")
 
 
+def _net_external_data(meta, a):  # weights "beside" the graph, i.e. read from wherever the path points
+    import onnx
+
+    m = onnx.load(str(a / "net.onnx"))
+    onnx.save_model(m, str(a / "net.onnx"), save_as_external_data=True, all_tensors_to_one_file=True,
+                    location="weights.bin", size_threshold=0)
+    _resha(a, meta, "net")
+
+
 def _curve(meta):
     return meta["models"]["svm"]["force"]["curves"]["0"]
 
@@ -254,6 +263,7 @@ MUTATIONS = [
     ("onnx-corrupt", "svm", _corrupt_onnx, "cannot be loaded by onnxruntime"),
     ("onnx-swapped", "net", _swap_onnx, "svm.onnx output"),
     ("onnx-net-width", "net", _net_wrong_width, "takes 39 features but skin.json lists 40 bins"),
+    ("onnx-external-data", "net", _net_external_data, "keeps weights in external files"),
     ("onnx-net-outputs", "net", _net_wrong_outputs, "output 'logits' has shape (2, 5)"),
     # layout
     ("layout-fewer-ids-than-outputs", "net", _drop_location, "models.net.n_locations is 3 but layout.ids lists 2"),
