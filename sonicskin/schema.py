@@ -112,6 +112,10 @@ class _Doc:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(field, f"must be a number, got {_short(v)}")
+        try:
+            v = float(v)
+        except OverflowError:  # an integer beyond the float range
+            self.fail(field, f"must be finite, got an integer of {len(str(v))} digits")
         if not math.isfinite(v):
             self.fail(field, f"must be finite, got {v}")
         if lo is not None and (v <= lo if lo_open else v < lo):
@@ -141,6 +145,11 @@ class _Doc:
             self.fail(field, f"has {len(v)} entries, expected {n}")
         if nonempty and not v:
             self.fail(field, "is empty")
+        return v
+
+    def choice(self, v: Any, field: str, options) -> str:
+        if not isinstance(v, str) or v not in options:
+            self.fail(field, f"must be one of {sorted(options)}, got {_short(v)}")
         return v
 
     def const(self, v: Any, field: str, want: Any, fix: str = REEXPORT) -> None:
@@ -209,9 +218,7 @@ def _check_features(doc: _Doc, feats: Any, n_band: int):
         if not 0 <= b < n_band:
             doc.fail(f"features.bins[{i}]", f"is {b}, outside the rig's {n_band} band bins (0 <= b < {n_band})")
     _unique(doc, bins, "features.bins")
-    mode = doc.get(feats, "mode", "features")
-    if mode not in MODES:
-        doc.fail("features.mode", f"must be one of {list(MODES)}, got {_short(mode)}")
+    doc.choice(doc.get(feats, "mode", "features"), "features.mode", MODES)
     beta = doc.num(doc.get(feats, "beta_s", "features"), "features.beta_s", lo=0, lo_open=True, hi=3600)
     alpha = doc.num(doc.get(feats, "alpha_s", "features"), "features.alpha_s", lo=0, lo_open=True, hi=1e7)
     if alpha < beta:
@@ -224,9 +231,7 @@ def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int]) -> No
 
     force = doc.obj(force, field)
     doc.keys(force, {"model", "curves"}, field)
-    model = doc.get(force, "model", field)
-    if model not in MODELS:
-        doc.fail(f"{field}.model", f"must be one of {sorted(MODELS)}, got {_short(model)}")
+    model = doc.choice(doc.get(force, "model", field), f"{field}.model", MODELS)
     n_coef = MODELS[model].design([0.0], 1.0).shape[1]
     curves = doc.obj(doc.get(force, "curves", field), f"{field}.curves")
     ids = {str(i) for i in layout_ids}

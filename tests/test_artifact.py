@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from sonicskin.artifact import build_svm_artifact, skin_json
 from sonicskin.features import FeatureSpec, model_inputs, quiet_mask
@@ -594,3 +596,57 @@ def test_no_code_from_files_in_the_package():
     assert len(files) > 20
     hits = [f"{p.relative_to(REPO)}:{n}: {why}" for p in files for n, why in _unsafe_lines(p.read_text())]
     assert not hits, hits
+
+
+# -- fuzz: any edit of any field is either accepted (and the model runs) or refused with one line ----------------
+def _leaves(d, path=()):
+    """Every (path, value) of a JSON document, containers included."""
+    yield path, d
+    if isinstance(d, dict):
+        for k, v in d.items():
+            yield from _leaves(v, (*path, k))
+    elif isinstance(d, list):
+        for i, v in enumerate(d[:4]):  # the first few entries of long lists (bins, reference scores)
+            yield from _leaves(v, (*path, i))
+
+
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers(-(2**70), 2**70) | st.floats() | st.text(max_size=6),
+    lambda inner: st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=4), inner, max_size=2), max_leaves=4)
+
+
+@pytest.fixture(scope="module")
+def fuzz_art(built, tmp_path_factory):
+    a = tmp_path_factory.mktemp("fuzz") / "art"
+    shutil.copytree(built[0], a)
+    return a
+
+
+@settings(max_examples=int(os.environ.get("SONICSKIN_FUZZ_EXAMPLES", 200)), deadline=None,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzzed_skin_json_is_accepted_or_refused_in_one_line(fuzz_art, data):
+    a = fuzz_art  # only skin.json changes; the ONNX files stay
+    meta = _meta(a)
+    paths = [p for p, _ in _leaves(meta) if p]
+    path = data.draw(st.sampled_from(paths), label="path")
+    parent = meta
+    for k in path[:-1]:
+        parent = parent[k]
+    if data.draw(st.booleans(), label="delete") and isinstance(parent, dict):
+        del parent[path[-1]]
+    else:
+        parent[path[-1]] = data.draw(JSON_VALUES, label="value")
+    original = (a / "skin.json").read_text()
+    try:
+        (a / "skin.json").write_text(json.dumps(meta))
+        for model in ("net", "svm"):
+            try:
+                rt = SkinRuntime(a, model)
+            except ArtifactError as e:
+                assert "\n" not in str(e) and str(e).strip(), str(e)
+                continue
+            p = rt.predict_inputs(np.zeros((2, len(rt.spec.bins)), np.float32))  # what loads, runs
+            assert p.location.shape == (2,) and np.isfinite(p.force_n).all()
+    finally:
+        (a / "skin.json").write_text(original)
