@@ -9,6 +9,7 @@ module from its hyper-parameters and state dict.  Anything else in the file is r
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import re
 import zipfile
@@ -63,7 +64,8 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
     if not zipfile.is_zipfile(path):  # torch.save has written zip archives since torch 1.6
         raise CheckpointError(f"{path} is not a training checkpoint (not the zip archive torch.save writes); {HINT}")
     try:
-        with torch.serialization.safe_globals(_numpy_safe_globals()):
+        allow = getattr(torch.serialization, "safe_globals", None)  # torch >= 2.5; plain metadata needs none
+        with allow(_numpy_safe_globals()) if allow else contextlib.nullcontext():
             ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=False)
     except Exception as e:  # torch's weights-only refusal, and zip/pickle/format errors of every kind
         if "Weights only load failed" in str(e):
