@@ -11,6 +11,7 @@ import numpy as np
 from .features import model_inputs, quiet_mask, touch_mask
 from .metrics import error_cdf, force_report, localization_report
 from .runtime import SkinRuntime
+from .schema import load_skin
 
 __all__ = ["compare_artifact", "format_comparison", "save_comparison"]
 
@@ -42,7 +43,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     artifact's beta/alpha), and the SVM's scores are calibrated the same way.
     """
     art = Path(artifact)
-    meta = json.loads((art / "skin.json").read_text())
+    meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
     rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
