@@ -270,13 +270,16 @@ def cmd_reproduce(a: argparse.Namespace) -> int:
     return 0
 
 
+def _writer_mode(a: argparse.Namespace) -> str:
+    return "overwrite" if a.overwrite else "resume" if a.resume else "create"
+
+
 def cmd_import_wav(a: argparse.Namespace) -> int:
     from .importers import import_wav
 
-    mode = "overwrite" if a.overwrite else "create"
     import_wav(a.wav_dir, a.labels, a.out, sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
-               period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()), pwm_halfwidth_hz=a.pwm_halfwidth,
-               mode=mode)
+               period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
+               pwm_halfwidth_hz=a.pwm_halfwidth, mode=_writer_mode(a))
     return 0
 
 
@@ -284,7 +287,8 @@ def cmd_import_spectra(a: argparse.Namespace) -> int:
     from .importers import import_spectra
     from .rig import Rig
 
-    import_spectra(a.table, a.out, rig=Rig.load(a.rig), mode="overwrite" if a.overwrite else "create")
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear,
+                   mode=_writer_mode(a))
     return 0
 
 
@@ -417,28 +421,39 @@ def build_parser() -> argparse.ArgumentParser:
     rp.set_defaults(func=cmd_reproduce)
 
     iw = sub.add_parser("import-wav", help="import WAV recordings of any sweep and rate (labels in CSV)",
-                        description="One WAV/FLAC per continuous recording; labels CSV: file,start_s,end_s,location,"
-                                    "x_cm,y_cm[,force_n,moving,subject]. The sweep as a WAV of one period, or --chirp/--period.")
-    iw.add_argument("--wav-dir", required=True)
-    iw.add_argument("--labels", required=True)
-    iw.add_argument("--out", required=True)
-    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep")
-    iw.add_argument("--chirp", type=float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"), help="linear chirp band")
-    iw.add_argument("--period", type=float, help="linear chirp period in seconds")
-    iw.add_argument("--amplitude", type=float, default=1.0, help="linear chirp peak amplitude (full scale 1)")
-    iw.add_argument("--channel", type=int, default=0, help="receiver channel in the files (0-based)")
-    iw.add_argument("--pwm-hz", type=float, nargs="*", help="motor PWM lines to notch (Hz)")
-    iw.add_argument("--pwm-halfwidth", type=float, default=0.0)
-    iw.add_argument("--overwrite", action="store_true")
+                        description="One WAV/FLAC per continuous recording (= one session); labels CSV: file,start_s,end_s,"
+                                    "location[,x_cm,y_cm,force_n,moving,subject]. Locations may be ids, numbers (e.g. cm) "
+                                    "or names; the label -> id mapping is printed. The sweep as a WAV of one period, or "
+                                    "--chirp/--period for a linear chirp.")
+    iw.add_argument("--wav-dir", required=True, help="folder of .wav/.flac recordings")
+    iw.add_argument("--labels", required=True, help="CSV of touch intervals (see above)")
+    iw.add_argument("--out", required=True, help="dataset folder to write")
+    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep (any sweep, the recordings' rate)")
+    iw.add_argument("--chirp", type=float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"), help="linear chirp band (with --period)")
+    iw.add_argument("--period", type=float, help="linear chirp period in seconds (with --chirp)")
+    iw.add_argument("--amplitude", type=float, default=1.0, help="linear chirp peak amplitude, full scale 1 (default 1)")
+    iw.add_argument("--channel", type=int, default=0, help="receiver channel in the files, 0-based (default 0)")
+    iw.add_argument("--pwm-hz", type=float, nargs="*", help="motor PWM lines to notch in Hz (default: none)")
+    iw.add_argument("--pwm-halfwidth", type=float, default=0.0, help="half width of each PWM notch in Hz (default 0)")
+    g3 = iw.add_mutually_exclusive_group()
+    g3.add_argument("--overwrite", action="store_true", help="replace an existing dataset (once the import succeeded)")
+    g3.add_argument("--resume", action="store_true", help="keep the recordings imported already, add the others")
     iw.set_defaults(func=cmd_import_wav)
 
     isp = sub.add_parser("import-spectra", help="import a table of magnitude spectra with labels (.npz)",
-                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, x_cm, y_cm, session "
-                                     "[, force_n, moving, subject]; each row becomes one chirp of --rig.")
-    isp.add_argument("--table", required=True)
-    isp.add_argument("--out", required=True)
-    isp.add_argument("--rig", default="jaco")
-    isp.add_argument("--overwrite", action="store_true")
+                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, session [, x_cm, y_cm, "
+                                     "force_n, moving, subject]. The rig is derived from the frequency axis (bin spacing "
+                                     "= fs / frame); levels are normalised (no dB offset to choose). Locations may be ids, "
+                                     "numbers (e.g. cm) or names; the label -> id mapping is printed.")
+    isp.add_argument("--table", required=True, help=".npz table of spectra")
+    isp.add_argument("--out", required=True, help="dataset folder to write")
+    isp.add_argument("--fs", type=float, help="sample rate of the recordings in Hz (default: from the axis)")
+    isp.add_argument("--frame", type=int, help="samples per FFT frame (default: sample rate / bin spacing)")
+    isp.add_argument("--linear", action="store_true", help="magnitude_db holds linear magnitudes |H|, not dB")
+    isp.add_argument("--rig", help="use this rig (name or YAML) instead of deriving one from the axis")
+    g4 = isp.add_mutually_exclusive_group()
+    g4.add_argument("--overwrite", action="store_true", help="replace an existing dataset (once the import succeeded)")
+    g4.add_argument("--resume", action="store_true", help="keep the sessions imported already, add the others")
     isp.set_defaults(func=cmd_import_spectra)
 
     dv = sub.add_parser("devices", help="list audio devices")
