@@ -88,7 +88,8 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     args = ["--config", _train_config(a.config)] + (["--data.data", a.data] if a.data else []) + extra
     cli = train_main(args)
     ckpt = cli.trainer.checkpoint_callback
-    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    if cli.trainer.is_global_zero:  # DDP: one summary, from rank zero
+        print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
     return 0
 
 

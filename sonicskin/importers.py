@@ -400,7 +400,7 @@ def _looks_linear(M: np.ndarray) -> bool:
     if M.min() < 0:
         return False
     p50, p99 = np.percentile(M, [50, 99])
-    return bool(M.max() <= 1.0 or p99 > 10 * max(p50, 1e-12))
+    return bool(M.max() <= 1.0 or M.max() > 300 or p99 > 10 * max(p50, 1e-12))  # 300 dB would be 1e15
 
 
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
@@ -469,13 +469,15 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
 
     def frames_of(idx):
         H = np.zeros((idx.size, rig.n_chirp // 2 + 1), complex)
-        H[:, rig.band_bins] = 10 ** (A[idx] / 20)
+        H[:, rig.band_bins] = 10 ** ((A[idx] - top_db) / 20)
         return scipy.fft.irfft(H * S, n=rig.n_chirp, axis=-1)
 
     # One gain for the whole table (relative levels between rows are the data): peak at -6 dBFS.
+    # Frames are built relative to the loudest bin (no overflow at any level); gain_db is the total.
+    top_db = float(A.max())
     peak = max(float(np.abs(frames_of(np.flatnonzero(sessions == s))).max()) for s in set(sessions))
-    gain_db = float(20 * np.log10(PEAK_LEVEL / peak)) if peak > 0 else 0.0
-    gain = 10 ** (gain_db / 20)
+    gain = PEAK_LEVEL / peak
+    gain_db = float(20 * np.log10(gain)) - top_db
     source = {"kind": "import-spectra", "from": str(table.resolve()), "gain_db": round(gain_db, 6),
               "labels": {str(k): v for k, v in names.items()}}
     L = rig.n_chirp
