@@ -71,7 +71,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.
     """
     from .calibration import ScoreCalibrator
-    from .features import rest_beta, usable_bins
+    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
 
     table = table if table is not None else ds.features()
     sessions = sorted(set(table["session"]))
@@ -86,8 +86,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     if rest and beta < cal.beta_chirps:
         cal = ScoreCalibrator(beta, cal.alpha_chirps, ds.rig.chirps_per_s)
     if not rest:
-        log(f"note: no hands-off rest of {cal.beta_chirps} chirps in every session (touches only?): localization and "
-            f"force only, on absolute features; detection and Alg. 2 are {NOT_MEASURABLE}")
+        log(f"note: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps (touches only?): localization "
+            f"and force only, on absolute features; detection and Alg. 2 are {NOT_MEASURABLE}")
     t0 = time.perf_counter()
     model = SkinSVM(ds.rig, ds.layout, n_bins=gamma, min_force_n=min_force_n, calibrator=cal)
     model.fit(tr.X, tr["location"], tr["force_n"], quiet=_quiet(tr) if rest else np.zeros(len(tr), bool),
