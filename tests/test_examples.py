@@ -72,9 +72,11 @@ def test_touch_only_fit_svm_and_compare(lab_c, tmp_path, monkeypatch, capsys):
     assert skin["features"]["mode"] == "absolute" and len(skin["features"]["bins"]) == 165
     assert skin["models"]["svm"]["detection"] is False and skin["models"]["svm"]["force"]["curves"] == {}
     monkeypatch.chdir(tmp_path)
+    # The config's gamma (300) is clamped to the table's 165 bins for the network too.
     assert _cli("compare", "--data", lab_c, "--runs", tmp_path / "runs", "--out", tmp_path / "cmp",
-                "--data.n_bins", "60", "--trainer.max_epochs", "2", "--trainer.enable_progress_bar", "false") == 0
+                "--trainer.max_epochs", "2", "--trainer.enable_progress_bar", "false") == 0
     res = json.loads((tmp_path / "cmp/compare.json").read_text())
+    assert len(json.loads((tmp_path / "runs/compare-lab-c/artifact/skin.json").read_text())["features"]["bins"]) == 165
     for m in ("net", "svm"):
         r = res["models"][m]
         assert r["localization"]["accuracy"] > 0.5, m

@@ -19,7 +19,7 @@ class SkinCLI(LightningCLI):
             init.save_dir = root
 
     def add_arguments_to_parser(self, parser) -> None:
-        parser.link_arguments("data.n_bins", "model.n_in")
+        parser.link_arguments("data.n_in", "model.n_in", apply_on="instantiate")
         parser.link_arguments("data.n_locations", "model.n_locations", apply_on="instantiate")
         parser.link_arguments("data.noise_db", "model.noise_db")
 
