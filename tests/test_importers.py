@@ -3,6 +3,7 @@
 import csv
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -225,3 +226,20 @@ def test_spectra_import_warns_on_linear_magnitudes(tmp_path):
     # --linear converts with 20 log10: the same dataset as the dB table, up to the normalising gain.
     b = ref.features(progress=False)
     np.testing.assert_allclose(a.X - a.X.mean(), b.X - b.X.mean(), atol=0.05)
+
+
+def test_wav_import_resume_and_overwrite_on_the_shipped_example(tmp_path, capsys):
+    ex = Path(__file__).resolve().parents[1] / "examples" / "wav"
+    args = ["import-wav", "--wav-dir", str(ex / "recordings"), "--labels", str(ex / "labels.csv"), "--sweep",
+            str(ex / "sweep.wav"), "--out", str(tmp_path / "ds")]
+    assert main(args) == 0
+    assert main(args) == 2 and "pass --resume to continue it or --overwrite" in capsys.readouterr().err
+    shutil.rmtree(tmp_path / "ds" / "s002")
+    assert main(args + ["--resume"]) == 0 and "2 were there already" in capsys.readouterr().out
+    assert Dataset(tmp_path / "ds").sessions == ["s000", "s001", "s002"]
+    assert main(args + ["--overwrite"]) == 0 and not any(tmp_path.glob(".ds*"))
+    # Labels the CSV cannot hold: one clear line, nothing written.
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,start_s,end_s,location\ns0.wav,1,2,A1\n")
+    assert main(args[:4] + [str(bad)] + args[5:-1] + [str(tmp_path / "new")]) == 2
+    assert "need at least two" in capsys.readouterr().err and not (tmp_path / "new").exists()
