@@ -163,12 +163,8 @@ def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
     """Longest run of consecutive no-touch chirps at rest, per session."""
     out = {}
     for s in np.unique(session):
-        q = np.asarray(quiet)[np.asarray(session) == s].astype(int)
-        best = run = 0
-        for v in q:
-            run = run + 1 if v else 0
-            best = max(best, run)
-        out[str(s)] = best
+        edges = np.diff(np.r_[0, np.asarray(quiet)[np.asarray(session) == s].astype(np.int8), 0])
+        out[str(s)] = int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1), initial=0))
     return out
 
 
