@@ -86,7 +86,7 @@ class SkinLitModule(L.LightningModule):
         det = ((logits.argmax(1) == self.hparams.n_locations) == ~touched).float().mean()
         self.log_dict({f"{stage}_loss": loss, f"{stage}_acc": acc, f"{stage}_force_rmse": f_loss.sqrt(),
                        f"{stage}_detect": det}, prog_bar=stage != "train", on_epoch=True, on_step=False,
-                      batch_size=x.shape[0])
+                      batch_size=x.shape[0], sync_dist=True)  # DDP: every rank logs (and checkpoints by) the same mean
         return loss
 
     def training_step(self, batch, _):

@@ -17,7 +17,6 @@ from ._common import (
     nonneg_int,
     positive_float,
     positive_int,
-    staged_output,
     writer_mode,
 )
 
@@ -60,19 +59,13 @@ def cmd_record(a: argparse.Namespace) -> int:
     return 0
 
 
-def _log_as(tmp: Path, out: str | Path):
-    """A log that names the final folder, not the staging folder the importer writes to."""
-    return lambda msg: print(str(msg).replace(str(tmp), str(out)))
-
-
 def cmd_import_wav(a: argparse.Namespace) -> int:
     from ..importers import import_wav
 
-    mode = writer_mode(a)
-    with staged_output(a.out, mode) as out:
-        import_wav(a.wav_dir, a.labels, out, log=_log_as(out, a.out), sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
-                   period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
-                   pwm_halfwidth_hz=a.pwm_halfwidth, mode="resume" if mode == "resume" else "create")
+    # The importer writes into a hidden folder and moves it into place only when complete.
+    import_wav(a.wav_dir, a.labels, a.out, sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
+               period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
+               pwm_halfwidth_hz=a.pwm_halfwidth, mode=writer_mode(a))
     return 0
 
 
@@ -80,10 +73,8 @@ def cmd_import_spectra(a: argparse.Namespace) -> int:
     from ..importers import import_spectra
     from ..rig import Rig
 
-    mode = writer_mode(a)
-    rig = Rig.load(a.rig)
-    with staged_output(a.out, mode) as out:
-        import_spectra(a.table, out, rig=rig, mode="resume" if mode == "resume" else "create", log=_log_as(out, a.out))
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear,
+                   mode=writer_mode(a))
     return 0
 
 
@@ -125,15 +116,18 @@ def add_parsers(sub) -> None:
     rc.set_defaults(func=cmd_record)
 
     iw = sub.add_parser("import-wav", help="import WAV recordings of any sweep and rate (labels in CSV)",
-                        description="One WAV/FLAC per continuous recording; labels CSV: file,start_s,end_s,location,"
-                                    "x_cm,y_cm[,force_n,moving,subject]. The sweep as a WAV of one period, or --chirp/--period.")
-    iw.add_argument("--wav-dir", required=True, help="folder of the WAV/FLAC recordings")
-    iw.add_argument("--labels", required=True, help="labels CSV")
+                        description="One WAV/FLAC per continuous recording (= one session); labels CSV: file,start_s,end_s,"
+                                    "location[,x_cm,y_cm,force_n,moving,subject]. Locations may be ids, numbers (e.g. cm) "
+                                    "or names; the label -> id mapping is printed. The sweep as a WAV of one period, or "
+                                    "--chirp/--period for a linear chirp.")
+    iw.add_argument("--wav-dir", required=True, help="folder of .wav/.flac recordings")
+    iw.add_argument("--labels", required=True, help="CSV of touch intervals (see above)")
     iw.add_argument("--out", required=True, help="dataset folder to write")
-    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep (default: --chirp/--period)")
+    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep, any sweep, at the recordings' rate "
+                                    "(default: --chirp/--period)")
     iw.add_argument("--chirp", type=positive_float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"),
-                    help="linear chirp band, Hz (default: --sweep)")
-    iw.add_argument("--period", type=positive_float, help="linear chirp period in seconds (default: --sweep)")
+                    help="linear chirp band, Hz, with --period (default: --sweep)")
+    iw.add_argument("--period", type=positive_float, help="linear chirp period in seconds, with --chirp (default: --sweep)")
     iw.add_argument("--amplitude", type=positive_float, default=1.0, help="linear chirp peak amplitude, full scale 1 (default: 1)")
     iw.add_argument("--channel", type=nonneg_int, default=0, help="receiver channel in the files, 0-based (default: 0)")
     iw.add_argument("--pwm-hz", type=positive_float, nargs="*", help="motor PWM lines to notch, Hz (default: none)")
@@ -142,10 +136,15 @@ def add_parsers(sub) -> None:
     iw.set_defaults(func=cmd_import_wav)
 
     isp = sub.add_parser("import-spectra", help="import a table of magnitude spectra with labels (.npz)",
-                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, x_cm, y_cm, session "
-                                     "[, force_n, moving, subject]; each row becomes one chirp of --rig.")
-    isp.add_argument("--table", required=True, help="the .npz table")
+                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, session [, x_cm, y_cm, "
+                                     "force_n, moving, subject]. The rig is derived from the frequency axis (bin spacing "
+                                     "= fs / frame); levels are normalised (no dB offset to choose). Locations may be ids, "
+                                     "numbers (e.g. cm) or names; the label -> id mapping is printed.")
+    isp.add_argument("--table", required=True, help=".npz table of spectra")
     isp.add_argument("--out", required=True, help="dataset folder to write")
-    isp.add_argument("--rig", default="jaco", help="rig name or YAML path the rows become chirps of (default: jaco)")
+    isp.add_argument("--fs", type=positive_float, help="sample rate of the recordings in Hz (default: from the axis)")
+    isp.add_argument("--frame", type=positive_int, help="samples per FFT frame (default: sample rate / bin spacing)")
+    isp.add_argument("--linear", action="store_true", help="magnitude_db holds linear magnitudes |H|, not dB (default: dB)")
+    isp.add_argument("--rig", help="use this rig (name or YAML) instead of deriving one from the axis (default: derived)")
     add_writer_options(isp)
     isp.set_defaults(func=cmd_import_spectra)
