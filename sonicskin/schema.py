@@ -27,10 +27,11 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
       parity            optional dict of export parity figures;  hparams: optional dict (net)
       svm only:
         reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
-        threshold         finite, 0 < t <= 1e3 (dB RMS)
+        threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
+        detection         optional bool (default true); false: trained on touches only, no detector
         detector          "input-rms"
         energy_ref_db     finite, |e| <= 1e4
-        train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1]
+        train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
         force             model (a force curve model); curves: {} or one per layout id, each
                           {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi}
 
@@ -67,7 +68,7 @@ _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwi
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity"}
 _MODEL_KEYS = {"net": _COMMON | {"hparams"},
-               "svm": _COMMON | {"reference_scores", "threshold", "detector", "energy_ref_db", "train_false_touch_rate",
+               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detection", "energy_ref_db", "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
@@ -297,12 +298,18 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
                                           f"{n_loc + n_in}")
     for i, v in enumerate(ref):
         doc.num(v, f"{f}.reference_scores[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
+    detection = m.get("detection", True)
+    if not isinstance(detection, bool):
+        doc.fail(f"{f}.detection", f"must be true or false, got {detection!r}")
+    if detection:
+        doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
+    elif doc.get(m, "threshold", f) != 0:  # trained on touches only: every chirp is taken as a touch
+        doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
     doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
               "the touch detector is from an older sonicskin; " + REEXPORT)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     for k in ("train_false_touch_rate", "train_missed_touch_rate"):
-        if k in m:
+        if k in m and not (m[k] is None and not detection):
             doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
     _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids)
 
