@@ -11,6 +11,7 @@ import numpy as np
 from .features import model_inputs, quiet_mask, touch_mask
 from .metrics import error_cdf, force_report, localization_report
 from .runtime import SkinRuntime
+from .schema import load_skin
 
 __all__ = ["compare_artifact", "format_comparison", "save_comparison"]
 
@@ -34,6 +35,16 @@ def _latency(rt: SkinRuntime, x: np.ndarray, n: int = 300) -> dict:
             "onnx_median_ms": float(np.median(onnx) * 1e3), "onnx_p99_ms": float(np.percentile(onnx, 99) * 1e3)}
 
 
+def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
+    """Table I on the selected chirps, or why force is absent (no force sensor: NaN or constant force)."""
+    g = f_true[sel]
+    if not np.isfinite(g).any() or not np.isfinite(f_pred[sel]).any():
+        return {"measurable": False, "reason": "absent: no force sensor (force_n is empty/NaN)"}
+    if np.ptp(g[np.isfinite(g)]) == 0:
+        return {"measurable": False, "reason": f"absent: force_n is constant ({g[np.isfinite(g)][0]:g} N)"}
+    return force_report(g, f_pred[sel])
+
+
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False) -> dict:
     """Evaluate both models of ``artifact`` on the test sessions of its split (or ``sessions``).
@@ -42,7 +53,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     artifact's beta/alpha), and the SVM's scores are calibrated the same way.
     """
     art = Path(artifact)
-    meta = json.loads((art / "skin.json").read_text())
+    meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
     rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
@@ -69,13 +80,19 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
             "localization": {kk: v for kk, v in L.items() if kk != "errors_cm"},
             "errors_cm": L["errors_cm"].tolist(),
             "continuous_error_cm": {"median": float(np.median(cont_err)), "mean": float(np.mean(cont_err))},
-            "force": force_report(t["force_n"][m][touch & det], f[touch & det]),
-            "detection": {"false_touch_rate": float(np.mean(det[no_touch])), "missed_touch_rate": float(np.mean(~det[touch]))},
+            "force": _force(t["force_n"][m], f, touch & det),
+            "detection": ({"false_touch_rate": float(np.mean(det[no_touch])), "missed_touch_rate": float(np.mean(~det[touch]))}
+                          if no_touch.any() and meta["models"]["svm"].get("detection", True) else
+                          {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}),
             "latency": _latency(rt, X[m][touch]),
             "model_bytes": int(size),
             "train_time_s": meta["training"].get(f"{k}_train_time_s"),
         }
     return res
+
+
+def _or_na(d: dict, fmt) -> str:
+    return "n/a" if d.get("measurable") is False else fmt(d)
 
 
 def format_comparison(res: dict, title: str = "") -> str:
@@ -84,11 +101,11 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("error < 2 cm", lambda r: f"{r['localization']['within_2cm']:.1%}"),
         ("error < 3 cm", lambda r: f"{r['localization']['within_3cm']:.1%}"),
         ("continuous xy error (median)", lambda r: f"{r['continuous_error_cm']['median']:.2f} cm"),
-        ("force RMSE", lambda r: f"{r['force']['rmse_n']:.2f} N"),
-        ("force sigma", lambda r: f"{r['force']['sigma_n']:.2f} N"),
-        ("force cross-correlation", lambda r: f"{r['force']['xcorr']:.1%}"),
-        ("false touches", lambda r: f"{r['detection']['false_touch_rate']:.2%}"),
-        ("missed touches", lambda r: f"{r['detection']['missed_touch_rate']:.2%}"),
+        ("force RMSE", lambda r: _or_na(r["force"], lambda d: f"{d['rmse_n']:.2f} N")),
+        ("force sigma", lambda r: _or_na(r["force"], lambda d: f"{d['sigma_n']:.2f} N")),
+        ("force cross-correlation", lambda r: _or_na(r["force"], lambda d: f"{d['xcorr']:.1%}")),
+        ("false touches", lambda r: _or_na(r["detection"], lambda d: f"{d['false_touch_rate']:.2%}")),
+        ("missed touches", lambda r: _or_na(r["detection"], lambda d: f"{d['missed_touch_rate']:.2%}")),
         ("ONNX model per chirp, median", lambda r: f"{r['latency']['onnx_median_ms'] * 1e3:.0f} us"),
         ("ONNX model per chirp, p99", lambda r: f"{r['latency']['onnx_p99_ms'] * 1e3:.0f} us"),
         ("inputs -> touch/xy/force, median", lambda r: f"{r['latency']['median_ms'] * 1e3:.0f} us"),
@@ -101,6 +118,9 @@ def format_comparison(res: dict, title: str = "") -> str:
     out = [title or f"{res['data']} (test sessions {', '.join(res['test_sessions'])})",
            f"  {'':{w}}  {'network':>12}  {'SVM':>12}"]
     out += [f"  {name:{w}}  {fmt(net):>12}  {fmt(svm):>12}" for name, fmt in rows]
+    for key, what in (("force", "force"), ("detection", "detection")):
+        if net[key].get("measurable") is False:
+            out.append(f"  {what}: {net[key]['reason']}")
     speed = svm["latency"]["onnx_median_ms"] / net["latency"]["onnx_median_ms"]
     speed2 = svm["latency"]["median_ms"] / net["latency"]["median_ms"]
     out.append(f"  per chirp, the network is {speed:.1f}x faster than the SVM in onnxruntime ({speed2:.1f}x with "

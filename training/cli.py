@@ -87,8 +87,17 @@ class EpochBar(L.Callback):
 
 
 class SkinCLI(LightningCLI):
+    follow_root_dir = False  # --trainer.default_root_dir given without a logger: the logger writes there too
+
+    def before_instantiate_classes(self) -> None:
+        cfg = self.config.get(self.subcommand) if self.subcommand else self.config
+        root, logger = cfg.trainer.default_root_dir, cfg.trainer.logger
+        init = getattr(logger, "init_args", None)
+        if self.follow_root_dir and root and init is not None and "save_dir" in init:
+            init.save_dir = root
+
     def add_arguments_to_parser(self, parser) -> None:
-        parser.link_arguments("data.n_bins", "model.n_in")
+        parser.link_arguments("data.n_in", "model.n_in", apply_on="instantiate")
         parser.link_arguments("data.n_locations", "model.n_locations", apply_on="instantiate")
         parser.link_arguments("data.noise_db", "model.noise_db")
 
@@ -102,10 +111,13 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     """
     from jsonargparse import ArgumentError
 
+    given = [a.split("=", 1)[0] for a in (args or [])]
+    cls = type("SkinCLI", (SkinCLI,), {"follow_root_dir": "--trainer.default_root_dir" in given
+                                       and not any(a.startswith("--trainer.logger") for a in given)})
     bar = EpochBar()
     with quiet_third_party():
         try:
-            cli = SkinCLI(SkinLitModule, SkinDataModule, args=list(args or []), run=False,
+            cli = cls(SkinLitModule, SkinDataModule, args=list(args or []), run=False,
                           parser_kwargs={"prog": PROG, "exit_on_error": False},
                           trainer_defaults={"callbacks": [bar], "enable_progress_bar": False,
                                             "enable_model_summary": False},

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import shutil
 import sys
 from collections.abc import Iterator
@@ -206,33 +205,6 @@ def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
         if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
             shutil.rmtree(out, ignore_errors=True)
         raise
-
-
-@contextlib.contextmanager
-def staged_output(out: str | Path, mode: str) -> Iterator[Path]:
-    """Write a dataset into a hidden sibling folder and move it to ``out`` only when complete:
-    a failed or interrupted run leaves nothing behind.  ``--overwrite`` replaces ``out`` only on
-    success; ``--resume`` writes into ``out`` directly (it continues what is there)."""
-    out = Path(out)
-    if mode == "resume":
-        with clean_on_failure(out, mode):
-            yield out
-        return
-    if mode == "create" and out.exists() and (not out.is_dir() or any(out.iterdir())):
-        what = "a dataset" if (out / "dataset.json").is_file() else "files"
-        raise FileExistsError(f"{out} already holds {what}; pass --resume to continue it or --overwrite to replace it")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    import tempfile
-
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    try:
-        yield tmp
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out) if out.is_dir() else out.unlink()
-    os.replace(tmp, out)
 
 
 @contextlib.contextmanager

@@ -6,10 +6,8 @@ the first complete session (see :func:`._common.clean_on_failure`)."""
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-from ..errors import UsageError
 from ._common import (
     add_writer_options,
     check_overrides,
@@ -19,7 +17,6 @@ from ._common import (
     nonneg_int,
     positive_float,
     positive_int,
-    staged_output,
     writer_mode,
 )
 
@@ -47,76 +44,28 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 
 def cmd_record(a: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ..acquire import Link, SimulatedSource, SoundDeviceSource
-    from ..dataset import DatasetWriter
-    from ..record import CsvForce, NoForce, Recorder, SerialForce, TimelineForce, make_schedule, next_session, recorded_locations
+    from ..record import record_session
     from ..rig import Rig
-    from ..sim import Scenario, Simulator, build_timeline
-    from ..sim.scenario import SEGMENTS
+    from ..sim import Scenario
 
-    rig = Rig.load(a.rig)
-    sc = Scenario.load(a.scenario)  # the layout (and, on the simulated device, the link and the person)
-    layout = sc.make_layout()
-    unknown = sorted(set(a.locations or ()) - set(layout.ids))
-    if unknown:
-        raise UsageError(f"--locations {' '.join(map(str, unknown))}: not in the layout of {sc.name} "
-                         f"(ids {min(layout.ids)}-{max(layout.ids)})")
+    # The scenario gives the layout of the markers (and, on the simulated device, the link and the person).
+    # record_session checks the device before writing and removes a dataset it could not record anything into.
     out = Path(a.out)
-    mode = writer_mode(a)
-    if a.device != "sim":  # the audio device (and PortAudio) is checked before anything is written
-        src = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx))
-    with clean_on_failure(out, mode):
-        writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": sc.name}, mode=mode)
-        todo = list(a.locations) if a.locations else list(layout.ids)
-        if a.resume:
-            done = recorded_locations(out)
-            todo = [loc for loc in todo if loc not in done]
-            if not todo:
-                print(f"{out}: every location is recorded; nothing to do", file=sys.stderr)
-                return 0
-        session = next_session(out)
-        schedule = make_schedule(layout, todo, rig, calibration_s=a.calibration_s, moving_s=a.moving_s,
-                                 touch_s=a.touch_s, gap_s=a.gap_s)
-        if a.device == "sim":
-            # The simulated person follows the prompts: same segments, same order, one extra chirp in front
-            # (the stream starts inside a chirp).
-            psc = sc.replace(sessions=1, order="sequential", repeats=1, seed=sc.seed + 500 + int(session[1:]),
-                             calibration_s=a.calibration_s + rig.period_s, touch_s=a.touch_s, gap_s=a.gap_s,
-                             moving_s=a.moving_s, motion={**sc.motion, "enabled": a.moving_s > 0},
-                             layout={**sc.layout})
-            tl = build_timeline(psc, rig)
-            keep = np.isin(tl.location, [-1, *todo]) | (tl.segment != SEGMENTS.index("touch"))
-            # Only the prompted locations, in the prompted order; the robot moves only when asked to.
-            tl = tl.select(np.isin(tl.event, [-1, *[e for e in np.unique(tl.event) if e >= 0
-                                                      and tl.location[tl.event == e][0] in todo]]) & keep)
-            tl.moving[tl.segment != SEGMENTS.index("moving")] = 0.0
-            src = SimulatedSource(Simulator(psc, rig), tl, realtime=not a.fast, offset=4321)
-            force = TimelineForce(tl, -4321, rig.fs_hz, rig.n_chirp, seed=int(session[1:]))
-        else:
-            force = CsvForce(a.force_csv) if a.force_csv else SerialForce(a.force_serial) if a.force_serial else NoForce()
-        print(f"recording session {session} of {out}: {len(todo)} locations, "
-              f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s", file=sys.stderr)
-        with src:
-            res = Recorder(writer, session, src, schedule, force).run()
-    print(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}", file=sys.stderr)
+    with clean_on_failure(out, writer_mode(a)):
+        record_session(out, Rig.load(a.rig), Scenario.load(a.scenario), locations=a.locations, device=a.device,
+                       resume=a.resume, overwrite=a.overwrite, realtime=not a.fast, calibration_s=a.calibration_s,
+                       moving_s=a.moving_s, touch_s=a.touch_s, gap_s=a.gap_s, force_csv=a.force_csv,
+                       force_serial=a.force_serial, tx=a.tx, rx=a.rx)
     return 0
-
-
-def _log_as(tmp: Path, out: str | Path):
-    """A log that names the final folder, not the staging folder the importer writes to."""
-    return lambda msg: print(str(msg).replace(str(tmp), str(out)))
 
 
 def cmd_import_wav(a: argparse.Namespace) -> int:
     from ..importers import import_wav
 
-    mode = writer_mode(a)
-    with staged_output(a.out, mode) as out:
-        import_wav(a.wav_dir, a.labels, out, log=_log_as(out, a.out), sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
-                   period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
-                   pwm_halfwidth_hz=a.pwm_halfwidth, mode="resume" if mode == "resume" else "create")
+    # The importer writes into a hidden folder and moves it into place only when complete.
+    import_wav(a.wav_dir, a.labels, a.out, sweep_wav=a.sweep, chirp_hz=tuple(a.chirp) if a.chirp else None,
+               period_s=a.period, amplitude=a.amplitude, channel=a.channel, pwm_hz=tuple(a.pwm_hz or ()),
+               pwm_halfwidth_hz=a.pwm_halfwidth, mode=writer_mode(a))
     return 0
 
 
@@ -124,10 +73,8 @@ def cmd_import_spectra(a: argparse.Namespace) -> int:
     from ..importers import import_spectra
     from ..rig import Rig
 
-    mode = writer_mode(a)
-    rig = Rig.load(a.rig)
-    with staged_output(a.out, mode) as out:
-        import_spectra(a.table, out, rig=rig, mode="resume" if mode == "resume" else "create", log=_log_as(out, a.out))
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear,
+                   mode=writer_mode(a))
     return 0
 
 
@@ -169,15 +116,18 @@ def add_parsers(sub) -> None:
     rc.set_defaults(func=cmd_record)
 
     iw = sub.add_parser("import-wav", help="import WAV recordings of any sweep and rate (labels in CSV)",
-                        description="One WAV/FLAC per continuous recording; labels CSV: file,start_s,end_s,location,"
-                                    "x_cm,y_cm[,force_n,moving,subject]. The sweep as a WAV of one period, or --chirp/--period.")
-    iw.add_argument("--wav-dir", required=True, help="folder of the WAV/FLAC recordings")
-    iw.add_argument("--labels", required=True, help="labels CSV")
+                        description="One WAV/FLAC per continuous recording (= one session); labels CSV: file,start_s,end_s,"
+                                    "location[,x_cm,y_cm,force_n,moving,subject]. Locations may be ids, numbers (e.g. cm) "
+                                    "or names; the label -> id mapping is printed. The sweep as a WAV of one period, or "
+                                    "--chirp/--period for a linear chirp.")
+    iw.add_argument("--wav-dir", required=True, help="folder of .wav/.flac recordings")
+    iw.add_argument("--labels", required=True, help="CSV of touch intervals (see above)")
     iw.add_argument("--out", required=True, help="dataset folder to write")
-    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep (default: --chirp/--period)")
+    iw.add_argument("--sweep", help="WAV of one period of the transmitted sweep, any sweep, at the recordings' rate "
+                                    "(default: --chirp/--period)")
     iw.add_argument("--chirp", type=positive_float, nargs=2, metavar=("F_LO_HZ", "F_HI_HZ"),
-                    help="linear chirp band, Hz (default: --sweep)")
-    iw.add_argument("--period", type=positive_float, help="linear chirp period in seconds (default: --sweep)")
+                    help="linear chirp band, Hz, with --period (default: --sweep)")
+    iw.add_argument("--period", type=positive_float, help="linear chirp period in seconds, with --chirp (default: --sweep)")
     iw.add_argument("--amplitude", type=positive_float, default=1.0, help="linear chirp peak amplitude, full scale 1 (default: 1)")
     iw.add_argument("--channel", type=nonneg_int, default=0, help="receiver channel in the files, 0-based (default: 0)")
     iw.add_argument("--pwm-hz", type=positive_float, nargs="*", help="motor PWM lines to notch, Hz (default: none)")
@@ -186,10 +136,15 @@ def add_parsers(sub) -> None:
     iw.set_defaults(func=cmd_import_wav)
 
     isp = sub.add_parser("import-spectra", help="import a table of magnitude spectra with labels (.npz)",
-                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, x_cm, y_cm, session "
-                                     "[, force_n, moving, subject]; each row becomes one chirp of --rig.")
-    isp.add_argument("--table", required=True, help="the .npz table")
+                         description="Arrays freqs_hz (F,), magnitude_db (n, F), location, session [, x_cm, y_cm, "
+                                     "force_n, moving, subject]. The rig is derived from the frequency axis (bin spacing "
+                                     "= fs / frame); levels are normalised (no dB offset to choose). Locations may be ids, "
+                                     "numbers (e.g. cm) or names; the label -> id mapping is printed.")
+    isp.add_argument("--table", required=True, help=".npz table of spectra")
     isp.add_argument("--out", required=True, help="dataset folder to write")
-    isp.add_argument("--rig", default="jaco", help="rig name or YAML path the rows become chirps of (default: jaco)")
+    isp.add_argument("--fs", type=positive_float, help="sample rate of the recordings in Hz (default: from the axis)")
+    isp.add_argument("--frame", type=positive_int, help="samples per FFT frame (default: sample rate / bin spacing)")
+    isp.add_argument("--linear", action="store_true", help="magnitude_db holds linear magnitudes |H|, not dB (default: dB)")
+    isp.add_argument("--rig", help="use this rig (name or YAML) instead of deriving one from the axis (default: derived)")
     add_writer_options(isp)
     isp.set_defaults(func=cmd_import_spectra)
