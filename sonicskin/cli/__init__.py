@@ -103,6 +103,8 @@ def _user_error(exc: BaseException) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``sonicskin`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
+    if not sys.stderr.isatty():  # piped or logged: a progress bar prints its start and end, not every update
+        os.environ.setdefault("TQDM_MININTERVAL", "60")
     p = build_parser()
     try:
         a, extra = p.parse_known_args(argv)

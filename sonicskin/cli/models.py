@@ -99,13 +99,17 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     cli = train_main(_train_args(a, a.data, extra))
     if not cli.trainer.is_global_zero:  # DDP: rank zero reports
         return 0
+    _report_training(cli)
+    ckpt = cli.trainer.checkpoint_callback
+    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    return 0
+
+
+def _report_training(cli) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
-    ckpt = cli.trainer.checkpoint_callback
-    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
-    return 0
 
 
 def cmd_export(a: argparse.Namespace) -> int:
@@ -117,12 +121,22 @@ def cmd_export(a: argparse.Namespace) -> int:
     if not run.exists():
         raise FileNotFoundError(f"{run} does not exist; pass a run folder of `sonicskin train` or its .ckpt file")
     need_train_extra("export")
-    from export.onnx import export_artifact
-
-    ckpt = latest_checkpoint(run)
-    with readable_checkpoint(ckpt), removed_on_failure(a.out):
-        export_artifact(ckpt, a.out, data=a.data)
+    export_quietly(latest_checkpoint(run), a.out, data=a.data)
     return 0
+
+
+def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> None:
+    """``export_artifact`` with one result line: torch.onnx's progress prints and third-party
+    warnings are dropped, a half-made artifact is removed, an unreadable checkpoint is one line."""
+    import io
+    import sys
+
+    from export.onnx import export_artifact
+    from training.cli import quiet_third_party
+
+    stdout = sys.stdout
+    with readable_checkpoint(ckpt), removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
+        export_artifact(ckpt, out, data=data, log=lambda msg: print(msg, file=stdout))
 
 
 @contextlib.contextmanager
@@ -163,7 +177,6 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         sessions = a.test
     else:  # train and export both models on the same split first
         need_train_extra("compare")
-        from export.onnx import export_artifact
         from training.cli import main as train_main
 
         name = Path(a.data).name
@@ -171,10 +184,9 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
                                        "--trainer.logger.init_args.save_dir", str(run)] + extra)
         cli = train_main(args)
+        _report_training(cli)
         artifact = run / "artifact"
-        ckpt = latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath))
-        with readable_checkpoint(ckpt):
-            export_artifact(ckpt, artifact, data=a.data)
+        export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
     title = f"{Path(a.data).name}: network vs SVM"
     print(format_comparison(res, title))
