@@ -7,6 +7,7 @@ import argparse
 import json
 import shutil
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -251,3 +252,36 @@ def test_train_tip_names_a_real_verb(capsys, cli_files):
     line = assert_one_line_error(*run(capsys, ["train", "--data", cli_files["data"], "--trainer.bogus", "1"])[::2], "train")
     assert "--trainer.bogus" in line and "`sonicskin train --help`" in line
     assert "sonicskin fit" not in line
+
+
+def test_real_processes_print_one_line(tmp_path):
+    """A few runs as a user makes them (a new process, the package's own entry point)."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "listdata").mkdir()
+    (tmp_path / "listdata" / "dataset.json").write_text("[]")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1]),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    for argv, words in ((["live", "--udp", "notaport"], "--udp"), (["evaluate", "--data", "listdata"], "JSON object"),
+                        (["simulate", "--set", "sessions=abc"], "sessions")):
+        r = subprocess.run([sys.executable, "-m", "sonicskin", *argv], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 2, r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and words in r.stderr and "Traceback" not in r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["listdata"]
+
+
+def test_library_warnings_are_one_line(capsys, monkeypatch):
+    import warnings
+
+    from sonicskin.cli import live
+
+    def warn_and_fail(a):
+        warnings.warn("something to know\n  across lines", UserWarning, stacklevel=1)
+        return 0
+
+    monkeypatch.setattr(live, "cmd_info", warn_and_fail)
+    code, _, err = run(capsys, ["info"])
+    assert code == 0 and err == "sonicskin info: warning: something to know across lines\n"

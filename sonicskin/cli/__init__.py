@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from .. import __version__
 from ..errors import SonicskinError, UsageError
@@ -117,8 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     if extra and not getattr(a, "passthrough", False):
         print(f"{verb}: error: unrecognized arguments: {' '.join(extra)} (see `{verb} --help`)", file=sys.stderr)
         return 2
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
     try:
-        return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line_warning  # the package's warnings as one line each, like errors
+            return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
     except BrokenPipeError:  # `sonicskin live | head`: the reader went away
         sys.stdout = None
         return 0
