@@ -70,13 +70,12 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     from ..artifact import build_svm_artifact
 
     check_split_options(a)
-    if a.test or a.test_subjects:
-        raise UsageError("fit-svm trains the deployment model on every session it is given; choose them with "
-                         "--train (test it with `sonicskin compare --artifact`)")
+    if a.val or a.test or a.test_subjects:
+        raise UsageError("fit-svm trains the deployment model on every session it is given, without validation or "
+                         "test split; choose them with --train (test it with `sonicskin compare --artifact`)")
     n_bins = resolve_n_bins(a, a.data)
     with removed_on_failure(a.out):
-        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative",
-                           train_sessions=(a.train or []) + (a.val or []) or None)
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train)
     return 0
 
 
