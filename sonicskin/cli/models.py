@@ -183,6 +183,8 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
                                        "--trainer.logger.init_args.save_dir", str(run)] + extra)
         cli = train_main(args)
+        if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
+            return 0
         _report_training(cli)
         artifact = run / "artifact"
         export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
