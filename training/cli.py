@@ -34,14 +34,16 @@ def quiet_third_party() -> Iterator[None]:
     seed, the litlogger tip) for the duration; errors still show."""
     names = ("lightning", "lightning.pytorch", "lightning.fabric", "lightning.pytorch.utilities.rank_zero",
              "lightning.fabric.utilities.rank_zero", "lightning.fabric.utilities.seed", "torch", "torchvision")
-    loggers = [logging.getLogger(n) for n in names]
+    loggers = [logging.getLogger(n) for n in (*names, "torch.onnx")]
     levels = [lg.level for lg in loggers]
     with warnings.catch_warnings():
         for mod in ("lightning", "pytorch_lightning", "torch", "torchvision", "litlogger", "jsonargparse"):
             warnings.filterwarnings("ignore", module=mod)
         warnings.filterwarnings("ignore", message=".*LightningCLI's args parameter.*")
+        warnings.filterwarnings("ignore", message=".*treespec.*", category=FutureWarning)
         for lg in loggers:
             lg.setLevel(logging.WARNING)
+        logging.getLogger("torch.onnx").setLevel(logging.ERROR)  # "torchvision is not installed. Skipping ..."
         try:
             yield
         finally:

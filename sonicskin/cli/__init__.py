@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 
 from .. import __version__
 from ..errors import SonicskinError, UsageError
@@ -103,6 +104,8 @@ def _user_error(exc: BaseException) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``sonicskin`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
+    if not sys.stderr.isatty():  # piped or logged: a progress bar prints its start and end, not every update
+        os.environ.setdefault("TQDM_MININTERVAL", "60")
     p = build_parser()
     try:
         a, extra = p.parse_known_args(argv)
@@ -115,8 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     if extra and not getattr(a, "passthrough", False):
         print(f"{verb}: error: unrecognized arguments: {' '.join(extra)} (see `{verb} --help`)", file=sys.stderr)
         return 2
+    def one_line_warning(message, category, filename, lineno, file=None, line=None):
+        print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
     try:
-        return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
+        with warnings.catch_warnings():
+            warnings.showwarning = one_line_warning  # the package's warnings as one line each, like errors
+            return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
     except BrokenPipeError:  # `sonicskin live | head`: the reader went away
         sys.stdout = None
         return 0

@@ -160,14 +160,18 @@ def check_split_options(a: argparse.Namespace) -> None:
 
 def resolve_n_bins(a: argparse.Namespace, data: str | Path | None, *, warn=None) -> int:
     """The user's ``--n-bins``, or the default clamped (with a warning) to the bins the dataset's rig
-    has after its matched filter.  An explicit gamma that is too large stays an error (OSPA's)."""
-    if a.n_bins is not None:
-        return a.n_bins
+    has after its matched filter.  An explicit gamma larger than that is a usage error: the user
+    asked for something this data cannot give."""
     if data is None:
-        return DEFAULT_N_BINS
+        return a.n_bins if a.n_bins is not None else DEFAULT_N_BINS
     from ..dataset import Dataset
 
     n_allowed = int(Dataset(data).rig.allowed_mask.sum())
+    if a.n_bins is not None:
+        if a.n_bins > n_allowed:
+            raise UsageError(f"--n-bins {a.n_bins} is more than the {n_allowed} usable bins of the dataset's band; "
+                             f"pass --n-bins {n_allowed} or less, or leave it out to use them all")
+        return a.n_bins
     if n_allowed < DEFAULT_N_BINS:
         (warn or _warn)(f"the dataset's band has {n_allowed} usable bins; using gamma = {n_allowed} "
                         f"instead of the default {DEFAULT_N_BINS} (pass --n-bins to choose)")

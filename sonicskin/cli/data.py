@@ -1,7 +1,8 @@
 """Verbs that write datasets: ``simulate``, ``record``, ``import-wav``, ``import-spectra``.
 
 Every writer takes ``--overwrite`` / ``--resume`` and leaves nothing behind when it fails before
-the first complete session (see :func:`._common.clean_on_failure`)."""
+writing a part (:func:`._common.clean_on_failure`; the importers stage their whole output in a
+hidden folder and move it into place when complete)."""
 
 from __future__ import annotations
 

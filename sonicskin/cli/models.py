@@ -70,13 +70,12 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     from ..artifact import build_svm_artifact
 
     check_split_options(a)
-    if a.test or a.test_subjects:
-        raise UsageError("fit-svm trains the deployment model on every session it is given; choose them with "
-                         "--train (test it with `sonicskin compare --artifact`)")
+    if a.val or a.test or a.test_subjects:
+        raise UsageError("fit-svm trains the deployment model on every session it is given, without validation or "
+                         "test split; choose them with --train (test it with `sonicskin compare --artifact`)")
     n_bins = resolve_n_bins(a, a.data)
     with removed_on_failure(a.out):
-        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative",
-                           train_sessions=(a.train or []) + (a.val or []) or None)
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train)
     return 0
 
 
@@ -99,13 +98,17 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     cli = train_main(_train_args(a, a.data, extra))
     if not cli.trainer.is_global_zero:  # DDP: rank zero reports
         return 0
+    _report_training(cli)
+    ckpt = cli.trainer.checkpoint_callback
+    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    return 0
+
+
+def _report_training(cli) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
-    ckpt = cli.trainer.checkpoint_callback
-    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
-    return 0
 
 
 def cmd_export(a: argparse.Namespace) -> int:
@@ -117,12 +120,22 @@ def cmd_export(a: argparse.Namespace) -> int:
     if not run.exists():
         raise FileNotFoundError(f"{run} does not exist; pass a run folder of `sonicskin train` or its .ckpt file")
     need_train_extra("export")
-    from export.onnx import export_artifact
-
-    ckpt = latest_checkpoint(run)
-    with readable_checkpoint(ckpt), removed_on_failure(a.out):
-        export_artifact(ckpt, a.out, data=a.data)
+    export_quietly(latest_checkpoint(run), a.out, data=a.data)
     return 0
+
+
+def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> None:
+    """``export_artifact`` with one result line: torch.onnx's progress prints and third-party
+    warnings are dropped, a half-made artifact is removed, an unreadable checkpoint is one line."""
+    import io
+    import sys
+
+    from export.onnx import export_artifact
+    from training.cli import quiet_third_party
+
+    stdout = sys.stdout
+    with readable_checkpoint(ckpt), removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
+        export_artifact(ckpt, out, data=data, log=lambda msg: print(msg, file=stdout))
 
 
 @contextlib.contextmanager
@@ -163,7 +176,6 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         sessions = a.test
     else:  # train and export both models on the same split first
         need_train_extra("compare")
-        from export.onnx import export_artifact
         from training.cli import main as train_main
 
         name = Path(a.data).name
@@ -171,10 +183,11 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
                                        "--trainer.logger.init_args.save_dir", str(run)] + extra)
         cli = train_main(args)
+        if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
+            return 0
+        _report_training(cli)
         artifact = run / "artifact"
-        ckpt = latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath))
-        with readable_checkpoint(ckpt):
-            export_artifact(ckpt, artifact, data=a.data)
+        export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
     title = f"{Path(a.data).name}: network vs SVM"
     print(format_comparison(res, title))
