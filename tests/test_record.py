@@ -183,7 +183,7 @@ def test_sigint_at_a_random_moment_keeps_every_finished_prompt(tmp_path, small):
     p = subprocess.Popen(args, env=env, stderr=subprocess.PIPE, text=True)
     # Interrupt somewhere in the k-th touch prompt (k random), a random moment after it is shown.
     rng = np.random.default_rng()
-    k, seen = int(rng.integers(1, 6)), 0
+    k, seen = int(rng.integers(1, 5)), 0  # not the last of the six: the run is still going when SIGINT comes
     for line in p.stderr:
         seen += "touch location" in line
         if seen == k:
