@@ -50,6 +50,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from .errors import SonicskinError
+
 __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "MODEL_KINDS", "load_skin", "validate_skin",
            "model_file", "read_model_file", "check_session", "check_rig", "check_layout"]
 
@@ -74,7 +76,7 @@ _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"
 _SHA = re.compile(r"[0-9a-f]{64}")
 
 
-class ArtifactError(ValueError):
+class ArtifactError(SonicskinError):
     """An artifact that cannot run here; the message names the field, what does not fit and what to do."""
 
 
@@ -466,13 +468,16 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
     if len(outs) != 2:
         raise ArtifactError(f"{where} has {len(outs)} outputs, expected {what}; {REEXPORT}")
     declared = {k: _last_dim(outs[k].shape) for k in want}
+    # skl2onnx declares the SVC's score output as (batch, n_classes) even with decision_function_shape="ovo",
+    # which really yields the K (K - 1) / 2 pairwise values: the probe run below is what counts there.
+    allowed = {k: (None, n, n_loc) if model == "svm" else (None, n) for k, n in want.items()}
     try:
         got = session.run(None, {ins[0].name: np.zeros((2, n_in), np.float32)})
     except Exception as e:  # onnxruntime raises its own exception types
         raise ArtifactError(f"{where} fails on a probe input ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
     for k, n in want.items():
         shape = np.shape(got[k])
-        if (declared[k] not in (None, n)) or len(shape) != 2 or shape != (2, n):
+        if declared[k] not in allowed[k] or len(shape) != 2 or shape != (2, n):
             raise ArtifactError(f"{where} output {outs[k].name!r} has shape {shape} (declared {outs[k].shape}), "
                                 f"expected {what}: the model does not fit layout.ids; {REEXPORT}")
 

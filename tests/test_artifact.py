@@ -526,8 +526,8 @@ def test_raw_pickle_and_non_checkpoints_are_refused(tmp_path, capsys):
     marker = tmp_path / "pwned.txt"
     raw = tmp_path / "raw.ckpt"
     raw.write_bytes(pickle.dumps({"state_dict": _Payload(marker)}))
-    for run, why in ((raw, "not the zip archive"), (REPO / "README.md", "not the zip archive"),
-                     (tmp_path / "nothing", "no checkpoint under")):
+    for run, why in ((raw, "not the zip archive"), (REPO / "README.md", "is not a checkpoint"),
+                     (tmp_path / "nothing", "does not exist")):
         rc, err = _cli(["export", "--run", str(run), "--out", str(tmp_path / "out")], capsys)
         assert rc == 2 and err.count("\n") == 1 and "Traceback" not in err and why in err, err
     assert not marker.exists() and not (tmp_path / "out").exists()

@@ -18,6 +18,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sonicskin.errors import SonicskinError
+
 from .module import SkinLitModule
 
 __all__ = ["CheckpointError", "load_checkpoint"]
@@ -26,7 +28,7 @@ META_KEYS = ("data", "rig", "layout", "spec", "split", "min_force_n")  # what ex
 HINT = "export only checkpoints written by `sonicskin train`"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(SonicskinError):
     """A file that is not a sonicskin training checkpoint, or one that would run code when loaded."""
 
 
