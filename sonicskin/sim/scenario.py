@@ -50,8 +50,10 @@ class Scenario:
     peak_force_n: tuple = (1.0, 10.0)
     motion: dict = dataclasses.field(default_factory=lambda: {"enabled": False})
     temperature: dict = dataclasses.field(default_factory=lambda: {
-        "ambient_c": 23.0, "warmup_c": 5.6, "warmup_tau_s": 5400.0, "swing_c": 0.0, "swing_period_s": 86400.0})
+        "ambient_c": 23.0, "warmup_c": 5.6, "warmup_tau_s": 5400.0, "swing_c": 0.0, "swing_period_s": 86400.0,
+        "gradient": 0.5, "lag": 0.6})
     noise: dict = dataclasses.field(default_factory=dict)
+    bond: dict = dataclasses.field(default_factory=dict)  # HotMeltBond overrides (sonicskin.sim.thermal)
     channel: dict = dataclasses.field(default_factory=dict)
     part_s: float = 20.0
     seed: int = 0
@@ -90,6 +92,9 @@ class Scenario:
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
         if self.order not in ("random", "sequential"):
             raise ValueError(f"order must be 'random' or 'sequential', got {self.order!r}")
+        from .thermal import HotMeltBond
+
+        check_keys(HotMeltBond, self.bond, "bond")
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
 

@@ -19,6 +19,7 @@ from .channel import MATERIALS, ChannelModel, Geometry
 from .finger import make_subjects
 from .noise import NoiseConfig, motion_noise_spectrum
 from .scenario import Scenario, Timeline
+from .thermal import HotMeltBond, project_field, warmup_field
 
 __all__ = ["Simulator"]
 
@@ -53,7 +54,11 @@ class Simulator:
         self.quantize_bits = quantize_bits
         S_full = chirp_spectrum(rig)
         self._S = S_full[self.channel.bins].astype(np.complex64)
-        self._T2 = self.channel.transducer ** 2
+        self.bond = HotMeltBond(**scenario.bond)
+        self._ambient_c = float(scenario.temperature.get("ambient_c", 23.0))
+        T0 = self.bond.response(self.channel.f_hz, self._ambient_c)[0]
+        self._T2 = T0 ** 2
+        self._B = None  # Born term of the warm-up gradient, computed on first use
         y0 = self.channel.G_rs * self._T2 * self._S
         rms0 = np.sqrt(2 * np.sum(np.abs(y0) ** 2)) / rig.n_chirp
         self.gain = np.float32(target_rms / rms0)
@@ -84,23 +89,64 @@ class Simulator:
         return G[rows, i0] * (1 - w) + G[rows, i0 + 1] * w
 
     def _dT(self, tl: Timeline) -> np.ndarray:
-        return tl.temperature_c - float(self.scenario.temperature.get("ambient_c", 23.0))
+        return tl.temperature_c - self._ambient_c
+
+    _Y_GRID = np.linspace(0.0, 1.0, 41)
+
+    def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
+        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer),
+        and the TX and RX bond temperatures (C).
+
+        The label ``tl.temperature_c`` is the link's middle; the warm-up field of the scenario
+        (:func:`~sonicskin.sim.thermal.warmup_field`) adds the non-uniform part around it.
+        """
+        T = self.scenario.temperature
+        L = self.geometry.length_m
+        ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
+        field = warmup_field(tl.time_s, ys, warmup_c=float(T.get("warmup_c", 0.0)), tau_s=float(T.get("warmup_tau_s", 5400.0)),
+                             gradient=float(T.get("gradient", 0.0)), lag=float(T.get("lag", 0.0)))
+        dev = field - field[:, -1:]  # relative to the middle (the label)
+        g = self._Y_GRID.size
+        c = project_field(dev[:, :g], self._Y_GRID, order=2)
+        return {"dT": self._dT(tl) + c[:, 0], "dT_grad": c[:, 1:], "tx_c": tl.temperature_c + dev[:, g],
+                "rx_c": tl.temperature_c + dev[:, g + 1]}
+
+    def transducers(self, tx_c: np.ndarray, rx_c: np.ndarray) -> np.ndarray:
+        """Product of the TX and RX bond responses per chirp, (n, n_f) complex64."""
+        key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
+        u, inv = np.unique(key, axis=0, return_inverse=True)
+        f = self.channel.f_hz
+        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
+        return T2[inv.ravel()]
 
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
-    def untouched(self, dT: np.ndarray) -> np.ndarray:
-        """Untouched channel H_rs at temperature offsets ``dT`` (n,), shape (n, n_f)."""
-        q, inv = np.unique(np.round(np.asarray(dT, float) / self._DT_STEP_K), return_inverse=True)
-        dTu = q * self._DT_STEP_K
+    def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
+        """Untouched channel H_rs at mean temperature offsets ``dT`` (n,) and non-uniform parts
+        ``dT_grad`` (n, 2) along the link (K; Legendre coefficients of order 1 and 2, see
+        :func:`~sonicskin.sim.thermal.project_field`), shape (n, n_f)."""
+        dT = np.asarray(dT, float)
+        grad = np.zeros((dT.size, 2)) if dT_grad is None else np.asarray(dT_grad, float).reshape(dT.size, -1)
+        q, inv = np.unique(np.round(np.column_stack([dT, grad]) / self._DT_STEP_K), axis=0, return_inverse=True)
+        q = q * self._DT_STEP_K
+        dTu, gu = q[:, 0], q[:, 1:]
         i0, w = self._stretch_index(dTu)
         deta = (self.material.eta * self.material.deta_per_k * dTu).astype(np.float32)[:, None]
         G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
+        if np.any(gu != 0):
+            if self._B is None:
+                self._B = [self.channel.gradient_greens(order=k + 1) for k in range(gu.shape[1])]
+            # Relative stiffness change 2 kappa dT (modal frequencies go as sqrt(E)): first-order Born terms.
+            for k, B in enumerate(self._B):
+                de = (2 * self.material.kappa_per_k * gu[:, k]).astype(np.float32)[:, None]
+                G = G + de * self._gather(B, i0, w)
         return G[inv.ravel()]
 
     def channel_response(self, tl: Timeline) -> np.ndarray:
         """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
-        dT = self._dT(tl)
-        H = self.untouched(dT).astype(np.complex64)
+        temps = self.temperatures(tl)
+        dT = temps["dT"]
+        H = self.untouched(dT, temps["dT_grad"]).astype(np.complex64)
         # Every press of the batch: contact radii nodes and sub-contact layouts, then ONE projection.
         presses = []
         for ev in np.unique(tl.event[tl.event >= 0]):
@@ -175,7 +221,8 @@ class Simulator:
         # Sensor noise, and the robot's own noise while it moves, in one draw.
         Y = motion_noise_spectrum(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
                                   floor_rms=self.noise.sensor_rms)
-        Y[:, self.channel.bins] += self.gain * H * self._T2 * self._S
+        temps = self.temperatures(tl)
+        Y[:, self.channel.bins] += self.gain * H * self.transducers(temps["tx_c"], temps["rx_c"]) * self._S
         assert Y.shape == (n, nb)
         x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1).astype(np.float32)
         if self.quantize_bits:
