@@ -301,10 +301,12 @@ class ChannelModel:
             Ix = self.geometry.width_m * (1.0 if self.kx[idx[0]] == 0 else 0.5)
             if self.geometry.kind == "plate":
                 Ix = self.geometry.width_m / 2
-            O = self.material.mass_per_area * np.outer(self.norm[idx], self.norm[idx]) * Ix * Iy
-            O *= np.outer(wn[idx], wn[idx])
+            dK = self.material.mass_per_area * np.outer(self.norm[idx], self.norm[idx]) * Ix * Iy
+            dK *= np.outer(wn[idx], wn[idx])
             ii, jj = np.meshgrid(idx, idx, indexing="ij")
-            rows.append(ii.ravel()); cols.append(jj.ravel()); vals.append(O.ravel())
+            rows.append(ii.ravel())
+            cols.append(jj.ravel())
+            vals.append(dK.ravel())
         C = scipy.sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                                     shape=(self.n_modes, self.n_modes))
         M = self._Mr.astype(np.float64) + 1j * self._Mi.astype(np.float64)
