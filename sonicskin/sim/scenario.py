@@ -38,6 +38,7 @@ class Scenario:
         "kind": "rings", "counts": [16, 15], "spacing_cm": 1.2, "x0_cm": 2.4, "y0_cm": 11.9})
     sessions: int = 3
     repeats: int = 1
+    train_repeats: int | None = None  # presses per location in the first (one-shot training) session; None: repeats
     touch_s: float = 3.0
     gap_s: float = 0.5
     calibration_s: float = 3.0
@@ -84,8 +85,8 @@ class Scenario:
         return dataclasses.replace(self, **kw)
 
     def validate(self) -> None:
-        if self.sessions < 1 or self.repeats < 1:
-            raise ValueError("sessions and repeats must be >= 1")
+        if self.sessions < 1 or self.repeats < 1 or (self.train_repeats is not None and self.train_repeats < 1):
+            raise ValueError("sessions, repeats and train_repeats must be >= 1")
         if not 0 < self.peak_force_n[0] <= self.peak_force_n[1]:
             raise ValueError(f"peak_force_n must be (low, high) with 0 < low <= high, got {self.peak_force_n}")
         if any(not 0 <= s < 12 for s in self.subjects):
@@ -178,7 +179,8 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
         if moving_on and sc.moving_s > 0:
             segs.append(("moving", rig.seconds_to_chirps(sc.moving_s), -1, np.nan, np.nan, None))
         n_touch = rig.seconds_to_chirps(sc.touch_s)
-        order = [(loc, subj) for loc in range(len(layout)) for subj in subj_ids for _ in range(sc.repeats)]
+        reps = sc.repeats if (s > 0 or sc.train_repeats is None) else sc.train_repeats
+        order = [(loc, subj) for loc in range(len(layout)) for subj in subj_ids for _ in range(reps)]
         if sc.order == "random":
             rng.shuffle(order)
         subj_of_seg = []

@@ -24,6 +24,7 @@ from .thermal import HotMeltBond, project_field, warmup_field
 __all__ = ["Simulator"]
 
 _FULL_SCALE = 2 ** 23 - 1
+_BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce simulates several datasets per link)
 
 
 class Simulator:
@@ -135,7 +136,12 @@ class Simulator:
         G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
         if np.any(gu != 0):
             if self._B is None:
-                self._B = [self.channel.gradient_greens(order=k + 1) for k in range(gu.shape[1])]
+                key = (self.scenario.material, repr(self.geometry), tuple(self.scenario.tx_cm), tuple(self.scenario.rx_cm),
+                       self.scenario.link_seed, repr(sorted(self.scenario.channel.items())), repr(self.rig))
+                if key not in _BORN_CACHE:
+                    _BORN_CACHE.clear()  # one link at a time: a few MB
+                    _BORN_CACHE[key] = [self.channel.gradient_greens(order=k + 1) for k in range(gu.shape[1])]
+                self._B = _BORN_CACHE[key]
             # Relative stiffness change 2 kappa dT (modal frequencies go as sqrt(E)): first-order Born terms.
             for k, B in enumerate(self._B):
                 de = (2 * self.material.kappa_per_k * gu[:, k]).astype(np.float32)[:, None]
@@ -157,26 +163,34 @@ class Simulator:
             centre = np.array([tl.x_cm[idx[0]], tl.y_cm[idx[0]]]) / 100
             a = who.radius_m(tl.force_n[idx])
             radii = np.linspace(a.min(), a.max(), 3) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
+            # Real contact grows while the press is held (time since the first touching chirp).
+            g = who.occlusion((tl.chirp[idx] - tl.chirp[idx[0]]) / self.rig.chirps_per_s)
+            occl = np.array([g.min(), g.max()]) if np.ptp(g) > 1e-6 else np.array([g.min(), g.min() * 1.0001])
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
-            presses.append((idx, who, a, radii, [self._patch_points(centre, r, theta0) for r in radii]))
+            presses.append((idx, who, a, g, occl, radii, [self._patch_points(centre, r, theta0) for r in radii]))
         if presses:
             W = [self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)]
             rows = W[0].shape[0]
             G_all = self.channel._project(np.concatenate(W)).astype(np.complex64)
             k = 0
-            for idx, who, a, radii, _ in presses:
-                dH = []
+            for idx, who, a, g, occl, radii, _ in presses:
+                dH = []  # (R, 2, n_f): contact radius x real-contact share
                 for r in radii:
-                    dH.append(self._contact_delta(who, r, *self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)))
+                    parts = self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)
+                    dH.append([self._contact_delta(who, r, o, *parts) for o in occl])
                     k += rows
+                dH = np.asarray(dH, np.complex64).reshape(len(radii) * 2, -1)
                 # Temperature stretch at the press's temperature (constant over 3 s to 1e-3 K),
-                # then interpolation in contact radius chirp by chirp.
-                i0, w = self._stretch_index(np.full(len(radii), dT[idx].mean()))
-                dH = self._gather(np.stack(dH), i0, w)  # (R, n_f)
+                # then bilinear interpolation in contact radius and real-contact share chirp by chirp.
+                i0, w = self._stretch_index(np.full(dH.shape[0], dT[idx].mean()))
+                dH = self._gather(dH, i0, w).reshape(len(radii), 2, -1)
                 r = np.interp(a, radii, np.arange(radii.size))
                 r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
                 rw = (r - r0).astype(np.float32)[:, None]
-                H[idx] += dH[r0] * (1 - rw) + dH[r0 + 1] * rw
+                ow = ((g - occl[0]) / (occl[1] - occl[0])).astype(np.float32)[:, None]
+                d_r0 = dH[r0, 0] * (1 - ow) + dH[r0, 1] * ow
+                d_r1 = dH[r0 + 1, 0] * (1 - ow) + dH[r0 + 1, 1] * ow
+                H[idx] += d_r0 * (1 - rw) + d_r1 * rw
         if self._perturb > 0 and np.any(tl.moving > 0):
             H *= 1 + self._motion_ripple(tl)
         return H
@@ -188,11 +202,13 @@ class Simulator:
         ang = theta0 + np.arange(self._N_SUB - 1) * 2 * np.pi / (self._N_SUB - 1)
         return np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
 
-    def _contact_delta(self, who, radius_m: float, g_r: np.ndarray, g_s: np.ndarray, G_pp: np.ndarray) -> np.ndarray:
-        """Change of H (n_f,) by a press of contact radius ``radius_m``: Woodbury over the sub-contacts."""
+    def _contact_delta(self, who, radius_m: float, occlusion: float, g_r: np.ndarray, g_s: np.ndarray,
+                       G_pp: np.ndarray) -> np.ndarray:
+        """Change of H (n_f,) by a press of contact radius ``radius_m`` and real-contact share ``occlusion``:
+        Woodbury over the sub-contacts."""
         P = g_r.shape[0]
-        F = (radius_m / who.radius_1n_m) ** (1 / who.radius_exp)  # the force that gives this radius
-        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz)[0] / P  # (n_f,) per sub-contact
+        F = who.force_at_radius(radius_m)  # the force that gives this radius
+        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz, occlusion)[0] / P  # (n_f,) per sub-contact
         A = np.eye(P, dtype=np.complex64)[None] + K[:, None, None] * np.moveaxis(G_pp, -1, 0)  # (n_f, P, P)
         y = np.linalg.solve(A, (K * g_s).T[..., None])[..., 0]  # (n_f, P)
         return -np.sum(g_r.T * y, axis=1).astype(np.complex64)
