@@ -99,7 +99,7 @@ def _aggregate(runs: list):
         return first
     if isinstance(first, (int, float, np.integer, np.floating)):
         return Spread([float(r) for r in runs])
-    if isinstance(first, np.ndarray) and first.dtype.kind in "iu" and first.ndim == 2:
+    if isinstance(first, np.ndarray) and first.ndim == 2 and all(np.shape(r) == first.shape for r in runs):
         return np.sum(runs, axis=0)  # confusion matrices
     if isinstance(first, np.ndarray) and first.ndim == 1:
         return np.concatenate(runs)  # per-press errors: pooled
