@@ -450,13 +450,14 @@ def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
     keys = [k for k in r if k not in ("minutes", "temperature_c", "two_months")]
     lines += ["## Fig. 12: warm-up and online updating (paper: " + PAPER["fig12"] + ")\n",
               "| min | temp (C) | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]
-    lines += [f"| {m:.0f} | {T:.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
+    # Session times and temperatures are the same scenario on every seed: their mean, no spread.
+    lines += [f"| {float(m):.0f} | {float(T):.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
               for i, (m, T) in enumerate(zip(r["minutes"], r["temperature_c"]))]
     tm = r["two_months"]
     keys2 = [k for k in tm if k not in ("days", "temperature_c")]
     lines += ["", "Two months (ambient +-3 C daily swing):\n", "| day | temp (C) | " + " | ".join(keys2) + " |",
               "|---|---|" + "---|" * len(keys2)]
-    lines += [f"| {d:.0f} | {T:.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
+    lines += [f"| {float(d):.0f} | {float(T):.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
               for i, (d, T) in enumerate(zip(tm["days"], tm["temperature_c"]))]
     lines += ["", "![](fig12.png)\n"]
     r = res["fig13"]
