@@ -237,7 +237,8 @@ def fig11(ctx) -> dict:
 
 
 def fig12(ctx) -> dict:
-    over = {"sessions": 9, "session_interval_s": 900} if ctx.quick else {}
+    # quick: power-on training, then 30 / 60 / 90 / 120 min (two simulator seeds must stay CI-sized)
+    over = {"sessions": 5, "session_interval_s": 1800} if ctx.quick else {}
     ds = ctx.dataset("drift-2h", "drift-2h", **over)
     t = load_features_cached(ds, progress=False)
     train, _ = _split_first(t)
