@@ -24,7 +24,7 @@ from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
 from .svm_head import fit_svm_head, score_vector, touch_statistic
 
-__all__ = ["reproduce"]
+__all__ = ["reproduce", "Spread", "SEEDS"]
 
 PAPER = {
     "fig6b": "54.3 % -> 96.7 %", "fig11": "> 95 % from a few hundred bins; drops with more", "fig12": "drops after 30 min "
@@ -43,6 +43,9 @@ def _net_available() -> bool:
     return True
 
 
+SEEDS = {"quick": (0, 1), "full": (0, 1, 2)}
+
+
 class _Ctx:
     def __init__(self, out: Path, quick: bool, log):
         self.out, self.quick, self.log = out, quick, log
@@ -50,15 +53,60 @@ class _Ctx:
         self.epochs = 30 if quick else 60
         self.net = _net_available()
         self.figs: list[Path] = []
+        self.sim_seed = 0      # which simulated rig: seed 0 is the scenarios' own link and sessions
+        self.plots = True      # figures are drawn for the first simulator seed only
 
     def dataset(self, name: str, scenario: str, **over) -> Dataset:
-        path = self.out / "data" / name
+        """The simulated dataset ``name`` of the current simulator seed: seed ``k`` is another link
+        (``link_seed + k``: its irregularities) and other presses, noise and aims (``seed + 1000 k``)."""
+        path = self.out / "data" / (name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
         if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists()
                                                              for s in Dataset(path).sessions):
-            sc = Scenario.load(scenario)
-            sc = Scenario.from_dict({**sc.to_dict(), **over, "name": name})
-            simulate_dataset(sc, self.rig, path, mode="overwrite", progress=True, log=self.log)
+            d = {**Scenario.load(scenario).to_dict(), **over, "name": name}
+            d["seed"] = int(d["seed"]) + 1000 * self.sim_seed
+            d["link_seed"] = int(d["link_seed"]) + self.sim_seed
+            simulate_dataset(Scenario.from_dict(d), self.rig, path, mode="overwrite", progress=True, log=self.log)
         return Dataset(path)
+
+
+class Spread(float):
+    """A mean over simulator seeds that remembers its spread: formats as ``mean +- std``.
+
+    ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``; ``float(x)`` is the mean; ``x.values`` the per-seed numbers.
+    """
+
+    def __new__(cls, values):
+        v = np.asarray(values, float)
+        obj = super().__new__(cls, float(np.mean(v)))
+        obj.std = float(np.std(v))
+        obj.values = [float(x) for x in v]
+        return obj
+
+    def __format__(self, spec: str) -> str:
+        if len(self.values) < 2 or self.std <= 1e-9 * max(1.0, abs(float(self))):
+            return format(float(self), spec)
+        return f"{format(float(self), spec)} +- {format(self.std, spec)}"
+
+
+def _aggregate(runs: list):
+    """Combine the results of several simulator seeds: numbers become :class:`Spread`, lists of
+    numbers element-wise Spreads, confusion matrices are summed, error lists pooled; models and
+    other objects are taken from the first seed."""
+    first = runs[0]
+    if isinstance(first, dict):
+        return {k: _aggregate([r[k] for r in runs]) for k in first if all(isinstance(r, dict) and k in r for r in runs)}
+    if isinstance(first, (bool, np.bool_)):
+        return first
+    if isinstance(first, (int, float, np.integer, np.floating)):
+        return Spread([float(r) for r in runs])
+    if isinstance(first, np.ndarray) and first.ndim == 2 and all(np.shape(r) == first.shape for r in runs):
+        return np.sum(runs, axis=0)  # confusion matrices
+    if isinstance(first, np.ndarray) and first.ndim == 1:
+        return np.concatenate(runs)  # per-press errors: pooled
+    if isinstance(first, list) and first and all(isinstance(x, (int, float, np.floating)) for x in first) \
+            and all(isinstance(r, list) and len(r) == len(first) for r in runs):
+        return [Spread([r[i] for r in runs]) for i in range(len(first))]
+    return first
 
 
 def _fit_predict(kind: str, X: np.ndarray, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
@@ -189,7 +237,8 @@ def fig11(ctx) -> dict:
 
 
 def fig12(ctx) -> dict:
-    over = {"sessions": 9, "session_interval_s": 900} if ctx.quick else {}
+    # quick: power-on training, then 30 / 60 / 90 / 120 min (two simulator seeds must stay CI-sized)
+    over = {"sessions": 5, "session_interval_s": 1800} if ctx.quick else {}
     ds = ctx.dataset("drift-2h", "drift-2h", **over)
     t = load_features_cached(ds, progress=False)
     train, _ = _split_first(t)
@@ -310,7 +359,7 @@ def table1_fig14_15(ctx) -> dict:
     for k in _kinds(ctx):
         res["fig15"][k] = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
     plt = _plt()
-    for fig_name in ("fig14", "fig15"):
+    for fig_name in ("fig14", "fig15") if ctx.plots else ():
         kinds = list(res[fig_name])
         fig, ax = plt.subplots(1, len(kinds) + 1, figsize=(5 * (len(kinds) + 1), 4.3))
         for a, k in zip(ax[:-1], kinds):
@@ -358,6 +407,9 @@ def fig16(ctx) -> dict:
 
 
 def _save(ctx, fig, name: str, res: dict) -> dict:
+    if not ctx.plots:
+        _plt().close(fig)
+        return res
     fig.tight_layout()
     fig.savefig(ctx.out / name, dpi=100)
     _plt().close(fig)
@@ -371,12 +423,19 @@ def _pct(x) -> str:
     return "n/a" if x is None else f"{x:.1%}"
 
 
-def _report(res: dict, ctx, runtime_s: float) -> str:
+def _pool(v) -> list[float]:
+    """All per-seed values behind a list of Spreads (or plain numbers)."""
+    return [x for s in v for x in (s.values if isinstance(s, Spread) else [float(s)])]
+
+
+def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
     ks = _kinds(ctx)
     col = " | ".join("SVM" if k == "svm" else "network" for k in ks)
     lines = ["# SonicSkin on the simulated rig: the paper's Sec. V, SVM and network\n",
              f"Mode: {'quick' if ctx.quick else 'full'}; run time {runtime_s / 60:.1f} min on this machine. "
-             f"Every number below is measured in this run; the paper's are quoted for comparison.\n"]
+             f"Every number below is measured in this run as mean +- standard deviation over {len(seeds)} simulator "
+             f"seeds {list(seeds)} (each seed is another simulated link and other presses, noise and aims); "
+             "the paper's are quoted for comparison. Figures show the first seed.\n"]
     r = res["fig6b"]
     lines += ["## Fig. 6b: OSPA on the moving robot (paper: " + PAPER["fig6b"] + ")\n", f"| | {col} |", "|---|" + "---|" * len(ks),
               "| all 6400 band bins | " + " | ".join(_pct(r[k]["all_bins"]) for k in ks) + " |",
@@ -385,19 +444,21 @@ def _report(res: dict, ctx, runtime_s: float) -> str:
     gs = sorted(next(iter(r.values())))
     lines += ["## Fig. 11: accuracy vs gamma (paper: " + PAPER["fig11"] + ")\n", "| gamma | " + col + " |",
               "|---|" + "---|" * len(ks)]
-    lines += [f"| {g} | " + " | ".join(f"{np.mean(r[k][g]):.1%} +- {np.std(r[k][g]):.1%}" for k in ks) + " |" for g in gs]
+    lines += [f"| {g} | " + " | ".join(f"{np.mean(_pool(r[k][g])):.1%} +- {np.std(_pool(r[k][g])):.1%}" for k in ks) + " |"
+              for g in gs]
     lines += ["", "![](fig11.png)\n"]
     r = res["fig12"]
     keys = [k for k in r if k not in ("minutes", "temperature_c", "two_months")]
     lines += ["## Fig. 12: warm-up and online updating (paper: " + PAPER["fig12"] + ")\n",
               "| min | temp (C) | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]
-    lines += [f"| {m:.0f} | {T:.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
+    # Session times and temperatures are the same scenario on every seed: their mean, no spread.
+    lines += [f"| {float(m):.0f} | {float(T):.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
               for i, (m, T) in enumerate(zip(r["minutes"], r["temperature_c"]))]
     tm = r["two_months"]
     keys2 = [k for k in tm if k not in ("days", "temperature_c")]
     lines += ["", "Two months (ambient +-3 C daily swing):\n", "| day | temp (C) | " + " | ".join(keys2) + " |",
               "|---|---|" + "---|" * len(keys2)]
-    lines += [f"| {d:.0f} | {T:.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
+    lines += [f"| {float(d):.0f} | {float(T):.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
               for i, (d, T) in enumerate(zip(tm["days"], tm["temperature_c"]))]
     lines += ["", "![](fig12.png)\n"]
     r = res["fig13"]
@@ -405,6 +466,9 @@ def _report(res: dict, ctx, runtime_s: float) -> str:
     lines += ["## Fig. 13: force curve models, mean R2 per location (paper: " + PAPER["fig13"] + ")\n",
               "| model | " + " | ".join(feats) + " |", "|---|" + "---|" * len(feats)]
     lines += [f"| {m} | " + " | ".join(f"{r[f][m]:.2f}" for f in feats) + " |" for m in MODELS]
+    if all(f in r for f in ("E (all band bins)", "E^O (OSPA bins)")):
+        d = np.subtract(r["E^O (OSPA bins)"]["fourier1"].values, r["E (all band bins)"]["fourier1"].values)
+        lines.append(f"\nFourier-1, E^O minus E per seed: {', '.join(f'{x:+.3f}' for x in d)}.")
     if "network (training fit)" in r:
         lines.append(f"\nNetwork force head on the same training chirps: R2 {r['network (training fit)']:.2f}.")
     lines += ["", "![](fig13.png)\n"]
@@ -429,26 +493,38 @@ def _report(res: dict, ctx, runtime_s: float) -> str:
     return "\n".join(lines)
 
 
-def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, log=print) -> dict:
+def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, log=print) -> dict:
+    """Run every experiment once per simulator seed (default: 2 seeds quick, 3 full) and report the
+    mean and spread of each number."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ctx = _Ctx(out, quick, log)
+    seeds = tuple(SEEDS["quick" if quick else "full"] if seeds is None else seeds)
+    if not seeds:
+        raise ValueError("reproduce needs at least one simulator seed")
     if not ctx.net:
         log("torch/lightning not installed: network columns are skipped (pip install 'sonicskin[train]')")
     steps = [("fig6b", fig6b), ("fig11", fig11), ("fig12", fig12), ("fig13", fig13), ("table1", table1_fig14_15),
              ("fig16", fig16)]
-    res = {}
-    for name, fn in tqdm(steps, desc="experiments", unit="exp"):
-        ts = time.perf_counter()
-        res[name] = fn(ctx)
-        log(f"{name}: {time.perf_counter() - ts:.0f} s")
+    runs = []
+    for seed in seeds:
+        ctx.sim_seed, ctx.plots = int(seed), seed == seeds[0]
+        res = {}
+        for name, fn in tqdm(steps, desc=f"experiments, simulator seed {seed}", unit="exp"):
+            ts = time.perf_counter()
+            res[name] = fn(ctx)
+            log(f"seed {seed} {name}: {time.perf_counter() - ts:.0f} s")
+        runs.append(res)
+    res = _aggregate(runs)
     runtime = time.perf_counter() - t0
-    (out / "report.md").write_text(_report(res, ctx, runtime))
+    (out / "report.md").write_text(_report(res, ctx, runtime, seeds))
 
     def plain(o):
+        if isinstance(o, Spread):
+            return {"mean": float(o), "std": o.std, "values": o.values}
         if isinstance(o, dict):
             return {str(k): plain(v) for k, v in o.items() if not callable(v) and not isinstance(v, PerLocationForce)}
         if isinstance(o, (list, tuple)):
@@ -459,6 +535,7 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, log
             return o.item()
         return o
 
-    (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick}), indent=1))
+    (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds)}),
+                                                indent=1))
     log(f"wrote {out / 'report.md'}, report.json and {len(ctx.figs)} figures in {runtime / 60:.1f} min")
     return res

@@ -17,7 +17,31 @@ def test_quick_reproduction(tmp_path):
     for fig in ("fig6b", "fig11", "fig12", "fig13", "fig14", "fig15", "fig16"):
         assert (out / f"{fig}.png").stat().st_size > 10_000
     res = json.loads((out / "report.json").read_text())
+    # Every number is a mean over the quick run's simulator seeds, with its spread.
+    assert res["seeds"] == [0, 1]
+    acc = res["fig6b"]["svm"]["ospa"]
+    assert len(acc["values"]) == 2 and acc["mean"] == pytest.approx(sum(acc["values"]) / 2) and acc["std"] >= 0
+    assert "+-" in md.split("## Table I")[1].split("\n## ")[0]
     # Physical findings that must hold on the simulated rig, whatever the exact numbers:
-    assert res["fig6b"]["svm"]["ospa"] > res["fig6b"]["svm"]["all_bins"] + 0.15  # OSPA matters on a moving robot
-    assert all(r["svm"]["accuracy"] >= 0.9 for k, r in res["fig16"].items() if "36" not in k)  # two points apart
+    assert res["fig6b"]["svm"]["ospa"]["mean"] > res["fig6b"]["svm"]["all_bins"]["mean"] + 0.15  # OSPA matters on a moving robot
+    assert all(r["svm"]["accuracy"]["mean"] >= 0.9 for k, r in res["fig16"].items() if "36" not in k)  # two points apart
     assert "net" in res["table1"]["fig14"] and "svm" in res["table1"]["fig15"]
+
+
+def test_seed_results_aggregate_to_mean_and_spread():
+    import numpy as np
+
+    from sonicskin.reproduce import Spread, _aggregate
+
+    runs = [{"acc": 0.9, "curve": [0.8, 0.9], "confusion": np.array([[2, 0], [1, 1]]), "errors_cm": np.array([0.0, 1.2]),
+             "minutes": 15.0, "model": "first"},
+            {"acc": 0.7, "curve": [0.6, 0.9], "confusion": np.array([[1, 1], [0, 2]]), "errors_cm": np.array([2.4]),
+             "minutes": 15.0, "model": "second"}]
+    agg = _aggregate(runs)
+    assert isinstance(agg["acc"], Spread) and float(agg["acc"]) == pytest.approx(0.8) and agg["acc"].std == pytest.approx(0.1)
+    assert f"{agg['acc']:.1%}" == "80.0% +- 10.0%"
+    assert f"{agg['minutes']:.0f}" == "15"  # no spread, no "+- 0"
+    assert [float(x) for x in agg["curve"]] == pytest.approx([0.7, 0.9]) and agg["curve"][1].std == pytest.approx(0.0)
+    np.testing.assert_array_equal(agg["confusion"], [[3, 1], [1, 3]])  # counts add up over seeds
+    np.testing.assert_array_equal(agg["errors_cm"], [0.0, 1.2, 2.4])  # per-press errors pooled
+    assert agg["model"] == "first"

@@ -145,3 +145,99 @@ def test_same_seed_same_data(rig):
     # 24-bit quantisation: every sample sits on the grid.
     q = a.astype(np.float64) * (2 ** 23 - 1)
     assert np.allclose(q, np.round(q), atol=2e-3)
+
+
+# -- temperature: hot-melt bond, non-uniform warm-up -------------------------------------------------
+
+def test_hot_melt_bond_softens_with_the_cited_slope_and_its_resonance_moves_down():
+    from sonicskin.sim.thermal import HotMeltBond
+
+    bond = HotMeltBond()
+    T = np.arange(20.0, 31.0)
+    E = bond.modulus_ratio(T)
+    assert np.all(np.diff(E) < 0) and E[T == 23.0] == pytest.approx(1.0)
+    np.testing.assert_allclose(np.diff(np.log10(E)), -0.02)  # d log10 E' / dT of an EVA hot melt above its Tg
+    assert np.all(np.diff(bond.loss_tangent(T)) > 0)  # loss tangent rises towards the transition
+    # The mounted resonance is where |transmissibility| peaks: it follows sqrt(E') down (-2.3 %/K).
+    f = np.linspace(10e3, 60e3, 5001)
+    peaks = f[np.argmax(np.abs(bond.response(f, np.array([23.0, 28.0]))), axis=1)]
+    assert peaks[1] < peaks[0]
+    assert peaks[1] / peaks[0] == pytest.approx(np.sqrt(10 ** (-0.02 * 5)), rel=0.03)
+
+
+def test_uniform_stiffness_born_term_matches_the_exact_frequency_shift(rig, chan):
+    # Order 0 (uniform) profile: the Born term must be the derivative of the modal sum when every
+    # w_n^2 scales by (1 + eps) -- a check of the mode normalisation and the overlap integrals.
+    eps = 1e-4
+    M = chan._Mr.astype(np.float64) + 1j * chan._Mi.astype(np.float64)
+    w = 2 * np.pi * chan.f_hz
+    M2 = 1 / (chan.wn2[:, None] * (1 + eps) * (1 + 1j * CFRP.eta) - w[None, :] ** 2)
+    wrs = chan.phi_tx * chan.phi_rx
+    fd = (wrs @ M2 - wrs @ M) / eps
+    B0 = chan.gradient_greens(order=0)
+    band = (chan.f_hz > 20e3) & (chan.f_hz < 80e3)
+    assert np.linalg.norm(B0[band] - fd[band]) < 0.02 * np.linalg.norm(fd[band])
+
+
+def test_non_uniform_warming_changes_the_response_beyond_a_uniform_stretch(rig):
+    # Odd (linear) gradient: cancels exactly at first order when TX and RX are mirror images along
+    # the link (the default tube: y = 2.5 and 22.5 of 25 cm); with the RX moved off the mirror
+    # position it does act, and the even (ends vs middle) profile acts in both.
+    sym = ChannelModel(rig, CFRP, Geometry(), seed=0)
+    asym = ChannelModel(rig, CFRP, Geometry(), rx_m=(0.059, 0.18), seed=0)
+    band = (sym.f_hz > 20e3) & (sym.f_hz < 80e3)
+    rel = lambda c, k: np.median(np.abs(c.gradient_greens(order=k)[band])) / np.median(np.abs(c.G_rs[band]))  # noqa: E731
+    assert rel(sym, 1) < 1e-6
+    assert rel(asym, 1) > 1e-3 and rel(sym, 2) > 1e-3 and rel(asym, 2) > 1e-3
+
+
+def test_warm_up_reaches_the_motor_end_first(rig):
+    sc = Scenario.load("drift-2h")
+    sim = Simulator(sc, rig)
+    t = np.array([0.0, 600.0, 3600.0, 7200.0])
+    n = t.size
+    z = np.zeros(n)
+    tl = Timeline(session=z.astype(int), chirp=np.arange(n), time_s=t, segment=z.astype(int), event=-np.ones(n, int),
+                  location=-np.ones(n, int), x_cm=z, y_cm=z, force_n=z, moving=z, temperature_c=sc.temperature_c(t),
+                  subject=z.astype(int))
+    temps = sim.temperatures(tl)
+    assert temps["tx_c"][0] == temps["rx_c"][0] == pytest.approx(23.0)
+    assert np.all(temps["tx_c"][1:] > temps["rx_c"][1:])  # TX sits at the motor end
+    assert np.all(np.diff(temps["tx_c"]) > 0) and np.all(temps["dT_grad"][1:, 0] > 0)
+    # The label is the link's middle; 5.6 K final rise of the scenario, 90 min time constant there.
+    assert tl.temperature_c[-1] - 23.0 == pytest.approx(5.6 * (1 - np.exp(-7200 / 5400)))
+
+
+# -- fingers -----------------------------------------------------------------------------------------
+
+def test_finger_contact_grows_with_force_and_hold_time_as_cited():
+    from sonicskin.sim.finger import make_subjects
+
+    f = np.array([50e3])
+    for who in make_subjects():
+        F = np.array([1.0, 2.0, 5.0, 10.0])
+        a = who.radius_m(F)
+        assert np.all(np.diff(a) > 0) and np.all(np.diff(np.log(a)) < np.diff(np.log(F)) / 2)  # sub-linear, Hertz-like
+        K = who.dynamic_stiffness(F, f)[:, 0]
+        w = 2 * np.pi * f[0]
+        c = K.imag / w
+        # Skin damping ~ real contact area ~ F^q, q in 0.6-1: keeps growing where the gross area saturates.
+        q = np.diff(np.log(c)) / np.diff(np.log(F))
+        np.testing.assert_allclose(q, who.damping_exp, rtol=1e-3)
+        assert 0.6 <= who.damping_exp <= 1.0
+        # Pad stiffness linear in force (exponential force-displacement law): k(10 N) / k(1 N) = 8.2 / 1.
+        k = who.dynamic_stiffness(F, np.array([0.0]))[:, 0].real
+        assert k[3] / k[0] == pytest.approx(8.2)
+        # Real contact grows while held: g(0) = r0, saturates within ~20 s.
+        g = who.occlusion(np.array([0.0, 3.0, 20.0]))
+        assert g[0] == pytest.approx(who.occlusion_r0) and g[0] < g[1] < g[2] and g[2] > 0.95
+
+
+def test_one_shot_session_has_several_presses_per_location(rig):
+    sc = Scenario(sessions=2, train_repeats=3, layout={"kind": "grid", "nx": 2, "ny": 1, "spacing_cm": 1.2, "x0_cm": 8,
+                                                        "y0_cm": 12}, touch_s=0.5, calibration_s=0.3, gap_s=0.1)
+    tl = build_timeline(sc, rig)
+    presses = lambda s: len(np.unique(tl.event[(tl.session == s) & (tl.event >= 0)]))  # noqa: E731
+    assert presses(0) == 6 and presses(1) == 2
+    with pytest.raises(ValueError, match="train_repeats"):
+        Scenario.from_dict({"train_repeats": 0})

@@ -1,4 +1,27 @@
-"""Fingers and the people they belong to: contact patch, tissue impedance, press profiles."""
+"""Fingers and the people they belong to: contact patch, tissue impedance, press profiles.
+
+What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time:
+
+- **Gross contact patch** of radius ``a = a_1N (F / 1 N)^n``, ``n`` 0.15-0.33 (Hertz-like: the
+  pad's displacement grows as ``F^(2/3)`` for a Hertzian pad, i.e. ``n = 1/3``; real pads saturate
+  sooner because the bone limits the pulp's spread: Serina, Mote & Rempel 1997, J. Biomech.
+  30:1035-1040; Serina et al. 1998, J. Biomech. 31:639-646).
+- **Skin damping** ``c = c_1N (F / 1 N)^q g(t)``: energy leaves the wall through the *real*
+  contact of the fingerprint ridges, not the gross patch.  The real contact area keeps growing with
+  load where the gross area saturates (ink-print and OCT measurements: apparent and real contact
+  area grow about linearly with load, Liu et al. 2018, Skin Res. Technol. 24:31-44), so
+  ``q`` = 0.6-1.0 (gross area alone gives ``2 n`` = 0.3-0.66).  On a smooth impermeable surface
+  (a coated CFRP link, like the glass of Dzidek et al. 2017, PNAS 114:10864-10869) the real contact
+  grows while the press is held, by first-order kinetics that saturate within ~20 s: ``g(t) =
+  1 - (1 - r_0) exp(-t / tau)``, ``tau`` 3-8 s, ``r_0`` 0.4-0.7 the share at first contact.  The
+  scale: soft tissue's acoustic impedance ``rho c`` ~ 1.6 MRayl (Duck 1990, *Physical Properties
+  of Tissue*) over ~30 mm^2 of real contact at 1 N gives ~50 N s/m; ``c_1N`` is 25-60 N s/m.
+- **Pad stiffness** ``k = k_1N (0.2 + 0.8 F / 1 N)``: the fingertip's force-displacement curve is
+  exponential (Serina et al. 1997; Pawluk & Howe 1999, J. Biomech. Eng. 121:178-183 and 605-611),
+  so its stiffness ``dF / d delta = b + m F`` grows linearly with force (b ~ 0.2 of the 1 N value).
+  At ultrasonic frequencies it hardly matters: ``k`` ~ 1e3-1e4 N/m against ``w c`` ~ 1e7 N/m.
+- **Tissue mass** moving with the wall grows with the gross patch.
+"""
 
 from __future__ import annotations
 
@@ -21,6 +44,8 @@ class Subject:
     aim_bias_m : where this person habitually presses relative to a marker (x, y).
     aim_jitter_m : spread of single presses around that point.
     max_force_n : typical peak force of this person's presses.
+    damping_exp : ``q``, the skin damping's (real contact area's) growth with force, ``c ~ F^q``.
+    occlusion_tau_s, occlusion_r0 : the real contact's growth while a press is held (module notes).
     """
 
     name: str
@@ -32,17 +57,33 @@ class Subject:
     aim_bias_m: tuple[float, float]
     aim_jitter_m: float
     max_force_n: float
+    damping_exp: float = 0.8
+    occlusion_tau_s: float = 5.0
+    occlusion_r0: float = 0.55
 
     def radius_m(self, force_n: np.ndarray) -> np.ndarray:
         return self.radius_1n_m * np.power(np.maximum(force_n, 1e-3), self.radius_exp)
 
-    def dynamic_stiffness(self, force_n: np.ndarray, f_hz: np.ndarray) -> np.ndarray:
-        """``K(w) = k_c + i w c - w^2 m`` per chirp and frequency, shape (n, n_f); zero where F = 0."""
+    def force_at_radius(self, radius_m: np.ndarray) -> np.ndarray:
+        return np.power(np.asarray(radius_m, float) / self.radius_1n_m, 1 / self.radius_exp)
+
+    def occlusion(self, held_s: np.ndarray) -> np.ndarray:
+        """Share of the saturated real contact after ``held_s`` seconds of contact, ``g(t)``."""
+        t = np.maximum(np.asarray(held_s, float), 0)
+        return 1 - (1 - self.occlusion_r0) * np.exp(-t / self.occlusion_tau_s)
+
+    def dynamic_stiffness(self, force_n: np.ndarray, f_hz: np.ndarray, occlusion: np.ndarray | float = 1.0) -> np.ndarray:
+        """``K(w) = k(F) + i w c(F, t) - w^2 m(F)`` per chirp and frequency, shape (n, n_f); zero where F = 0.
+
+        ``occlusion`` : ``g(t)`` of the press (1: saturated real contact).
+        """
         F = np.atleast_1d(np.asarray(force_n, float))
-        area = (self.radius_m(F) / self.radius_1n_m) ** 2  # relative contact area
+        Fp = np.maximum(F, 1e-3)
+        area = (self.radius_m(F) / self.radius_1n_m) ** 2  # relative gross contact area
         w = 2 * np.pi * np.asarray(f_hz, float)
-        K = (self.stiffness_1n * np.sqrt(area))[:, None] + 1j * w * (self.damping_1n * area)[:, None] \
-            - w ** 2 * (self.mass_1n_kg * area)[:, None]
+        k = self.stiffness_1n * (0.2 + 0.8 * Fp)
+        c = self.damping_1n * np.power(Fp, self.damping_exp) * np.broadcast_to(np.asarray(occlusion, float), F.shape)
+        K = k[:, None] + 1j * w * c[:, None] - w ** 2 * (self.mass_1n_kg * area)[:, None]
         return np.where((F > 0)[:, None], K, 0).astype(np.complex64)
 
 
@@ -62,6 +103,11 @@ def make_subjects(n: int = 12, seed: int = 1234) -> list[Subject]:
             aim_jitter_m=float(rng.uniform(0.5e-3, 1.5e-3)),
             max_force_n=float(rng.uniform(3.0, 9.0)),
         ))
+    # Drawn from their own stream, so the people above stay who they were.
+    rng2 = np.random.default_rng([seed, 2])
+    for i in range(1, n):
+        out[i] = dataclasses.replace(out[i], damping_exp=float(rng2.uniform(0.6, 1.0)),
+                                     occlusion_tau_s=float(rng2.uniform(3.0, 8.0)), occlusion_r0=float(rng2.uniform(0.4, 0.7)))
     return out
 
 

@@ -38,6 +38,7 @@ class Scenario:
         "kind": "rings", "counts": [16, 15], "spacing_cm": 1.2, "x0_cm": 2.4, "y0_cm": 11.9})
     sessions: int = 3
     repeats: int = 1
+    train_repeats: int | None = None  # presses per location in the first (one-shot training) session; None: repeats
     touch_s: float = 3.0
     gap_s: float = 0.5
     calibration_s: float = 3.0
@@ -50,8 +51,10 @@ class Scenario:
     peak_force_n: tuple = (1.0, 10.0)
     motion: dict = dataclasses.field(default_factory=lambda: {"enabled": False})
     temperature: dict = dataclasses.field(default_factory=lambda: {
-        "ambient_c": 23.0, "warmup_c": 5.6, "warmup_tau_s": 5400.0, "swing_c": 0.0, "swing_period_s": 86400.0})
+        "ambient_c": 23.0, "warmup_c": 5.6, "warmup_tau_s": 5400.0, "swing_c": 0.0, "swing_period_s": 86400.0,
+        "gradient": 0.5, "lag": 0.6})
     noise: dict = dataclasses.field(default_factory=dict)
+    bond: dict = dataclasses.field(default_factory=dict)  # HotMeltBond overrides (sonicskin.sim.thermal)
     channel: dict = dataclasses.field(default_factory=dict)
     part_s: float = 20.0
     seed: int = 0
@@ -82,14 +85,17 @@ class Scenario:
         return dataclasses.replace(self, **kw)
 
     def validate(self) -> None:
-        if self.sessions < 1 or self.repeats < 1:
-            raise ValueError("sessions and repeats must be >= 1")
+        if self.sessions < 1 or self.repeats < 1 or (self.train_repeats is not None and self.train_repeats < 1):
+            raise ValueError("sessions, repeats and train_repeats must be >= 1")
         if not 0 < self.peak_force_n[0] <= self.peak_force_n[1]:
             raise ValueError(f"peak_force_n must be (low, high) with 0 < low <= high, got {self.peak_force_n}")
         if any(not 0 <= s < 12 for s in self.subjects):
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
         if self.order not in ("random", "sequential"):
             raise ValueError(f"order must be 'random' or 'sequential', got {self.order!r}")
+        from .thermal import HotMeltBond
+
+        check_keys(HotMeltBond, self.bond, "bond")
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
 
@@ -173,7 +179,8 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
         if moving_on and sc.moving_s > 0:
             segs.append(("moving", rig.seconds_to_chirps(sc.moving_s), -1, np.nan, np.nan, None))
         n_touch = rig.seconds_to_chirps(sc.touch_s)
-        order = [(loc, subj) for loc in range(len(layout)) for subj in subj_ids for _ in range(sc.repeats)]
+        reps = sc.repeats if (s > 0 or sc.train_repeats is None) else sc.train_repeats
+        order = [(loc, subj) for loc in range(len(layout)) for subj in subj_ids for _ in range(reps)]
         if sc.order == "random":
             rng.shuffle(order)
         subj_of_seg = []

@@ -19,10 +19,12 @@ from .channel import MATERIALS, ChannelModel, Geometry
 from .finger import make_subjects
 from .noise import NoiseConfig, motion_noise_spectrum
 from .scenario import Scenario, Timeline
+from .thermal import HotMeltBond, project_field, warmup_field
 
 __all__ = ["Simulator"]
 
 _FULL_SCALE = 2 ** 23 - 1
+_BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce simulates several datasets per link)
 
 
 class Simulator:
@@ -53,7 +55,11 @@ class Simulator:
         self.quantize_bits = quantize_bits
         S_full = chirp_spectrum(rig)
         self._S = S_full[self.channel.bins].astype(np.complex64)
-        self._T2 = self.channel.transducer ** 2
+        self.bond = HotMeltBond(**scenario.bond)
+        self._ambient_c = float(scenario.temperature.get("ambient_c", 23.0))
+        T0 = self.bond.response(self.channel.f_hz, self._ambient_c)[0]
+        self._T2 = T0 ** 2
+        self._B = None  # Born term of the warm-up gradient, computed on first use
         y0 = self.channel.G_rs * self._T2 * self._S
         rms0 = np.sqrt(2 * np.sum(np.abs(y0) ** 2)) / rig.n_chirp
         self.gain = np.float32(target_rms / rms0)
@@ -84,23 +90,69 @@ class Simulator:
         return G[rows, i0] * (1 - w) + G[rows, i0 + 1] * w
 
     def _dT(self, tl: Timeline) -> np.ndarray:
-        return tl.temperature_c - float(self.scenario.temperature.get("ambient_c", 23.0))
+        return tl.temperature_c - self._ambient_c
+
+    _Y_GRID = np.linspace(0.0, 1.0, 41)
+
+    def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
+        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer),
+        and the TX and RX bond temperatures (C).
+
+        The label ``tl.temperature_c`` is the link's middle; the warm-up field of the scenario
+        (:func:`~sonicskin.sim.thermal.warmup_field`) adds the non-uniform part around it.
+        """
+        T = self.scenario.temperature
+        L = self.geometry.length_m
+        ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
+        field = warmup_field(tl.time_s, ys, warmup_c=float(T.get("warmup_c", 0.0)), tau_s=float(T.get("warmup_tau_s", 5400.0)),
+                             gradient=float(T.get("gradient", 0.0)), lag=float(T.get("lag", 0.0)))
+        dev = field - field[:, -1:]  # relative to the middle (the label)
+        g = self._Y_GRID.size
+        c = project_field(dev[:, :g], self._Y_GRID, order=2)
+        return {"dT": self._dT(tl) + c[:, 0], "dT_grad": c[:, 1:], "tx_c": tl.temperature_c + dev[:, g],
+                "rx_c": tl.temperature_c + dev[:, g + 1]}
+
+    def transducers(self, tx_c: np.ndarray, rx_c: np.ndarray) -> np.ndarray:
+        """Product of the TX and RX bond responses per chirp, (n, n_f) complex64."""
+        key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
+        u, inv = np.unique(key, axis=0, return_inverse=True)
+        f = self.channel.f_hz
+        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
+        return T2[inv.ravel()]
 
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
-    def untouched(self, dT: np.ndarray) -> np.ndarray:
-        """Untouched channel H_rs at temperature offsets ``dT`` (n,), shape (n, n_f)."""
-        q, inv = np.unique(np.round(np.asarray(dT, float) / self._DT_STEP_K), return_inverse=True)
-        dTu = q * self._DT_STEP_K
+    def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
+        """Untouched channel H_rs at mean temperature offsets ``dT`` (n,) and non-uniform parts
+        ``dT_grad`` (n, 2) along the link (K; Legendre coefficients of order 1 and 2, see
+        :func:`~sonicskin.sim.thermal.project_field`), shape (n, n_f)."""
+        dT = np.asarray(dT, float)
+        grad = np.zeros((dT.size, 2)) if dT_grad is None else np.asarray(dT_grad, float).reshape(dT.size, -1)
+        q, inv = np.unique(np.round(np.column_stack([dT, grad]) / self._DT_STEP_K), axis=0, return_inverse=True)
+        q = q * self._DT_STEP_K
+        dTu, gu = q[:, 0], q[:, 1:]
         i0, w = self._stretch_index(dTu)
         deta = (self.material.eta * self.material.deta_per_k * dTu).astype(np.float32)[:, None]
         G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
+        if np.any(gu != 0):
+            if self._B is None:
+                key = (self.scenario.material, repr(self.geometry), tuple(self.scenario.tx_cm), tuple(self.scenario.rx_cm),
+                       self.scenario.link_seed, repr(sorted(self.scenario.channel.items())), repr(self.rig))
+                if key not in _BORN_CACHE:
+                    _BORN_CACHE.clear()  # one link at a time: a few MB
+                    _BORN_CACHE[key] = [self.channel.gradient_greens(order=k + 1) for k in range(gu.shape[1])]
+                self._B = _BORN_CACHE[key]
+            # Relative stiffness change 2 kappa dT (modal frequencies go as sqrt(E)): first-order Born terms.
+            for k, B in enumerate(self._B):
+                de = (2 * self.material.kappa_per_k * gu[:, k]).astype(np.float32)[:, None]
+                G = G + de * self._gather(B, i0, w)
         return G[inv.ravel()]
 
     def channel_response(self, tl: Timeline) -> np.ndarray:
         """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
-        dT = self._dT(tl)
-        H = self.untouched(dT).astype(np.complex64)
+        temps = self.temperatures(tl)
+        dT = temps["dT"]
+        H = self.untouched(dT, temps["dT_grad"]).astype(np.complex64)
         # Every press of the batch: contact radii nodes and sub-contact layouts, then ONE projection.
         presses = []
         for ev in np.unique(tl.event[tl.event >= 0]):
@@ -111,26 +163,34 @@ class Simulator:
             centre = np.array([tl.x_cm[idx[0]], tl.y_cm[idx[0]]]) / 100
             a = who.radius_m(tl.force_n[idx])
             radii = np.linspace(a.min(), a.max(), 3) if np.ptp(a) > 1e-6 else np.array([a.min(), a.min() * 1.0001])
+            # Real contact grows while the press is held (time since the first touching chirp).
+            g = who.occlusion((tl.chirp[idx] - tl.chirp[idx[0]]) / self.rig.chirps_per_s)
+            occl = np.array([g.min(), g.max()]) if np.ptp(g) > 1e-6 else np.array([g.min(), g.min() * 1.0001])
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
-            presses.append((idx, who, a, radii, [self._patch_points(centre, r, theta0) for r in radii]))
+            presses.append((idx, who, a, g, occl, radii, [self._patch_points(centre, r, theta0) for r in radii]))
         if presses:
             W = [self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)]
             rows = W[0].shape[0]
             G_all = self.channel._project(np.concatenate(W)).astype(np.complex64)
             k = 0
-            for idx, who, a, radii, _ in presses:
-                dH = []
+            for idx, who, a, g, occl, radii, _ in presses:
+                dH = []  # (R, 2, n_f): contact radius x real-contact share
                 for r in radii:
-                    dH.append(self._contact_delta(who, r, *self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)))
+                    parts = self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)
+                    dH.append([self._contact_delta(who, r, o, *parts) for o in occl])
                     k += rows
+                dH = np.asarray(dH, np.complex64).reshape(len(radii) * 2, -1)
                 # Temperature stretch at the press's temperature (constant over 3 s to 1e-3 K),
-                # then interpolation in contact radius chirp by chirp.
-                i0, w = self._stretch_index(np.full(len(radii), dT[idx].mean()))
-                dH = self._gather(np.stack(dH), i0, w)  # (R, n_f)
+                # then bilinear interpolation in contact radius and real-contact share chirp by chirp.
+                i0, w = self._stretch_index(np.full(dH.shape[0], dT[idx].mean()))
+                dH = self._gather(dH, i0, w).reshape(len(radii), 2, -1)
                 r = np.interp(a, radii, np.arange(radii.size))
                 r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
                 rw = (r - r0).astype(np.float32)[:, None]
-                H[idx] += dH[r0] * (1 - rw) + dH[r0 + 1] * rw
+                ow = ((g - occl[0]) / (occl[1] - occl[0])).astype(np.float32)[:, None]
+                d_r0 = dH[r0, 0] * (1 - ow) + dH[r0, 1] * ow
+                d_r1 = dH[r0 + 1, 0] * (1 - ow) + dH[r0 + 1, 1] * ow
+                H[idx] += d_r0 * (1 - rw) + d_r1 * rw
         if self._perturb > 0 and np.any(tl.moving > 0):
             H *= 1 + self._motion_ripple(tl)
         return H
@@ -142,11 +202,13 @@ class Simulator:
         ang = theta0 + np.arange(self._N_SUB - 1) * 2 * np.pi / (self._N_SUB - 1)
         return np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
 
-    def _contact_delta(self, who, radius_m: float, g_r: np.ndarray, g_s: np.ndarray, G_pp: np.ndarray) -> np.ndarray:
-        """Change of H (n_f,) by a press of contact radius ``radius_m``: Woodbury over the sub-contacts."""
+    def _contact_delta(self, who, radius_m: float, occlusion: float, g_r: np.ndarray, g_s: np.ndarray,
+                       G_pp: np.ndarray) -> np.ndarray:
+        """Change of H (n_f,) by a press of contact radius ``radius_m`` and real-contact share ``occlusion``:
+        Woodbury over the sub-contacts."""
         P = g_r.shape[0]
-        F = (radius_m / who.radius_1n_m) ** (1 / who.radius_exp)  # the force that gives this radius
-        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz)[0] / P  # (n_f,) per sub-contact
+        F = who.force_at_radius(radius_m)  # the force that gives this radius
+        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz, occlusion)[0] / P  # (n_f,) per sub-contact
         A = np.eye(P, dtype=np.complex64)[None] + K[:, None, None] * np.moveaxis(G_pp, -1, 0)  # (n_f, P, P)
         y = np.linalg.solve(A, (K * g_s).T[..., None])[..., 0]  # (n_f, P)
         return -np.sum(g_r.T * y, axis=1).astype(np.complex64)
@@ -175,7 +237,8 @@ class Simulator:
         # Sensor noise, and the robot's own noise while it moves, in one draw.
         Y = motion_noise_spectrum(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
                                   floor_rms=self.noise.sensor_rms)
-        Y[:, self.channel.bins] += self.gain * H * self._T2 * self._S
+        temps = self.temperatures(tl)
+        Y[:, self.channel.bins] += self.gain * H * self.transducers(temps["tx_c"], temps["rx_c"]) * self._S
         assert Y.shape == (n, nb)
         x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1).astype(np.float32)
         if self.quantize_bits:

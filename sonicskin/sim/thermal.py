@@ -1,0 +1,104 @@
+"""What moves with temperature on a warming robot link: the piezo's hot-melt bond and the wall.
+
+Two temperature-sensitive parts, with very different coefficients:
+
+**The hot-melt bond of each piezo** (the paper glues its discs with "thermoplastic adhesive (e.g.,
+with hot glue)", Sec. IV).  Hot-melt sticks are EVA copolymers blended with a tackifying resin and
+wax; such blends have their glass transition near room temperature: "most blends showed a glass
+transition temperature at about 25 C and a melting peak between 30 C and 100 C" (Park & Kim 2003,
+Int. J. Adhesion & Adhesives 23:383-392), and their storage modulus falls while the loss tangent
+rises with temperature (Park et al. 2006, Int. J. Adhesion & Adhesives 26:571-576).  At the chirp's
+20-80 kHz the transition sits some ten kelvin higher than in a 1 Hz DMA scan (time-temperature
+superposition, WLF), so room temperature lies on the glassy side of it where ``E'`` falls by roughly
+a decade over 40-60 K.  We take ``d log10 E' / dT = -0.02 /K`` (-4.5 %/K) and
+``d ln(tan delta) / dT = +0.02 /K``: estimates read from the shape of such DMA curves, not a
+number quoted to the digit by those papers; they are the least certain coefficients of the rig.
+
+The disc (mass ``m``) sits on the bond layer (stiffness ``k = E* A / t``): a mounted resonance
+``f_r = sqrt(k / m) / 2 pi`` (28 kHz at 23 C: 1-2 g of brass and ceramic on a 0.1-0.3 mm layer of
+a ~10-100 MPa adhesive) whose transmissibility ``(1 + i eta) / (1 + i eta - (f / f_r)^2)`` shapes
+both the drive and the pick-up.  With ``k`` proportional to ``E'``, ``f_r`` moves by
+``0.5 d ln E' / dT = -2.3 %/K``.
+
+**The wall.**  Modal frequencies of a plate scale with ``sqrt(E)``; the matrix-dominated stiffness
+of carbon/epoxy softens by ~0.05-0.1 %/K near room temperature (guided-wave SHM measurements on
+CFRP report A0/S0 velocity and phase changes of that order, reviewed in Gorgin, Luo & Wu 2020,
+Ultrasonics 105:106114; Lanza di Scalea & Salamone 2008, J. Acoust. Soc. Am. 124:161-174), so modal
+frequencies move by ``kappa = -3.5e-4 /K`` (:data:`sonicskin.sim.channel.MATERIALS`); ABS and wood
+soften several times faster.
+
+**Non-uniform warm-up.**  The link warms from the actuator at its motor end (paper Fig. 7: the
+thermal images warm from the joints; +5.4 C over 5 h).  :func:`warmup_field` gives the temperature
+along the link: the motor end rises further (``gradient``) and sooner (``lag``) than the far end.
+Both parameters are assumptions read qualitatively off Fig. 7, not measured values.  The TX bond sits
+at the motor end and warms first; the wall's stiffness gradient couples modes of the same
+circumferential order (first-order Born term, :meth:`ChannelModel.gradient_greens`), so mode shapes
+change, not only frequencies.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["HotMeltBond", "warmup_field", "project_field"]
+
+
+@dataclasses.dataclass(frozen=True)
+class HotMeltBond:
+    """A piezo disc on a hot-melt (EVA) bond layer: a mounted resonance that softens with temperature.
+
+    fr_hz : mounted resonance at ``t_ref_c``.
+    tan_delta : loss tangent of the bond at ``t_ref_c`` (0.67: Q = 1.5, a broad 20-30 kHz optimum, paper Sec. III-B).
+    log10_modulus_per_k : ``d log10 E' / dT`` of the adhesive (see the module notes).
+    ln_tan_delta_per_k : ``d ln(tan delta) / dT``.
+    """
+
+    fr_hz: float = 28e3
+    tan_delta: float = 0.67
+    t_ref_c: float = 23.0
+    log10_modulus_per_k: float = -0.02
+    ln_tan_delta_per_k: float = 0.02
+
+    def modulus_ratio(self, temp_c: np.ndarray) -> np.ndarray:
+        """``E'(T) / E'(T_ref)``."""
+        return np.power(10.0, self.log10_modulus_per_k * (np.asarray(temp_c, float) - self.t_ref_c))
+
+    def resonance_hz(self, temp_c: np.ndarray) -> np.ndarray:
+        return self.fr_hz * np.sqrt(self.modulus_ratio(temp_c))
+
+    def loss_tangent(self, temp_c: np.ndarray) -> np.ndarray:
+        return self.tan_delta * np.exp(self.ln_tan_delta_per_k * (np.asarray(temp_c, float) - self.t_ref_c))
+
+    def response(self, f_hz: np.ndarray, temp_c: np.ndarray) -> np.ndarray:
+        """Transmissibility of the mounted disc, (n_temps, n_f) complex64."""
+        T = np.atleast_1d(np.asarray(temp_c, float))
+        r2 = (np.asarray(f_hz, float)[None, :] / self.resonance_hz(T)[:, None]) ** 2
+        eta = self.loss_tangent(T)[:, None]
+        return ((1 + 1j * eta) / (1 + 1j * eta - r2)).astype(np.complex64)
+
+
+def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s: float, gradient: float = 0.0,
+                 lag: float = 0.0) -> np.ndarray:
+    """Warm-up temperature rise (K) at times ``t_s`` (n,) and positions ``y_frac`` (m,) along the link, (n, m).
+
+    ``y_frac`` = 0 is the motor end, 1 the far end.  The final rise is ``warmup_c (1 + gradient (0.5 - y))``
+    and the time constant ``tau_s (1 + lag (y - 0.5))``: the link's middle follows
+    ``warmup_c (1 - exp(-t / tau_s))`` whatever ``gradient`` and ``lag`` are.
+    """
+    t = np.asarray(t_s, float)[:, None]
+    y = np.asarray(y_frac, float)[None, :]
+    amp = warmup_c * (1 + gradient * (0.5 - y))
+    tau = tau_s * np.maximum(1 + lag * (y - 0.5), 0.05)
+    return amp * (1 - np.exp(-np.maximum(t, 0) / tau))
+
+
+def project_field(field: np.ndarray, y_frac: np.ndarray, order: int = 2) -> np.ndarray:
+    """Legendre coefficients (n, order + 1) of a field (n, m) sampled on ``y_frac`` (m,) in [0, 1]:
+    ``field ~ sum_k c_k P_k(1 - 2 y)``; ``c_0`` is the mean, ``c_1`` the linear part (+: motor end
+    warmer), ``c_2`` ends vs middle."""
+    x = 1 - 2 * np.asarray(y_frac, float)
+    V = np.polynomial.legendre.legvander(x, order)  # (m, order + 1)
+    coef, *_ = np.linalg.lstsq(V, np.asarray(field, float).T, rcond=None)
+    return coef.T
