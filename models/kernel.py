@@ -74,18 +74,20 @@ class KernelVotes(nn.Module):
             raise ValueError(f"the SVM was trained on classes {list(svc.classes_)}; need every location 0..{n_locations - 1}")
         sv = np.asarray(svc.support_vectors_, np.float64)
         layer = cls(sv.shape[1], sv.shape[0], n_locations, tau=tau)
+        # scikit-learn negates a binary SVC's public dual_coef_ and intercept_ (its d > 0 means classes_[1]); libsvm's sign
+        dual, intercept = (-svc.dual_coef_, -svc.intercept_) if n_locations == 2 else (svc.dual_coef_, svc.intercept_)
         start = np.concatenate([[0], np.cumsum(svc.n_support_)])
         i_, j_ = _pairs(n_locations)
         W = np.zeros((i_.size, sv.shape[0]))
         for p, (i, j) in enumerate(zip(i_, j_)):
             # libsvm: d_ij = sum_{s in i} alpha_s^(j) k_s + sum_{s in j} alpha_s^(i) k_s + b_ij, > 0 votes for i
-            W[p, start[i]:start[i + 1]] = svc.dual_coef_[j - 1, start[i]:start[i + 1]]
-            W[p, start[j]:start[j + 1]] = svc.dual_coef_[i, start[j]:start[j + 1]]
+            W[p, start[i]:start[i + 1]] = dual[j - 1, start[i]:start[i + 1]]
+            W[p, start[j]:start[j + 1]] = dual[i, start[j]:start[j + 1]]
         with torch.no_grad():
             layer.centres.copy_(torch.from_numpy(sv))
             layer.log_gamma.fill_(float(np.log(svc._gamma)))
             layer.pairwise.weight.copy_(torch.from_numpy(W))
-            layer.pairwise.bias.copy_(torch.from_numpy(np.asarray(svc.intercept_, np.float64)))
+            layer.pairwise.bias.copy_(torch.from_numpy(np.asarray(intercept, np.float64)))
         return layer
 
     def rbf(self, z: torch.Tensor) -> torch.Tensor:

@@ -25,22 +25,24 @@ def _svm_location(pipe, X):
     return ovr_scores_from_ovo(pipe.decision_function(X), pipe[-1].classes_.size).argmax(1)
 
 
-def test_kernel_layer_reproduces_the_svm_decision_values_and_votes():
-    X, cls, _ = _toy()
+@pytest.mark.parametrize("K", [4, 2])
+def test_kernel_layer_reproduces_the_svm_decision_values_and_votes(K):
+    X, cls, _ = _toy(K=K)
     pipe = svm_pipeline().fit(X, cls)
-    layer = KernelVotes.from_svc(pipe[-1], 4)
-    Xq, _, _ = _toy(seed=1)
+    layer = KernelVotes.from_svc(pipe[-1], K)
+    Xq, _, _ = _toy(K=K, seed=1)
     z = torch.from_numpy(pipe[0].transform(Xq).astype(np.float32))
     with torch.no_grad():
         scores, phi = layer(z)
         d = layer.decision(phi).numpy()
-    np.testing.assert_allclose(d, pipe.decision_function(Xq), atol=1e-4)
+    ref = pipe.decision_function(Xq)  # libsvm order and sign; scikit-learn's binary d is the other way round
+    np.testing.assert_allclose(d, ref if K > 2 else -ref[:, None], atol=1e-4)
     # RBF activations are the kernel values exp(-gamma |z - sv|^2)
     sv = pipe[-1].support_vectors_
     k = np.exp(-pipe[-1]._gamma * ((pipe[0].transform(Xq)[:, None, :] - sv[None]) ** 2).sum(-1))
     np.testing.assert_allclose(phi.numpy(), k, atol=1e-5)
     # 2 x the SVM's one-vs-rest scores (votes, ties broken by confidence) - (K - 1): the same location
-    np.testing.assert_allclose(scores.numpy(), 2 * ovr_scores_from_ovo(pipe.decision_function(Xq), 4) - 3, atol=1e-4)
+    np.testing.assert_allclose(scores.numpy(), 2 * ovr_scores_from_ovo(ref, K) - (K - 1), atol=1e-4)
 
 
 def test_kernel_layer_rejects_what_it_cannot_copy():
