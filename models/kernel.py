@@ -63,7 +63,7 @@ class KernelVotes(nn.Module):
         self.pairwise = nn.Linear(n_centres, i.size)
         self.register_buffer("P", torch.from_numpy(P))
         self.register_buffer("tau", torch.tensor(float(tau)))
-        self.scale = nn.Parameter(torch.tensor(2.0))  # softmax(scores) = softmax(4 ovr): the runtime's SVM centroid weights
+        self.scale = nn.Parameter(torch.tensor(1.0))
 
     @classmethod
     def from_svc(cls, svc, n_locations: int, *, tau: float = 0.1) -> KernelVotes:

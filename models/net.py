@@ -21,10 +21,9 @@ class SkinNet(nn.Module):
     the exported ONNX graph takes raw features.
 
     Without a kernel layer (``n_centres=0``) it is an MLP: trunk -> (location + no-touch logits, forces).
-    With one, the trunk gives touch and no-touch logits, the kernel layer's SVM votes share the
-    touch probability among the locations (``log_softmax(votes) + touch logit``: the location is the
-    votes' winner, detection is the trunk's alone), and the force head reads the trunk and the RBF
-    activations; call :meth:`init_from_svm` before training so the layer starts as the SVM.
+    With one, the location logits are the kernel layer's (soft) SVM votes, the trunk gives the
+    no-touch logit, and the force head reads the trunk and the RBF activations; call
+    :meth:`init_from_svm` before training so the layer starts as the SVM.
 
     Parameters
     ----------
@@ -50,7 +49,7 @@ class SkinNet(nn.Module):
             width = h
         self.trunk = nn.Sequential(*layers)
         self.kernel = KernelVotes(n_in, n_centres, n_locations, tau) if n_centres else None
-        self.location = nn.Linear(width, 2 if n_centres else n_locations + 1)
+        self.location = nn.Linear(width, 1 if n_centres else n_locations + 1)
         self.force = nn.Linear(width + n_centres, n_locations)
         self.register_buffer("mean", torch.zeros(n_in))
         self.register_buffer("std", torch.ones(n_in))
@@ -77,6 +76,4 @@ class SkinNet(nn.Module):
         if self.kernel is None:
             return self.location(h), self.force(h)
         votes, phi = self.kernel(z)
-        a = self.location(h)  # (touch, no-touch) logits
-        # p(location k) = p(touch) * softmax(votes)_k: the votes place the touch, the trunk detects it
-        return torch.cat([torch.log_softmax(votes, 1) + a[:, :1], a[:, 1:]], 1), self.force(torch.cat([h, phi], 1))
+        return torch.cat([votes, self.location(h)], 1), self.force(torch.cat([h, phi], 1))
