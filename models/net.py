@@ -1,21 +1,29 @@
-"""A small network over the OSPA-selected bins: shared trunk, location head, force head."""
+"""A small network over the OSPA-selected bins: shared trunk, location head, force head, and
+optionally the SVM's kernel machine as its location layer (:class:`models.kernel.KernelVotes`)."""
 
 from __future__ import annotations
 
 import torch
 from torch import nn
 
+from .kernel import KernelVotes
+
 __all__ = ["SkinNet"]
 
 
 class SkinNet(nn.Module):
-    """MLP ``n_in -> hidden... -> (N + 1 location logits, N forces)``.
+    """``n_in -> (N + 1 location logits, N forces)``.
 
     The location head has one class per touch location plus a last *no-touch* class; the force
     head predicts the force (N) as if the touch were at each location, and the caller reads the
     entry of the (predicted or true) location, which mirrors the paper's per-location force
     models.  Feature normalisation (mean/std from the training split) is part of the module, so
     the exported ONNX graph takes raw features.
+
+    Without a kernel layer (``n_centres=0``) it is an MLP: trunk -> (location + no-touch logits, forces).
+    With one, the location logits are the kernel layer's (soft) SVM votes, the trunk gives the
+    no-touch logit, and the force head reads the trunk and the RBF activations; call
+    :meth:`init_from_svm` before training so the layer starts as the SVM.
 
     Parameters
     ----------
@@ -25,21 +33,24 @@ class SkinNet(nn.Module):
     dropout : dropout after each trunk layer (training only).
     input_dropout : dropout on the input bins (training only): no single bin can be relied on,
         as when motion noise corrupts a few of them.
+    n_centres : RBF units of the kernel layer (the SVM's support vectors); 0 = MLP only.
+    tau : softness of the kernel layer's votes.
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
-                 dropout: float = 0.1, input_dropout: float = 0.0):
+                 dropout: float = 0.1, input_dropout: float = 0.0, n_centres: int = 0, tau: float = 0.1):
         super().__init__()
-        if n_in < 1 or n_locations < 2:
-            raise ValueError(f"need n_in >= 1 and n_locations >= 2, got {n_in}, {n_locations}")
+        if n_in < 1 or n_locations < 2 or n_centres < 0:
+            raise ValueError(f"need n_in >= 1, n_locations >= 2 and n_centres >= 0, got {n_in}, {n_locations}, {n_centres}")
         layers: list[nn.Module] = [nn.Dropout(input_dropout)] if input_dropout > 0 else []
         width = n_in
         for h in hidden:
             layers += [nn.Linear(width, h), nn.GELU(), nn.Dropout(dropout)]
             width = h
         self.trunk = nn.Sequential(*layers)
-        self.location = nn.Linear(width, n_locations + 1)
-        self.force = nn.Linear(width, n_locations)
+        self.kernel = KernelVotes(n_in, n_centres, n_locations, tau) if n_centres else None
+        self.location = nn.Linear(width, 1 if n_centres else n_locations + 1)
+        self.force = nn.Linear(width + n_centres, n_locations)
         self.register_buffer("mean", torch.zeros(n_in))
         self.register_buffer("std", torch.ones(n_in))
         self.n_in, self.n_locations = n_in, n_locations
@@ -48,7 +59,21 @@ class SkinNet(nn.Module):
         self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
         self.std.copy_(torch.as_tensor(std, dtype=torch.float32).clamp_min(1e-6))
 
+    def init_from_svm(self, pipe) -> None:
+        """Start the kernel layer as a fitted scaler + RBF SVC pipeline (:func:`models.kernel.svm_pipeline`)
+        trained on this network's inputs; the network's normalisation becomes the pipeline's scaler."""
+        scaler, svc = pipe[0], pipe[-1]
+        if self.kernel is None or svc.support_vectors_.shape != tuple(self.kernel.centres.shape):
+            raise ValueError(f"the network has {0 if self.kernel is None else self.kernel.centres.shape[0]} RBF units, the "
+                             f"SVM {svc.support_vectors_.shape[0]} support vectors; build SkinNet(n_centres=...) to match")
+        self.set_normalization(scaler.mean_, scaler.scale_)
+        self.kernel.load_state_dict(KernelVotes.from_svc(svc, self.n_locations, tau=float(self.kernel.tau)).state_dict())
+
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (n, n_in) features -> (logits (n, N + 1), force (n, N) in newtons)."""
-        z = self.trunk((x - self.mean) / self.std)
-        return self.location(z), self.force(z)
+        z = (x - self.mean) / self.std
+        h = self.trunk(z)
+        if self.kernel is None:
+            return self.location(h), self.force(h)
+        votes, phi = self.kernel(z)
+        return torch.cat([votes, self.location(h)], 1), self.force(torch.cat([h, phi], 1))

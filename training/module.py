@@ -5,12 +5,22 @@ from __future__ import annotations
 import json
 
 import lightning as L
+import numpy as np
 import torch
 import torch.nn.functional as F
 
-from models import SkinNet
+from models import SkinNet, svm_pipeline
 
-__all__ = ["SkinLitModule"]
+__all__ = ["SkinLitModule", "fit_kernel_svm"]
+
+
+def fit_kernel_svm(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float = 10.0):
+    """The baseline's scaler + RBF SVC on the touch chirps (``cls < n_locations``) of a training split."""
+    touch = cls < n_locations
+    if len(np.unique(cls[touch])) != n_locations:
+        raise ValueError(f"training data touches {len(np.unique(cls[touch]))} of the {n_locations} locations; "
+                         f"record every location at least once")
+    return svm_pipeline(C).fit(np.asarray(X, np.float64)[touch], cls[touch])
 
 
 def _plain(o):
@@ -32,21 +42,40 @@ class SkinLitModule(L.LightningModule):
     force_weight : weight of the force loss (N^2) against the cross-entropy.
     noise_db : Gaussian noise on training inputs (dB), a cheap augmentation against sensor noise.
     input_dropout : dropout on the input bins.  label_smoothing : for the cross-entropy.
+    kernel : location layer = the SVM's kernel machine (:class:`models.KernelVotes`), fitted on the
+        training split (scaler + RBF SVC, C = ``svm_c``) when training starts.
+    kernel_lr : learning rate of the kernel layer; 0 keeps it the SVM's (measured best one-shot).
+    tau : softness of the kernel layer's votes.
+    n_centres : RBF units; set when the SVM is fitted (kept so a checkpoint rebuilds the same shapes).
+    svm_c : the SVM's C.
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.1, lr: float = 2e-3, weight_decay: float = 1e-4, force_weight: float = 0.1,
-                 noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0):
+                 noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
+                 kernel: bool = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0):
         super().__init__()
         self.save_hyperparameters()
-        self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout)
+        self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout, n_centres=n_centres, tau=tau)
         self.meta: dict | None = None
+
+    def init_kernel(self, X: np.ndarray, cls: np.ndarray) -> None:
+        """Fit the SVM on (X, cls) of the training split and start the kernel layer (and normalisation) from it."""
+        pipe = fit_kernel_svm(X, cls, self.hparams.n_locations, C=self.hparams.svm_c)
+        h = self.hparams
+        h.n_centres = int(pipe[-1].support_vectors_.shape[0])
+        self.model = SkinNet(h.n_in, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=h.n_centres, tau=h.tau)
+        self.model.init_from_svm(pipe)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None)
         if dm is not None and getattr(dm, "prepared", None) is not None:
             self.model.set_normalization(dm.mean, dm.std)
             self.meta = dm.meta
+            if stage == "fit" and self.hparams.kernel and self.model.kernel is None:
+                p = dm.prepared
+                tr = p["split"].mask(p["table"], "train") & p["usable"]
+                self.init_kernel(p["X"][tr], p["cls"][tr])
 
     def on_train_start(self) -> None:
         import time
@@ -67,12 +96,12 @@ class SkinLitModule(L.LightningModule):
     def forward(self, x):
         return self.model(x)
 
-    def _step(self, batch, stage: str):
-        x, cls, force = batch
-        if stage == "train" and self.hparams.noise_db > 0:
+    def loss_terms(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, *, train: bool) -> dict:
+        """The joint loss and its parts on one batch (``train`` adds the input noise and label smoothing)."""
+        if train and self.hparams.noise_db > 0:
             x = x + self.hparams.noise_db * torch.randn_like(x)
         logits, f_all = self.model(x)
-        ce = F.cross_entropy(logits, cls, label_smoothing=self.hparams.label_smoothing if stage == "train" else 0.0)
+        ce = F.cross_entropy(logits, cls, label_smoothing=self.hparams.label_smoothing if train else 0.0)
         touched = cls < self.hparams.n_locations
         has_f = touched & torch.isfinite(force)  # no force sensor: NaN, no force loss
         if has_f.any():
@@ -80,14 +109,17 @@ class SkinLitModule(L.LightningModule):
             f_loss = F.mse_loss(f_hat, force[has_f])
         else:
             f_loss = torch.zeros((), device=x.device)
-        loss = ce + self.hparams.force_weight * f_loss
         pred = logits[:, : self.hparams.n_locations].argmax(1)
         acc = (pred[touched] == cls[touched]).float().mean() if touched.any() else torch.zeros(())
         det = ((logits.argmax(1) == self.hparams.n_locations) == ~touched).float().mean()
-        self.log_dict({f"{stage}_loss": loss, f"{stage}_acc": acc, f"{stage}_force_rmse": f_loss.sqrt(),
-                       f"{stage}_detect": det}, prog_bar=stage != "train", on_epoch=True, on_step=False,
+        return {"loss": ce + self.hparams.force_weight * f_loss, "acc": acc, "force_rmse": f_loss.sqrt(), "detect": det}
+
+    def _step(self, batch, stage: str):
+        x, cls, force = batch
+        terms = self.loss_terms(x, cls, force, train=stage == "train")
+        self.log_dict({f"{stage}_{k}": v for k, v in terms.items()}, prog_bar=stage != "train", on_epoch=True, on_step=False,
                       batch_size=x.shape[0], sync_dist=True)  # DDP: every rank logs (and checkpoints by) the same mean
-        return loss
+        return terms["loss"]
 
     def training_step(self, batch, _):
         return self._step(batch, "train")
@@ -98,7 +130,19 @@ class SkinLitModule(L.LightningModule):
     def test_step(self, batch, _):
         self._step(batch, "test")
 
+    def make_optimizer(self, epochs: int):
+        """AdamW (the kernel layer at ``kernel_lr``, frozen at 0) with a cosine schedule over ``epochs``."""
+        h = self.hparams
+        kern = list(self.model.kernel.parameters()) if self.model.kernel is not None else []
+        for q in kern:
+            q.requires_grad_(h.kernel_lr > 0)
+        ids = {id(q) for q in kern}
+        groups = [{"params": [q for q in self.parameters() if id(q) not in ids]}]
+        if kern and h.kernel_lr > 0:
+            groups.append({"params": kern, "lr": h.kernel_lr, "weight_decay": 0.0})
+        opt = torch.optim.AdamW(groups, lr=h.lr, weight_decay=h.weight_decay)
+        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
+
     def configure_optimizers(self):
-        opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr, weight_decay=self.hparams.weight_decay)
-        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, self.trainer.max_epochs or 1))
+        opt, sched = self.make_optimizer(self.trainer.max_epochs or 1)
         return {"optimizer": opt, "lr_scheduler": sched}

@@ -1,0 +1,107 @@
+"""The network's kernel layer: it starts as the SVM (same decision values and predictions), trains its
+force head without moving the SVM's localization, and exports to ONNX with parity."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
+from sonicskin.baseline import ovr_scores_from_ovo  # noqa: E402
+from training.quick import fit_net  # noqa: E402
+
+
+def _toy(n_per=30, K=4, d=12, seed=0):
+    """K clusters in d dims (raw scale and offset unlike unit variance, as dB features); force scales the signature."""
+    centres = np.random.default_rng(0).normal(0, 1.0, (K, d))  # the same locations for every draw
+    rng = np.random.default_rng(100 + seed)
+    cls = np.repeat(np.arange(K), n_per)
+    force = rng.uniform(1, 10, cls.size)
+    X = 5.0 + 3.0 * (centres[cls] * (0.5 + force[:, None] / 10) + rng.normal(0, 0.35, (cls.size, d)))
+    return X.astype(np.float32), cls, force.astype(np.float32)
+
+
+def _svm_location(pipe, X):
+    return ovr_scores_from_ovo(pipe.decision_function(X), pipe[-1].classes_.size).argmax(1)
+
+
+@pytest.mark.parametrize("K", [4, 2])
+def test_kernel_layer_reproduces_the_svm_decision_values_and_votes(K):
+    X, cls, _ = _toy(K=K)
+    pipe = svm_pipeline().fit(X, cls)
+    layer = KernelVotes.from_svc(pipe[-1], K)
+    Xq, _, _ = _toy(K=K, seed=1)
+    z = torch.from_numpy(pipe[0].transform(Xq).astype(np.float32))
+    with torch.no_grad():
+        scores, phi = layer(z)
+        d = layer.decision(phi).numpy()
+    ref = pipe.decision_function(Xq)  # libsvm order and sign; scikit-learn's binary d is the other way round
+    np.testing.assert_allclose(d, ref if K > 2 else -ref[:, None], atol=1e-4)
+    # RBF activations are the kernel values exp(-gamma |z - sv|^2)
+    sv = pipe[-1].support_vectors_
+    k = np.exp(-pipe[-1]._gamma * ((pipe[0].transform(Xq)[:, None, :] - sv[None]) ** 2).sum(-1))
+    np.testing.assert_allclose(phi.numpy(), k, atol=1e-5)
+    # 2 x the SVM's one-vs-rest scores (votes, ties broken by confidence) - (K - 1): the same location
+    np.testing.assert_allclose(scores.numpy(), 2 * ovr_scores_from_ovo(ref, K) - (K - 1), atol=1e-4)
+
+
+def test_kernel_layer_rejects_what_it_cannot_copy():
+    X, cls, _ = _toy()
+    with pytest.raises(ValueError, match="RBF SVC"):
+        from sklearn.svm import SVC
+        KernelVotes.from_svc(SVC(kernel="linear").fit(X, cls), 4)
+    pipe = svm_pipeline().fit(X[cls < 3], cls[cls < 3])
+    with pytest.raises(ValueError, match="classes"):
+        KernelVotes.from_svc(pipe[-1], 4)
+    with pytest.raises(ValueError, match="support vectors"):
+        SkinNet(12, 3, n_centres=5).init_from_svm(pipe)
+
+
+def test_skinnet_starts_as_the_svm_on_raw_features():
+    X, cls, _ = _toy()
+    pipe = svm_pipeline().fit(X, cls)
+    net = SkinNet(X.shape[1], 4, n_centres=pipe[-1].support_vectors_.shape[0]).eval()
+    net.init_from_svm(pipe)
+    Xq, _, _ = _toy(seed=2)
+    with torch.no_grad():
+        logits, force = net(torch.from_numpy(Xq))
+    assert logits.shape == (len(Xq), 5) and force.shape == (len(Xq), 4)  # 4 locations + no touch
+    np.testing.assert_array_equal(logits[:, :4].numpy().argmax(1), _svm_location(pipe, Xq))
+
+
+def test_fit_net_keeps_the_svm_localization_and_learns_force():
+    X, cls, force = _toy(n_per=40)
+    rest = np.random.default_rng(3).normal(5.0, 0.3, (60, X.shape[1])).astype(np.float32)  # no-touch chirps: class K
+    Xa = np.vstack([X, rest])
+    ca = np.concatenate([cls, np.full(len(rest), 4)])
+    fa = np.concatenate([force, np.full(len(rest), np.nan, np.float32)])
+    predict = fit_net(Xa, ca, fa, n_locations=4, epochs=60, seed=0)
+    Xq, cq, fq = _toy(n_per=20, seed=4)
+    logits, f_all = predict(Xq)
+    svm = svm_pipeline().fit(X, cls)
+    np.testing.assert_array_equal(logits[:, :4].argmax(1), _svm_location(svm, Xq))  # frozen kernel layer = the SVM
+    assert (logits.argmax(1) < 4).mean() > 0.95  # touches are not called no-touch
+    rest_q = np.random.default_rng(5).normal(5.0, 0.3, (50, X.shape[1])).astype(np.float32)
+    assert (predict(rest_q)[0].argmax(1) == 4).mean() > 0.95
+    f_hat = f_all[np.arange(len(cq)), cq]
+    rmse = np.sqrt(np.mean((f_hat - fq) ** 2))
+    assert rmse < 0.7 * fq.std()  # the force head learned the force (predicting the mean: 1.0)
+
+
+def test_kernel_layer_trains_through_its_votes():
+    X, cls, _ = _toy()
+    pipe = svm_pipeline().fit(X, cls)
+    layer = KernelVotes.from_svc(pipe[-1], 4)
+    scores, _ = layer(torch.from_numpy(pipe[0].transform(X).astype(np.float32)))
+    torch.nn.functional.cross_entropy(scores, torch.from_numpy(cls)).backward()
+    assert all(q.grad is not None and torch.isfinite(q.grad).all() and q.grad.abs().sum() > 0 for q in layer.parameters())
+
+
+def test_kernel_net_exports_to_onnx_with_parity(tmp_path):
+    pytest.importorskip("onnxruntime")
+    from export.onnx import export_net
+
+    X, cls, force = _toy()
+    predict = fit_net(X, cls, force, n_locations=4, epochs=2, seed=0)
+    parity = export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
+    assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-4
