@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import ScoreCalibrator
+from .calibration import OnlineReference, ScoreCalibrator
 from .dataset import Dataset, FeatureTable
 
 __all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
@@ -50,8 +50,15 @@ class FeatureSpec:
     def calibrator(self, chirps_per_s: float) -> ScoreCalibrator:
         return ScoreCalibrator.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s)
 
+    def reference(self, chirps_per_s: float, **kw) -> OnlineReference:
+        """A fresh Alg. 2 reference for one stream (``kw``: ``score_fn``)."""
+        return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s,
+                                            relative=self.mode == "relative", **kw)
+
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
-        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams)."""
+        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams),
+        the reference from the labelled no-touch chirps: for *training* sessions.  Test streams are
+        replayed through :meth:`sonicskin.runtime.SkinRuntime.replay`."""
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
@@ -67,18 +74,38 @@ class FeatureSpec:
 
 
 def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
-                      calibrator: ScoreCalibrator, *, online: bool = True) -> np.ndarray:
-    """``X`` minus the running no-touch reference of its own session (Alg. 2 on features)."""
+                      calibrator, *, online: bool = True) -> np.ndarray:
+    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps.
+
+    Alg. 2 through :class:`~sonicskin.calibration.OnlineReference` (the object the live loop
+    runs), fed with the labels instead of a detector: the boot reference is the first ``beta``
+    consecutive ``quiet`` chirps of each session (the protocol's hands-off calibration) and
+    refreshes take the next ``beta`` quiet chirps once ``alpha`` has passed.  This is for the
+    *training* session(s), whose labels are the protocol; test streams are replayed with the
+    model's own detection (:meth:`sonicskin.runtime.SkinRuntime.replay`) and never see labels.
+    Chirps before the first reference use it too (training only).
+
+    ``calibrator`` gives beta/alpha/clock: an :class:`OnlineReference` or a :class:`ScoreCalibrator`.
+    """
+    beta = getattr(calibrator, "beta", None) or calibrator.beta_chirps
+    alpha = calibrator.alpha if isinstance(calibrator, OnlineReference) else calibrator.alpha_chirps
+    cps = calibrator.cps if isinstance(calibrator, OnlineReference) else calibrator._cps
+    X = np.asarray(X, np.float32)
     out = np.empty(X.shape, np.float32)
-    cal = calibrator if online else ScoreCalibrator(calibrator.beta_chirps, None, calibrator._cps)
     for s in np.unique(session):
-        m = session == s
-        try:
-            out[m] = cal.run(X[m], quiet[m], time_s=time_s[m])
-        except ValueError as e:
-            raise ValueError(f"session {s}: {e}; relative features need {cal.beta_chirps} consecutive hands-off chirps "
-                             f"({cal.beta_chirps / cal._cps:.0f} s) in every session, or use absolute features "
-                             f"(--mode absolute / data.mode: absolute)") from None
+        idx = np.flatnonzero(session == s)
+        ref = OnlineReference(beta, alpha if online else None, cps)
+        cur = np.full(idx.size, -1)
+        refs: list[np.ndarray] = []
+        for k, i in enumerate(idx):
+            cur[k] = len(refs) - 1
+            if ref.step(X[i], time_s[i], not quiet[i]):
+                refs.append(ref.features)
+        if not refs:
+            raise ValueError(f"session {s}: fewer than {beta} consecutive hands-off chirps to calibrate on; relative "
+                             f"features need {beta} ({beta / cps:.0f} s) in every session, or use absolute features "
+                             f"(--mode absolute / data.mode: absolute)")
+        out[idx] = X[idx] - np.stack(refs)[np.maximum(cur, 0)]
     return out
 
 

@@ -48,3 +48,55 @@ def test_detector_threshold_separates_touch_from_quiet(rng):
     assert d.predict(np.array([[5.0, 0, 0, 0, 0], [-1, -1, -1, -1, -1]])).tolist() == [True, False]
     with pytest.raises(ValueError, match="need both touch and no-touch"):
         TouchDetector().fit(np.empty((0, 5)), quiet)
+
+
+def test_online_reference_boot_and_refresh_by_detection(rng):
+    from sonicskin.calibration import OnlineReference
+
+    ref = OnlineReference(beta_chirps=5, alpha_chirps=20, chirps_per_s=10.0, score_fn=lambda x: x.sum(axis=1, keepdims=True))
+    X = rng.normal(0, 0.01, (80, 3)).astype(np.float32) + np.arange(80)[:, None]  # a drifting channel
+    touch = np.zeros(80, bool)
+    touch[22:40] = True  # a press when the refresh falls due (20 chirps after the boot's last chirp, 4)
+    t = np.arange(80) / 10.0
+    done = []
+    for i in range(80):
+        was = ref.ready
+        if ref.step(X[i], t[i], bool(touch[i]) if was else None):
+            done.append(i)
+    # Boot: chirps 0-4, taken as hands-off whatever happens; refresh: 5 no-touch chirps after the press.
+    assert done == [4, 44, 68]  # due 20 chirps after 44: chirps 64-68
+    np.testing.assert_allclose(ref.features, X[64:69].mean(0), rtol=1e-6)
+    np.testing.assert_allclose(ref.scores, [0.0], atol=1e-4)  # scores of the reference's own relative inputs
+    # Known labels during boot (a labelled training stream): the boot waits for 5 quiet chirps.
+    lab = OnlineReference(beta_chirps=5, alpha_chirps=None)
+    flags = np.r_[np.ones(3, bool), np.zeros(10, bool)]
+    assert [i for i in range(13) if lab.step(X[i], t[i], bool(flags[i]))] == [7]
+    assert not any(lab.step(X[i], t[i], False) for i in range(13, 80))  # alpha None: never refreshes
+
+
+def test_online_reference_replay_equals_chirp_by_chirp(rng):
+    from types import SimpleNamespace
+
+    from sonicskin.calibration import OnlineReference
+
+    X = rng.normal(0, 1, (400, 4)).astype(np.float32) + np.linspace(0, 3, 400)[:, None]
+    t = np.arange(400) / 10.0
+
+    def predict(inputs):  # a detector that depends on the reference
+        return SimpleNamespace(touch=np.abs(inputs).mean(axis=1) > 1.1, inputs=inputs)
+
+    a = OnlineReference(beta_chirps=6, alpha_chirps=30, chirps_per_s=10.0)
+    step_out = []
+    for i in range(400):
+        if not a.ready:
+            a.step(X[i], t[i])
+            continue
+        p = predict(a.inputs(X[i][None]))
+        step_out.append(p.inputs[0])
+        a.step(X[i], t[i], bool(p.touch[0]))
+    b = OnlineReference(beta_chirps=6, alpha_chirps=30, chirps_per_s=10.0)
+    blocks = list(b.replay(X, t, predict))
+    got = np.concatenate([out.inputs[: hi - lo] for lo, hi, out in blocks])
+    assert blocks[0][0] == 6 and blocks[-1][1] == 400 and b.refreshes == a.refreshes
+    np.testing.assert_array_equal(got, np.stack(step_out))
+    assert a.refreshes >= 4  # boot + refreshes decided on the replayed detections
