@@ -116,6 +116,18 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
     from .compare import compare_artifact, format_comparison, save_comparison
     from .rig import Layout
 
+    if a.scenario:  # several simulator and training seeds, paired interval
+        _need_train_extra("compare --scenario")
+        from .seeds import compare_seeds, format_markdown
+
+        out = Path(a.out or "reports/compare-seeds")
+        res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
+                            epochs=a.epochs)
+        print(format_markdown(res))
+        print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
+        return 0
+    if not a.data:
+        raise SystemExit("sonicskin compare: give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
     artifact = a.artifact
     if artifact is None:  # train and export both models on the same split first
         _need_train_extra("compare")
@@ -349,8 +361,15 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("compare", help="network vs SVM on the same splits: table, JSON and PNG",
                        description="Train + export both models (or load --artifact) and compare them on the test "
                                    "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size.")
-    c.add_argument("--data", required=True, help="dataset folder")
+    c.add_argument("--data", help="dataset folder")
     c.add_argument("--artifact", help="use this artifact instead of training")
+    c.add_argument("--scenario", nargs="+", metavar="NAME",
+                   help="instead of --data: simulate these scenarios with every --sim-seeds, train with every --train-seeds, "
+                        "and report mean, std and the paired net - SVM 95 %% interval (e.g. moving stationary)")
+    c.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="simulator seeds (default: 0-4)")
+    c.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1], help="network training seeds (default: 0 1)")
+    c.add_argument("--epochs", type=int, help="network epochs with --scenario (default: training.quick's)")
+    c.add_argument("--cache", default="data/seeds", help="simulated datasets for --scenario (default: data/seeds)")
     c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     c.add_argument("--test-subjects", type=int, nargs="+", help="leave-subjects-out: these people are the test set")
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")

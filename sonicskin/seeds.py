@@ -16,8 +16,12 @@ differences.  Pairs of one seed share data and the SVM, so they are not counted 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import logging
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -116,8 +120,11 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         kw = {} if epochs is None else {"epochs": epochs}
         model = _net_model(fit_net(X[usable], cls[usable], force[usable], n_locations=n, seed=int(seed), **kw))
         net_s = time.perf_counter() - t0
-        net = {"file": "net.onnx", "kind": "skinnet", "n_in": len(bins), "n_locations": n,
-               "parity": export_net(model, len(bins), work / "net.onnx", check)}
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # torch.onnx's progress lines
+            warnings.simplefilter("ignore")
+            logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+            parity = export_net(model, len(bins), work / "net.onnx", check)
+        net = {"file": "net.onnx", "kind": "skinnet", "n_in": len(bins), "n_locations": n, "parity": parity}
         skin_json(work, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=spec, min_force_n=0.5,
                   training={"data": str(ds.root), "split": split.to_dict(), "svm_train_time_s": svm_s,
                             "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm})
