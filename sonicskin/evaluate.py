@@ -65,7 +65,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     preds = {k: [] for k in ("location", "touch", "force", "location_offline")}
     for s in res["test_sessions"]:
         t = te.select(te["session"] == s)
-        p = model.predict(t.X, quiet=_quiet(t), time_s=t["time_s"], online=True)
+        p = model.predict(t.X, time_s=t["time_s"], online=True)  # Alg. 2 from its own detection, no labels
         p0 = model.predict(t.X, online=False)
         preds["location"].append(p.location)
         preds["touch"].append(p.touch)
@@ -106,19 +106,20 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log) -> dict:
     ref_tr = tr.X[_quiet(tr)].mean(axis=0)
     E_tr = energy_db(tr.X[tr_touch], all_bins, ref_tr)
     fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][tr_touch], tr["location"][tr_touch])
-    E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s) & _quiet(te)][:28])
+    beta = model.calibrator.beta_chirps  # reference: each test stream's boot calibration (its first beta chirps)
+    E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
                            for s in sorted(set(te["session"]))])
     f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)
     out["force_total_energy"] = force_report(te["force_n"][touch], f_total)
     out["force_train_r2_ospa"] = float(np.mean([c.r2 for c in model.force_.curves_.values()]))
-    # Alg. 2 applied to the features: both splits minus their own running no-touch reference.
+    # Alg. 2 applied to the features: both splits minus their own running no-touch reference, the
+    # training split's from its labelled rest, the test streams' from the SVM's own detection.
     from .features import relative_features
 
     cal = model.calibrator
     bins = model.localizer_.selected_
-    rel = {}
-    for name, t in (("train", tr), ("test", te)):
-        rel[name] = relative_features(t.X[:, bins], _quiet(t), t["session"], t["time_s"], cal)
+    rel = {"train": relative_features(tr.X[:, bins], _quiet(tr), tr["session"], tr["time_s"], cal),
+           "test": relative_features(te.X[:, bins], ~P["touch"], te["session"], te["time_s"], cal)}
     rel_model = SVMLocalizer(n_bins=len(bins)).fit(rel["train"][tr_touch], tr["location"][tr_touch])
     p_rel = rel_model.predict(rel["test"][touch])
     out["accuracy_feature_calibration"] = float(np.mean(p_rel == te["location"][touch]))

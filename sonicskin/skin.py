@@ -15,11 +15,12 @@ Inputs are dB-magnitude features (:func:`sonicskin.dsp.log_magnitude_db`).
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 
 from .baseline import SVMLocalizer
-from .calibration import ScoreCalibrator, TouchDetector
+from .calibration import OnlineReference, ScoreCalibrator, TouchDetector
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
 
@@ -86,24 +87,38 @@ class SkinSVM:
         self.force_ = PerLocationForce(self.force_model).fit(cal[touch, -1], force_n[touch], location[touch])
         return self
 
-    def predict(self, X: np.ndarray, *, quiet: np.ndarray | None = None, time_s: np.ndarray | None = None,
-                online: bool = True) -> Predictions:
-        """Predict a stream of chirps (in time order).
+    def predict(self, X: np.ndarray, *, time_s: np.ndarray | None = None, online: bool = True) -> Predictions:
+        """Predict one stream of chirps (in time order) as the running system would.
 
-        quiet : chirps known to be no-touch, used by Alg. 2 to refresh ``S_c`` (the live loop
-            uses its own detections).  With ``online=False`` or no ``quiet``, the training
-            session's reference is used throughout (no online updating).
+        ``online``: Alg. 2 through :class:`~sonicskin.calibration.OnlineReference`: the first
+        ``beta`` chirps are the boot calibration (hands off; predicted no-touch), later references
+        are refreshed every ``alpha`` from chirps this model's own detector calls no-touch.  No
+        label is used.  ``online=False``: the training session's reference throughout.
+        ``time_s``: the stream clock when it has gaps (chirp count otherwise).
         """
         raw = self._raw(X)
-        if online and quiet is not None:
-            cal = self.calibrator.run(raw, quiet, initial=self.reference_, time_s=time_s)
+        if online:
+            c = self.calibrator
+            ref = OnlineReference(c.beta_chirps, c.alpha_chirps, c._cps, relative=False)
+            clock = np.arange(len(raw)) / c._cps if time_s is None else np.asarray(time_s, float)
+            cal = np.full_like(raw, np.nan)
+
+            def detect(block):
+                d = block - ref.features
+                return SimpleNamespace(touch=self.detector_.predict(d[:, :-1]), cal=d)
+
+            for lo, hi, out in ref.replay(raw, clock, detect):
+                cal[lo:hi] = out.cal[: hi - lo]
+            boot = np.isnan(cal[:, 0])
+            cal[boot] = 0.0  # boot calibration: no touch
         else:
             cal = raw - self.reference_
+            boot = np.zeros(len(raw), bool)
         S, E = cal[:, :-1], cal[:, -1]
         # Location from the raw one-vs-rest scores: they are votes plus a confidence term, and
         # subtracting the no-touch votes S_c scrambles their argmax (measured on the simulated
         # moving robot: 96 % raw vs 33 % calibrated).  S_c serves detection and force instead.
         loc = self.localizer_.classes_[np.argmax(raw[:, :-1], axis=1)]
-        touch = self.detector_.predict(S)
+        touch = self.detector_.predict(S) & ~boot
         F = np.where(touch, np.clip(self.force_.predict(E, loc), 0, None), 0.0)
         return Predictions(loc, self.layout.coords(loc), touch, F, S, E)
