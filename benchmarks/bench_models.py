@@ -24,7 +24,7 @@ from sonicskin.runtime import SkinRuntime
 
 
 def _stats(x: np.ndarray) -> str:
-    return f"median {np.median(x) * 1e3:7.1f} us  p99 {np.percentile(x, 99) * 1e3:7.1f} us"
+    return f"median {np.median(x) * 1e6:7.0f} us  p99 {np.percentile(x, 99) * 1e6:7.0f} us"
 
 
 def main() -> None:
