@@ -181,8 +181,16 @@ def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 
         t0 = time.perf_counter()
         runs = {}
         for s in sim_seeds:
+            # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
+            done = out / "runs" / f"{name}-seed{s}.json"
+            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs}
+            if done.is_file() and json.loads(done.read_text())["key"] == key:
+                runs[int(s)] = json.loads(done.read_text())["rows"]
+                continue
             ds = scenario_dataset(name, s, cache, log=log)
             runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log)
+            done.parent.mkdir(parents=True, exist_ok=True)
+            done.write_text(json.dumps({"key": key, "rows": runs[int(s)]}))
         res["scenarios"][name] = {"runs": {str(k): v for k, v in runs.items()}, "summary": summarize(runs),
                                   "wall_s": time.perf_counter() - t0}
         save_seeds(res, out)
