@@ -210,7 +210,6 @@ class SkinRuntime:
         return score_vector(self.run(inputs)[1], self.n_locations, inputs)
 
 
-
 class SkinStream:
     """One stream through one model: band features -> Alg. 2 reference -> model -> detection -> force.
 
