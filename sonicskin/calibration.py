@@ -2,8 +2,7 @@
 
 :class:`OnlineReference` is Alg. 2 as the system runs it, fed chirp by chirp: the live loop, the
 offline replays of ``compare``/``evaluate``/``reproduce`` and the training features all go
-through it.  :class:`ScoreCalibrator` is the older batch form driven by *given* no-touch flags,
-kept for synthetic tests of the schedule.
+through it (a labelled training session feeds it its known no-touch chirps instead of detections).
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 from sklearn.metrics import roc_curve
 
-__all__ = ["OnlineReference", "ScoreCalibrator", "TouchDetector"]
+__all__ = ["OnlineReference", "TouchDetector"]
 
 
 class OnlineReference:
@@ -129,93 +128,6 @@ class OnlineReference:
                     break
             yield i, j, out
             i = j
-
-
-class ScoreCalibrator:
-    """Subtract the mean score of recent no-touch chirps: ``S_final = S - S_c`` (Alg. 2).
-
-    ``S_c`` is the mean score over ``beta_chirps`` no-touch chirps, taken at start-up and
-    again every ``alpha_chirps`` chirps of stream time.  Time is counted in chirps so a
-    replayed stream calibrates exactly as the live loop does (paper: beta = 3 s = 28 chirps,
-    alpha = 20 min = 11250 chirps at 9.375 chirps/s).
-
-    Parameters
-    ----------
-    beta_chirps : chirps averaged into one reference.
-    alpha_chirps : chirps between refreshes; ``None`` never refreshes after the first.
-    """
-
-    def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375):
-        if int(beta_chirps) < 1:
-            raise ValueError(f"beta_chirps must be >= 1, got {beta_chirps}")
-        if alpha_chirps is not None and int(alpha_chirps) < 1:
-            raise ValueError(f"alpha_chirps must be >= 1 or None, got {alpha_chirps}")
-        self.beta_chirps = int(beta_chirps)
-        self.alpha_chirps = None if alpha_chirps is None else int(alpha_chirps)
-        self._cps = float(chirps_per_s)
-
-    @classmethod
-    def from_seconds(cls, *, beta_s: float, alpha_s: float | None, chirps_per_s: float) -> ScoreCalibrator:
-        return cls(max(1, round(beta_s * chirps_per_s)),
-                   None if alpha_s is None else max(1, round(alpha_s * chirps_per_s)), chirps_per_s)
-
-    def reference_times(self, quiet: np.ndarray, time_s: np.ndarray | None = None) -> list[tuple[int, np.ndarray]]:
-        """When each reference becomes valid and which chirps it averages.
-
-        Returns a list of ``(valid_from, chirp_indices)``: the first reference uses the first
-        ``beta`` consecutive quiet chirps; each later one falls due ``alpha`` chirps after the
-        previous one began and takes the next ``beta`` consecutive quiet chirps (a touch only
-        delays it).
-        """
-        quiet = np.asarray(quiet, dtype=bool)
-        # Stream time in chirp periods; recordings with gaps pass their clock as time_s.
-        clock = np.arange(quiet.size, dtype=float) if time_s is None else np.asarray(time_s, float) * self._cps
-        # Starts of runs of beta consecutive quiet chirps (a reference is 3 s of uninterrupted rest).
-        c = np.r_[0, np.cumsum(quiet)]
-        b = self.beta_chirps
-        starts = np.flatnonzero(c[b:] - c[:-b] == b) if quiet.size >= b else np.empty(0, int)
-        out: list[tuple[int, np.ndarray]] = []
-        due = -np.inf
-        while True:
-            cand = starts[clock[starts] >= due]
-            if cand.size == 0:
-                break
-            first = int(cand[0])
-            out.append((first + b, np.arange(first, first + b)))
-            if self.alpha_chirps is None:
-                break
-            due = clock[first] + self.alpha_chirps
-        return out
-
-    def run(self, scores: np.ndarray, quiet: np.ndarray, *, initial: np.ndarray | None = None,
-            time_s: np.ndarray | None = None) -> np.ndarray:
-        """Calibrate a stream of scores as the live loop would.
-
-        Parameters
-        ----------
-        scores : (n, K) raw scores in stream order.
-        quiet : (n,) bool, chirps known (or detected) to be no-touch.
-        initial : (K,) reference used before the first one is complete (e.g. the training
-            session's); without it those chirps use the first reference.
-        time_s : (n,) stream clock in seconds when the stream has gaps; chirp count otherwise.
-
-        Returns
-        -------
-        (n, K) calibrated scores.
-        """
-        scores = np.asarray(scores, dtype=np.float64)
-        quiet = np.asarray(quiet, dtype=bool)
-        if quiet.shape != scores.shape[:1]:
-            raise ValueError(f"quiet has {quiet.size} flags for {scores.shape[0]} chirps")
-        refs = self.reference_times(quiet, time_s)
-        if not refs and initial is None:
-            raise ValueError(f"the stream has fewer than beta={self.beta_chirps} no-touch chirps to calibrate on")
-        ref = np.empty_like(scores)
-        first = np.asarray(initial, float) if initial is not None else scores[refs[0][1]].mean(axis=0)
-        ref[:] = first
-        for valid_from, idx in refs:
-            ref[valid_from:] = scores[idx].mean(axis=0)
-        return scores - ref
 
 
 class TouchDetector:

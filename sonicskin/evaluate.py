@@ -106,7 +106,7 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log) -> dict:
     ref_tr = tr.X[_quiet(tr)].mean(axis=0)
     E_tr = energy_db(tr.X[tr_touch], all_bins, ref_tr)
     fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][tr_touch], tr["location"][tr_touch])
-    beta = model.calibrator.beta_chirps  # reference: each test stream's boot calibration (its first beta chirps)
+    beta = model.calibrator.beta  # reference: each test stream's boot calibration (its first beta chirps)
     E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
                            for s in sorted(set(te["session"]))])
     f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import OnlineReference, ScoreCalibrator
+from .calibration import OnlineReference
 from .dataset import Dataset, FeatureTable
 
 __all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
@@ -47,9 +47,6 @@ class FeatureSpec:
         if self.mode not in MODES:
             raise ValueError(f"feature mode must be one of {MODES}, got {self.mode!r}")
 
-    def calibrator(self, chirps_per_s: float) -> ScoreCalibrator:
-        return ScoreCalibrator.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s)
-
     def reference(self, chirps_per_s: float, **kw) -> OnlineReference:
         """A fresh Alg. 2 reference for one stream (``kw``: ``score_fn``)."""
         return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s,
@@ -62,7 +59,7 @@ class FeatureSpec:
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
-        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.calibrator(chirps_per_s),
+        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s),
                                  online=online)
 
     def to_dict(self) -> dict:
@@ -74,7 +71,7 @@ class FeatureSpec:
 
 
 def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
-                      calibrator, *, online: bool = True) -> np.ndarray:
+                      calibrator: OnlineReference, *, online: bool = True) -> np.ndarray:
     """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps.
 
     Alg. 2 through :class:`~sonicskin.calibration.OnlineReference` (the object the live loop
@@ -85,11 +82,10 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     model's own detection (:meth:`sonicskin.runtime.SkinRuntime.replay`) and never see labels.
     Chirps before the first reference use it too (training only).
 
-    ``calibrator`` gives beta/alpha/clock: an :class:`OnlineReference` or a :class:`ScoreCalibrator`.
+    ``calibrator`` gives beta, alpha and the clock (a fresh reference is made per session);
+    ``online=False`` keeps the boot reference throughout.
     """
-    beta = getattr(calibrator, "beta", None) or calibrator.beta_chirps
-    alpha = calibrator.alpha if isinstance(calibrator, OnlineReference) else calibrator.alpha_chirps
-    cps = calibrator.cps if isinstance(calibrator, OnlineReference) else calibrator._cps
+    beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
     X = np.asarray(X, np.float32)
     out = np.empty(X.shape, np.float32)
     for s in np.unique(session):

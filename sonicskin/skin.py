@@ -20,7 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from .baseline import SVMLocalizer
-from .calibration import OnlineReference, ScoreCalibrator, TouchDetector
+from .calibration import OnlineReference, TouchDetector
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
 
@@ -46,15 +46,15 @@ class SkinSVM:
     n_bins : OSPA gamma.  C : SVM regularisation.
     force_model : curve model for force (``fourier1`` as in the paper).
     min_force_n : a chirp counts as a touch for training when its force is at least this.
-    calibrator : Alg. 2 settings (``beta``/``alpha`` in chirps).
+    calibrator : Alg. 2 settings (``beta``/``alpha`` in chirps); every predicted stream gets a fresh copy.
     """
 
     def __init__(self, rig: Rig, layout: Layout, *, n_bins: int = 300, C: float = 10.0,
                  force_model: str = "fourier1", min_force_n: float = 0.5,
-                 calibrator: ScoreCalibrator | None = None):
+                 calibrator: OnlineReference | None = None):
         self.rig, self.layout = rig, layout
         self.n_bins, self.C, self.force_model, self.min_force_n = n_bins, C, force_model, min_force_n
-        self.calibrator = calibrator or ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=1200.0,
+        self.calibrator = calibrator or OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0,
                                                                      chirps_per_s=rig.chirps_per_s)
 
     def _raw(self, X: np.ndarray) -> np.ndarray:
@@ -99,8 +99,8 @@ class SkinSVM:
         raw = self._raw(X)
         if online:
             c = self.calibrator
-            ref = OnlineReference(c.beta_chirps, c.alpha_chirps, c._cps, relative=False)
-            clock = np.arange(len(raw)) / c._cps if time_s is None else np.asarray(time_s, float)
+            ref = OnlineReference(c.beta, c.alpha, c.cps, relative=False)
+            clock = np.arange(len(raw)) / c.cps if time_s is None else np.asarray(time_s, float)
             cal = np.full_like(raw, np.nan)
 
             def detect(block):

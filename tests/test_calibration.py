@@ -1,42 +1,42 @@
 import numpy as np
 import pytest
 
-from sonicskin.calibration import ScoreCalibrator, TouchDetector
+from sonicskin.calibration import OnlineReference, TouchDetector
+from sonicskin.features import relative_features
 
 
-def test_calibration_cancels_an_injected_drift(rng):
+def test_labelled_reference_cancels_an_injected_drift(rng):
+    """Training sessions: Alg. 2 on the features from the known no-touch chirps (relative_features)."""
     n, K = 6000, 4
     t = np.arange(n)
-    drift = np.outer(t / n, [3.0, -2.0, 1.0, 0.5])  # slow temperature drift of the scores
+    drift = np.outer(t / n, [3.0, -2.0, 1.0, 0.5])  # slow temperature drift of the features
     quiet = np.ones(n, bool)
     for start in rng.choice(np.arange(100, n - 40, 40), 30, replace=False):
         quiet[start : start + 30] = False  # 30 presses of 3 s
-    scores = drift + rng.normal(0, 0.05, (n, K))
-    scores[~quiet, 1] += 5  # touches at location 1
-    cal = ScoreCalibrator(beta_chirps=28, alpha_chirps=500).run(scores, quiet)
+    X = drift + rng.normal(0, 0.05, (n, K))
+    X[~quiet, 1] += 5  # touches at location 1
+    session, clock = np.zeros(n, int), t / 10.0
+    cal = relative_features(X, quiet, session, clock, OnlineReference(28, 500, 10.0))
     # Quiet chirps stay near zero despite a drift of up to 3: residual <= drift over one alpha.
     assert np.abs(cal[quiet]).max() < 3.0 * 600 / n + 0.3
-    assert np.abs(scores[quiet] - scores[quiet][:28].mean(0)).max() > 2.5  # no refresh: drift stays
-    # Touches still stand out.
-    assert np.all(cal[~quiet, 1] > 4)
-    never = ScoreCalibrator(beta_chirps=28, alpha_chirps=None).run(scores, quiet)
+    assert np.abs(X[quiet] - X[quiet][:28].mean(0)).max() > 2.5  # no refresh: drift stays
+    assert np.all(cal[~quiet, 1] > 4)  # touches still stand out
+    never = relative_features(X, quiet, session, clock, OnlineReference(28, 500, 10.0), online=False)
     assert np.abs(never[quiet][-100:]).max() > 2.0
+    with pytest.raises(ValueError, match="session 0: fewer than 28 consecutive hands-off chirps"):
+        relative_features(X[:20], quiet[:20], session[:20], clock[:20], OnlineReference(28, 500, 10.0))
 
 
-def test_reference_schedule_waits_for_quiet(rng):
-    quiet = np.ones(100, bool)
-    quiet[50:70] = False  # a touch when the refresh falls due
-    refs = ScoreCalibrator(beta_chirps=5, alpha_chirps=48).reference_times(quiet)
-    assert [list(r[1]) for r in refs[:2]] == [[0, 1, 2, 3, 4], [70, 71, 72, 73, 74]]
-    assert refs[1][0] == 75  # valid after its last chirp
-    # With a clock, alpha counts seconds of stream time across gaps.
-    cal = ScoreCalibrator.from_seconds(beta_s=1.0, alpha_s=60.0, chirps_per_s=10.0)
-    assert (cal.beta_chirps, cal.alpha_chirps) == (10, 600)
-    times = np.r_[np.arange(20) / 10, 1000 + np.arange(20) / 10]
-    refs = cal.reference_times(np.ones(40, bool), times)
-    assert [int(r[1][0]) for r in refs] == [0, 20]
-    with pytest.raises(ValueError, match="fewer than beta=28 no-touch chirps"):
-        ScoreCalibrator().run(np.zeros((10, 3)), np.ones(10, bool))
+def test_reference_clock_counts_stream_time_across_gaps():
+    ref = OnlineReference.from_seconds(beta_s=1.0, alpha_s=60.0, chirps_per_s=10.0)
+    assert (ref.beta, ref.alpha) == (10, 600)
+    times = np.r_[np.arange(20) / 10, 1000 + np.arange(20) / 10]  # a recording with a 1000 s gap
+    x = np.arange(40, dtype=float)[:, None]
+    done = [i for i in range(40) if ref.step(x[i], times[i], False if ref.ready else None)]
+    assert done == [9, 29]  # boot on chirps 0-9; after the gap alpha has passed: chirps 20-29
+    np.testing.assert_allclose(ref.features, [24.5])
+    with pytest.raises(RuntimeError, match="no reference yet"):
+        OnlineReference().inputs(np.zeros(3))
 
 
 def test_detector_threshold_separates_touch_from_quiet(rng):
@@ -51,8 +51,6 @@ def test_detector_threshold_separates_touch_from_quiet(rng):
 
 
 def test_online_reference_boot_and_refresh_by_detection(rng):
-    from sonicskin.calibration import OnlineReference
-
     ref = OnlineReference(beta_chirps=5, alpha_chirps=20, chirps_per_s=10.0, score_fn=lambda x: x.sum(axis=1, keepdims=True))
     X = rng.normal(0, 0.01, (80, 3)).astype(np.float32) + np.arange(80)[:, None]  # a drifting channel
     touch = np.zeros(80, bool)
@@ -76,8 +74,6 @@ def test_online_reference_boot_and_refresh_by_detection(rng):
 
 def test_online_reference_replay_equals_chirp_by_chirp(rng):
     from types import SimpleNamespace
-
-    from sonicskin.calibration import OnlineReference
 
     X = rng.normal(0, 1, (400, 4)).astype(np.float32) + np.linspace(0, 3, 400)[:, None]
     t = np.arange(400) / 10.0
