@@ -373,7 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     c.add_argument("--test-subjects", type=int, nargs="+", help="leave-subjects-out: these people are the test set")
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
-    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>)")
+    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>; reports/compare-seeds with --scenario)")
     c.set_defaults(func=cmd_compare, passthrough=True)
 
     f = sub.add_parser("fit-svm", help="SVM-only artifact from a recording, no torch needed",
