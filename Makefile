@@ -1,13 +1,23 @@
 # Two commands for a fresh machine (see README): `make demo` and `make test`.
-PY ?= python3
-PIP := $(PY) -m pip
+# Both install into a project virtual environment (.venv, created if missing), never into the
+# python3 on PATH. Another environment: `make test VENV=/path/to/env`.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
 DATA ?= data
 REPORTS ?= reports
 
-.PHONY: install demo test lint bench clean
+.PHONY: install demo test deploy-check lint bench clean
 
-install:
-	$(PIP) install -q -c constraints.txt -e ".[train,dev]"
+$(PY):
+	$(PYTHON) -m venv $(VENV)
+
+# Re-installs when pyproject.toml or constraints.txt change (constraints.txt: torch is the 2.13.0 CPU build).
+$(VENV)/.installed: pyproject.toml constraints.txt | $(PY)
+	$(PY) -m pip install -q -c constraints.txt -e ".[train,dev]"
+	touch $@
+
+install: $(VENV)/.installed
 
 # The main job on the simulated rig: a moving robot, 31 markers 1.2 cm apart; the paper's SVM
 # pipeline with its ablations, then the network and the SVM trained on the same split, exported
@@ -20,10 +30,14 @@ demo: install
 test: install
 	$(PY) -m pytest -q
 
-lint:
+# The deployment install: a wheel into a fresh venv without torch, then info, fit-svm and live.
+deploy-check: install
+	PY=$(PY) PYTHON=$(PYTHON) .ci/deploy-check
+
+lint: install
 	$(PY) -m ruff check sonicskin models training export tests benchmarks
 
-bench:
+bench: install
 	$(PY) benchmarks/bench_pipeline.py
 
 clean:

@@ -12,7 +12,7 @@ import sonicskin
 from sonicskin.artifact import PARITY_TOL, ort_session, skin_json, svm_entry
 from sonicskin.features import FeatureSpec, Split, model_inputs, training_targets
 from sonicskin.rig import Layout
-from training.module import SkinLitModule
+from training.checkpoint import load_checkpoint
 
 __all__ = ["export_artifact", "export_net"]
 
@@ -43,10 +43,8 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     The SVM is trained here on the checkpoint's training split and inputs, so both models in the
     artifact see exactly the same bins, reference and sessions.
     """
-    lit = SkinLitModule.load_from_checkpoint(str(ckpt), map_location="cpu", weights_only=False)
+    lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
     meta = lit.meta
-    if not meta:
-        raise ValueError(f"{ckpt} has no sonicskin metadata; train it with `sonicskin train`")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     spec = FeatureSpec.from_dict(meta["spec"])

@@ -18,11 +18,11 @@ import numpy as np
 from . import __version__
 from .baseline import ovr_scores_from_ovo
 from .features import prepare, quiet_mask
+from .schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, ArtifactError, check_session, model_file, validate_skin
 from .svm_head import _pairwise, fit_svm_head
 
 __all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "sha256", "ort_session", "export_svm", "skin_json", "build_svm_artifact"]
 
-ARTIFACT_FORMAT = "sonicskin-artifact"
 PARITY_TOL = 1e-4
 
 
@@ -65,13 +65,29 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
 
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict) -> dict:
-    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters)."""
+    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters).
+
+    The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
+    width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
+    the runtime would refuse.
+    """
+    out = Path(out)
     for entry in models.values():
-        entry["sha256"] = sha256(Path(out) / entry["file"])
-    skin = {"format": ARTIFACT_FORMAT, "version": 1, "sonicskin_version": __version__, "rig": rig, "layout": layout,
-            "features": spec.to_dict(), "min_force_n": min_force_n,
+        entry["sha256"] = sha256(out / entry["file"])
+    skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
+            "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training, "models": models}
-    (Path(out) / "skin.json").write_text(json.dumps(skin, indent=1))
+    skin = validate_skin(json.loads(json.dumps(skin)), source=str(out / "skin.json (being written)"))
+    try:
+        text = json.dumps(skin, indent=1, allow_nan=False)  # NaN/Infinity are not JSON: refuse rather than write them
+    except ValueError as e:
+        raise ArtifactError(f"{out / 'skin.json'} would hold a NaN or infinite value outside the checked fields ({e})") from None
+    for name in models:
+        model_file(out, skin, name)
+        check_session(ort_session(out / models[name]["file"]), skin, name, source=str(out / models[name]["file"]))
+    tmp = out / "skin.json.tmp"
+    tmp.write_text(text)
+    tmp.replace(out / "skin.json")
     return skin
 
 

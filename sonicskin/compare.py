@@ -12,6 +12,7 @@ from .dataset import Dataset, FeatureTable
 from .features import load_features_cached, touch_mask
 from .metrics import error_cdf, force_report, localization_report
 from .runtime import Predictions, SkinRuntime
+from .schema import load_skin
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison"]
 
@@ -56,25 +57,37 @@ def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
     return Predictions.concat(parts)
 
 
-def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5) -> dict:
+def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
+    """Table I on the selected chirps, or why force is absent (no force sensor: NaN or constant force)."""
+    g = f_true[sel]
+    if not np.isfinite(g).any() or not np.isfinite(f_pred[sel]).any():
+        return {"measurable": False, "reason": "absent: no force sensor (force_n is empty/NaN)"}
+    if np.ptp(g[np.isfinite(g)]) == 0:
+        return {"measurable": False, "reason": f"absent: force_n is constant ({g[np.isfinite(g)][0]:g} N)"}
+    return force_report(g, f_pred[sel])
+
+
+def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
     """Localization, continuous position, force and detection of replayed predictions ``p`` of the
-    chirps of ``t`` (same order).  Chirps of the boot calibration count as predicted no-touch for
-    missed touches and are left out of false touches (nothing could be detected there)."""
+    chirps of ``t`` (same order).  The boot calibration's chirps (no prediction) count as missed
+    touches and are left out of everything else.  ``detection=False``: the model has no detector
+    (a table of touches only), or the data has no hands-off chirps: detection is not measurable."""
     touch = touch_mask(t, min_force_n)
-    no_touch = (t["location"] < 0) & ~p.calibrating
-    L = localization_report(t["location"][touch], p.location[touch], layout)
+    run = ~p.calibrating
+    no_touch = (t["location"] < 0) & run
+    L = localization_report(t["location"][touch & run], p.location[touch & run], layout)
     true_xy = np.column_stack([t["x_cm"], t["y_cm"]])
-    ok_xy = touch & np.isfinite(p.xy_cm).all(axis=1)
+    ok_xy = touch & run & np.isfinite(p.xy_cm).all(axis=1)
     cont = layout.distance_cm(p.xy_cm[ok_xy], true_xy[ok_xy])
-    has_f = touch & p.touch & np.isfinite(t["force_n"])
     return {
         "localization": {k: v for k, v in L.items() if k != "errors_cm"},
         "errors_cm": L["errors_cm"].tolist(),
         "continuous_error_cm": {"median": float(np.median(cont)) if cont.size else float("nan"),
                                 "mean": float(np.mean(cont)) if cont.size else float("nan")},
-        "force": force_report(t["force_n"][has_f], p.force_n[has_f]),
-        "detection": {"false_touch_rate": float(np.mean(p.touch[no_touch])) if no_touch.any() else float("nan"),
-                      "missed_touch_rate": float(np.mean(~p.touch[touch])) if touch.any() else float("nan")},
+        "force": _force(t["force_n"], p.force_n, touch & p.touch),
+        "detection": ({"false_touch_rate": float(np.mean(p.touch[no_touch])), "missed_touch_rate": float(np.mean(~p.touch[touch]))}
+                      if no_touch.any() and touch.any() and detection else
+                      {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}),
     }
 
 
@@ -87,7 +100,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     touch detection.  No test label reaches a model or its reference.
     """
     art = Path(artifact)
-    meta = json.loads((art / "skin.json").read_text())
+    meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
     rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
@@ -98,12 +111,17 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     te = t.select(np.isin(t["session"], test))
     for k, rt in rts.items():
         p = replay_sessions(rt, te, test)
-        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5))
+        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
+                           detection=meta["models"]["svm"].get("detection", True))
         r["latency"] = chirp_latency(rt, te.X, te["time_s"]) if latency else None
         r["model_bytes"] = int((art / rt.m["file"]).stat().st_size)
         r["train_time_s"] = meta["training"].get(f"{k}_train_time_s")
         res["models"][k] = r
     return res
+
+
+def _or_na(d: dict, fmt) -> str:
+    return "n/a" if d.get("measurable") is False else fmt(d)
 
 
 def format_comparison(res: dict, title: str = "") -> str:
@@ -112,11 +130,11 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("error < 2 cm", lambda r: f"{r['localization']['within_2cm']:.1%}"),
         ("error < 3 cm", lambda r: f"{r['localization']['within_3cm']:.1%}"),
         ("continuous xy error (median)", lambda r: f"{r['continuous_error_cm']['median']:.2f} cm"),
-        ("force RMSE", lambda r: f"{r['force']['rmse_n']:.2f} N"),
-        ("force sigma", lambda r: f"{r['force']['sigma_n']:.2f} N"),
-        ("force cross-correlation", lambda r: f"{r['force']['xcorr']:.1%}"),
-        ("false touches", lambda r: f"{r['detection']['false_touch_rate']:.2%}"),
-        ("missed touches", lambda r: f"{r['detection']['missed_touch_rate']:.2%}"),
+        ("force RMSE", lambda r: _or_na(r["force"], lambda d: f"{d['rmse_n']:.2f} N")),
+        ("force sigma", lambda r: _or_na(r["force"], lambda d: f"{d['sigma_n']:.2f} N")),
+        ("force cross-correlation", lambda r: _or_na(r["force"], lambda d: f"{d['xcorr']:.1%}")),
+        ("false touches", lambda r: _or_na(r["detection"], lambda d: f"{d['false_touch_rate']:.2%}")),
+        ("missed touches", lambda r: _or_na(r["detection"], lambda d: f"{d['missed_touch_rate']:.2%}")),
         ("ONNX model per chirp, median", lambda r: f"{r['latency']['onnx_median_ms'] * 1e3:.0f} us"),
         ("ONNX model per chirp, p99", lambda r: f"{r['latency']['onnx_p99_ms'] * 1e3:.0f} us"),
         ("inputs -> touch/xy/force, median", lambda r: f"{r['latency']['median_ms'] * 1e3:.0f} us"),
@@ -129,6 +147,9 @@ def format_comparison(res: dict, title: str = "") -> str:
     out = [title or f"{res['data']} (test sessions {', '.join(res['test_sessions'])})",
            f"  {'':{w}}  {'network':>12}  {'SVM':>12}"]
     out += [f"  {name:{w}}  {fmt(net):>12}  {fmt(svm):>12}" for name, fmt in rows]
+    for key, what in (("force", "force"), ("detection", "detection")):
+        if net[key].get("measurable") is False:
+            out.append(f"  {what}: {net[key]['reason']}")
     speed = svm["latency"]["onnx_median_ms"] / net["latency"]["onnx_median_ms"]
     speed2 = svm["latency"]["median_ms"] / net["latency"]["median_ms"]
     out.append(f"  per chirp, the network is {speed:.1f}x faster than the SVM in onnxruntime ({speed2:.1f}x with "

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
+from .errors import SonicskinError
 from .rig import Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "DatasetError", "DatasetWriter", "Dataset", "FeatureTable"]
@@ -43,7 +44,7 @@ COLUMNS: dict[str, type] = {
 _PART = re.compile(r"part-(\d{5})\.csv$")
 
 
-class DatasetError(ValueError):
+class DatasetError(SonicskinError):
     """A dataset folder that cannot be read as it is; the message says what and where."""
 
 
@@ -157,6 +158,65 @@ class FeatureTable:
             return cls(z["X"], {k[6:]: z[k] for k in z.files if k.startswith("label_")})
 
 
+# Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time.
+_MAX_N_CHIRP = 1 << 22
+_MAX_FS_HZ = 10e6
+_MAX_LOCATIONS = 100_000
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+
+
+def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
+    """Validate a parsed ``dataset.json`` completely; returns its rig and layout.
+
+    Raises :class:`DatasetError` naming the field and what it should be.
+    """
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path}: expected a JSON object with format, version, rig and layout, got a JSON "
+                           f"{type(meta).__name__}; the file is corrupt (re-create the dataset)")
+    if meta.get("format") != FORMAT:
+        raise DatasetError(f"{path}: format is {meta.get('format')!r}, expected {FORMAT!r}")
+    if meta.get("version") != VERSION or isinstance(meta.get("version"), bool):
+        raise DatasetError(f"{path}: dataset version {meta.get('version')!r} is not supported "
+                           f"(this sonicskin reads version {VERSION})")
+    for key in ("rig", "layout"):
+        if not isinstance(meta.get(key), dict):
+            raise DatasetError(f"{path}: {key!r} must be a JSON object, got {type(meta.get(key)).__name__}")
+    if not isinstance(meta.get("source", {}), dict):
+        raise DatasetError(f"{path}: 'source' must be a JSON object, got {type(meta['source']).__name__}")
+    r = meta["rig"]
+    for k in ("fs_hz", "f_lo_hz", "f_hi_hz", "pwm_halfwidth_hz", "amplitude"):
+        if k in r and not _is_number(r[k]):
+            raise DatasetError(f"{path}: rig.{k} must be a finite number, got {r[k]!r}")
+    if "n_chirp" in r and not (isinstance(r["n_chirp"], int) and not isinstance(r["n_chirp"], bool)
+                               and 64 <= r["n_chirp"] <= _MAX_N_CHIRP):
+        raise DatasetError(f"{path}: rig.n_chirp must be a whole number of samples in 64..{_MAX_N_CHIRP}, got {r['n_chirp']!r}")
+    if "fs_hz" in r and not 0 < r["fs_hz"] <= _MAX_FS_HZ:
+        raise DatasetError(f"{path}: rig.fs_hz must be in (0, {_MAX_FS_HZ:g}] Hz, got {r['fs_hz']!r}")
+    if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(_is_number, r["pwm_hz"]))):
+        raise DatasetError(f"{path}: rig.pwm_hz must be a list of frequencies in Hz, got {r['pwm_hz']!r}")
+    for k in ("name", "sweep_b64"):
+        if r.get(k) is not None and not isinstance(r[k], str):
+            raise DatasetError(f"{path}: rig.{k} must be a text, got {r[k]!r}")
+    lay = meta["layout"]
+    ids, xy = lay.get("ids"), lay.get("xy_cm")
+    if not (isinstance(ids, list) and 0 < len(ids) <= _MAX_LOCATIONS
+            and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in ids)):
+        raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
+    if not (isinstance(xy, list) and len(xy) == len(ids)
+            and all(isinstance(p, list) and len(p) == 2 and all(map(_is_number, p)) for p in xy)):
+        raise DatasetError(f"{path}: layout.xy_cm must list one [x, y] pair of numbers per id ({len(ids)})")
+    c = lay.get("circumference_cm")
+    if c is not None and not (_is_number(c) and c > 0):
+        raise DatasetError(f"{path}: layout.circumference_cm must be a positive number or null, got {c!r}")
+    try:
+        return Rig.from_dict(r), Layout.from_dict(lay)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:
+        raise DatasetError(f"{path}: bad rig or layout metadata ({e})") from None
+
+
 class Dataset:
     """Read and validate a dataset folder."""
 
@@ -168,18 +228,9 @@ class Dataset:
                                f"(create one with `sonicskin simulate` or `sonicskin record`)")
         try:
             self.meta = json.loads(meta_path.read_text())
-        except json.JSONDecodeError as e:
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise DatasetError(f"{meta_path} is not valid JSON ({e}); the file is corrupt") from None
-        if self.meta.get("format") != FORMAT:
-            raise DatasetError(f"{meta_path}: format is {self.meta.get('format')!r}, expected {FORMAT!r}")
-        if self.meta.get("version") != VERSION:
-            raise DatasetError(f"{meta_path}: dataset version {self.meta.get('version')} is not supported "
-                               f"(this sonicskin reads version {VERSION})")
-        try:
-            self.rig = Rig.from_dict(self.meta["rig"])
-            self.layout = Layout.from_dict(self.meta["layout"])
-        except (KeyError, TypeError, ValueError) as e:
-            raise DatasetError(f"{meta_path}: bad rig or layout metadata ({e})") from None
+        self.rig, self.layout = check_meta(self.meta, meta_path)
 
     @property
     def sessions(self) -> list[str]:
@@ -196,8 +247,12 @@ class Dataset:
         return out
 
     def _read_labels(self, path: Path) -> dict[str, np.ndarray]:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
+        try:
+            with open(path, newline="", encoding="utf-8") as fh:
+                rows = list(csv.reader(fh))
+        except (UnicodeDecodeError, csv.Error) as e:
+            raise DatasetError(f"{path}: not a readable labels CSV ({e}); delete this part and the ones after it "
+                               f"and record them again (--resume)") from None
         if not rows or rows[0] != list(COLUMNS):
             raise DatasetError(f"{path}: header must be {','.join(COLUMNS)}; got {','.join(rows[0]) if rows else 'nothing'}")
         body = rows[1:]
@@ -210,6 +265,20 @@ class Dataset:
                 raise DatasetError(f"{path}: column {name!r} has a bad value ({e})") from None
         return out
 
+    def _check_session_json(self, session: str) -> None:
+        """``session.json`` (written last, when the session is complete) must be a JSON object
+        ``{"complete": true, ...}`` when present."""
+        path = self.root / session / "session.json"
+        if not path.exists():
+            return
+        try:
+            info = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError, OSError) as e:
+            raise DatasetError(f"{path} is corrupt ({e}); delete it to treat the session as unfinished") from None
+        if not isinstance(info, dict) or info.get("complete") is not True:
+            raise DatasetError(f"{path}: expected a JSON object with \"complete\": true; delete it to treat the "
+                               f"session as unfinished")
+
     def read_session(self, session: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The session's chirp-aligned frames (n, n_chirp) float32 and their labels."""
         import soundfile as sf
@@ -217,6 +286,7 @@ class Dataset:
         parts = self.parts(session)
         if not parts:
             raise DatasetError(f"{self.root / session}: no complete part")
+        self._check_session_json(session)
         audio, labels = [], []
         for p in parts:
             fpath = self.root / session / f"part-{p:05d}.flac"

@@ -42,34 +42,76 @@ def _quiet(t: FeatureTable) -> np.ndarray:
 
 
 def _touch(t: FeatureTable, min_force_n: float) -> np.ndarray:
-    return (t["location"] >= 0) & (t["force_n"] >= min_force_n)
+    """Touch chirps: a location and at least ``min_force_n``, or any force without a force sensor (NaN)."""
+    f = t["force_n"]
+    return (t["location"] >= 0) & ((f >= min_force_n) | np.isnan(f))
+
+
+NOT_MEASURABLE = "not measurable on this data"
+
+
+def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
+    """Why force cannot be trained or reported on this data, or ``None`` when it can."""
+    f = tr["force_n"][touch_tr]
+    if not np.isfinite(f).any():
+        return "absent: no force sensor (force_n is empty/NaN)"
+    if np.ptp(f[np.isfinite(f)]) == 0:
+        return f"absent: force_n is constant ({f[np.isfinite(f)][0]:g} N), as without a force sensor"
+    return None
 
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
-                 ablations: bool = True, min_force_n: float = 0.5, log=print) -> dict:
-    """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest."""
+                 ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
+                 log=print) -> dict:
+    """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest.
+
+    ``mode="relative"`` calibrates the scores online (Alg. 2), ``"absolute"`` keeps the training
+    session's reference throughout.  ``n_bins``: OSPA's gamma (default the paper's 300, clamped to the rig's bins).  On data without
+    hands-off chirps (a table of touches only) localization and force are trained and reported,
+    detection and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant
+    force) force is reported as absent.  Streams whose rest is shorter than Alg. 2's beta use the
+    rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.
+    """
+    from .calibration import OnlineReference
+    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
+
+    if mode not in ("relative", "absolute"):
+        raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()
     sessions = sorted(set(table["session"]))
     train_sessions = train_sessions or sessions[:1]
     tr, te = split_sessions(table, train_sessions)
     moving_tr = (tr["location"] < 0) & (tr["moving"] > 0)
     X_moving = tr.X[moving_tr] if moving_tr.sum() >= 2 else None
+    gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
+    cal = OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
+    beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
+    rest = beta is not None  # every stream has a no-touch reference: detection and Alg. 2 are measurable
+    if rest and beta < cal.beta:
+        cal = OnlineReference(beta, cal.alpha, ds.rig.chirps_per_s)
+    if not rest:
+        log(f"note: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps (touches only?): localization "
+            f"and force only, on absolute features; detection and Alg. 2 are {NOT_MEASURABLE}")
     t0 = time.perf_counter()
-    model = SkinSVM(ds.rig, ds.layout, min_force_n=min_force_n)
-    model.fit(tr.X, tr["location"], tr["force_n"], quiet=_quiet(tr), X_moving=X_moving)
+    model = SkinSVM(ds.rig, ds.layout, n_bins=gamma, min_force_n=min_force_n, calibrator=cal)
+    model.fit(tr.X, tr["location"], tr["force_n"], quiet=_quiet(tr) if rest else np.zeros(len(tr), bool),
+              X_moving=X_moving)
     train_s = time.perf_counter() - t0
     res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions),
                  "test_sessions": sorted(set(te["session"])), "n_train": len(tr), "n_test": len(te),
-                 "train_time_s": train_s}
+                 "train_time_s": train_s, "n_bins": gamma, "beta_chirps": beta}
     # Test stream, session by session (each session is a stream with its own calibration).
     preds = {k: [] for k in ("location", "touch", "force", "location_offline")}
     for s in res["test_sessions"]:
         t = te.select(te["session"] == s)
-        p = model.predict(t.X, time_s=t["time_s"], online=True)  # Alg. 2 from its own detection, no labels
+        # Alg. 2 from the model's own detection (boot: the stream's first beta chirps); no test labels.
+        p = model.predict(t.X, time_s=t["time_s"], online=rest and mode == "relative")
         p0 = model.predict(t.X, online=False)
         preds["location"].append(p.location)
         preds["touch"].append(p.touch)
-        preds["force"].append(np.clip(model.force_.predict(p.energy_db, t["location"].clip(min(ds.layout.ids))), 0, None))
+        f = (model.force_.predict(p.energy_db, t["location"].clip(min(ds.layout.ids))) if model.force_ is not None
+             else np.full(len(t), np.nan))
+        preds["force"].append(np.clip(f, 0, None))
         preds["location_offline"].append(p0.location)
     P = {k: np.concatenate(v) for k, v in preds.items()}
     touch = _touch(te, min_force_n)
@@ -77,19 +119,24 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     loc = localization_report(te["location"][touch], P["location"][touch], ds.layout)
     res["localization"] = {k: v for k, v in loc.items() if k != "errors_cm"}
     res["errors_cm"] = loc["errors_cm"].tolist()
-    res["detection"] = {"threshold": model.detector_.threshold_,
-                        "false_touch_rate": float(np.mean(P["touch"][quiet_te])),
-                        "missed_touch_rate": float(np.mean(~P["touch"][touch])),
-                        "train_false_touch_rate": model.detector_.false_touch_rate_,
-                        "train_missed_touch_rate": model.detector_.missed_touch_rate_}
+    if model.detector_ is not None and quiet_te.any():
+        res["detection"] = {"threshold": model.detector_.threshold_,
+                            "false_touch_rate": float(np.mean(P["touch"][quiet_te])),
+                            "missed_touch_rate": float(np.mean(~P["touch"][touch])),
+                            "train_false_touch_rate": model.detector_.false_touch_rate_,
+                            "train_missed_touch_rate": model.detector_.missed_touch_rate_}
+    else:
+        res["detection"] = {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"}
     # Force at the true location (the paper calibrates and reports force per location).
-    res["force"] = force_report(te["force_n"][touch], P["force"][touch])
+    absent = _force_absent(tr, _touch(tr, min_force_n)) or _force_absent(te, touch)
+    res["force"] = {"measurable": False, "reason": absent} if absent else force_report(te["force_n"][touch], P["force"][touch])
     if ablations:
-        res["ablations"] = _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log)
+        res["ablations"] = _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, rest=rest,
+                                      force=absent is None)
     return res
 
 
-def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log) -> dict:
+def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, *, rest: bool = True, force: bool = True) -> dict:
     out = {}
     tr_touch = _touch(tr, min_force_n)
     # OSPA vs every bin of the chirp band (no selection, no matched filter).
@@ -99,69 +146,91 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log) -> dict:
     out["accuracy_all_bins"] = acc_all
     out["accuracy_ospa"] = float(np.mean(P["location"][touch] == te["location"][touch]))
     out["all_bins_train_time_s"] = time.perf_counter() - t0
-    # Online calibration vs the training reference only.
-    out["accuracy_without_online_calibration"] = float(np.mean(P["location_offline"][touch] == te["location"][touch]))
-    # Force from total band energy E vs E^O over the OSPA bins.
-    all_bins = np.arange(ds.rig.n_band)
-    ref_tr = tr.X[_quiet(tr)].mean(axis=0)
-    E_tr = energy_db(tr.X[tr_touch], all_bins, ref_tr)
-    fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][tr_touch], tr["location"][tr_touch])
-    beta = model.calibrator.beta  # reference: each test stream's boot calibration (its first beta chirps)
-    E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
-                           for s in sorted(set(te["session"]))])
-    f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)
-    out["force_total_energy"] = force_report(te["force_n"][touch], f_total)
-    out["force_train_r2_ospa"] = float(np.mean([c.r2 for c in model.force_.curves_.values()]))
-    # Alg. 2 applied to the features: both splits minus their own running no-touch reference, the
-    # training split's from its labelled rest, the test streams' from the SVM's own detection.
-    from .features import relative_features
-
-    cal = model.calibrator
-    bins = model.localizer_.selected_
-    rel = {"train": relative_features(tr.X[:, bins], _quiet(tr), tr["session"], tr["time_s"], cal),
-           "test": relative_features(te.X[:, bins], ~P["touch"], te["session"], te["time_s"], cal)}
-    rel_model = SVMLocalizer(n_bins=len(bins)).fit(rel["train"][tr_touch], tr["location"][tr_touch])
-    p_rel = rel_model.predict(rel["test"][touch])
-    out["accuracy_feature_calibration"] = float(np.mean(p_rel == te["location"][touch]))
-    # Accuracy over stream time, session by session (Fig. 12).
+    if not rest:  # no rest in the streams: Alg. 2 has nothing to calibrate on
+        out["alg2"] = {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"}
+    else:
+        # Online calibration vs the training reference only.
+        out["accuracy_without_online_calibration"] = float(np.mean(P["location_offline"][touch] == te["location"][touch]))
+    beta = model.calibrator.beta
+    if force and rest:
+        # Force from total band energy E vs E^O over the OSPA bins.
+        all_bins = np.arange(ds.rig.n_band)
+        ref_tr = tr.X[_quiet(tr)].mean(axis=0)
+        has_f = tr_touch & np.isfinite(tr["force_n"])
+        E_tr = energy_db(tr.X[has_f], all_bins, ref_tr)
+        fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][has_f], tr["location"][has_f])
+        # Test reference: each stream's boot calibration (its first beta chirps), not its labelled rest.
+        E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
+                               for s in sorted(set(te["session"]))])
+        f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)
+        out["force_total_energy"] = force_report(te["force_n"][touch], f_total)
+        out["force_train_r2_ospa"] = float(np.mean([c.r2 for c in model.force_.curves_.values()]))
+        out["force_train_r2_total"] = float(np.mean([c.r2 for c in fm.curves_.values()]))
     rows = []
     sess_touch = te["session"][touch]
+    p_rel = None
+    if rest:
+        # Alg. 2 applied to the features: both splits minus their own running no-touch reference, the
+        # training split's from its labelled rest, the test streams' from the SVM's own detection.
+        from .features import relative_features
+
+        bins = model.localizer_.selected_
+        rel = {"train": relative_features(tr.X[:, bins], _quiet(tr), tr["session"], tr["time_s"], model.calibrator),
+               "test": relative_features(te.X[:, bins], ~P["touch"], te["session"], te["time_s"], model.calibrator)}
+        rel_model = SVMLocalizer(n_bins=len(bins)).fit(rel["train"][tr_touch], tr["location"][tr_touch])
+        p_rel = rel_model.predict(rel["test"][touch])
+        out["accuracy_feature_calibration"] = float(np.mean(p_rel == te["location"][touch]))
+    # Accuracy over stream time, session by session (Fig. 12).
     for s in sorted(set(te["session"])):
         k = sess_touch == s
         sel = (te["session"] == s) & touch
         rows.append({"session": s, "minutes": float(te["time_s"][sel].mean() / 60),
                      "temperature_c": float(te["temperature_c"][sel].mean()),
                      "accuracy": float(np.mean(P["location"][touch][k] == te["location"][touch][k])),
-                     "accuracy_feature_calibration": float(np.mean(p_rel[k] == te["location"][touch][k]))})
+                     "accuracy_feature_calibration": float(np.mean(p_rel[k] == te["location"][touch][k]))
+                     if p_rel is not None else None})
     out["over_time"] = rows
-    out["force_train_r2_total"] = float(np.mean([c.r2 for c in fm.curves_.values()]))
     return out
+
+
+def _force_line(F: dict, label: str = "force (E^O)") -> str:
+    if F.get("measurable") is False:
+        return f"  {label:13s} {F['reason']}"
+    return f"  {label:13s} RMSE {F['rmse_n']:.2f} N   sigma {F['sigma_n']:.2f} N   xcorr {F['xcorr']:.1%}"
 
 
 def format_report(res: dict) -> str:
     L, D, F = res["localization"], res["detection"], res["force"]
+    det = (f"  detection     {D['reason']}" if D.get("measurable") is False else
+           f"  detection     false touches {D['false_touch_rate']:.1%}   missed touches {D['missed_touch_rate']:.1%}   "
+           f"(threshold {D['threshold']:.3f})")
     lines = [
         f"dataset {res['dataset']}: train {','.join(res['train_sessions'])} ({res['n_train']} chirps), "
         f"test {len(res['test_sessions'])} sessions ({res['n_test']} chirps)",
         f"  localization  accuracy {L['accuracy']:.1%}   < 2 cm {L['within_2cm']:.1%}   < 3 cm {L['within_3cm']:.1%}   "
         f"mean error {L['mean_error_cm']:.2f} cm   ({L['n']} touch chirps)",
-        f"  detection     false touches {D['false_touch_rate']:.1%}   missed touches {D['missed_touch_rate']:.1%}   "
-        f"(threshold {D['threshold']:.3f})",
-        f"  force (E^O)   RMSE {F['rmse_n']:.2f} N   sigma {F['sigma_n']:.2f} N   xcorr {F['xcorr']:.1%}",
+        det,
+        _force_line(F),
     ]
     if "ablations" in res:
         A = res["ablations"]
-        T = A["force_total_energy"]
-        lines += [
-            "  paper findings on this data:",
-            f"    OSPA (Fig. 6b)             all band bins {A['accuracy_all_bins']:.1%} -> OSPA {A['accuracy_ospa']:.1%}",
-            f"    online updating (Alg. 2)   without {A['accuracy_without_online_calibration']:.1%} -> with {A['accuracy_ospa']:.1%}",
-            f"    force feature (Fig. 9)     total energy E: RMSE {T['rmse_n']:.2f} N, train R2 {A['force_train_r2_total']:.2f}"
-            f" -> E^O: RMSE {F['rmse_n']:.2f} N, train R2 {A['force_train_r2_ospa']:.2f}",
-            f"    Alg. 2 on the features     {A['accuracy_ospa']:.1%} -> {A['accuracy_feature_calibration']:.1%} "
-            f"(inputs minus the running no-touch reference)",
-        ]
-        if len(A["over_time"]) >= 3:
+        lines += ["  paper findings on this data:",
+                  f"    OSPA (Fig. 6b)             all band bins {A['accuracy_all_bins']:.1%} -> OSPA {A['accuracy_ospa']:.1%}"]
+        if "alg2" in A:
+            lines.append(f"    online updating (Alg. 2)   {A['alg2']['reason']}")
+        else:
+            lines.append(f"    online updating (Alg. 2)   without {A['accuracy_without_online_calibration']:.1%} -> "
+                         f"with {A['accuracy_ospa']:.1%}")
+        if "force_total_energy" in A:
+            T = A["force_total_energy"]
+            lines.append(f"    force feature (Fig. 9)     total energy E: RMSE {T['rmse_n']:.2f} N, train R2 "
+                         f"{A['force_train_r2_total']:.2f} -> E^O: RMSE {F['rmse_n']:.2f} N, train R2 {A['force_train_r2_ospa']:.2f}")
+        else:
+            lines.append(f"    force feature (Fig. 9)     {NOT_MEASURABLE}")
+        if "accuracy_feature_calibration" in A:
+            lines.append(f"    Alg. 2 on the features     {A['accuracy_ospa']:.1%} -> {A['accuracy_feature_calibration']:.1%} "
+                         f"(inputs minus the running no-touch reference)")
+        if len(A["over_time"]) >= 3 and "accuracy_feature_calibration" in A:
             lines.append("  accuracy over time (Fig. 12):  min since power-on, temperature, paper's SVM, with Alg. 2 on features")
             lines += [f"    {r['session']}  {r['minutes']:6.1f} min  {r['temperature_c']:5.2f} C  {r['accuracy']:6.1%}  "
                       f"{r['accuracy_feature_calibration']:6.1%}" for r in A["over_time"]]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,9 +19,10 @@ from .calibration import OnlineReference
 from .dataset import Dataset, FeatureTable
 
 __all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
-           "select_bins", "model_inputs", "prepare"]
+           "select_bins", "usable_bins", "rest_beta", "MIN_REST_CHIRPS", "model_inputs", "prepare"]
 
 MODES = ("absolute", "relative")
+DEFAULT_N_BINS = 300  # the paper's gamma
 
 
 def quiet_mask(t: FeatureTable) -> np.ndarray:
@@ -137,19 +139,73 @@ def training_targets(t: FeatureTable, layout, min_force_n: float = 0.5) -> tuple
     return cls.astype(np.int64), (loc < 0) | touch_mask(t, min_force_n)
 
 
-def select_bins(t: FeatureTable, rig, n_bins: int = 300, min_force_n: float = 0.5) -> np.ndarray:
+def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
+    """OSPA's gamma for this rig: ``n_bins``, or every bin the matched filter leaves when fewer are there.
+
+    ``None`` asks for the paper's 300.  A larger gamma than the rig has bins (a 165-bin table) is
+    clamped with a warning, so a default never turns into an error.
+    """
+    n_allowed = int(rig.allowed_mask.sum())
+    want = DEFAULT_N_BINS if n_bins is None else int(n_bins)
+    if want > n_allowed:
+        msg = f"gamma {want} is more than the {n_allowed} bins of this rig's band; using all {n_allowed}"
+        (log or (lambda m: warnings.warn(m, stacklevel=3)))(msg)
+        return n_allowed
+    return want
+
+
+def select_bins(t: FeatureTable, rig, n_bins: int | None = 300, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
     """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
     the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
-    best first."""
+    best first.
+
+    Without no-touch chirps (a table of touches only) the moving variance is taken as 1, as
+    :class:`~sonicskin.ospa.OSPA` documents: the bins with the largest touch variance are kept.
+    ``n_bins`` larger than the rig's bins is clamped (:func:`usable_bins`).
+    """
     from .ospa import OSPA
 
     touch = touch_mask(t, min_force_n)
     moving = (t["location"] < 0) & (t["moving"] > 0)
     ref = moving if moving.sum() >= 2 else quiet_mask(t)
-    if touch.sum() < 2 or ref.sum() < 2:
-        raise ValueError(f"OSPA needs touch and no-touch chirps in the training split; got {int(touch.sum())} "
-                         f"touch and {int(ref.sum())} no-touch chirps")
-    return OSPA(gamma=n_bins, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=t.X[ref]).selected_
+    if touch.sum() < 2:
+        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
+    gamma = usable_bins(rig, n_bins, log=log)
+    X_ref = t.X[ref] if ref.sum() >= 2 else None
+    return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_
+
+
+# A no-touch reference averages at least this many chirps.  Alg. 2's beta is 3 s (28 chirps on the
+# paper's rig); a recording whose rest is shorter (3 s that start inside a chirp hold 27 whole ones)
+# uses the rest it has, with a warning, down to this minimum.  The std of a 10-chirp mean is a third
+# of one chirp's, about 0.1 dB on the simulated rig.
+MIN_REST_CHIRPS = 10
+
+
+def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
+    """Longest run of consecutive no-touch chirps at rest, per session."""
+    out = {}
+    for s in np.unique(session):
+        edges = np.diff(np.r_[0, np.asarray(quiet)[np.asarray(session) == s].astype(np.int8), 0])
+        out[str(s)] = int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1), initial=0))
+    return out
+
+
+def rest_beta(t: FeatureTable, beta_chirps: int, *, log=None) -> int | None:
+    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has when that
+    is shorter but at least :data:`MIN_REST_CHIRPS` (with a warning).  ``None``: some session has less
+    rest than the minimum (no online reference can be measured; use absolute features)."""
+    runs = rest_runs(quiet_mask(t), t["session"])
+    shortest = min(runs.values()) if runs else 0
+    if shortest >= beta_chirps:
+        return int(beta_chirps)
+    if shortest < MIN_REST_CHIRPS:
+        return None
+    worst = min(runs, key=runs.get)
+    msg = (f"session {worst} has {shortest} consecutive hands-off chirps, fewer than beta = {beta_chirps}; "
+           f"the no-touch reference averages {shortest} chirps (minimum {MIN_REST_CHIRPS})")
+    (log or (lambda m: warnings.warn(m, stacklevel=3)))(msg)
+    return int(shortest)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,7 +257,7 @@ def model_inputs(data, spec: FeatureSpec, *, progress: bool = True) -> tuple[Dat
     return ds, t, spec.transform(t, ds.rig.chirps_per_s)
 
 
-def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
+def prepare(data: str | Path, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
             val_sessions=None, test_subjects=None, min_force_n: float = 0.5, progress: bool = True,
             allow_no_test: bool = False) -> dict:
     """Load a dataset, split it by session/subject, select OSPA bins on the training split and build
@@ -213,6 +269,16 @@ def prepare(data: str | Path, *, n_bins: int = 300, mode: str = "relative", trai
     tr = t.select(split.mask(t, "train"))
     bins = select_bins(tr, ds.rig, n_bins, min_force_n)
     spec = FeatureSpec(tuple(int(b) for b in bins), mode)
+    if mode == "relative":
+        # Relative inputs need Alg. 2's rest in every stream; shorter rest is used down to MIN_REST_CHIRPS,
+        # a table of touches only falls back to absolute inputs.
+        beta = rest_beta(t, spec.reference(ds.rig.chirps_per_s).beta)
+        if beta is None:
+            warnings.warn(f"{ds.root}: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps for Alg. 2's "
+                          f"no-touch reference (touches only?); using absolute features (mode absolute)", stacklevel=2)
+            spec = dataclasses.replace(spec, mode="absolute")
+        elif beta < spec.reference(ds.rig.chirps_per_s).beta:
+            spec = dataclasses.replace(spec, beta_s=beta / ds.rig.chirps_per_s)
     X = spec.transform(t, ds.rig.chirps_per_s)
     cls, usable = training_targets(t, ds.layout, min_force_n)
     return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls,

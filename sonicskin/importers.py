@@ -10,17 +10,35 @@ sample rate, and a label CSV of touch intervals::
 
 Chirps starting inside an interval carry its label; the others are no-touch.  ``force_n`` may
 be empty (no sensor), ``moving`` marks robot motion (use ``location`` -1 for a moving, hands-off
-interval).  Marker coordinates come from the ``x_cm``/``y_cm`` columns.
+interval).
 
 ``import_spectra``: a table of precomputed channel magnitudes with labels (``.npz`` with arrays
-``freqs_hz`` (F,), ``magnitude_db`` (n, F) and one array per label column), e.g. from another
-group's pipeline.  Each row becomes one received chirp of the given rig with exactly that
-magnitude response in band (zero phase), so every tool of this package runs on it unchanged.
+``freqs_hz`` (F,), ``magnitude_db`` (n, F), ``location`` and ``session``, optional ``x_cm``,
+``y_cm``, ``force_n``, ``moving``, ``subject``), e.g. from another group's pipeline.  The rig is
+derived from the frequency axis (bin spacing = fs / samples per frame); each row becomes one
+received chirp of that rig with exactly that magnitude response (zero phase), so every tool of
+this package runs on it unchanged.  Levels are normalised (the gain is stored in
+``dataset.json``, ``source.gain_db``): no dB offset to choose.
+
+Location labels (both importers) may be integers (kept as location ids), numbers such as
+positions in cm (``1.5``, ``2.0``) or names (``"wrist"``); numbers and names become ids
+0..K-1 in sorted order.  The mapping is printed and stored in ``dataset.json``
+(``source.labels``).  Coordinates come from ``x_cm``/``y_cm``; without them a numeric label is
+taken as the position in cm along x, and names are placed 1 cm apart.  A negative number, NaN,
+an empty cell or ``none``/``no-touch``/``rest`` means no touch.
+
+Writing is all or nothing: a new dataset is built in a hidden folder beside ``out`` and moved
+into place when complete; ``mode="resume"`` keeps the sessions already imported and adds the
+rest; ``mode="overwrite"`` replaces ``out`` only once the new import succeeded.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import shutil
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -30,10 +48,17 @@ from .dataset import COLUMNS, DatasetWriter
 from .dsp import chirp_spectrum, frame_stream
 from .rig import Layout, Rig
 
-__all__ = ["import_wav", "import_spectra", "sweep_rig"]
+__all__ = ["import_wav", "import_spectra", "sweep_rig", "rig_from_axis", "label_layout", "STANDARD_RATES_HZ"]
 
 _LABEL_COLS = ("file", "start_s", "end_s", "location")
+NO_TOUCH_LABELS = frozenset({"", "-1", "nan", "none", "no-touch", "no_touch", "notouch", "rest", "quiet", "idle"})
+# Sample rates of common audio interfaces, preferred in this order when the axis fits several equally.
+STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000,
+                     11_025, 22_050, 24_000)
+PEAK_LEVEL = 0.5  # imported streams are scaled to this peak (-6 dBFS)
 
+
+# -- the rig --------------------------------------------------------------------------
 
 def sweep_rig(sweep: np.ndarray, fs_hz: float, *, pwm_hz=(), pwm_halfwidth_hz: float = 0.0, band_db: float = -20.0,
               name: str = "imported") -> Rig:
@@ -42,12 +67,179 @@ def sweep_rig(sweep: np.ndarray, fs_hz: float, *, pwm_hz=(), pwm_halfwidth_hz: f
     if x.ndim != 1 or x.size < 64:
         raise ValueError(f"the sweep must be one period of mono audio (>= 64 samples), got shape {x.shape}")
     S = np.abs(scipy.fft.rfft(x))
+    if not S.max() > 0:
+        raise ValueError("the sweep is silent (all zeros); pass the WAV of one period of what the transmitter plays")
     f = np.fft.rfftfreq(x.size, 1 / fs_hz)
     on = np.flatnonzero(20 * np.log10(S / S.max() + 1e-12) >= band_db)
     f_lo, f_hi = float(max(f[on[0]], f[1])), float(f[on[-1]])
     return Rig(fs_hz=float(fs_hz), f_lo_hz=f_lo, f_hi_hz=f_hi, n_chirp=int(x.size), pwm_hz=tuple(pwm_hz),
                pwm_halfwidth_hz=pwm_halfwidth_hz, amplitude=float(min(1.0, np.max(np.abs(x)) or 1.0)), name=name,
                sweep_b64=Rig.encode_sweep(x))
+
+
+def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
+                  log=print) -> Rig:
+    """The rig whose FFT bins are a table's frequency axis.
+
+    The bin spacing is ``fs / frame``.  Give ``fs_hz`` or ``frame`` (samples per FFT frame) when
+    you know them; otherwise ``fs`` is the lowest standard audio rate above twice the top frequency
+    for which ``fs / spacing`` is a whole number of samples.  The axis may be off the bin grid
+    by up to half a bin (bin edges instead of centres, a rounding of a few Hz): each column is
+    assigned to its nearest bin.  The rig's band is exactly the table's columns.
+    """
+    f = np.asarray(freqs_hz, float)
+    if f.ndim != 1 or f.size < 2:
+        raise ValueError(f"freqs_hz must list at least two frequencies, got shape {f.shape}")
+    if not np.all(np.diff(f) > 0):
+        raise ValueError("freqs_hz must increase")
+    df = (f[-1] - f[0]) / (f.size - 1)
+    if np.max(np.abs(np.diff(f) - df)) > 0.05 * df:
+        raise ValueError(f"freqs_hz is not evenly spaced (steps {np.diff(f).min():g}-{np.diff(f).max():g} Hz); "
+                         f"the columns must be the FFT bins of one frame size")
+    if fs_hz is not None and frame is not None:
+        if abs(fs_hz / frame - df) > 0.02 * df:
+            raise ValueError(f"--fs {fs_hz:g} / --frame {frame} = {fs_hz / frame:g} Hz per bin, but the table's bins are "
+                             f"{df:g} Hz apart; check both")
+        fs, n = float(fs_hz), int(frame)
+        how = "given"
+    elif fs_hz is not None:
+        fs, n = float(fs_hz), int(round(fs_hz / df))
+        how = "given"
+    elif frame is not None:
+        n = int(frame)
+        fs = n * df
+        near = [r for r in STANDARD_RATES_HZ if abs(r - fs) <= 0.01 * fs]
+        fs = float(near[0]) if near else float(round(fs))
+        how = f"{n} samples x {df:g} Hz"
+    else:
+        # Standard rates whose whole-sample frames have bins where the columns are, give or take a constant
+        # shift (bin edges instead of centres) and a few Hz: the first in STANDARD_RATES_HZ among those that
+        # fit within 5 Hz of the best fit.  A near miss (44.1 instead of 48 kHz) maps the same columns to the
+        # same bins at a chirp rate within 0.1 %: the features do not change.
+        fits = []
+        for order, r in enumerate(STANDARD_RATES_HZ):
+            m = int(round(r / df))
+            if r < 2 * f[-1] * (1 - 1e-3) or m < 64:
+                continue
+            kk = np.floor(f * m / r + 0.5 + 1e-6)
+            d = f - kk * r / m
+            if np.all(np.diff(kk) == 1) and np.max(np.abs(d)) <= 0.5 * r / m * (1 + 1e-6):
+                fits.append((float(np.max(np.abs(d - d.mean()))), order, r, m))
+        if not fits:
+            raise ValueError(f"cannot tell the sample rate from the axis alone (bins {df:g} Hz apart up to {f[-1]:g} Hz); "
+                             f"pass --fs HZ (the recordings' rate) or --frame N (samples per FFT frame)")
+        best = min(e for e, *_ in fits)
+        _, _, r, n = min((o, e, r, m) for e, o, r, m in fits if e <= best + min(5.0, 0.25 * df))
+        fs = float(r)
+        how = f"a standard rate with {n}-sample frames fits the axis; pass --fs or --frame if yours differs"
+    if n < 64:
+        raise ValueError(f"{n} samples per frame (fs {fs:g} Hz / {df:g} Hz bins) is too short; pass --fs or --frame")
+    k = np.floor(f * n / fs + 0.5 + 1e-6).astype(int)
+    if np.any(np.diff(k) != 1):
+        raise ValueError(f"the axis does not fall on the bins of a {n}-sample frame at {fs:g} Hz "
+                         f"(bin spacing {fs / n:g} Hz, table {df:g} Hz); pass the right --fs / --frame")
+    if k[-1] > n // 2:
+        raise ValueError(f"the table reaches {f[-1]:g} Hz, above the Nyquist frequency of {fs:g} Hz; pass the right --fs")
+    step = fs / n
+    off = float(np.max(np.abs(f - k * step)))
+    rig = Rig(fs_hz=fs, f_lo_hz=max(k[0] - 0.25, 0.25) * step, f_hi_hz=min(k[-1] + 0.25, n / 2) * step, n_chirp=n,
+              pwm_hz=(), pwm_halfwidth_hz=0.0, amplitude=PEAK_LEVEL, name="imported")
+    log(f"rig from the frequency axis: fs {fs:g} Hz ({how}), {n}-sample frames, {rig.n_band} bins "
+        f"{k[0] * step / 1e3:.3g}-{k[-1] * step / 1e3:.4g} kHz" + (f" (axis off the bin grid by up to {off:.1f} Hz)"
+                                                                    if off > 1e-6 * step else ""))
+    return rig
+
+
+# -- labels ---------------------------------------------------------------------------
+
+def _as_number(v) -> float | None:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return None
+
+
+def _is_no_touch(v) -> bool:
+    if isinstance(v, str):
+        if v.strip().lower() in NO_TOUCH_LABELS:
+            return True
+        v = _as_number(v.strip())
+        return v is not None and (np.isnan(v) or v < 0)
+    return bool(np.isnan(v) or v < 0)
+
+
+def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=print) -> tuple[np.ndarray, Layout, dict]:
+    """Location ids (``-1`` = no touch) for a column of raw labels, the layout and the id -> label mapping.
+
+    Parameters
+    ----------
+    labels : (n,) integers, numbers or strings (see the module docstring).
+    x_cm, y_cm : (n,) marker coordinates per row (NaN where unknown), optional.
+    where : the input's name for messages.
+
+    Returns
+    -------
+    ids : (n,) int location ids, -1 for no touch.
+    layout : one marker per distinct touch label.
+    names : ``{id: label}`` as printed.
+    """
+    raw = np.asarray(labels)
+    vals = [v.strip() if isinstance(v, str) else v for v in raw.tolist()]
+    touch = np.array([not _is_no_touch(v) for v in vals], bool)
+    if not touch.any():
+        raise ValueError(f"{where}: no touch labels (every location is empty, negative or a no-touch word)")
+    nums = [_as_number(v) for v in np.asarray(vals, dtype=object)[touch]]
+    integer = all(x is not None and float(x).is_integer() for x in nums) and (
+        raw.dtype.kind in "iu" or all(isinstance(v, str) and "." not in v and "e" not in v.lower()
+                                      for v in np.asarray(vals, dtype=object)[touch]))
+    if integer:
+        keys = [int(x) for x in nums]
+        uniq = sorted(set(keys))
+        lut = {k: k for k in uniq}
+        names = {k: str(k) for k in uniq}
+        kind = "integer ids"
+    elif all(x is not None for x in nums):
+        keys = [float(x) for x in nums]
+        uniq = sorted(set(keys))
+        lut = {k: i for i, k in enumerate(uniq)}
+        names = {i: f"{k:g}" for k, i in lut.items()}
+        kind = "numbers"
+    else:
+        keys = [str(v) for v in np.asarray(vals, dtype=object)[touch]]
+        uniq = sorted(set(keys))
+        lut = {k: i for i, k in enumerate(uniq)}
+        names = {i: k for k, i in lut.items()}
+        kind = "names"
+    ids = np.full(raw.shape[0], -1, dtype=int)
+    ids[touch] = [lut[k] for k in keys]
+    if len(uniq) < 2:
+        raise ValueError(f"{where}: labels name {len(uniq)} touch location; need at least two")
+    xs = np.full(raw.shape[0], np.nan) if x_cm is None else np.asarray(x_cm, float)
+    ys = np.full(raw.shape[0], np.nan) if y_cm is None else np.asarray(y_cm, float)
+    xy, guessed = [], []
+    for k in uniq:
+        i = lut[k]
+        rows = np.flatnonzero(ids == i)
+        ok = rows[np.isfinite(xs[rows]) & np.isfinite(ys[rows])]
+        if ok.size:
+            xy.append((float(xs[ok[0]]), float(ys[ok[0]])))
+        elif kind != "names":
+            xy.append((float(k), 0.0))
+            guessed.append(i)
+        else:
+            xy.append((float(i), 0.0))
+            guessed.append(i)
+    layout = Layout(ids=tuple(lut[k] for k in uniq), xy_cm=np.array(xy))
+    log(f"{len(uniq)} touch locations from {kind} in {where} (label -> id, x/y cm):")
+    for k in uniq:
+        i = lut[k]
+        x, y = layout.coords(np.array([i]))[0]
+        note = "" if i not in guessed else "  (x = the label in cm)" if kind != "names" else "  (placed, no x_cm/y_cm)"
+        log(f"  {names[i]!s:>12} -> {i:3d}   ({x:g}, {y:g}){note}")
+    if guessed and kind == "names":
+        warnings.warn(f"{where}: named locations without x_cm,y_cm are placed 1 cm apart in sorted order; "
+                      f"distances (< 2 cm, < 3 cm) mean nothing unless you give marker coordinates", stacklevel=2)
+    return ids, layout, names
 
 
 def _read_labels(path: Path) -> list[dict]:
@@ -58,16 +250,17 @@ def _read_labels(path: Path) -> list[dict]:
     missing = [c for c in _LABEL_COLS if c not in rows[0]]
     if missing:
         raise ValueError(f"{path}: label CSV lacks columns {missing}; need file,start_s,end_s,location "
-                         f"(and x_cm,y_cm for each location; optional force_n,moving,subject)")
+                         f"(optional x_cm,y_cm,force_n,moving,subject)")
+
+    def num(r, k, default):
+        return float(r[k]) if r.get(k) not in (None, "") else default
+
     out = []
     for i, r in enumerate(rows, start=2):
         try:
-            d = {"file": r["file"], "start_s": float(r["start_s"]), "end_s": float(r["end_s"]), "location": int(r["location"]),
-                 "x_cm": float(r["x_cm"]) if r.get("x_cm") not in (None, "") else np.nan,
-                 "y_cm": float(r["y_cm"]) if r.get("y_cm") not in (None, "") else np.nan,
-                 "force_n": float(r["force_n"]) if r.get("force_n") not in (None, "") else np.nan,
-                 "moving": float(r["moving"]) if r.get("moving") not in (None, "") else 0.0,
-                 "subject": int(r["subject"]) if r.get("subject") not in (None, "") else 0}
+            d = {"file": r["file"], "start_s": float(r["start_s"]), "end_s": float(r["end_s"]), "label": r["location"].strip(),
+                 "x_cm": num(r, "x_cm", np.nan), "y_cm": num(r, "y_cm", np.nan), "force_n": num(r, "force_n", np.nan),
+                 "moving": num(r, "moving", 0.0), "subject": int(num(r, "subject", 0))}
         except ValueError as e:
             raise ValueError(f"{path} line {i}: {e}") from None
         if d["end_s"] <= d["start_s"]:
@@ -76,27 +269,60 @@ def _read_labels(path: Path) -> list[dict]:
     return out
 
 
-def _layout_from(rows: list[dict], path: Path) -> Layout:
-    pos: dict[int, tuple[float, float]] = {}
-    for r in rows:
-        if r["location"] >= 0 and r["location"] not in pos:
-            if not (np.isfinite(r["x_cm"]) and np.isfinite(r["y_cm"])):
-                raise ValueError(f"{path}: location {r['location']} has no x_cm,y_cm; give marker coordinates in cm")
-            pos[r["location"]] = (r["x_cm"], r["y_cm"])
-    if len(pos) < 2:
-        raise ValueError(f"{path}: labels name {len(pos)} touch locations; need at least two")
-    ids = sorted(pos)
-    return Layout(ids=tuple(ids), xy_cm=np.array([pos[i] for i in ids]))
+# -- writing all or nothing -----------------------------------------------------------
 
+@contextlib.contextmanager
+def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
+    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one."""
+    if mode not in ("create", "overwrite", "resume"):
+        raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
+    exists = (out / "dataset.json").is_file()
+    if exists and mode == "create":
+        raise FileExistsError(f"{out} already holds a dataset; pass --resume to continue it or --overwrite to replace it")
+    if out.exists() and not exists and (not out.is_dir() or any(out.iterdir())):
+        raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
+    if exists and mode == "resume":
+        yield out, "resume"
+        return
+    tmp = out.parent / f".{out.name}.importing"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        yield tmp, "create"
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+
+
+def _write_session(w: DatasetWriter, session: str, audio: np.ndarray, lab: dict, info: dict) -> None:
+    """One session, removed again if anything fails half-way (so ``--resume`` starts it afresh)."""
+    try:
+        w.write_part(session, 0, audio, lab)
+        w.finish_session(session, info)
+    except BaseException:
+        shutil.rmtree(w.root / session, ignore_errors=True)
+        raise
+
+
+# -- WAV recordings -------------------------------------------------------------------
 
 def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, sweep_wav: str | Path | None = None,
                chirp_hz: tuple[float, float] | None = None, period_s: float | None = None, amplitude: float = 1.0,
-               channel: int = 0,
-               pwm_hz=(), pwm_halfwidth_hz: float = 0.0, mode: str = "create", log=print) -> Path:
-    """Import WAV recordings into a dataset folder; returns it."""
+               channel: int = 0, pwm_hz=(), pwm_halfwidth_hz: float = 0.0, mode: str = "create", log=print) -> Path:
+    """Import WAV recordings into a dataset folder; returns it.
+
+    ``mode``: ``"create"`` (refuses an existing dataset), ``"overwrite"`` or ``"resume"`` (keeps the
+    recordings imported already).  A failed import leaves no new dataset behind.
+    """
     import soundfile as sf
 
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
+    if not wav_dir.is_dir():
+        raise FileNotFoundError(f"{wav_dir}: no such folder of recordings")
     rows = _read_labels(labels)
     files = sorted(p for p in wav_dir.iterdir() if p.suffix.lower() in (".wav", ".flac"))
     if not files:
@@ -119,95 +345,161 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                   pwm_halfwidth_hz=pwm_halfwidth_hz, amplitude=amplitude, name="imported")
     else:
         raise ValueError("give the transmitted sweep: --sweep SWEEP.wav, or --chirp F_LO F_HI --period S for a linear chirp")
-    layout = _layout_from(rows, labels)
-    w = DatasetWriter(out, rig, layout, source={"kind": "import-wav", "from": str(wav_dir.resolve())}, mode=mode)
+    ids, layout, names = label_layout([r["label"] for r in rows], [r["x_cm"] for r in rows], [r["y_cm"] for r in rows],
+                                      where=str(labels), log=log)
+    for r, i in zip(rows, ids):
+        r["location"] = int(i)
     from .dsp import rig_chirp
 
     ref = rig_chirp(rig)
-    for k, p in enumerate(files):
-        x, _ = sf.read(p, dtype="float32", always_2d=True)
-        if channel >= x.shape[1]:
-            raise ValueError(f"{p}: has {x.shape[1]} channels; --channel {channel} does not exist")
-        x = x[:, channel]
-        frames, offset = frame_stream(x, ref)
-        starts = offset + np.arange(frames.shape[0]) * rig.n_chirp
-        t = starts / fs
-        lab = {c: np.zeros(t.size) for c in COLUMNS}
-        lab.update(chirp=np.arange(t.size), t_s=t, time_s=t, location=np.full(t.size, -1), x_cm=np.full(t.size, np.nan),
-                   y_cm=np.full(t.size, np.nan), force_n=np.zeros(t.size), moving=np.zeros(t.size),
-                   temperature_c=np.full(t.size, np.nan), subject=np.zeros(t.size, int))
-        seg = np.array(["calibration"] * t.size, dtype=object)
-        for r in (r for r in rows if r["file"] == p.name):
-            m = (t >= r["start_s"]) & (t < r["end_s"])
-            if r["location"] >= 0:
-                lab["location"][m] = r["location"]
-                lab["x_cm"][m], lab["y_cm"][m] = layout.coords(np.array([r["location"]]))[0]
-                lab["force_n"][m] = r["force_n"]
-                seg[m] = "touch"
-            else:
-                seg[m] = "moving" if r["moving"] > 0 else "gap"
-            lab["moving"][m] = r["moving"]
-            lab["subject"][m] = r["subject"]
-        lab["segment"] = seg.astype(str)
-        session = f"s{k:03d}"
-        w.write_part(session, 0, x, lab)
-        w.finish_session(session, {"source_file": p.name})
-    log(f"imported {len(files)} recordings ({fs:g} Hz, band {rig.f_lo_hz / 1e3:.1f}-{rig.f_hi_hz / 1e3:.1f} kHz, "
-        f"{rig.n_chirp} samples per sweep) into {out}")
+    source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()}}
+    with _staged(out, mode) as (root, wmode):
+        w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
+        done = 0
+        for k, p in enumerate(files):
+            session = f"s{k:03d}"
+            if w.session_done(session):
+                continue
+            x, _ = sf.read(p, dtype="float32", always_2d=True)
+            if channel >= x.shape[1]:
+                raise ValueError(f"{p}: has {x.shape[1]} channels; --channel {channel} does not exist")
+            x = x[:, channel]
+            if x.size < 2 * rig.n_chirp:
+                raise ValueError(f"{p}: {x.size} samples hold less than two sweeps of {rig.n_chirp}; is --sweep/--period right?")
+            frames, offset = frame_stream(x, ref)
+            starts = offset + np.arange(frames.shape[0]) * rig.n_chirp
+            t = starts / fs
+            lab = {c: np.zeros(t.size) for c in COLUMNS}
+            lab.update(chirp=np.arange(t.size), t_s=t, time_s=t, location=np.full(t.size, -1), x_cm=np.full(t.size, np.nan),
+                       y_cm=np.full(t.size, np.nan), force_n=np.zeros(t.size), moving=np.zeros(t.size),
+                       temperature_c=np.full(t.size, np.nan), subject=np.zeros(t.size, int))
+            seg = np.array(["calibration"] * t.size, dtype=object)
+            for r in (r for r in rows if r["file"] == p.name):
+                m = (t >= r["start_s"]) & (t < r["end_s"])
+                if r["location"] >= 0:
+                    lab["location"][m] = r["location"]
+                    lab["x_cm"][m], lab["y_cm"][m] = layout.coords(np.array([r["location"]]))[0]
+                    lab["force_n"][m] = r["force_n"]
+                    seg[m] = "touch"
+                else:
+                    seg[m] = "moving" if r["moving"] > 0 else "gap"
+                lab["moving"][m] = r["moving"]
+                lab["subject"][m] = r["subject"]
+            lab["segment"] = seg.astype(str)
+            _write_session(w, session, x, lab, {"source_file": p.name})
+            done += 1
+    log(f"imported {done} recordings ({fs:g} Hz, band {rig.f_lo_hz / 1e3:.1f}-{rig.f_hi_hz / 1e3:.1f} kHz, "
+        f"{rig.n_chirp} samples per sweep) into {out}" + (f"; {len(files) - done} were there already" if done < len(files) else ""))
     return out
 
 
-def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, mode: str = "create",
-                   log=print) -> Path:
-    """Import a table of magnitude spectra (dB) with labels (see module docstring); returns the dataset."""
-    table = Path(table)
-    rig = rig or Rig.load("jaco")
+# -- tables of spectra ----------------------------------------------------------------
+
+def _looks_linear(M: np.ndarray) -> bool:
+    """Magnitudes that are all >= 0 and spread over orders of magnitude (or all <= 1) are linear, not dB."""
+    if M.min() < 0:
+        return False
+    p50, p99 = np.percentile(M, [50, 99])
+    return bool(M.max() <= 1.0 or M.max() > 300 or p99 > 10 * max(p50, 1e-12))  # 300 dB would be 1e15
+
+
+def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
+                   frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
+    """Import a table of magnitude spectra with labels (see the module docstring); returns the dataset.
+
+    Parameters
+    ----------
+    table : ``.npz`` file.
+    out : dataset folder to write.
+    rig : use this rig (its band must lie inside the table, give or take one table bin); default:
+        derived from the frequency axis (:func:`rig_from_axis`, with ``fs_hz``/``frame``).
+    linear : the magnitudes are linear (``|H|``), not dB; converted with ``20 log10``.
+    mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
+    """
+    table, out = Path(table), Path(out)
     try:
-        z = dict(np.load(table, allow_pickle=False))
+        with np.load(table, allow_pickle=False) as npz:
+            z = {k: npz[k] for k in npz.files}
     except (OSError, ValueError) as e:
         raise ValueError(f"{table}: not a readable .npz table ({e})") from None
-    need = ("freqs_hz", "magnitude_db", "location", "x_cm", "y_cm", "session")
+    need = ("freqs_hz", "magnitude_db", "location", "session")
     missing = [k for k in need if k not in z]
     if missing:
-        raise ValueError(f"{table}: missing arrays {missing}; need {', '.join(need)} (optional force_n, moving, subject)")
+        raise ValueError(f"{table}: missing arrays {missing}; need {', '.join(need)} (optional x_cm, y_cm, force_n, "
+                         f"moving, subject)")
     f, M = np.asarray(z["freqs_hz"], float), np.asarray(z["magnitude_db"], float)
-    n = M.shape[0]
     if M.ndim != 2 or M.shape[1] != f.size:
         raise ValueError(f"{table}: magnitude_db must be (n, {f.size}) for {f.size} frequencies, got {M.shape}")
+    n = M.shape[0]
+    for k in ("location", "session", "x_cm", "y_cm", "force_n", "moving", "subject"):
+        if k in z and np.shape(z[k]) != (n,):
+            raise ValueError(f"{table}: {k} has shape {np.shape(z[k])}; need one value per row ({n},)")
     if not np.all(np.diff(f) > 0):
         raise ValueError(f"{table}: freqs_hz must increase")
     if not np.isfinite(M).all():
         raise ValueError(f"{table}: magnitude_db has NaN or inf")
+    if linear:
+        if M.min() < 0:
+            raise ValueError(f"{table}: --linear magnitudes cannot be negative (min {M.min():g}); are they dB already?")
+        M = 20 * np.log10(np.maximum(M, 1e-12 * max(M.max(), 1e-300)))
+    elif _looks_linear(M):
+        why = "all <= 1" if M.max() <= 1 else "spread over orders of magnitude"
+        warnings.warn(f"{table}: magnitude_db looks linear, not dB (all >= 0, {why}); "
+                      f"if so, import with --linear (20 log10 |H|)", stacklevel=2)
+    derived = rig is None
+    if derived:
+        rig = rig_from_axis(f, fs_hz=fs_hz, frame=frame, log=log)
     fb = rig.freqs_hz[rig.band_bins]
-    if f[0] > fb[0] or f[-1] < fb[-1]:
+    step = f[1] - f[0]
+    if f[0] > fb[0] + step or f[-1] < fb[-1] - step:
         raise ValueError(f"{table}: spectra cover {f[0]:g}-{f[-1]:g} Hz but the rig's band is {fb[0]:g}-{fb[-1]:g} Hz; "
-                         f"pass a rig whose chirp band lies inside the table")
-    loc = np.asarray(z["location"], int)
-    rows = [{"location": int(i), "x_cm": float(x), "y_cm": float(y)} for i, x, y in zip(loc, z["x_cm"], z["y_cm"])]
-    layout = _layout_from(rows, table)
-    w = DatasetWriter(out, rig, layout, source={"kind": "import-spectra", "from": str(table.resolve())}, mode=mode)
-    S = chirp_spectrum(rig)
+                         f"leave out the rig (it is derived from the table) or pass one whose band lies inside the table")
+    ids, layout, names = label_layout(z["location"], z.get("x_cm"), z.get("y_cm"), where=str(table), log=log)
     sessions = np.asarray(z["session"]).astype(str)
-    for s in sorted(set(sessions)):
-        idx = np.flatnonzero(sessions == s)
+    force = np.asarray(z["force_n"], float) if "force_n" in z else np.full(n, np.nan)
+    if not np.isfinite(force[ids >= 0]).any():
+        log("no force values (no force sensor): localization only; force is reported as absent")
+    # Each row's magnitude on the rig's bins (rows of the derived rig map one to one; another rig interpolates).
+    if derived:
+        assert rig.n_band == f.size
+        A = M
+    else:
+        A = np.stack([np.interp(fb, f, m) for m in M])
+    S = chirp_spectrum(rig)
+
+    def frames_of(idx):
         H = np.zeros((idx.size, rig.n_chirp // 2 + 1), complex)
-        for j, i in enumerate(idx):
-            H[j, rig.band_bins] = 10 ** (np.interp(fb, f, M[i]) / 20)
-        frames = scipy.fft.irfft(H * S, n=rig.n_chirp, axis=-1).astype(np.float32)
-        peak = float(np.abs(frames).max())
-        if peak >= 1.0:
-            raise ValueError(f"{table}: session {s} would clip (peak {peak:.2f}); scale magnitude_db down by "
-                             f"{20 * np.log10(peak) + 1:.0f} dB")
-        L = rig.n_chirp
-        audio = np.concatenate([frames[0, L // 2:], frames.ravel(), frames[-1, : L // 2]])  # starts mid-sweep
-        t = (L // 2 + np.arange(idx.size) * L) / rig.fs_hz
-        lab = {"chirp": np.arange(idx.size), "t_s": t, "time_s": t,
-               "segment": np.where(loc[idx] >= 0, "touch", "calibration"), "location": loc[idx],
-               "x_cm": np.where(loc[idx] >= 0, z["x_cm"][idx], np.nan), "y_cm": np.where(loc[idx] >= 0, z["y_cm"][idx], np.nan),
-               "force_n": np.asarray(z.get("force_n", np.full(n, np.nan)), float)[idx],
-               "moving": np.asarray(z.get("moving", np.zeros(n)), float)[idx],
-               "temperature_c": np.full(idx.size, np.nan), "subject": np.asarray(z.get("subject", np.zeros(n)), int)[idx]}
-        w.write_part(s, 0, audio, lab)
-        w.finish_session(s, {"rows": int(idx.size)})
-    log(f"imported {n} spectra in {len(set(sessions))} sessions into {out}")
-    return Path(out)
+        H[:, rig.band_bins] = 10 ** ((A[idx] - top_db) / 20)
+        return scipy.fft.irfft(H * S, n=rig.n_chirp, axis=-1)
+
+    # One gain for the whole table (relative levels between rows are the data): peak at -6 dBFS.
+    # Frames are built relative to the loudest bin (no overflow at any level); gain_db is the total.
+    top_db = float(A.max())
+    peak = max(float(np.abs(frames_of(np.flatnonzero(sessions == s))).max()) for s in set(sessions))
+    gain = PEAK_LEVEL / peak
+    gain_db = float(20 * np.log10(gain)) - top_db
+    source = {"kind": "import-spectra", "from": str(table.resolve()), "gain_db": round(gain_db, 6),
+              "labels": {str(k): v for k, v in names.items()}}
+    L = rig.n_chirp
+    with _staged(out, mode) as (root, wmode):
+        w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
+        for s in sorted(set(sessions)):
+            if w.session_done(s):
+                continue
+            idx = np.flatnonzero(sessions == s)
+            frames = (frames_of(idx) * gain).astype(np.float32)
+            audio = np.concatenate([frames[0, L // 2:], frames.ravel(), frames[-1, : L // 2]])  # starts mid-sweep
+            t = (L // 2 + np.arange(idx.size) * L) / rig.fs_hz
+            loc = ids[idx]
+            touch = loc >= 0
+            lab = {"chirp": np.arange(idx.size), "t_s": t, "time_s": t,
+                   "segment": np.where(touch, "touch", "calibration"), "location": loc,
+                   "x_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 0], np.nan),
+                   "y_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 1], np.nan),
+                   "force_n": force[idx], "moving": np.asarray(z.get("moving", np.zeros(n)), float)[idx],
+                   "temperature_c": np.full(idx.size, np.nan),
+                   "subject": np.asarray(z.get("subject", np.zeros(n)), int)[idx]}
+            _write_session(w, s, audio, lab, {"rows": int(idx.size)})
+    log(f"imported {n} spectra in {len(set(sessions))} sessions into {out} (levels scaled by {gain_db:+.1f} dB, "
+        f"stored as source.gain_db)")
+    return out

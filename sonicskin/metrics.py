@@ -52,5 +52,5 @@ def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
         "rmse_n": float(np.sqrt(np.mean(e ** 2))),
         "sigma_n": float(np.std(e)),
         "xcorr": float(np.sum(p * g) / denom) if denom > 0 else float("nan"),
-        "r2": float(1 - np.sum(e ** 2) / np.sum((g - g.mean()) ** 2)) if g.size > 1 else float("nan"),
+        "r2": float(1 - np.sum(e ** 2) / np.sum((g - g.mean()) ** 2)) if g.size > 1 and np.ptp(g) > 0 else float("nan"),
     }

@@ -4,8 +4,14 @@ The recorder prompts the user through: hands off (Alg. 2's calibration), hands o
 robot moves (OSPA's moving variance), then each location in turn ("touch location 7 with
 varying force for 3 s"), and writes the received stream and per-chirp labels in the dataset
 format as it goes: one part per prompt, each written atomically, so Ctrl-C loses at most the
-prompt in progress.  ``--resume`` starts a new session that records only the locations the
-dataset does not have yet.
+prompt in progress.  A chirp's label is the prompt that was showing when it was received.
+``--resume`` starts a new session that records only the requested locations the dataset has
+no touch chirps for yet (:func:`recorded_locations`): an interrupted prompt, or a prompt the
+user did not press.
+
+On the simulated device a simulated person follows exactly the prompts given
+(:func:`person_timeline`), and the simulated sensors also report where the finger really was:
+touch rows then carry that position in ``x_cm``/``y_cm`` (on a real rig: the marker's).
 
 Force ground truth comes from a :class:`ForceSource`: a CSV log (``t_s,force_n`` since the start
 of the recording), a serial sensor (one number per line, e.g. a SingleTact via an Arduino), the
@@ -15,8 +21,11 @@ trained).
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -27,7 +36,8 @@ from .dsp import rig_chirp
 from .live import Framer
 from .rig import Layout, Rig
 
-__all__ = ["ForceSource", "CsvForce", "SerialForce", "TimelineForce", "NoForce", "Recorder", "make_schedule"]
+__all__ = ["ForceSource", "CsvForce", "SerialForce", "TimelineForce", "NoForce", "Recorder", "make_schedule",
+           "person_timeline", "simulated_device", "location_chirps", "recorded_locations", "record_session"]
 
 
 class ForceSource:
@@ -89,18 +99,37 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated force sensor: the scripted force plus 0.02 N of sensor noise."""
+    """The simulated device's sensors: the person's force plus 0.02 N of sensor noise, and where the
+    finger really is (the ground truth a real rig does not have).
+
+    Parameters
+    ----------
+    timeline : what the simulated person does, chirp by chirp (:func:`person_timeline`).
+    chirp0_sample : stream sample index where timeline chirp 0 starts (negative: the stream starts inside it).
+    fs_hz, n_chirp : the rig's sample rate and chirp length.
+    """
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
         self.rng = np.random.default_rng(seed)
 
-    def force(self, t_s: float) -> float:
+    def _chirp(self, t_s: float) -> int | None:
         k = int(round((t_s * self.fs - self.c0) / self.L))
-        if not 0 <= k < len(self.tl):
+        return k if 0 <= k < len(self.tl) else None
+
+    def force(self, t_s: float) -> float:
+        k = self._chirp(t_s)
+        if k is None:
             return 0.0
         f = float(self.tl.force_n[k])
         return max(0.0, f + self.rng.normal(0, 0.02)) if f > 0 else 0.0
+
+    def contact_cm(self, t_s: float) -> tuple[float, float]:
+        """Centre of the press the person is making at ``t_s`` (NaN when not pressing anywhere)."""
+        k = self._chirp(t_s)
+        if k is None or self.tl.location[k] < 0:
+            return float("nan"), float("nan")
+        return float(self.tl.x_cm[k]), float(self.tl.y_cm[k])
 
 
 def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration_s: float = 3.0, moving_s: float = 10.0,
@@ -120,11 +149,20 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
 class Recorder:
     """Record a schedule from a source into a dataset session.
 
+    Prompt ``i`` of the schedule covers ``n_i`` chirp periods of the stream, starting where prompt
+    ``i - 1`` ended (the first starts at the first whole chirp).  Each chirp is labelled from the
+    prompt whose time span holds it, by its position in the stream, so a chirp the framing skips
+    never shifts the prompts after it.  A touch prompt labels its chirps with the location after
+    ``settle_s`` (the user's reaction time); every prompt is written as one part when it ends.
+
     Parameters
     ----------
     writer : the dataset writer.  session : session folder name.
     source : an audio source (``start``/``read``/``stop``).
-    force : a :class:`ForceSource`.  moving : motion level to label the ``moving`` prompt with.
+    schedule : prompts from :func:`make_schedule`.
+    force : a :class:`ForceSource`; if it has ``contact_cm(t_s)`` (the simulated device), touch rows
+        get the true finger position in ``x_cm``/``y_cm``, otherwise the marker's coordinates.
+    moving_level : motion level to label the ``moving`` prompt with.
     prompt : called with each prompt's text (default: stderr).
     """
 
@@ -135,58 +173,174 @@ class Recorder:
         self.moving_level = moving_level
         self.prompt = prompt or (lambda text: print(f"[record] {text}", file=sys.stderr, flush=True))
         self.settle = self.rig.seconds_to_chirps(settle_s)  # reaction time at the start of a touch prompt
+        self.parts_written = 0      # finished prompts on disk
+        self.chirps_written = 0
+        self.interrupted_at = None  # the prompt in progress when Ctrl-C came
+
+    def _row(self, chirp: int, t_s: float, seg: str, loc: int, touching: bool) -> dict:
+        row = {"chirp": chirp, "t_s": t_s, "time_s": t_s, "segment": seg,
+               "location": loc if touching else -1, "x_cm": np.nan, "y_cm": np.nan,
+               "force_n": self.forcesrc.force(t_s) if seg == "touch" else 0.0,
+               "moving": self.moving_level if seg == "moving" else 0.0, "temperature_c": np.nan, "subject": 0}
+        if touching:
+            contact = getattr(self.forcesrc, "contact_cm", None)
+            row["x_cm"], row["y_cm"] = contact(t_s) if contact else self.w.layout.coords(np.array([loc]))[0]
+        return row
 
     def run(self) -> dict:
+        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.
+
+        On Ctrl-C the prompt in progress is dropped (a half-made touch is no training data) and
+        every finished one stays on disk; ``interrupted_at`` then names the prompt in progress.
+        """
         rig, L = self.rig, self.rig.n_chirp
         framer = Framer(rig_chirp(rig))
         stream: list[np.ndarray] = []       # samples not yet written
         stream_start = 0                    # stream index of stream[0][0]
-        part = 0
-        seg_i, in_seg = 0, 0
+        seg_i = 0
+        seg_start: int | None = None        # stream sample where the current prompt's first chirp starts
         rows: list[dict] = []
-        n_written = 0
         t_wall = time.perf_counter()
         self.prompt(self.schedule[0][3])
-        while seg_i < len(self.schedule):
-            block = self.source.read(timeout=2.0)
-            if block is None:
-                if getattr(self.source, "finished", None) is not None and self.source.finished.is_set():
-                    break
-                continue
-            if block.discontinuity and rows:
-                raise RuntimeError("audio was lost during the recording (overflow); the parts written so far are "
-                                   "kept: record again with --resume")
-            stream.append(block.samples)
-            for start, _frame in framer.push(block.samples, block.start, block.discontinuity):
-                seg, loc, n, _ = self.schedule[seg_i]
-                t_s = start / rig.fs_hz
-                touching = seg == "touch" and in_seg >= self.settle
-                rows.append({"chirp": len(rows) + n_written, "t_s": t_s, "time_s": t_s, "segment": seg,
-                             "location": loc if touching else -1, "x_cm": np.nan, "y_cm": np.nan,
-                             "force_n": self.forcesrc.force(t_s) if seg == "touch" else 0.0,
-                             "moving": self.moving_level if seg == "moving" else 0.0,
-                             "temperature_c": np.nan, "subject": 0})
-                if touching:
-                    rows[-1]["x_cm"], rows[-1]["y_cm"] = self.w.layout.coords(np.array([loc]))[0]
-                in_seg += 1
-                if in_seg >= n:  # prompt done: write its audio and labels as one part
-                    end = start + L
-                    audio = np.concatenate(stream)
-                    cut = end - stream_start
-                    labels = {c: np.array([r[c] for r in rows]) for c in COLUMNS}
-                    self.w.write_part(self.session, part, audio[:cut], labels)
-                    n_written += len(rows)
-                    rows, part = [], part + 1
-                    stream, stream_start = [audio[cut:]], end
-                    seg_i, in_seg = seg_i + 1, 0
-                    if seg_i < len(self.schedule):
-                        self.prompt(self.schedule[seg_i][3])
-                    else:
+
+        def close_prompt() -> None:  # write the current prompt's audio and labels as one part
+            nonlocal stream, stream_start, rows, seg_i, seg_start
+            end = seg_start + self.schedule[seg_i][2] * L
+            audio = np.concatenate(stream)
+            cut = end - stream_start
+            labels = {c: np.array([r[c] for r in rows]) for c in COLUMNS}
+            with _sigint_deferred():  # a finished prompt is written whole, whenever Ctrl-C comes
+                self.w.write_part(self.session, self.parts_written, audio[:cut], labels)
+                self.parts_written += 1
+                self.chirps_written += len(rows)
+            rows, stream, stream_start = [], [audio[cut:]], end
+            seg_i, seg_start = seg_i + 1, end
+            if seg_i < len(self.schedule):
+                self.prompt(self.schedule[seg_i][3])
+
+        try:
+            while seg_i < len(self.schedule):
+                block = self.source.read(timeout=2.0)
+                if block is None:
+                    if getattr(self.source, "finished", None) is not None and self.source.finished.is_set():
                         break
+                    continue
+                if block.discontinuity and (rows or self.parts_written):
+                    raise RuntimeError("audio was lost during the recording (overflow); the prompts finished so far "
+                                       "are kept: record again with --resume")
+                stream.append(block.samples)
+                for start, _frame in framer.push(block.samples, block.start, block.discontinuity):
+                    if seg_start is None:  # the first prompt starts at the first whole chirp
+                        seg_start = start
+                    # Which chirp of which prompt this is, by stream position.
+                    j = int(round((start - seg_start) / L))
+                    while seg_i < len(self.schedule) and j >= self.schedule[seg_i][2]:
+                        close_prompt()  # its last chirp(s) were not framed: the prompt still ends on time
+                        j = int(round((start - seg_start) / L))
+                    if seg_i >= len(self.schedule):
+                        break
+                    seg, loc, n, _ = self.schedule[seg_i]
+                    touching = seg == "touch" and j >= self.settle
+                    rows.append(self._row(self.chirps_written + len(rows), start / rig.fs_hz, seg, loc, touching))
+                    if j >= n - 1:
+                        close_prompt()
+                        if seg_i >= len(self.schedule):
+                            break
+        except KeyboardInterrupt:
+            self.interrupted_at = self.schedule[seg_i] if seg_i < len(self.schedule) else None
+            raise
         complete = seg_i >= len(self.schedule)
         if complete:
-            self.w.finish_session(self.session, {"n_chirps": n_written, "prompts": len(self.schedule)})
-        return {"chirps": n_written, "parts": part, "complete": complete, "wall_s": time.perf_counter() - t_wall}
+            self.w.finish_session(self.session, {"n_chirps": self.chirps_written, "prompts": len(self.schedule)})
+        return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete,
+                "wall_s": time.perf_counter() - t_wall}
+
+
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`.
+
+    Writing a part runs libsndfile callbacks through cffi, which swallows an exception raised in
+    them ("Exception ignored from cffi callback"): a Ctrl-C landing there would be lost and the
+    part could be cut short.  Outside the main thread (no signal handlers there) this does nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    old = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if caught and callable(old):
+        old(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+    elif caught and old == signal.SIG_DFL:
+        raise KeyboardInterrupt
+
+
+def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):
+    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order.
+
+    Every prompt becomes a segment of exactly its length: hands off for calibration, gaps and
+    skipped locations do not exist here (the person only hears the prompts given); the robot
+    moves only during the ``moving`` prompt; each touch prompt is one press-hold-release of the
+    scenario's first subject at the prompted marker (aim bias and jitter of that person, peak
+    force from ``scenario.peak_force_n``).  ``lead_chirps`` extra no-touch chirps go in front:
+    the stream starts inside chirp 0, so the recorder's first whole chirp is usually chirp 1 (chirp 0
+    when the stream starts within the link's delay): the person is never ahead of a prompt and at
+    most one chirp behind it, well inside the recorder's reaction time.
+
+    Returns a one-session :class:`sonicskin.sim.Timeline`.
+    """
+    from .sim.finger import make_subjects, press_profile
+    from .sim.scenario import SEGMENTS, Timeline, _motion_level
+
+    layout = scenario.make_layout()
+    rng = np.random.default_rng([seed, 17])
+    subject = int(scenario.subjects[0])
+    who = make_subjects()[subject]
+    lengths = [n + (lead_chirps if i == 0 else 0) for i, (_, _, n, _) in enumerate(schedule)]
+    n_all = sum(lengths)
+    segment, event, location = np.zeros(n_all, int), np.full(n_all, -1), np.full(n_all, -1)
+    x_cm, y_cm = np.full(n_all, np.nan), np.full(n_all, np.nan)
+    force_n, moving = np.zeros(n_all), np.zeros(n_all)
+    a = 0
+    for i, ((seg, loc, _, _), n) in enumerate(zip(schedule, lengths)):
+        b = a + n
+        segment[a:b] = SEGMENTS.index(seg)
+        if seg == "touch":
+            peak = rng.uniform(*scenario.peak_force_n) * who.max_force_n / 6.0
+            force_n[a:b] = press_profile(n, peak_n=peak, rng=rng)
+            aim_cm = (np.array(who.aim_bias_m) + rng.normal(0, who.aim_jitter_m, 2)) * 100
+            x_cm[a:b], y_cm[a:b] = layout.coords(np.array([loc]))[0] + aim_cm
+            event[a:b], location[a:b] = i, loc
+        elif seg == "moving":
+            moving[a:b] = _motion_level(rng, n, rig.chirps_per_s) * float(scenario.motion.get("level", 1.0))
+        a = b
+    k = np.arange(n_all)
+    time_s = scenario.start_s + k / rig.chirps_per_s
+    return Timeline(session=np.zeros(n_all, int), chirp=k, time_s=time_s, segment=segment, event=event, location=location,
+                    x_cm=x_cm, y_cm=y_cm, force_n=force_n, moving=moving, temperature_c=scenario.temperature_c(time_s),
+                    subject=np.full(n_all, subject))
+
+
+def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realtime: bool = False, offset: int = 4321):
+    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``.
+
+    The link is the scenario's (same ``link_seed``); the person's presses are drawn anew for each
+    session (seed ``scenario.seed + 500 + session_index``); the robot moves only when prompted to.
+    """
+    from .acquire import SimulatedSource
+    from .sim import Simulator
+
+    moving = any(seg == "moving" for seg, *_ in schedule)
+    psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
+                           motion={**scenario.motion, "enabled": moving})
+    offset %= rig.n_chirp
+    tl = person_timeline(psc, rig, schedule, seed=psc.seed, lead_chirps=1 if offset else 0)
+    src = SimulatedSource(Simulator(psc, rig), tl, realtime=realtime, offset=offset)
+    return src, TimelineForce(tl, -offset, rig.fs_hz, rig.n_chirp, seed=session_index), tl
 
 
 def next_session(root: Path) -> str:
@@ -195,12 +349,110 @@ def next_session(root: Path) -> str:
     return f"s{(max(nums) + 1 if nums else 0):03d}"
 
 
-def recorded_locations(root: Path) -> set[int]:
-    """Locations with touch chirps in the finished parts of a dataset."""
+MIN_TOUCH_CHIRPS = 3  # a location with fewer touch chirps than this is recorded again by --resume
+
+
+def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, tuple[int, int]]:
+    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset; ``touch`` are those
+    that train as a touch there (force >= ``min_force_n``, or no force sensor), as ``fit-svm`` counts them."""
     ds = Dataset(root)
-    out: set[int] = set()
+    out: dict[int, tuple[int, int]] = {}
     for s in ds.sessions:
         for p in ds.parts(s):
             lab = ds._read_labels(ds.root / s / f"part-{p:05d}.csv")
-            out |= set(int(v) for v in lab["location"][lab["location"] >= 0])
+            loc, f = lab["location"], lab["force_n"]
+            use = (f >= min_force_n) | np.isnan(f)
+            for v in np.unique(loc[loc >= 0]):
+                n, t = out.get(int(v), (0, 0))
+                out[int(v)] = (n + int(np.sum(loc == v)), t + int(np.sum((loc == v) & use)))
     return out
+
+
+def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
+    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset.
+
+    A location whose prompt was interrupted has no finished part; one that was prompted but not
+    pressed (every chirp under ``min_force_n``) has no touch chirp: neither counts as recorded.
+    """
+    return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
+
+
+def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device="sim", resume: bool = False,
+                   overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
+                   touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
+                   min_force_n: float = 0.5, prompt=None, log=None) -> dict:
+    """``sonicskin record``: one guided session into the dataset ``out`` (see the module docstring).
+
+    With ``resume`` only the requested locations without touch chirps yet are prompted (a
+    location whose prompt was interrupted, or that was prompted but never pressed).  Returns the
+    :meth:`Recorder.run` figures plus ``session`` and ``locations`` (what was recorded), or
+    ``{"locations": []}`` when nothing is missing.
+    """
+    from .acquire import Link, SoundDeviceSource
+
+    log = log or (lambda text: print(text, file=sys.stderr, flush=True))
+    out = Path(out)
+    layout = scenario.make_layout()
+    wanted = list(dict.fromkeys(int(v) for v in locations)) if locations else list(layout.ids)
+    bad = [v for v in wanted if v not in layout.ids]
+    if bad:
+        raise ValueError(f"--locations {' '.join(map(str, bad))}: not a marker of the {scenario.name} layout "
+                         f"(ids {layout.ids[0]}..{layout.ids[-1]})")
+    for name, v in (("calibration-s", calibration_s), ("touch-s", touch_s)):
+        if not v > 0:
+            raise ValueError(f"--{name} must be > 0 s, got {v:g}")
+    for name, v in (("moving-s", moving_s), ("gap-s", gap_s)):
+        if not v >= 0:
+            raise ValueError(f"--{name} must be >= 0 s, got {v:g}")
+    if calibration_s < 3.0:
+        log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "
+            f"fit-svm will need --mode absolute on this recording")
+    if device != "sim":  # the device and the force sensor open before anything is written
+        src = SoundDeviceSource(rig, device, link=Link(tx=tx, rx=rx))
+        force = CsvForce(force_csv) if force_csv else SerialForce(force_serial) if force_serial else NoForce()
+    mode = "resume" if resume else ("overwrite" if overwrite else "create")
+    new_dir, new_dataset = not out.exists(), not (out / "dataset.json").exists()
+    writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": scenario.name}, mode=mode)
+    new_dataset = new_dataset or overwrite
+    todo = wanted
+    if resume:
+        have = location_chirps(out, min_force_n=min_force_n)
+        todo = [v for v in wanted if have.get(v, (0, 0))[1] < MIN_TOUCH_CHIRPS]
+        if not todo:
+            log(f"{out}: all {len(wanted)} requested locations have touch chirps; nothing to do")
+            return {"locations": []}
+
+        def why(v: int) -> str:
+            n, t = have.get(v, (0, 0))
+            return f"labelled but only {t} of {n} chirps pressed at >= {min_force_n:g} N" if n else "not recorded"
+
+        log(f"{out}: resuming: recording {len(todo)} missing location(s): " + ", ".join(f"{v} ({why(v)})" for v in todo))
+    session = next_session(out)
+    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s)
+    if device == "sim":
+        src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
+    log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
+        f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s")
+    rec = Recorder(writer, session, src, schedule, force, prompt=prompt)
+    try:
+        with src:
+            res = rec.run()
+    except BaseException as exc:
+        if rec.parts_written == 0 and new_dataset:  # nothing recorded: leave no dataset that blocks a retry
+            import shutil
+
+            if new_dir:
+                shutil.rmtree(out, ignore_errors=True)
+            else:
+                shutil.rmtree(out / session, ignore_errors=True)
+                (out / "dataset.json").unlink(missing_ok=True)
+            kept = f"nothing was recorded, so the new dataset {out} is removed"
+        else:
+            kept = (f"{rec.parts_written} finished prompts ({rec.chirps_written} chirps) are kept in {out / session}; "
+                    f"`--resume` records what is missing")
+        if isinstance(exc, KeyboardInterrupt):
+            log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
+        raise
+    log(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
+    return {**res, "session": session, "locations": todo}
+

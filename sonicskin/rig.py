@@ -2,7 +2,7 @@
 
 A *rig* is everything about the hardware that a model depends on: the sample
 rate, the transmitted chirp (Eq. 1 of the paper) and the frequency bands the
-matched filter of OSPA step 1 drops.  It is loaded from YAML (``configs/rigs``)
+matched filter of OSPA step 1 drops.  It is loaded from YAML (``configs/rigs``, see :func:`resolve_config`)
 and stored inside every dataset and deployment artifact, so a model is never
 run on a rig it was not trained for.
 """
@@ -11,14 +11,71 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib.resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-__all__ = ["Rig", "Layout", "load_yaml", "CONFIG_DIR"]
+__all__ = ["Rig", "Layout", "load_yaml", "config_dir", "config_names", "resolve_config", "CONFIG_KINDS"]
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+#: The config folders (``configs/<kind>/<name>.yaml``) a bare name can refer to.
+CONFIG_KINDS = ("rigs", "scenarios", "links", "train")
+
+
+def config_dir() -> Path:
+    """The folder that bare config names resolve in.
+
+    A wheel ships the repository's top-level ``configs/`` as package data, ``sonicskin/configs``
+    (``[tool.setuptools.package-dir]`` in pyproject.toml), read here with :mod:`importlib.resources`.
+    A source checkout (an editable install, or ``PYTHONPATH`` pointing at the repository) has no
+    ``sonicskin/configs``; its configs are the ``configs/`` folder next to the package.
+    """
+    shipped = importlib.resources.files(__package__) / "configs"
+    if shipped.is_dir():
+        return Path(str(shipped))  # pip installs wheels unpacked, so this is a real folder
+    return Path(__file__).resolve().parent.parent / "configs"
+
+
+def config_names(kind: str) -> list[str]:
+    """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``), sorted."""
+    if kind not in CONFIG_KINDS:
+        raise ValueError(f"unknown config kind {kind!r}; valid kinds: {', '.join(CONFIG_KINDS)}")
+    return sorted(p.stem for p in (config_dir() / kind).glob("*.yaml"))
+
+
+def resolve_config(name_or_path: str | Path, kind: str) -> Path:
+    """The YAML file a config argument refers to.
+
+    A bare name (``jaco``, ``moving``) is one of the package's configs (:func:`config_names`); a
+    file name (``my-rig.yaml``) or a path (``configs/rigs/jaco.yaml``, ``./rig``) is read from the
+    filesystem as it stands.
+
+    Raises
+    ------
+    FileNotFoundError
+        A bare name that is not a shipped config (the message lists the known names), or a path
+        that does not exist.
+    """
+    text = str(name_or_path)
+    p = Path(name_or_path)
+    if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
+        if not p.is_file():
+            raise FileNotFoundError(f"{kind} config file {text} does not exist (a bare name like "
+                                    f"{(config_names(kind) or ['NAME'])[0]!r} picks a shipped config)")
+        return p
+    candidate = config_dir() / kind / f"{text}.yaml"
+    if not candidate.is_file():
+        known = config_names(kind)
+        listed = ", ".join(known) if known else f"none (no {config_dir() / kind}: the package was installed without its configs)"
+        raise FileNotFoundError(f"no {kind} config named {text!r}; known: {listed}; or give a path to a YAML file")
+    return candidate
+
+
+_resolve_config = resolve_config  # the old private name, for callers not yet updated
+
+#: Kept for older callers; new code calls :func:`config_dir` / :func:`config_names`.
+CONFIG_DIR = config_dir()
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
@@ -41,18 +98,6 @@ def check_keys(cls, d: dict[str, Any], what: str) -> None:
     unknown = set(d) - names
     if unknown:
         raise ValueError(f"unknown {what} keys {sorted(unknown)}; valid keys: {sorted(names)}")
-
-
-def _resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """A bare name (``jaco``) means ``configs/<kind>/<name>.yaml``; anything else is a path."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    candidate = CONFIG_DIR / kind / f"{name_or_path}.yaml"
-    if not candidate.is_file():
-        known = sorted(q.stem for q in (CONFIG_DIR / kind).glob("*.yaml"))
-        raise FileNotFoundError(f"no {kind} config named {name_or_path!r}; known: {', '.join(known)}")
-    return candidate
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,8 +158,8 @@ class Rig:
 
     @classmethod
     def load(cls, name_or_path: str | Path = "jaco") -> Rig:
-        """Load ``configs/rigs/<name>.yaml`` or a YAML file path."""
-        return cls.from_dict(load_yaml(_resolve_config(name_or_path, "rigs")))
+        """Load a shipped rig by name (``configs/rigs/<name>.yaml``) or a YAML file path (:func:`resolve_config`)."""
+        return cls.from_dict(load_yaml(resolve_config(name_or_path, "rigs")))
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

@@ -9,25 +9,18 @@ asked to run on and against its checksums before anything runs.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 from pathlib import Path
 
 import numpy as np
 
-from .artifact import ARTIFACT_FORMAT
 from .dsp import log_magnitude_db
 from .features import FeatureSpec
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
+from .schema import ARTIFACT_FORMAT, ArtifactError, check_layout, check_rig, check_session, load_skin, read_model_file
 from .svm_head import score_vector, touch_statistic
 
 __all__ = ["ArtifactError", "SkinRuntime", "SkinStream", "Predictions", "ARTIFACT_FORMAT"]
-
-
-
-class ArtifactError(ValueError):
-    """An artifact that cannot run here; the message says what does not match and what to do."""
 
 
 @dataclasses.dataclass
@@ -65,44 +58,28 @@ class SkinRuntime:
     model : ``"net"`` or ``"svm"``.
     rig : the rig it will run on; defaults to the artifact's own.  A different sample rate,
         chirp or band raises :class:`ArtifactError`.
+    layout : the marker layout of the surface it will run on (e.g. a scenario's ``make_layout()``);
+        other ids or positions than the artifact's raise :class:`ArtifactError`.  ``None``: not checked.
     threads : onnxruntime intra-op threads (1: predictable latency next to the audio thread).
     """
 
-    def __init__(self, folder: str | Path, model: str = "net", *, rig: Rig | None = None, threads: int = 1):
+    def __init__(self, folder: str | Path, model: str = "net", *, rig: Rig | None = None, layout: Layout | None = None,
+                 threads: int = 1):
         import onnxruntime as ort
 
         self.folder = Path(folder)
-        meta_path = self.folder / "skin.json"
-        if not meta_path.is_file():
-            raise ArtifactError(f"{self.folder} is not a sonicskin artifact (skin.json missing); create one with "
-                                f"`sonicskin export`")
-        try:
-            self.meta = json.loads(meta_path.read_text())
-        except json.JSONDecodeError as e:
-            raise ArtifactError(f"{meta_path} is corrupt ({e}); export the artifact again") from None
-        if self.meta.get("format") != ARTIFACT_FORMAT or self.meta.get("version") != 1:
-            raise ArtifactError(f"{meta_path}: not a version-1 {ARTIFACT_FORMAT}")
+        self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.schema)
         self.rig = Rig.from_dict(self.meta["rig"])
         if rig is not None:
-            diffs = self.rig.mismatch(rig)
-            if diffs:
-                raise ArtifactError(f"the artifact was trained for another rig ({'; '.join(diffs)}); "
-                                    f"record and train on this rig, or run with the artifact's rig")
+            check_rig(self.meta, rig)
         self.layout = Layout.from_dict(self.meta["layout"])
+        if layout is not None:
+            check_layout(self.meta, layout)
         self.spec = FeatureSpec.from_dict(self.meta["features"])
-        if max(self.spec.bins) >= self.rig.n_band:
-            raise ArtifactError(f"the artifact's bins reach {max(self.spec.bins)} but the rig has {self.rig.n_band} band bins")
-        if model not in self.meta["models"]:
-            raise ArtifactError(f"model {model!r} is not in the artifact (it has {sorted(self.meta['models'])})")
+        data = read_model_file(self.folder, self.meta, model)  # confined to the folder, checksum verified
         self.kind = model
         self.m = self.meta["models"][model]
         path = self.folder / self.m["file"]
-        if not path.is_file():
-            raise ArtifactError(f"{path} is missing")
-        data = path.read_bytes()
-        if hashlib.sha256(data).hexdigest() != self.m["sha256"]:
-            raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
-                                f"replaced; export the artifact again")
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads
         so.inter_op_num_threads = 1
@@ -110,17 +87,13 @@ class SkinRuntime:
         try:
             self.session = ort.InferenceSession(data, so, providers=["CPUExecutionProvider"])
         except Exception as e:  # onnxruntime raises its own exception types
-            raise ArtifactError(f"{path} cannot be loaded by onnxruntime ({e})") from None
+            raise ArtifactError(f"{path} cannot be loaded by onnxruntime ({str(e).splitlines()[0][:160]}); "
+                                f"export the artifact again") from None
+        check_session(self.session, self.meta, model, source=str(path))
         self.input_name = self.session.get_inputs()[0].name
-        shape = self.session.get_inputs()[0].shape
-        if shape[-1] != len(self.spec.bins):
-            raise ArtifactError(f"{path} takes {shape[-1]} features but skin.json lists {len(self.spec.bins)} bins")
         self.n_locations = len(self.layout)
         self.ids = np.asarray(self.layout.ids)
         if model == "svm":
-            if self.m.get("detector") != "input-rms":
-                raise ArtifactError(f"{path}: the SVM's touch detector is from an older sonicskin; export the artifact "
-                                    f"again (sonicskin export / fit-svm)")
             self.force_model = PerLocationForce.from_dict(self.m["force"])
             self.reference_scores = np.asarray(self.m["reference_scores"])
 

@@ -45,9 +45,9 @@ METRICS: dict[str, tuple] = {
     "accuracy": (lambda r: r["localization"]["accuracy"], "pct", True),
     "within_2cm": (lambda r: r["localization"]["within_2cm"], "pct", True),
     "continuous_error_cm": (lambda r: r["continuous_error_cm"]["median"], "cm", False),
-    "force_rmse_n": (lambda r: r["force"]["rmse_n"], "N", False),
-    "false_touch": (lambda r: r["detection"]["false_touch_rate"], "pct", False),
-    "missed_touch": (lambda r: r["detection"]["missed_touch_rate"], "pct", False),
+    "force_rmse_n": (lambda r: r["force"].get("rmse_n", np.nan), "N", False),  # absent without a force sensor
+    "false_touch": (lambda r: r["detection"].get("false_touch_rate", np.nan), "pct", False),
+    "missed_touch": (lambda r: r["detection"].get("missed_touch_rate", np.nan), "pct", False),
 }
 LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "continuous_error_cm": "continuous xy error (median)",
           "force_rmse_n": "force RMSE", "false_touch": "false touches", "missed_touch": "missed touches"}

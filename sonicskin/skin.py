@@ -31,8 +31,8 @@ __all__ = ["SkinSVM", "Predictions"]
 class Predictions:
     location: np.ndarray      # (n,) predicted location id (argmax of calibrated scores)
     xy_cm: np.ndarray         # (n, 2)
-    touch: np.ndarray         # (n,) bool, detection
-    force_n: np.ndarray       # (n,) estimated force (0 where no touch is detected)
+    touch: np.ndarray         # (n,) bool, detection (all True when trained without no-touch chirps)
+    force_n: np.ndarray       # (n,) estimated force (0 where no touch is detected; NaN without a force model)
     scores: np.ndarray        # (n, K) calibrated scores
     energy_db: np.ndarray     # (n,) E^O relative to the reference
 
@@ -68,23 +68,30 @@ class SkinSVM:
         """Train on one-shot data.
 
         X : (n, n_band) features of a training session; location (n,) id or -1; force_n (n,).
-        quiet : (n,) bool, no-touch chirps at rest (calibration reference and detector negatives).
+        quiet : (n,) bool, no-touch chirps at rest (calibration reference and detector negatives).  Without
+            any (a table of touches only) ``detector_`` is ``None`` and every chirp counts as a touch.
+            ``force_`` is ``None`` without a force sensor (NaN forces) or with a constant force.
         X_moving : no-touch chirps while the robot moves (OSPA's MV); quiet chirps when ``None``.
         """
         X, location, force_n, quiet = (np.asarray(a) for a in (X, location, force_n, quiet))
         n = X.shape[0]
         if not (location.shape == force_n.shape == quiet.shape == (n,)):
             raise ValueError(f"X has {n} rows but location/force/quiet have {location.size}/{force_n.size}/{quiet.size}")
-        touch = (location >= 0) & (force_n >= self.min_force_n)
-        if quiet.sum() < 2:
-            raise ValueError("need no-touch chirps (quiet) to calibrate and to detect touches")
+        # A touch is a location with enough force, or any force when there is no force sensor (NaN).
+        touch = (location >= 0) & ((force_n >= self.min_force_n) | np.isnan(force_n))
+        rest = quiet.sum() >= 2  # a table of touches only has no rest: no detector, no Alg. 2 reference
         self.localizer_ = SVMLocalizer(n_bins=self.n_bins, C=self.C, allowed=self.rig.allowed_mask)
-        self.localizer_.fit(X[touch], location[touch], X_moving=X_moving if X_moving is not None else X[quiet])
+        X_ref = X_moving if X_moving is not None else (X[quiet] if rest else None)
+        self.localizer_.fit(X[touch], location[touch], X_moving=X_ref)
         raw = self._raw(X)
-        self.reference_ = raw[quiet].mean(axis=0)  # S_c and E^O of the training session's rest
+        # S_c and E^O of the training session's rest (without rest: none, E^O is absolute).
+        self.reference_ = raw[quiet].mean(axis=0) if rest else np.zeros(raw.shape[1])
         cal = raw - self.reference_
-        self.detector_ = TouchDetector().fit(cal[touch, :-1], cal[quiet, :-1])
-        self.force_ = PerLocationForce(self.force_model).fit(cal[touch, -1], force_n[touch], location[touch])
+        self.detector_ = TouchDetector().fit(cal[touch, :-1], cal[quiet, :-1]) if rest else None
+        has_f = touch & np.isfinite(force_n)
+        self.force_ = None  # no force sensor, or a constant force (no curve to fit)
+        if has_f.sum() >= 8 and np.ptp(force_n[has_f]) > 0:
+            self.force_ = PerLocationForce(self.force_model).fit(cal[has_f, -1], force_n[has_f], location[has_f])
         return self
 
     def predict(self, X: np.ndarray, *, time_s: np.ndarray | None = None, online: bool = True) -> Predictions:
@@ -97,7 +104,7 @@ class SkinSVM:
         ``time_s``: the stream clock when it has gaps (chirp count otherwise).
         """
         raw = self._raw(X)
-        if online:
+        if online and self.detector_ is not None:  # no detector (touches only): nothing to refresh from
             c = self.calibrator
             ref = OnlineReference(c.beta, c.alpha, c.cps, relative=False)
             clock = np.arange(len(raw)) / c.cps if time_s is None else np.asarray(time_s, float)
@@ -119,6 +126,7 @@ class SkinSVM:
         # subtracting the no-touch votes S_c scrambles their argmax (measured on the simulated
         # moving robot: 96 % raw vs 33 % calibrated).  S_c serves detection and force instead.
         loc = self.localizer_.classes_[np.argmax(raw[:, :-1], axis=1)]
-        touch = self.detector_.predict(S) & ~boot
-        F = np.where(touch, np.clip(self.force_.predict(E, loc), 0, None), 0.0)
+        touch = (self.detector_.predict(S) if self.detector_ is not None else np.ones(len(loc), bool)) & ~boot
+        F = (np.where(touch, np.clip(self.force_.predict(E, loc), 0, None), 0.0) if self.force_ is not None
+             else np.full(len(loc), np.nan))
         return Predictions(loc, self.layout.coords(loc), touch, F, S, E)

@@ -61,21 +61,25 @@ def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.nd
         raise ValueError(f"training data touches {len(classes)} of the {n_locations} locations; "
                          f"record every location at least once")
     V = score_vector(pipe.decision_function(X), n_locations, X)
-    ref = V[quiet].mean(axis=0)
+    # A table of touches only has no rest: no Alg. 2 reference (zero) and no detector (threshold 0 on a
+    # statistic >= 0: every chirp is a touch); "detection": false says so in skin.json.
+    rest = quiet.sum() >= 2 and (~touch).any()
+    ref = V[quiet].mean(axis=0) if rest else np.zeros(V.shape[1])
     stat = touch_statistic(V - ref, n_locations)[:, None]
-    det = TouchDetector().fit(stat[touch], stat[~touch])
+    det = TouchDetector().fit(stat[touch], stat[~touch]) if rest else None
     all_bins = np.arange(X.shape[1])
-    e_ref = float(energy_db(X[quiet], all_bins).mean())
+    e_ref = float(energy_db(X[quiet], all_bins).mean()) if rest else 0.0
     E = energy_db(X, all_bins) - e_ref
     ids = np.asarray(location_ids)
     has_f = touch & np.isfinite(force)  # recordings without a force sensor carry NaN forces
     fm = PerLocationForce(force_model)
-    if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations:
+    if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations and np.ptp(force[has_f]) > 0:
         fm.fit(E[has_f], force[has_f], ids[cls[has_f]])
-    else:
+    else:  # no force sensor (or a constant force): force is absent (NaN), never 0 N
         fm.curves_ = {}
-    params = {"reference_scores": ref.tolist(), "threshold": det.threshold_, "detector": "input-rms",
-              "energy_ref_db": e_ref,
-              "train_false_touch_rate": det.false_touch_rate_, "train_missed_touch_rate": det.missed_touch_rate_,
+    params = {"reference_scores": ref.tolist(), "threshold": det.threshold_ if rest else 0.0, "detector": "input-rms",
+              "detection": bool(rest), "energy_ref_db": e_ref,
+              "train_false_touch_rate": det.false_touch_rate_ if rest else None,
+              "train_missed_touch_rate": det.missed_touch_rate_ if rest else None,
               "force": fm.to_dict()}
     return pipe, params

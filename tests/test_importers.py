@@ -1,6 +1,9 @@
 """Importers: WAV recordings of any sweep and rate, and tables of spectra, round-trip into the dataset format."""
 
 import csv
+import json
+import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,7 +12,7 @@ import soundfile as sf
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
 from sonicskin.dsp import rig_chirp
-from sonicskin.importers import import_spectra, import_wav
+from sonicskin.importers import import_spectra, import_wav, label_layout, rig_from_axis
 from sonicskin.rig import Rig
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
@@ -72,13 +75,19 @@ def test_spectra_import_round_trip(source, tmp_path, rig):
     np.savez(table, freqs_hz=rig.freqs_hz[rig.band_bins], magnitude_db=t.X.astype(float), location=t["location"],
              x_cm=np.nan_to_num(t["x_cm"]), y_cm=np.nan_to_num(t["y_cm"]), session=t["session"], force_n=t["force_n"])
     out = import_spectra(table, tmp_path / "imp", rig=rig, log=lambda *_: None)
-    b = Dataset(out).features(progress=False)
+    imp = Dataset(out)
+    b = imp.features(progress=False)
     np.testing.assert_array_equal(b["location"], t["location"])
-    strong = t.X > -80  # 24-bit audio in between: deep notches sit near its noise floor
-    np.testing.assert_allclose(b.X[strong], t.X[strong], atol=0.05)
-    # It trains like simulated data (this tiny set has 1 s of rest per session: absolute features).
-    assert main(["fit-svm", "--data", str(out), "--out", str(tmp_path / "art"), "--n-bins", "40"]) == 2
-    assert main(["fit-svm", "--data", str(out), "--out", str(tmp_path / "art"), "--n-bins", "40", "--mode", "absolute"]) == 0
+    # Levels are normalised (peak -6 dBFS); the gain is stored, and undoing it gives the table back.
+    gain = imp.meta["source"]["gain_db"]
+    strong = t.X > -80 + max(0.0, -gain)  # 24-bit audio in between: deep notches sit near its noise floor
+    np.testing.assert_allclose(b.X[strong] - gain, t.X[strong], atol=0.05)
+    # It trains like simulated data.  This tiny set has 1 s (9 chirps) of rest per session, less than
+    # the minimum reference of 10 chirps: relative inputs fall back to absolute ones, with a warning.
+    with pytest.warns(UserWarning, match="using absolute features"):
+        assert main(["fit-svm", "--data", str(out), "--out", str(tmp_path / "art"), "--n-bins", "40"]) == 0
+    assert json.loads((tmp_path / "art/skin.json").read_text())["features"]["mode"] == "absolute"
+    assert main(["fit-svm", "--data", str(out), "--out", str(tmp_path / "art2"), "--n-bins", "40", "--mode", "absolute"]) == 0
 
 
 def test_importers_reject_malformed_input(source, tmp_path, rig):
@@ -100,7 +109,7 @@ def test_importers_reject_malformed_input(source, tmp_path, rig):
     with pytest.raises(ValueError, match="different sample rates"):
         import_wav(odd, bad, tmp_path / "o4", chirp_hz=(5e3, 15e3), period_s=0.1)
     table = tmp_path / "t.npz"
-    np.savez(table, freqs_hz=np.linspace(30e3, 50e3, 10), magnitude_db=np.zeros((2, 10)), location=np.array([0, 1]),
+    np.savez(table, freqs_hz=np.linspace(30e3, 50e3, 10), magnitude_db=np.full((2, 10), -20.0), location=np.array([0, 1]),
              x_cm=np.array([0.0, 1.0]), y_cm=np.array([0.0, 0.0]), session=np.array(["a", "a"]))
     with pytest.raises(ValueError, match="the rig's band is"):
         import_spectra(table, tmp_path / "o5", rig=rig)
@@ -111,3 +120,126 @@ def test_importers_reject_malformed_input(source, tmp_path, rig):
     with pytest.raises(ValueError, match="missing arrays"):
         np.savez(table, freqs_hz=np.arange(3))
         import_spectra(table, tmp_path / "o7", rig=Rig())
+
+
+# -- data as it comes -----------------------------------------------------------------
+
+@pytest.mark.parametrize("axis, fs, n", [
+    (np.arange(23, 188) * 48000 / 450, 48_000, 450),                # bin centres, exact
+    (np.round(np.linspace(2450, 19950, 165), 1), 48_000, 450),       # as a plot labels it: off by 3 Hz
+    (np.arange(23, 188) * 48000 / 450 - 48000 / 900, 48_000, 450),   # bin edges instead of centres
+    (np.arange(2134, 8534) * 9.375, 192_000, 20_480),                # the paper's rig
+])
+def test_rig_from_axis_known_answers(axis, fs, n):
+    r = rig_from_axis(axis, log=lambda *_: None)
+    assert (r.fs_hz, r.n_chirp, r.n_band) == (fs, n, axis.size)
+
+
+def test_rig_from_axis_takes_fs_or_frame_and_refuses_nonsense():
+    axis = np.round(np.linspace(2450, 19950, 165), 1)
+    assert rig_from_axis(axis, frame=450, log=lambda *_: None).fs_hz == 48_000
+    assert rig_from_axis(axis, fs_hz=96_000, log=lambda *_: None).n_chirp == 900
+    with pytest.raises(ValueError, match="check both"):
+        rig_from_axis(axis, fs_hz=48_000, frame=400)
+    with pytest.raises(ValueError, match="not evenly spaced"):
+        rig_from_axis(np.r_[1000.0, 1100.0, 1300.0, 1400.0])
+    with pytest.raises(ValueError, match="above the Nyquist"):
+        rig_from_axis(axis, fs_hz=30_000)
+
+
+def test_labels_of_any_kind_become_a_layout():
+    out = []
+    ids, layout, names = label_layout(np.array([1.5, 2.0, 2.5, -1.0, 1.5, np.nan]), log=out.append)
+    # Floats are positions in cm: three locations, never truncated to integers.
+    assert ids.tolist() == [0, 1, 2, -1, 0, -1] and names == {0: "1.5", 1: "2", 2: "2.5"}
+    np.testing.assert_allclose(layout.xy_cm, [[1.5, 0], [2.0, 0], [2.5, 0]])
+    assert any("1.5 ->   0" in line for line in out)
+    ids, layout, names = label_layout(["7", "3", "", "7"], [8.4, 1.0, np.nan, 8.4], [1.2, 0.0, np.nan, 1.2], log=out.append)
+    assert ids.tolist() == [7, 3, -1, 7] and layout.ids == (3, 7)  # integers stay ids
+    np.testing.assert_allclose(layout.coords(np.array([7])), [[8.4, 1.2]])
+    with pytest.warns(UserWarning, match="placed 1 cm apart"):
+        ids, layout, names = label_layout(np.array(["wrist", "elbow", "none", "wrist"]), log=out.append)
+    assert ids.tolist() == [1, 0, -1, 1] and names == {0: "elbow", 1: "wrist"}
+    with pytest.raises(ValueError, match="need at least two"):
+        label_layout(["a", "a", "rest"], log=out.append)
+
+
+def _table(path, **kw):
+    f = np.round(np.linspace(2450, 19950, 165), 1)
+    rng = np.random.default_rng(0)
+    loc = np.repeat([0.5, 1.0, 1.5], 20)
+    z = {"freqs_hz": f, "magnitude_db": 60 + 3 * rng.standard_normal((loc.size, f.size)) + 5 * loc[:, None],
+         "location": loc, "session": np.repeat(["a", "b"], 30)}
+    z.update(kw)
+    np.savez(path, **z)
+    return path
+
+
+def test_spectra_import_is_all_or_nothing_and_resumes(tmp_path):
+    quiet = dict(log=lambda *_: None)
+    table = _table(tmp_path / "t.npz")
+    bad = _table(tmp_path / "bad.npz", session=np.array(["a"] * 30 + ["b"] * 29 + ["c"]),
+                 force_n=np.r_[np.ones(59), np.nan])
+    out = tmp_path / "ds"
+    # A failure half-way (here: the writer refuses an unknown mode) leaves nothing behind.
+    with pytest.raises(ValueError, match="mode must be"):
+        import_spectra(table, out, mode="append", **quiet)
+    assert not out.exists() and not any(tmp_path.glob(".ds*"))
+    import sonicskin.importers as imp
+
+    calls = []
+    real = imp._write_session
+
+    def fail_second(w, s, *a):
+        calls.append(s)
+        if len(calls) == 2:
+            raise RuntimeError("disk full")
+        return real(w, s, *a)
+
+    imp._write_session = fail_second
+    try:
+        with pytest.raises(RuntimeError, match="disk full"):
+            import_spectra(bad, out, **quiet)
+    finally:
+        imp._write_session = real
+    assert not out.exists() and not any(tmp_path.glob(".ds*"))
+    import_spectra(table, out, **quiet)
+    with pytest.raises(FileExistsError, match="--resume .* --overwrite"):
+        import_spectra(table, out, **quiet)
+    assert main(["import-spectra", "--table", str(table), "--out", str(out)]) == 2
+    # --resume keeps finished sessions (and re-imports one whose folder was lost).
+    shutil.rmtree(out / "b")
+    first = (out / "a" / "part-00000.flac").stat().st_mtime_ns
+    assert main(["import-spectra", "--table", str(table), "--out", str(out), "--resume"]) == 0
+    assert (out / "a" / "part-00000.flac").stat().st_mtime_ns == first and Dataset(out).sessions == ["a", "b"]
+    assert main(["import-spectra", "--table", str(table), "--out", str(out), "--overwrite"]) == 0
+    assert Dataset(out).features(progress=False).X.shape == (60, 165)
+
+
+def test_spectra_import_warns_on_linear_magnitudes(tmp_path):
+    lin = 10 ** (np.load(_table(tmp_path / "t.npz"))["magnitude_db"] / 20)
+    table = _table(tmp_path / "lin.npz", magnitude_db=lin)
+    with pytest.warns(UserWarning, match="looks linear.*--linear"):
+        import_spectra(table, tmp_path / "a", log=lambda *_: None)
+    a = Dataset(import_spectra(table, tmp_path / "b", linear=True, log=lambda *_: None)).features(progress=False)
+    ref = Dataset(import_spectra(tmp_path / "t.npz", tmp_path / "c", log=lambda *_: None))
+    # --linear converts with 20 log10: the same dataset as the dB table, up to the normalising gain.
+    b = ref.features(progress=False)
+    np.testing.assert_allclose(a.X - a.X.mean(), b.X - b.X.mean(), atol=0.05)
+
+
+def test_wav_import_resume_and_overwrite_on_the_shipped_example(tmp_path, capsys):
+    ex = Path(__file__).resolve().parents[1] / "examples" / "wav"
+    args = ["import-wav", "--wav-dir", str(ex / "recordings"), "--labels", str(ex / "labels.csv"), "--sweep",
+            str(ex / "sweep.wav"), "--out", str(tmp_path / "ds")]
+    assert main(args) == 0
+    assert main(args) == 2 and "pass --resume to continue it or --overwrite" in capsys.readouterr().err
+    shutil.rmtree(tmp_path / "ds" / "s002")
+    assert main(args + ["--resume"]) == 0 and "2 were there already" in capsys.readouterr().out
+    assert Dataset(tmp_path / "ds").sessions == ["s000", "s001", "s002"]
+    assert main(args + ["--overwrite"]) == 0 and not any(tmp_path.glob(".ds*"))
+    # Labels the CSV cannot hold: one clear line, nothing written.
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,start_s,end_s,location\ns0.wav,1,2,A1\n")
+    assert main(args[:4] + [str(bad)] + args[5:-1] + [str(tmp_path / "new")]) == 2
+    assert "need at least two" in capsys.readouterr().err and not (tmp_path / "new").exists()

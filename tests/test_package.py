@@ -1,8 +1,12 @@
 import json
+import os
+import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
@@ -70,3 +74,75 @@ assert 'torch' not in sys.modules
     assert r.returncode == 0, r.stderr[-3000:]
     meta = json.loads((tmp_path / "art" / "skin.json").read_text())
     assert set(meta["models"]) == {"svm"} and len(meta["features"]["bins"]) == 50
+
+
+# -- configs: one lookup, shipped as package data -------------------------------------------------
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_config_names_resolve_from_the_package_and_paths_from_the_filesystem(tmp_path, monkeypatch):
+    from sonicskin.rig import config_dir, config_names, resolve_config
+
+    assert "jaco" in config_names("rigs") and "moving" in config_names("scenarios") and "moving" in config_names("train")
+    assert resolve_config("jaco", "rigs") == config_dir() / "rigs" / "jaco.yaml"
+    monkeypatch.chdir(tmp_path)  # a bare name does not depend on the working directory ...
+    assert resolve_config("moving", "train").is_file()
+    (tmp_path / "mine.yaml").write_text("fs_hz: 96000\nf_hi_hz: 40000\n")
+    assert resolve_config("mine.yaml", "rigs") == Path("mine.yaml")  # ... a path is read where it is
+    assert resolve_config(tmp_path / "mine.yaml", "rigs") == tmp_path / "mine.yaml"
+    with pytest.raises(FileNotFoundError, match=r"no rigs config named 'mine'; known: jaco; or give a path"):
+        resolve_config("mine", "rigs")
+    with pytest.raises(FileNotFoundError, match=r"rigs config file sub/jaco.yaml does not exist"):
+        resolve_config("sub/jaco.yaml", "rigs")
+    with pytest.raises(ValueError, match="unknown config kind 'rig'; valid kinds: rigs, scenarios, links, train"):
+        config_names("rig")
+
+
+def _installed_copy(site: Path, *, with_configs: bool) -> None:
+    """The sonicskin package laid out as a wheel installs it: no repository around it."""
+    shutil.copytree(REPO / "sonicskin", site / "sonicskin", ignore=shutil.ignore_patterns("__pycache__"))
+    if with_configs:
+        shutil.copytree(REPO / "configs", site / "sonicskin" / "configs")
+
+
+def test_an_installed_package_reads_its_own_configs(tmp_path):
+    """What `pip install .` gives (.ci/deploy-check proves it with a real wheel): configs inside the package."""
+    site, elsewhere = tmp_path / "site", tmp_path / "cwd"
+    _installed_copy(site, with_configs=True)
+    elsewhere.mkdir()
+    code = ("from sonicskin.rig import Rig, config_dir; from sonicskin.sim.scenario import Scenario; "
+            "from sonicskin.cli import main; print(config_dir()); print(float(Rig.load('jaco').fs_hz)); "
+            "print(Scenario.load('moving').name); main(['info'])")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    r = subprocess.run([sys.executable, "-c", code], cwd=elsewhere, env=env, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    lines = r.stdout.splitlines()
+    assert lines[:3] == [str(site / "sonicskin" / "configs"), "192000.0", "moving"]
+    assert any(x.startswith("scenarios: ") and "moving" in x for x in lines[3:]), r.stdout  # sonicskin info
+
+
+def test_a_package_installed_without_configs_says_so(tmp_path):
+    site = tmp_path / "site"
+    _installed_copy(site, with_configs=False)
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    r = subprocess.run([sys.executable, "-m", "sonicskin", "info"], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "no rigs config named 'jaco'; known: none" in r.stderr and "installed without its configs" in r.stderr
+
+
+def test_pyproject_ships_every_package_and_config_folder():
+    """The wheel's package list is explicit (configs/ is mapped in): a new package folder must be listed."""
+    tomllib = pytest.importorskip("tomllib")
+    from sonicskin.rig import CONFIG_KINDS
+
+    st = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    code = {".".join(p.parent.relative_to(REPO).parts) for root in ("sonicskin", "models", "training", "export")
+            for p in (REPO / root).rglob("__init__.py")}
+    kinds = sorted(p.name for p in (REPO / "configs").iterdir() if p.is_dir())
+    want = code | {"sonicskin.configs"} | {f"sonicskin.configs.{k}" for k in kinds}
+    listed = set(st["packages"])
+    assert not want - listed, f"add {sorted(want - listed)} to [tool.setuptools] packages in pyproject.toml"
+    assert not listed - want, f"[tool.setuptools] packages lists {sorted(listed - want)}, which has no folder"
+    assert st["package-dir"] == {"sonicskin.configs": "configs"}
+    assert sorted(CONFIG_KINDS) == kinds

@@ -1,11 +1,67 @@
-"""The guided recording session: prompts -> dataset, interruption and resume, force logs."""
+"""The guided recording session: prompts -> dataset, labels that match real presses, interruption
+and resume, force logs.
+
+On the simulated device the simulated sensors report where the finger really was (``x_cm``/``y_cm``
+of touch rows) and the measured force, so every labelled chirp can be checked against the truth.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
+import yaml
 
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
-from sonicskin.record import CsvForce, recorded_locations
+from sonicskin.record import CsvForce, location_chirps, recorded_locations
+from sonicskin.sim import Scenario
+
+# Short prompts keep a session at ~120 chirps (3 s of hands-off: Alg. 2's beta for relative features).
+FAST = ["--fast", "--calibration-s", "3", "--moving-s", "0", "--touch-s", "1.2", "--gap-s", "0.3"]
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    """The stationary CFRP link with six markers (ids 0..5, 1.2 cm apart) instead of 31."""
+    d = Scenario.load("stationary").to_dict()
+    d.update(name="small", layout={"kind": "grid", "nx": 3, "ny": 2, "spacing_cm": 1.2, "x0_cm": 2.4, "y0_cm": 11.9})
+    path = tmp_path_factory.mktemp("scenario") / "small.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return str(path)
+
+
+def label_truth(out) -> dict[int, dict[str, int]]:
+    """Per labelled location: chirps, chirps whose true contact is not at that marker, chirps at >= 0.5 N."""
+    ds = Dataset(out)
+    ids = np.array(ds.layout.ids)
+    res: dict[int, dict[str, int]] = {}
+    for s in ds.sessions:
+        _, lab = ds.read_session(s)
+        m = lab["location"] >= 0
+        xy = np.column_stack([lab["x_cm"][m], lab["y_cm"][m]])
+        d = ds.layout.distance_cm(xy[:, None, :], ds.layout.xy_cm[None])
+        nearest = ids[np.argmin(np.nan_to_num(d, nan=np.inf), axis=1)]
+        wrong = ~np.isfinite(xy).all(axis=1) | (nearest != lab["location"][m])
+        for loc, bad, f in zip(lab["location"][m], wrong, lab["force_n"][m]):
+            r = res.setdefault(int(loc), {"chirps": 0, "wrong": 0, "pressed": 0})
+            r["chirps"] += 1
+            r["wrong"] += int(bad)
+            r["pressed"] += int(f >= 0.5)
+    return res
+
+
+def assert_real_presses(out, locations) -> None:
+    """Every labelled touch chirp is a press at that marker; each location mostly at >= 0.5 N."""
+    truth = label_truth(out)
+    assert set(truth) == set(locations)
+    for loc, r in truth.items():
+        assert r["wrong"] == 0, f"location {loc}: {r['wrong']} of {r['chirps']} labelled chirps pressed elsewhere"
+        assert r["pressed"] >= 0.7 * r["chirps"], f"location {loc}: only {r['pressed']} of {r['chirps']} chirps at >= 0.5 N"
 
 
 def test_record_on_the_simulated_device_then_fit_svm(tmp_path):
@@ -16,6 +72,7 @@ def test_record_on_the_simulated_device_then_fit_svm(tmp_path):
     assert (ds.root / "s000" / "session.json").exists()
     assert set(lab["segment"]) == {"calibration", "moving", "touch", "gap"}
     assert recorded_locations(out) == {0, 1}
+    assert_real_presses(out, [0, 1])
     # Labels follow the prompts; the simulated sensor's force rises inside each touch prompt only.
     touch = lab["location"] >= 0
     assert np.all(lab["segment"][touch] == "touch") and lab["force_n"][touch].max() > 1.0
@@ -28,33 +85,127 @@ def test_record_on_the_simulated_device_then_fit_svm(tmp_path):
     assert main(["fit-svm", "--data", str(part), "--out", str(tmp_path / "art2")]) == 2
 
 
-def test_interrupted_recording_keeps_parts_and_resumes(tmp_path, monkeypatch):
-    import sonicskin.record as rec
-
+@pytest.mark.parametrize("locations", [[3, 4, 5], [0, 4, 5], [5, 1]])
+def test_subsets_label_only_real_presses(tmp_path, small, locations):
+    """Skipped locations leave no gap: the person presses the prompted marker, in the prompted order."""
     out = tmp_path / "rec"
-    real_run = rec.Recorder.run
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", *map(str, locations), *FAST]) == 0
+    assert_real_presses(out, locations)
+    _, lab = Dataset(out).read_session("s000")
+    loc = lab["location"][lab["location"] >= 0]
+    assert list(dict.fromkeys(loc.tolist())) == locations  # prompted order
+    assert np.array_equal(lab["chirp"], np.arange(lab["chirp"].size))  # one row per chirp, in stream order
+    assert np.allclose(np.diff(lab["t_s"]), Dataset(out).rig.period_s)  # no chirp skipped or doubled
 
-    def interrupted(self):  # Ctrl-C after the third prompt (calibration, location 0, release)
-        orig_write = self.w.write_part
 
-        def write_part(session, part, audio, labels):
-            orig_write(session, part, audio, labels)
-            if part == 2:
-                raise KeyboardInterrupt
+def _interrupt_after(monkeypatch, n_blocks: int) -> None:
+    """Ctrl-C after ``n_blocks`` audio blocks have been read (anywhere in a prompt)."""
+    from sonicskin.acquire import SimulatedSource
 
-        self.w.write_part = write_part
-        return real_run(self)
+    real_read = SimulatedSource.read
+    count = {"n": 0}
 
-    monkeypatch.setattr(rec.Recorder, "run", interrupted)
-    assert main(["record", "--out", str(out), "--fast", "--locations", "0", "1", "2", "--moving-s", "0"]) == 130
+    def read(self, timeout=1.0):
+        count["n"] += 1
+        if count["n"] > n_blocks:
+            raise KeyboardInterrupt
+        return real_read(self, timeout)
+
+    monkeypatch.setattr(SimulatedSource, "read", read)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_interrupt_at_a_random_moment_then_resume(tmp_path, small, monkeypatch, capsys, seed):
+    out = tmp_path / "rec"
+    want = [0, 1, 2, 3, 4, 5]
+    args = ["record", "--out", str(out), "--scenario", small, *FAST]
+    # A full session is ~120 chirps x 20 blocks; stop somewhere in its touch prompts.
+    n_blocks = int(np.random.default_rng(seed).integers(600, 2200))
+    _interrupt_after(monkeypatch, n_blocks)
+    assert main(args) == 130
     monkeypatch.undo()
-    assert recorded_locations(out) == {0}
-    assert not (out / "s000" / "session.json").exists()
-    assert main(["record", "--out", str(out), "--fast", "--locations", "0", "1", "2", "--moving-s", "0", "--resume"]) == 0
-    assert recorded_locations(out) == {0, 1, 2}
-    assert Dataset(out).sessions == ["s000", "s001"]
-    # Everything recorded before the interruption is still readable.
-    assert Dataset(out).read_session("s000")[0].shape[0] > 28
+    err = capsys.readouterr().err
+    assert "interrupted" in err and "finished prompts" in err
+    ds = Dataset(out)
+    assert ds.sessions == ["s000"] and not (out / "s000" / "session.json").exists()
+    before = recorded_locations(out)
+    assert before < set(want)
+    if before:  # what was kept before the interruption is intact and true
+        assert_real_presses(out, sorted(before))
+    n_before = ds.read_session("s000")[0].shape[0]
+    # Resume records exactly the missing locations and says which.
+    assert main([*args, "--resume"]) == 0
+    missing = [v for v in want if v not in before]
+    assert f"recording {len(missing)} missing location(s): {missing[0]} (" in capsys.readouterr().err
+    _, lab1 = Dataset(out).read_session("s001")
+    assert sorted(set(lab1["location"][lab1["location"] >= 0])) == missing
+    assert Dataset(out).read_session("s000")[0].shape[0] == n_before  # nothing recorded before is lost
+    assert_real_presses(out, want)
+    assert recorded_locations(out) == set(want)
+    assert main([*args, "--resume"]) == 0
+    assert "nothing to do" in capsys.readouterr().err
+    # The two sessions together train an SVM over every location.
+    art = tmp_path / "art"
+    assert main(["fit-svm", "--data", str(out), "--out", str(art), "--n-bins", "40"]) == 0
+    skin = json.loads((art / "skin.json").read_text())
+    assert skin["models"]["svm"]["n_locations"] == len(want)
+    assert set(skin["training"]["split"]["train"]) == {"s000", "s001"}
+
+
+def test_resume_records_a_location_that_was_labelled_but_not_pressed(tmp_path, small, capsys):
+    out = tmp_path / "rec"
+    args = ["record", "--out", str(out), "--scenario", small, "--locations", "1", "2", *FAST]
+    assert main(args) == 0
+    # The user did not press location 2 (the force sensor read ~0 N throughout its prompt).
+    for csv in sorted((out / "s000").glob("part-*.csv")):
+        text = csv.read_text().splitlines()
+        head = text[0].split(",")
+        rows = [r.split(",") for r in text[1:]]
+        for r in rows:
+            if r[head.index("location")] == "2":
+                r[head.index("force_n")] = "0.01"
+        csv.write_text("\n".join([text[0], *(",".join(r) for r in rows)]) + "\n")
+    assert location_chirps(out)[2][1] == 0 and recorded_locations(out) == {1}
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 0
+    assert "2 (labelled but only 0 of " in capsys.readouterr().err
+    _, lab1 = Dataset(out).read_session("s001")
+    assert set(lab1["location"][lab1["location"] >= 0]) == {2}
+    assert recorded_locations(out) == {1, 2}
+
+
+def test_sigint_at_a_random_moment_keeps_every_finished_prompt(tmp_path, small):
+    """A real Ctrl-C (SIGINT to the process), wherever it lands; then --resume completes the set."""
+    out = tmp_path / "rec"
+    args = [sys.executable, "-m", "sonicskin", "record", "--out", str(out), "--scenario", small, *FAST]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")])),
+           "OMP_NUM_THREADS": "1"}
+    p = subprocess.Popen(args, env=env, stderr=subprocess.PIPE, text=True)
+    # Interrupt somewhere in the k-th touch prompt (k random), a random moment after it is shown.
+    rng = np.random.default_rng()
+    k, seen = int(rng.integers(1, 6)), 0
+    for line in p.stderr:
+        seen += "touch location" in line
+        if seen == k:
+            break
+    time.sleep(float(rng.uniform(0.0, 0.2)))
+    p.send_signal(signal.SIGINT)
+    err = p.communicate(timeout=60)[1]
+    assert p.returncode in (0, 130), err
+    assert "Traceback" not in err, err
+    before = recorded_locations(out)
+    if before:
+        assert_real_presses(out, sorted(before))
+    assert main([*args[3:], "--resume"]) == 0
+    assert recorded_locations(out) == {0, 1, 2, 3, 4, 5}
+    assert_real_presses(out, [0, 1, 2, 3, 4, 5])
+
+
+def test_bad_locations_are_one_line_errors(tmp_path, small, capsys):
+    assert main(["record", "--out", str(tmp_path / "r"), "--scenario", small, "--locations", "2", "9", *FAST]) == 2
+    err = capsys.readouterr().err
+    assert "--locations 9: not a marker of the small layout (ids 0..5)" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
 
 
 def test_force_log(tmp_path):
@@ -65,3 +216,46 @@ def test_force_log(tmp_path):
     p.write_text("time,newton\n0,0\n")
     with pytest.raises(ValueError, match="t_s,force_n"):
         CsvForce(p)
+
+
+def test_ctrl_c_while_a_part_is_written_keeps_that_part_whole(tmp_path, small, monkeypatch):
+    """SIGINT inside the FLAC encoder (cffi callbacks swallow exceptions) must neither be lost nor cut the part."""
+    from sonicskin.dataset import DatasetWriter
+
+    real_write = DatasetWriter.write_part
+    calls = []
+
+    def write_part(self, session, part, audio, labels):
+        calls.append(part)
+        if len(calls) == 2:  # Ctrl-C as the first touch prompt's part starts to be written
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_write(self, session, part, audio, labels)
+
+    monkeypatch.setattr(DatasetWriter, "write_part", write_part)
+    out = tmp_path / "rec"
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", "2", "3", *FAST]) == 130
+    assert calls == [0, 1]  # stopped right after the part that was being written
+    assert Dataset(out).parts("s000") == [0, 1]
+    assert recorded_locations(out) == {1}
+    assert_real_presses(out, [1])
+
+
+def test_a_run_that_records_nothing_leaves_nothing_behind(tmp_path, small, monkeypatch, capsys):
+    """A device that does not open, or Ctrl-C before the first prompt is done: no lone dataset.json
+    that would block the retry (the issue's `record --device 0` without PortAudio)."""
+    import sonicskin.acquire as acquire
+
+    def no_device(*a, **k):
+        raise ValueError("no audio device matches 'Fireface'")
+
+    out = tmp_path / "rec"
+    monkeypatch.setattr(acquire, "SoundDeviceSource", no_device)
+    assert main(["record", "--out", str(out), "--device", "Fireface", "--scenario", small, *FAST]) == 2
+    assert "no audio device matches" in capsys.readouterr().err and not out.exists()
+    monkeypatch.undo()
+    _interrupt_after(monkeypatch, 5)
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", *FAST]) == 130
+    assert "nothing was recorded" in capsys.readouterr().err and not out.exists()
+    monkeypatch.undo()
+    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", *FAST]) == 0
+    assert recorded_locations(out) == {1}

@@ -38,17 +38,27 @@ class SkinDataModule(L.LightningDataModule):
         if meta is None:
             raise FileNotFoundError(f"{data} is not a sonicskin dataset (dataset.json missing); run `sonicskin simulate` first")
         self._n_locations = len(meta["layout"]["ids"])
+        from sonicskin.features import usable_bins
+        from sonicskin.rig import Rig
+
+        # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning).
+        self._n_in = usable_bins(Rig.from_dict(meta["rig"]), n_bins)
         self.prepared: dict | None = None
 
     @property
     def n_locations(self) -> int:
         return self._n_locations
 
+    @property
+    def n_in(self) -> int:
+        """Model inputs: the bins OSPA will select (``n_bins`` clamped to the rig's band)."""
+        return self._n_in
+
     def setup(self, stage: str | None = None) -> None:
         if self.prepared is not None:
             return
         h = self.hparams
-        p = prepare(h.data, n_bins=h.n_bins, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
+        p = prepare(h.data, n_bins=self._n_in, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
                     test_subjects=h.test_subjects, min_force_n=h.min_force_n)
         self.prepared = p
         tr = p["split"].mask(p["table"], "train") & p["usable"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import lightning as L
 import torch
 import torch.nn.functional as F
@@ -9,6 +11,13 @@ import torch.nn.functional as F
 from models import SkinNet
 
 __all__ = ["SkinLitModule"]
+
+
+def _plain(o):
+    """numpy scalars and arrays in the metadata -> Python numbers and lists."""
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    raise TypeError(f"checkpoint metadata holds a {type(o).__name__}, which is not plain data")
 
 
 class SkinLitModule(L.LightningModule):
@@ -49,7 +58,8 @@ class SkinLitModule(L.LightningModule):
             self.meta["train_time_s"] = time.perf_counter() - self._t0
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["sonicskin"] = self.meta  # what export needs: rig, layout, bins, mode, split
+        # What export needs (rig, layout, bins, mode, split) as plain JSON data: loadable with weights_only=True.
+        checkpoint["sonicskin"] = None if self.meta is None else json.loads(json.dumps(self.meta, default=_plain))
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         self.meta = checkpoint.get("sonicskin")
@@ -76,7 +86,7 @@ class SkinLitModule(L.LightningModule):
         det = ((logits.argmax(1) == self.hparams.n_locations) == ~touched).float().mean()
         self.log_dict({f"{stage}_loss": loss, f"{stage}_acc": acc, f"{stage}_force_rmse": f_loss.sqrt(),
                        f"{stage}_detect": det}, prog_bar=stage != "train", on_epoch=True, on_step=False,
-                      batch_size=x.shape[0])
+                      batch_size=x.shape[0], sync_dist=True)  # DDP: every rank logs (and checkpoints by) the same mean
         return loss
 
     def training_step(self, batch, _):

@@ -1,0 +1,153 @@
+"""Verbs around the running skin: ``live``, ``devices``, ``info``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from .. import __version__
+from ..errors import UsageError
+from ._common import nonneg_int, positive_float, positive_int, udp_target
+
+
+def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
+    """One-shot training on the simulated link (cached): what `sonicskin record` + `fit-svm` do on a real rig."""
+    from ..artifact import build_svm_artifact
+    from ..sim.generate import simulate_dataset
+
+    art = root / f"artifacts/sim-{scenario.name}-svm"
+    if (art / "skin.json").is_file():
+        return art
+    data = root / f"data/sim-{scenario.name}-oneshot"
+    print(f"no --artifact: one-shot training on the simulated link first ({data} -> {art})", file=sys.stderr)
+    simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False,
+                     log=lambda m: print(m, file=sys.stderr))
+    build_svm_artifact(data, art, progress=False, log=lambda m: print(m, file=sys.stderr))
+    return art
+
+
+def json_safe(obj):
+    """``obj`` with NaN/inf floats as ``None`` (strict JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if hasattr(obj, "item") and getattr(obj, "ndim", 1) == 0:  # numpy scalar
+        return json_safe(obj.item())
+    return obj
+
+
+def cmd_live(a: argparse.Namespace) -> int:
+    from ..acquire import Link, SimulatedSource, SoundDeviceSource
+    from ..live import LiveLoop, UdpSink
+    from ..rig import Rig
+    from ..runtime import SkinRuntime
+
+    if a.artifact is None and a.model == "net":
+        raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
+                         "--out DIR`, then --artifact DIR (only --model svm is trained on the spot)")
+    if a.artifact is None and a.device != "sim":
+        raise UsageError("a real rig needs a model trained on it: `sonicskin record`, then `sonicskin fit-svm` "
+                         "(or train + export), then `sonicskin live --device ... --artifact DIR`")
+    if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
+        raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
+                                f"`sonicskin fit-svm` or `sonicskin export`")
+    rig = Rig.load(a.rig)
+    if a.device == "sim":
+        from ..sim import Scenario, Simulator, build_timeline
+
+        sc = Scenario.load(a.scenario)
+        artifact = Path(a.artifact) if a.artifact else _sim_svm_artifact(sc, rig, Path("."))
+        rt = SkinRuntime(artifact, a.model, rig=rig)
+        layout = sc.make_layout()
+        if rt.layout != layout:
+            raise UsageError(f"the artifact knows {len(rt.layout)} markers but scenario {sc.name!r} has {len(layout)} "
+                             f"in another layout; run it on the scenario it was trained on (--scenario), or train "
+                             f"on this one")
+        # The same simulated link (link_seed), a new person-session of scripted touches (seed).
+        live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
+        timeline = build_timeline(live_sc, rig)
+        source = SimulatedSource(Simulator(live_sc, rig), timeline, realtime=not a.fast, drop_every=a.drop_every)
+    else:
+        rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
+        source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
+    sinks = [lambda line: print(line, flush=True)]
+    if a.udp:
+        sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))
+    loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
+    with source:
+        summary = loop.run(duration_s=a.duration)
+    print(json.dumps({"summary": json_safe(summary)}, allow_nan=False), file=sys.stderr)
+    return 0
+
+
+def cmd_devices(a: argparse.Namespace) -> int:
+    from ..acquire import list_devices
+
+    devs = list_devices()
+    if not devs:
+        print("no audio devices (PortAudio sees none); `sonicskin live` runs on the simulated device by default")
+        return 0
+    print(f"{'index':>5}  {'name':40s} {'host API':28s} {'in':>3} {'out':>3}  default rate")
+    for d in devs:
+        print(f"{d['index']:>5}  {d['name'][:40]:40s} {d['hostapi'][:28]:28s} {d['inputs']:>3} {d['outputs']:>3}  "
+              f"{d['default_rate_hz']:g} Hz")
+    return 0
+
+
+def cmd_info(a: argparse.Namespace) -> int:
+    from ..rig import CONFIG_DIR, Rig
+
+    rig = Rig.load(a.rig)
+    print(f"sonicskin {__version__}")
+    print(f"rig {rig.name}: {rig.fs_hz:g} Hz, chirp {rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz, "
+          f"{rig.n_chirp} samples = {rig.period_s * 1e3:.1f} ms ({rig.chirps_per_s:.3f} chirps/s), "
+          f"{rig.n_band} band bins, {int(rig.allowed_mask.sum())} after the PWM notches")
+    for kind in ("rigs", "scenarios", "train"):
+        names = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
+        if names:
+            print(f"{kind}: {', '.join(names)}")
+    return 0
+
+
+def add_parsers(sub) -> None:
+    lv = sub.add_parser("live", help="real-time touch sensing: audio -> touch events (JSON lines)",
+                        description="Run the live loop. By default on the simulated device with scripted touches; "
+                                    "--device NAME|INDEX uses a real audio interface (see `sonicskin devices`). "
+                                    "Touch events go to stdout as JSON lines, a summary to stderr at the end.")
+    lv.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm) (default: on the simulated device, "
+                                       "an SVM is trained on the spot)")
+    lv.add_argument("--model", choices=("svm", "net"), default="svm", help="which model of the artifact (default: svm)")
+    lv.add_argument("--scenario", default="stationary",
+                    help="simulated device: scenario of the link and the touches (default: stationary)")
+    lv.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    lv.add_argument("--duration", type=positive_float, default=30.0, help="seconds of stream to run (default: 30)")
+    lv.add_argument("--udp", type=udp_target, metavar="[HOST:]PORT",
+                    help="also send events as UDP datagrams; host defaults to 127.0.0.1 (default: off)")
+    lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    lv.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
+    lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time (default: real time)")
+    lv.add_argument("--drop-every", type=positive_int, metavar="N",
+                    help="simulated device: drop one audio block in N, fault injection (default: none)")
+    lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
+    lv.set_defaults(func=cmd_live)
+
+    dv = sub.add_parser("devices", help="list audio devices",
+                        description="List the audio interfaces PortAudio sees (index, name, host API, input and output "
+                                    "channels, default rate), for `sonicskin live/record --device NAME|INDEX`. Needs "
+                                    "libportaudio2; the simulated device needs none.")
+    dv.set_defaults(func=cmd_devices)
+
+    i = sub.add_parser("info", help="show the version, the rig and the available configs",
+                       description="Print the package version, the rig's sample rate, chirp, period and usable bins, "
+                                   "and the names of the shipped rig, scenario and training configs (usable as "
+                                   "--rig/--scenario/--config NAME).")
+    i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    i.set_defaults(func=cmd_info)

@@ -1,0 +1,276 @@
+"""Verbs that train, export and score models: ``evaluate``, ``fit-svm``, ``train``, ``export``,
+``compare``, ``reproduce``.  The first five share one set of model/split options
+(:func:`._common.add_model_options`)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+from pathlib import Path
+
+from ..errors import UsageError
+from ._common import (
+    add_model_options,
+    check_split_options,
+    latest_checkpoint,
+    lightning_overrides,
+    need_train_extra,
+    removed_on_failure,
+    resolve_n_bins,
+    train_config,
+)
+
+
+def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
+    """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on
+    (the split code tests on every session not trained or validated on)."""
+    if not a.test:
+        return a.train, a.val
+    from ..dataset import Dataset
+
+    sessions = Dataset(data).sessions
+    unknown = sorted((set(a.test) | set(a.train or ()) | set(a.val or ())) - set(sessions))
+    if unknown:
+        raise UsageError(f"session(s) {', '.join(unknown)} are not in {data} (it has {', '.join(sessions)})")
+    rest = [s for s in sessions if s not in a.test]
+    train = a.train or rest[:1]
+    if not train:
+        raise UsageError(f"--test takes every session of {data}; leave at least one to train on")
+    val = a.val if a.val is not None else [s for s in rest if s not in train]
+    return list(train), list(val)
+
+
+def cmd_evaluate(a: argparse.Namespace) -> int:
+    from ..dataset import Dataset
+    from ..evaluate import evaluate_svm, format_report, save_report
+
+    check_split_options(a)
+    if a.test_subjects:
+        raise UsageError("evaluate trains one-shot on sessions; --test-subjects is for train/compare "
+                         "(use --train/--test here)")
+    ds = Dataset(a.data)
+    n_bins = resolve_n_bins(a, a.data)
+    train, val = _sessions_for_test(a, a.data)
+    table = ds.features()
+    if val:  # held out: the SVM has no validation step
+        import numpy as np
+
+        table = table.select(~np.isin(table["session"], val))
+    res = evaluate_svm(ds, train_sessions=train, table=table, ablations=not a.no_ablations, n_bins=n_bins,
+                       mode=a.mode or "relative")
+    print(format_report(res))
+    out = Path(a.out or Path("reports") / ds.root.name)
+    paths = save_report(res, out, ds.layout)
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_fit_svm(a: argparse.Namespace) -> int:
+    from ..artifact import build_svm_artifact
+
+    check_split_options(a)
+    if a.test or a.test_subjects:
+        raise UsageError("fit-svm trains the deployment model on every session it is given; choose them with "
+                         "--train (test it with `sonicskin compare --artifact`)")
+    n_bins = resolve_n_bins(a, a.data)
+    with removed_on_failure(a.out):
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative",
+                           train_sessions=(a.train or []) + (a.val or []) or None)
+    return 0
+
+
+def _train_args(a: argparse.Namespace, data: str | None, extra: list[str]) -> list[str]:
+    check_split_options(a)
+    if data:
+        from ..dataset import Dataset
+
+        Dataset(data)  # refused here, in one line, before Lightning starts
+    n_bins = resolve_n_bins(a, data) if data else a.n_bins
+    if data and a.test:
+        a.train, a.val = _sessions_for_test(a, data)
+    return ["--config", train_config(a.config)] + (["--data.data", data] if data else []) + lightning_overrides(a, n_bins) + extra
+
+
+def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
+    need_train_extra("train")
+    from training.cli import main as train_main
+
+    cli = train_main(_train_args(a, a.data, extra))
+    if not cli.trainer.is_global_zero:  # DDP: rank zero reports
+        return 0
+    res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
+    if res:
+        metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
+        print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
+    ckpt = cli.trainer.checkpoint_callback
+    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    return 0
+
+
+def cmd_export(a: argparse.Namespace) -> int:
+    check_split_options(a)
+    if any(getattr(a, k) for k in ("n_bins", "mode", "train", "val", "test", "test_subjects")):
+        raise UsageError("export keeps the bins, inputs and split the checkpoint was trained with; "
+                         "pass --n-bins/--mode/--train/... to `sonicskin train` (or use `sonicskin compare`)")
+    run = Path(a.run)
+    if not run.exists():
+        raise FileNotFoundError(f"{run} does not exist; pass a run folder of `sonicskin train` or its .ckpt file")
+    need_train_extra("export")
+    from export.onnx import export_artifact
+
+    ckpt = latest_checkpoint(run)
+    with readable_checkpoint(ckpt), removed_on_failure(a.out):
+        export_artifact(ckpt, a.out, data=a.data)
+    return 0
+
+
+@contextlib.contextmanager
+def readable_checkpoint(ckpt: Path):
+    """A checkpoint torch cannot read (not a checkpoint, truncated, or refused by ``weights_only``
+    loading) becomes one user error naming the file."""
+    import pickle
+    import zipfile
+
+    try:
+        yield
+    except (pickle.UnpicklingError, EOFError, zipfile.BadZipFile) as e:
+        raise UsageError(f"{ckpt} is not a readable sonicskin checkpoint ({' '.join(str(e).split())[:200]}); "
+                         f"pass a .ckpt written by `sonicskin train`") from None
+    except RuntimeError as e:
+        if "PytorchStreamReader" not in str(e) and "checkpoint" not in str(e).lower():
+            raise
+        raise UsageError(f"{ckpt} is not a readable sonicskin checkpoint ({' '.join(str(e).split())[:200]}); "
+                         f"pass a .ckpt written by `sonicskin train`") from None
+
+
+def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
+    from ..compare import compare_artifact, format_comparison, save_comparison
+    from ..dataset import Dataset
+    from ..rig import Layout
+
+    if a.scenario:  # simulated scenarios over several simulator and training seeds, paired interval
+        if a.data or a.artifact:
+            raise UsageError("--scenario simulates its own datasets; drop --data/--artifact (or drop --scenario)")
+        need_train_extra("compare --scenario")
+        from ..seeds import compare_seeds, format_markdown
+
+        out = Path(a.out or "reports/compare-seeds")
+        res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
+                            epochs=a.epochs)
+        print(format_markdown(res))
+        print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
+        return 0
+    if not a.data:
+        raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
+    Dataset(a.data)  # a bad dataset is refused before anything trains
+    artifact = a.artifact
+    sessions = None
+    if artifact is not None:
+        artifact = Path(artifact)
+        if not (artifact / "skin.json").is_file():
+            raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
+                                    f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
+        if extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "val", "test_subjects")):
+            raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
+                             "compare on (drop the training options or --artifact)")
+        sessions = a.test
+    else:  # train and export both models on the same split first
+        need_train_extra("compare")
+        from export.onnx import export_artifact
+        from training.cli import main as train_main
+
+        name = Path(a.data).name
+        run = Path(a.runs) / f"compare-{name}"
+        args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
+                                       "--trainer.logger.init_args.save_dir", str(run)] + extra)
+        cli = train_main(args)
+        artifact = run / "artifact"
+        ckpt = latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath))
+        with readable_checkpoint(ckpt):
+            export_artifact(ckpt, artifact, data=a.data)
+    res = compare_artifact(artifact, a.data, sessions=sessions)
+    title = f"{Path(a.data).name}: network vs SVM"
+    print(format_comparison(res, title))
+    meta = json.loads((Path(artifact) / "skin.json").read_text())
+    out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
+    paths = save_comparison(res, out, Layout.from_dict(meta["layout"]), title)
+    print("wrote " + ", ".join(str(p) for p in paths))
+    return 0
+
+
+def cmd_reproduce(a: argparse.Namespace) -> int:
+    from ..reproduce import reproduce
+
+    reproduce(a.out, quick=a.quick)
+    return 0
+
+
+def add_parsers(sub) -> None:
+    e = sub.add_parser("evaluate", help="train the paper's SVM system on a dataset and report its accuracy",
+                       description="Train OSPA + RBF SVM + Alg. 2 + Fourier force on the first session (one-shot), "
+                                   "test on the others; print the paper's metrics and ablations; write JSON and PNG. "
+                                   "--mode relative calibrates the scores online (Alg. 2); absolute keeps the training "
+                                   "session's reference throughout.")
+    e.add_argument("--data", required=True, help="dataset folder")
+    e.add_argument("--out", help="report folder (default: reports/<dataset name>)")
+    e.add_argument("--no-ablations", action="store_true",
+                   help="skip the no-OSPA / no-calibration / total-energy runs (default: run them)")
+    add_model_options(e)
+    e.set_defaults(func=cmd_evaluate)
+
+    f = sub.add_parser("fit-svm", help="SVM-only artifact from a recording, no torch needed",
+                       description="The paper's system as a deployment artifact (svm.onnx + skin.json), trained on "
+                                   "every session of a dataset (or --train) on a machine without torch.")
+    f.add_argument("--data", required=True, help="dataset folder")
+    f.add_argument("--out", required=True, help="artifact folder to write")
+    add_model_options(f, train_default="all")
+    f.set_defaults(func=cmd_fit_svm)
+
+    t = sub.add_parser("train", help="train the network (Lightning; any --trainer.* / --model.* / --data.* override)",
+                       description="Train SkinNet jointly for location and force with LightningCLI. Options not "
+                                   "listed here go to LightningCLI, e.g. --trainer.max_epochs 5 --model.hidden '[64, 64]' "
+                                   "--data.batch_size 64; their full list (model, data, trainer) follows below when "
+                                   "the training extra is installed.")
+    t.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
+    t.add_argument("--data", help="dataset folder (default: data.data of the config)")
+    add_model_options(t)
+    t.set_defaults(func=cmd_train, passthrough=True, lightning_help=True)
+
+    x = sub.add_parser("export", help="export the network and the SVM baseline into one ONNX artifact",
+                       description="Write a deployment artifact from a training run: net.onnx (the network), svm.onnx "
+                                   "(the paper's SVM, trained here on the run's own split and bins) and skin.json "
+                                   "(rig, layout, bins, calibration, force curves, checksums), each checked for parity "
+                                   "against the original. Bins, inputs and split come from the checkpoint.")
+    x.add_argument("--run", required=True, help="a checkpoint (.ckpt), or a run folder (its newest best/last checkpoint)")
+    x.add_argument("--out", required=True, help="artifact folder to write")
+    x.add_argument("--data", help="dataset (default: the one the checkpoint was trained on)")
+    add_model_options(x)
+    x.set_defaults(func=cmd_export)
+
+    c = sub.add_parser("compare", help="network vs SVM on the same splits: table, JSON and PNG",
+                       description="Train + export both models (or load --artifact) and compare them on the test "
+                                   "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size. "
+                                   "Without --artifact, other options go to LightningCLI as in `sonicskin train`.")
+    c.add_argument("--data", help="dataset folder")
+    c.add_argument("--artifact", help="use this artifact instead of training (default: train both models first)")
+    c.add_argument("--scenario", nargs="+", metavar="NAME",
+                   help="instead of --data: simulate these scenarios with every --sim-seeds, train with every --train-seeds, "
+                        "and report mean, std and the paired net - SVM 95 %% interval (e.g. moving stationary)")
+    c.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="simulator seeds (default: 0-4)")
+    c.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1], help="network training seeds (default: 0 1)")
+    c.add_argument("--epochs", type=int, help="network epochs with --scenario (default: training.quick's)")
+    c.add_argument("--cache", default="data/seeds", help="simulated datasets for --scenario (default: data/seeds)")
+    c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
+    c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
+    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>; reports/compare-seeds with --scenario)")
+    add_model_options(c)
+    c.set_defaults(func=cmd_compare, passthrough=True)
+
+    rp = sub.add_parser("reproduce", help="the paper's Sec. V on the simulated rig, SVM and network side by side",
+                        description="Simulate every dataset the paper's experiments need (cached under OUT/data), train "
+                                    "both models, write PNG figures and report.md with the paper's numbers beside ours.")
+    rp.add_argument("--out", default="reports/reproduce", help="report folder (default: reports/reproduce)")
+    rp.add_argument("--quick", action="store_true",
+                    help="small datasets and short training: a few minutes on 2 cores (default: full size)")
+    rp.set_defaults(func=cmd_reproduce)

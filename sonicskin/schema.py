@@ -1,0 +1,506 @@
+"""The one schema of a deployment artifact's ``skin.json``, checked completely before anything runs.
+
+Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
+:func:`load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it writes with
+:func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
+naming the field (``models.svm.threshold``), what is wrong and what to do.
+
+The schema, field by field (``N`` locations, ``B`` selected bins)::
+
+    format              "sonicskin-artifact"
+    version             1
+    sonicskin_version   string
+    rig                 fs_hz, f_lo_hz, f_hi_hz, n_chirp, pwm_hz, pwm_halfwidth_hz (required),
+                        amplitude, name, sweep_b64 (optional); finite, in range (see Rig)
+    layout              ids: N >= 1 unique ints >= 0; xy_cm: N pairs of finite cm;
+                        circumference_cm: null or finite > 0
+    features            bins: B >= 1 unique ints, 0 <= b < rig.n_band; mode: absolute | relative;
+                        beta_s: finite, 0 < beta_s <= 3600 (s); alpha_s: finite, beta_s <= alpha_s <= 1e7 (s)
+    min_force_n         finite >= 0 (N)
+    calibration         optional copy of beta_s / alpha_s, equal to the features' ones
+    training            provenance: data (string), split {train, val, test: [session names]}, other keys free
+    models              {"net": ..., "svm": ...}, at least one:
+      file              a plain file name inside the artifact folder (no directories, no symlink out of it)
+      sha256            64 lowercase hex digits of that file
+      kind              "skinnet" (net) | "svc-ovo" (svm)
+      n_in              == B;  n_locations == N
+      parity            optional dict of export parity figures;  hparams: optional dict (net)
+      svm only:
+        reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
+        threshold         finite, 0 < t <= 1e3 (dB RMS)
+        detector          "input-rms"
+        energy_ref_db     finite, |e| <= 1e4
+        train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1]
+        force             model (a force curve model); curves: {} or one per layout id, each
+                          {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi}
+
+and the ONNX graphs (:func:`check_session`): one float input ``(batch, B)``; the net outputs logits
+``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
+(2 columns when ``N = 2``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "MODEL_KINDS", "load_skin", "validate_skin",
+           "model_file", "read_model_file", "check_session", "check_rig", "check_layout"]
+
+ARTIFACT_FORMAT = "sonicskin-artifact"
+ARTIFACT_VERSION = 1
+MODEL_KINDS = {"net": "skinnet", "svm": "svc-ovo"}
+REEXPORT = "export the artifact again (`sonicskin export --run DIR` or `sonicskin fit-svm`)"
+MAX_SKIN_JSON_BYTES = 64 * 2**20
+MAX_ABS_SCORE = 1e4       # per-location SVM scores are votes (< N) and relative dB inputs
+MAX_THRESHOLD_DB = 1e3
+MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned but stay finite
+
+_TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "calibration", "training",
+        "models"}
+_RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
+_RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
+_COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity"}
+_MODEL_KEYS = {"net": _COMMON | {"hparams"},
+               "svm": _COMMON | {"reference_scores", "threshold", "detector", "energy_ref_db", "train_false_touch_rate",
+                                 "train_missed_touch_rate", "force"}}
+_CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
+_SHA = re.compile(r"[0-9a-f]{64}")
+
+
+class ArtifactError(ValueError):
+    """An artifact that cannot run here; the message names the field, what does not fit and what to do."""
+
+
+def _short(v: Any, n: int = 60) -> str:
+    s = repr(v).replace("\n", " ")
+    return s if len(s) <= n else s[: n - 3] + "..."
+
+
+class _Doc:
+    """Checks of one document; every failure is one line ``<source>: <field> <problem>; <fix>``."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, field: str, problem: str, fix: str = REEXPORT):
+        raise ArtifactError(f"{self.source}: {field} {problem}; {fix}")
+
+    def obj(self, v: Any, field: str) -> dict:
+        if not isinstance(v, dict):
+            self.fail(field, f"must be a JSON object, got {type(v).__name__}")
+        return v
+
+    def get(self, d: dict, key: str, field: str) -> Any:
+        if key not in d:
+            self.fail(f"{field}.{key}" if field else key, "is missing")
+        return d[key]
+
+    def keys(self, d: dict, allowed: set[str], field: str) -> None:
+        unknown = sorted(set(d) - allowed)
+        if unknown:
+            self.fail(field or "the document", f"has unknown keys {unknown} (known: {sorted(allowed)})")
+
+    def num(self, v: Any, field: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+            none_ok: bool = False) -> float | None:
+        if v is None and none_ok:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(field, f"must be a number, got {_short(v)}")
+        try:
+            v = float(v)
+        except OverflowError:  # an integer beyond the float range
+            self.fail(field, f"must be finite, got an integer of {len(str(v))} digits")
+        if not math.isfinite(v):
+            self.fail(field, f"must be finite, got {v}")
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            self.fail(field, f"must be {'>' if lo_open else '>='} {lo:g}, got {v:g}")
+        if hi is not None and v > hi:
+            self.fail(field, f"must be <= {hi:g}, got {v:g}")
+        return float(v)
+
+    def int(self, v: Any, field: str, *, lo: int | None = None, hi: int | None = None) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(field, f"must be an integer, got {_short(v)}")
+        if lo is not None and v < lo:
+            self.fail(field, f"must be >= {lo}, got {v}")
+        if hi is not None and v > hi:
+            self.fail(field, f"must be < {hi + 1}, got {v}")
+        return v
+
+    def str(self, v: Any, field: str) -> str:
+        if not isinstance(v, str):
+            self.fail(field, f"must be a string, got {_short(v)}")
+        return v
+
+    def list(self, v: Any, field: str, *, n: int | None = None, nonempty: bool = False) -> list:
+        if not isinstance(v, list):
+            self.fail(field, f"must be a JSON list, got {type(v).__name__}")
+        if n is not None and len(v) != n:
+            self.fail(field, f"has {len(v)} entries, expected {n}")
+        if nonempty and not v:
+            self.fail(field, "is empty")
+        return v
+
+    def choice(self, v: Any, field: str, options) -> str:
+        if not isinstance(v, str) or v not in options:
+            self.fail(field, f"must be one of {sorted(options)}, got {_short(v)}")
+        return v
+
+    def const(self, v: Any, field: str, want: Any, fix: str = REEXPORT) -> None:
+        if type(v) is not type(want) or v != want:
+            self.fail(field, f"must be {want!r}, got {_short(v)}", fix)
+
+
+def _unique(doc: _Doc, values: list, field: str) -> None:
+    rep = sorted(k for k, n in Counter(values).items() if n > 1)
+    if rep:
+        doc.fail(field, f"are not unique (repeated: {rep[:5]})")
+
+
+def _check_rig(doc: _Doc, rig: Any):
+    from .rig import Rig
+
+    rig = doc.obj(rig, "rig")
+    doc.keys(rig, set(_RIG_REQUIRED) | set(_RIG_OPTIONAL), "rig")
+    for k in _RIG_REQUIRED:
+        doc.get(rig, k, "rig")
+    doc.num(rig["fs_hz"], "rig.fs_hz", lo=0, lo_open=True, hi=10e6)
+    doc.num(rig["f_lo_hz"], "rig.f_lo_hz", lo=0, lo_open=True)
+    doc.num(rig["f_hi_hz"], "rig.f_hi_hz", lo=0, lo_open=True)
+    doc.int(rig["n_chirp"], "rig.n_chirp", lo=64, hi=2**22)
+    for i, f in enumerate(doc.list(rig["pwm_hz"], "rig.pwm_hz")):
+        doc.num(f, f"rig.pwm_hz[{i}]", lo=0)
+    doc.num(rig["pwm_halfwidth_hz"], "rig.pwm_halfwidth_hz", lo=0)
+    if "amplitude" in rig:
+        doc.num(rig["amplitude"], "rig.amplitude", lo=0, lo_open=True, hi=1)
+    if "name" in rig:
+        doc.str(rig["name"], "rig.name")
+    if rig.get("sweep_b64") is not None:
+        doc.str(rig["sweep_b64"], "rig.sweep_b64")
+    try:
+        return Rig.from_dict(rig)
+    except (ValueError, TypeError) as e:  # cross-field rules of Rig (band inside Nyquist, sweep length, ...)
+        doc.fail("rig", f"is not a valid rig ({e})")
+
+
+def _check_layout(doc: _Doc, layout: Any):
+    from .rig import Layout
+
+    layout = doc.obj(layout, "layout")
+    doc.keys(layout, {"ids", "xy_cm", "circumference_cm"}, "layout")
+    ids = doc.list(doc.get(layout, "ids", "layout"), "layout.ids", nonempty=True)
+    for i, v in enumerate(ids):
+        doc.int(v, f"layout.ids[{i}]", lo=0)
+    _unique(doc, ids, "layout.ids")
+    xy = doc.list(doc.get(layout, "xy_cm", "layout"), "layout.xy_cm", n=len(ids))
+    for i, p in enumerate(xy):
+        doc.list(p, f"layout.xy_cm[{i}]", n=2)
+        for j, c in enumerate(p):
+            doc.num(c, f"layout.xy_cm[{i}][{j}]", lo=-1e4, hi=1e4)
+    doc.num(layout.get("circumference_cm"), "layout.circumference_cm", lo=0, lo_open=True, hi=1e4, none_ok=True)
+    return Layout.from_dict(layout)
+
+
+def _check_features(doc: _Doc, feats: Any, n_band: int):
+    from .features import MODES, FeatureSpec
+
+    feats = doc.obj(feats, "features")
+    doc.keys(feats, {"bins", "mode", "beta_s", "alpha_s"}, "features")
+    bins = doc.list(doc.get(feats, "bins", "features"), "features.bins", nonempty=True)
+    for i, b in enumerate(bins):
+        doc.int(b, f"features.bins[{i}]")
+        if not 0 <= b < n_band:
+            doc.fail(f"features.bins[{i}]", f"is {b}, outside the rig's {n_band} band bins (0 <= b < {n_band})")
+    _unique(doc, bins, "features.bins")
+    doc.choice(doc.get(feats, "mode", "features"), "features.mode", MODES)
+    beta = doc.num(doc.get(feats, "beta_s", "features"), "features.beta_s", lo=0, lo_open=True, hi=3600)
+    alpha = doc.num(doc.get(feats, "alpha_s", "features"), "features.alpha_s", lo=0, lo_open=True, hi=1e7)
+    if alpha < beta:
+        doc.fail("features.alpha_s", f"({alpha:g} s) is shorter than the reference it refreshes (beta_s = {beta:g} s)")
+    return FeatureSpec.from_dict(feats)
+
+
+def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int]) -> None:
+    from .force import MODELS
+
+    force = doc.obj(force, field)
+    doc.keys(force, {"model", "curves"}, field)
+    model = doc.choice(doc.get(force, "model", field), f"{field}.model", MODELS)
+    n_coef = MODELS[model].design([0.0], 1.0).shape[1]
+    curves = doc.obj(doc.get(force, "curves", field), f"{field}.curves")
+    ids = {str(i) for i in layout_ids}
+    if curves and set(curves) != ids:
+        extra, missing = sorted(set(curves) - ids), sorted(ids - set(curves), key=int)
+        doc.fail(f"{field}.curves", f"must have one curve per layout id or none (not in the layout: {extra[:5]}, "
+                                    f"missing: {missing[:5]})")
+    for k, c in curves.items():
+        f = f"{field}.curves.{k}"
+        c = doc.obj(c, f)
+        doc.keys(c, _CURVE_KEYS, f)
+        for key in _CURVE_KEYS:
+            doc.get(c, key, f)
+        doc.const(c["model"], f"{f}.model", model)
+        doc.num(c["theta"], f"{f}.theta", lo=-1e3, hi=1e3)
+        for i, v in enumerate(doc.list(c["coef"], f"{f}.coef", n=n_coef)):
+            doc.num(v, f"{f}.coef[{i}]", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+        doc.num(c["center"], f"{f}.center", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+        doc.num(c["scale"], f"{f}.scale", lo=0, lo_open=True, hi=MAX_ABS_SCORE)
+        doc.num(c["r2"], f"{f}.r2", hi=1.0)
+        lo = doc.num(c["e_lo"], f"{f}.e_lo", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+        hi = doc.num(c["e_hi"], f"{f}.e_hi", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+        if lo > hi:
+            doc.fail(f"{f}.e_lo", f"({lo:g} dB) is above e_hi ({hi:g} dB)")
+
+
+def _check_file_name(doc: _Doc, name: Any, field: str) -> str:
+    name = doc.str(name, field)
+    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name or ":" in name
+            or Path(name).name != name):
+        doc.fail(field, f"must be a plain file name inside the artifact folder, got {_short(name)}",
+                 "keep the ONNX files next to skin.json and name them without a directory")
+    return name
+
+
+def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[int]) -> None:
+    f = f"models.{name}"
+    m = doc.obj(m, f)
+    doc.keys(m, _MODEL_KEYS[name], f)
+    _check_file_name(doc, doc.get(m, "file", f), f"{f}.file")
+    sha = doc.str(doc.get(m, "sha256", f), f"{f}.sha256")
+    if not _SHA.fullmatch(sha):
+        doc.fail(f"{f}.sha256", f"must be 64 lowercase hex digits, got {_short(sha)}")
+    doc.const(doc.get(m, "kind", f), f"{f}.kind", MODEL_KINDS[name])
+    m_in = doc.int(doc.get(m, "n_in", f), f"{f}.n_in", lo=1)
+    if m_in != n_in:
+        doc.fail(f"{f}.n_in", f"is {m_in}: the model takes {m_in} features but skin.json lists {n_in} bins in features.bins")
+    n_loc = len(layout_ids)
+    m_loc = doc.int(doc.get(m, "n_locations", f), f"{f}.n_locations", lo=1)
+    if m_loc != n_loc:
+        doc.fail(f"{f}.n_locations", f"is {m_loc} but layout.ids lists {n_loc} locations")
+    if "parity" in m:
+        doc.obj(m["parity"], f"{f}.parity")
+    if name == "net":
+        if "hparams" in m:
+            doc.obj(m["hparams"], f"{f}.hparams")
+        return
+    if n_loc < 2:
+        doc.fail(f"{f}.n_locations", "must be >= 2 for an SVM (it separates locations)")
+    ref = doc.list(doc.get(m, "reference_scores", f), f"{f}.reference_scores")
+    if len(ref) != n_loc + n_in:
+        doc.fail(f"{f}.reference_scores", f"has {len(ref)} values, expected n_locations + n_in = {n_loc} + {n_in} = "
+                                          f"{n_loc + n_in}")
+    for i, v in enumerate(ref):
+        doc.num(v, f"{f}.reference_scores[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+    doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
+    doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
+              "the touch detector is from an older sonicskin; " + REEXPORT)
+    doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+    for k in ("train_false_touch_rate", "train_missed_touch_rate"):
+        if k in m:
+            doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
+    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids)
+
+
+def _check_training(doc: _Doc, tr: Any) -> None:
+    tr = doc.obj(tr, "training")
+    doc.str(doc.get(tr, "data", "training"), "training.data")
+    split = doc.obj(doc.get(tr, "split", "training"), "training.split")
+    for k in ("train", "val", "test"):
+        for i, s in enumerate(doc.list(doc.get(split, k, "training.split"), f"training.split.{k}")):
+            doc.str(s, f"training.split.{k}[{i}]")
+
+
+def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
+    """Check a parsed ``skin.json`` against the schema (without touching any file); return it.
+
+    Raises :class:`ArtifactError` naming the first field that does not fit.
+    """
+    doc = _Doc(source)
+    if not isinstance(meta, dict):
+        doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")
+    doc.const(doc.get(meta, "format", ""), "format", ARTIFACT_FORMAT,
+              "this is not a sonicskin artifact; point to a folder written by `sonicskin export` or `fit-svm`")
+    doc.const(doc.get(meta, "version", ""), "version", ARTIFACT_VERSION,
+              f"this sonicskin reads version-{ARTIFACT_VERSION} artifacts; " + REEXPORT)
+    doc.keys(meta, _TOP, "")
+    doc.str(doc.get(meta, "sonicskin_version", ""), "sonicskin_version")
+    rig = _check_rig(doc, doc.get(meta, "rig", ""))
+    layout = _check_layout(doc, doc.get(meta, "layout", ""))
+    spec = _check_features(doc, doc.get(meta, "features", ""), rig.n_band)
+    doc.num(doc.get(meta, "min_force_n", ""), "min_force_n", lo=0, hi=1e4)
+    if "calibration" in meta:
+        cal = doc.obj(meta["calibration"], "calibration")
+        doc.keys(cal, {"beta_s", "alpha_s"}, "calibration")
+        for k in ("beta_s", "alpha_s"):
+            if k in cal and cal[k] != getattr(spec, k):
+                doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
+    _check_training(doc, doc.get(meta, "training", ""))
+    models = doc.obj(doc.get(meta, "models", ""), "models")
+    if not models:
+        doc.fail("models", "is empty")
+    doc.keys(models, set(MODEL_KINDS), "models")
+    for name, m in models.items():
+        _check_model(doc, name, m, n_in=len(spec.bins), layout_ids=list(layout.ids))
+    return meta
+
+
+def _no_duplicates(pairs):
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        raise ValueError(f"duplicate key {sorted({k for k in keys if keys.count(k) > 1})[0]!r}")
+    return dict(pairs)
+
+
+def load_skin(folder: str | Path) -> dict:
+    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
+    that holds it)."""
+    folder = Path(folder)
+    path = folder / "skin.json"
+    if not path.is_file():
+        raise ArtifactError(f"{folder} is not a sonicskin artifact (skin.json missing); create one with "
+                            f"`sonicskin export` or `sonicskin fit-svm`")
+    if path.stat().st_size > MAX_SKIN_JSON_BYTES:
+        raise ArtifactError(f"{path} is {path.stat().st_size / 2**20:.0f} MB, far more than an artifact's metadata; "
+                            f"{REEXPORT}")
+    try:
+        meta = json.loads(path.read_bytes().decode("utf-8"), object_pairs_hook=_no_duplicates)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise ArtifactError(f"{path} is corrupt ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
+    return validate_skin(meta, source=str(path))
+
+
+def model_file(folder: str | Path, meta: dict, model: str) -> Path:
+    """Path of ``model``'s ONNX file, confined to ``folder`` (a symlink may not lead out of it)."""
+    folder = Path(folder)
+    models = meta["models"]
+    if model not in models:
+        raise ArtifactError(f"model {model!r} is not in the artifact (it has {sorted(models)}); choose one of those "
+                            f"with --model")
+    doc = _Doc(str(folder / "skin.json"))
+    name = _check_file_name(doc, models[model]["file"], f"models.{model}.file")
+    path = folder / name
+    if path.is_symlink() or path.exists():
+        real, root = path.resolve(), folder.resolve()
+        if real.parent != root:
+            doc.fail(f"models.{model}.file", f"({name}) is a link to {real}, outside the artifact folder",
+                     "copy the model file into the artifact folder instead of linking it")
+    if not path.is_file():
+        raise ArtifactError(f"{path} is missing; copy the whole artifact folder or {REEXPORT}")
+    return path
+
+
+def read_model_file(folder: str | Path, meta: dict, model: str) -> bytes:
+    """The bytes of ``model``'s ONNX file after the confinement and checksum checks."""
+    path = model_file(folder, meta, model)
+    data = path.read_bytes()
+    if hashlib.sha256(data).hexdigest() != meta["models"][model]["sha256"]:
+        raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
+                            f"replaced; {REEXPORT}")
+    _no_external_data(data, path)
+    return data
+
+
+def _no_external_data(data: bytes, path: Path) -> None:
+    """An ONNX file must carry its weights: external data would be read from outside the artifact folder."""
+    import onnx
+
+    m = onnx.ModelProto()
+    try:
+        m.ParseFromString(data)  # the protobuf only: nothing outside the file is read
+    except Exception:  # not parseable: onnxruntime reports it when loading
+        return
+    graphs, ext = [m.graph], []
+    while graphs:
+        g = graphs.pop()
+        ext += [t.name for t in g.initializer if t.data_location == onnx.TensorProto.EXTERNAL]
+        for node in g.node:
+            for a in node.attribute:
+                graphs += ([a.g] if a.HasField("g") else []) + list(a.graphs)
+                if a.HasField("t") and a.t.data_location == onnx.TensorProto.EXTERNAL:
+                    ext.append(node.name or node.op_type)
+    if ext:
+        raise ArtifactError(f"{path} keeps weights in external files ({ext[:3]}); an artifact's ONNX files must be "
+                            f"self-contained; {REEXPORT}")
+
+
+def _last_dim(shape) -> int | None:
+    return shape[-1] if shape and isinstance(shape[-1], int) else None
+
+
+def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
+    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths.
+
+    Declared shapes are checked where they are fixed, and one probe batch of zeros is run to check the
+    shapes the graph really produces.
+    """
+    import numpy as np
+
+    n_in = len(meta["features"]["bins"])
+    n_loc = len(meta["layout"]["ids"])
+    where = source or f"the {model} model"
+    ins, outs = session.get_inputs(), session.get_outputs()
+    if len(ins) != 1 or ins[0].type != "tensor(float)" or len(ins[0].shape) != 2:
+        raise ArtifactError(f"{where} must take one float input (batch, {n_in}), it takes "
+                            f"{[(i.type, i.shape) for i in ins]}; {REEXPORT}")
+    if ins[0].shape[-1] != n_in:
+        raise ArtifactError(f"{where} takes {ins[0].shape[-1]} features but skin.json lists {n_in} bins; {REEXPORT}")
+    if model == "net":
+        want = {0: n_loc + 1, 1: n_loc}
+        what = f"logits (batch, {n_loc + 1}) and force (batch, {n_loc})"
+    else:
+        want = {1: n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2}
+        what = f"a label and {want[1]} pairwise decision values for {n_loc} locations"
+    if len(outs) != 2:
+        raise ArtifactError(f"{where} has {len(outs)} outputs, expected {what}; {REEXPORT}")
+    declared = {k: _last_dim(outs[k].shape) for k in want}
+    try:
+        got = session.run(None, {ins[0].name: np.zeros((2, n_in), np.float32)})
+    except Exception as e:  # onnxruntime raises its own exception types
+        raise ArtifactError(f"{where} fails on a probe input ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
+    for k, n in want.items():
+        shape = np.shape(got[k])
+        # skl2onnx declares the SVM's ovo output with the class count (31), although it yields K (K-1) / 2 columns.
+        ok_declared = (None, n, n_loc) if model == "svm" else (None, n)
+        if (declared[k] not in ok_declared) or len(shape) != 2 or shape != (2, n):
+            raise ArtifactError(f"{where} output {outs[k].name!r} has shape {shape} (declared {outs[k].shape}), "
+                                f"expected {what}: the model does not fit layout.ids; {REEXPORT}")
+
+
+def check_rig(meta: dict, rig) -> None:
+    """Refuse to run an artifact on a rig it was not trained for (sample rate, chirp, bands)."""
+    from .rig import Rig
+
+    diffs = Rig.from_dict(meta["rig"]).mismatch(rig)
+    if diffs:
+        raise ArtifactError(f"the artifact was trained for another rig ({'; '.join(diffs)}); "
+                            f"record and train on this rig, or run with the artifact's rig")
+
+
+def check_layout(meta: dict, layout) -> None:
+    """Refuse to run an artifact on a marker layout it was not trained for.
+
+    ``layout`` is the :class:`sonicskin.rig.Layout` of the surface it will run on (e.g. a scenario's
+    ``make_layout()``).  Different ids or count is an error; the same ids at other positions too
+    (the model's locations would be reported at the wrong places).
+    """
+    import numpy as np
+
+    from .rig import Layout
+
+    mine = Layout.from_dict(meta["layout"])
+    if mine.ids != layout.ids:
+        def span(ids):
+            return f"{len(ids)} locations (ids {ids[0]}..{ids[-1]})" if ids else "no locations"
+        raise ArtifactError(f"the artifact was trained for {span(mine.ids)} but the surface here has {span(layout.ids)}; "
+                            f"record and train on this layout, or run a scenario with the artifact's layout")
+    if mine != layout:
+        d = float(np.max(np.abs(mine.xy_cm - np.asarray(layout.xy_cm, float)))) if mine.xy_cm.shape == np.shape(layout.xy_cm) \
+            else float("nan")
+        raise ArtifactError(f"the artifact's markers sit elsewhere than this surface's (up to {d:.2g} cm apart, or another "
+                            f"circumference); record and train on this layout, or run a scenario with the artifact's layout")

@@ -1,0 +1,54 @@
+"""Helpers of the CLI tests: a small rig (1024-sample chirps, 250 usable bins: fewer than the default
+gamma), a tiny 3-marker scenario, and in-process runs of ``sonicskin`` (fixture ``cli_files`` in conftest)."""
+
+from __future__ import annotations
+
+SMALL_RIG = """\
+name: small
+fs_hz: 192000
+f_lo_hz: 20000
+f_hi_hz: 80000
+n_chirp: 1024
+pwm_hz: [30000, 60000]
+pwm_halfwidth_hz: 3250
+amplitude: 0.5
+"""
+
+TINY_SCENARIO = """\
+name: tiny
+material: abs
+geometry: {kind: plate, width_cm: 20.0, length_cm: 25.0}
+tx_cm: [4.0, 2.5]
+rx_cm: [9.0, 22.5]
+layout: {kind: grid, nx: 3, ny: 1, spacing_cm: 1.2, x0_cm: 9.4, y0_cm: 12.5}
+sessions: 3
+repeats: 1
+touch_s: 0.5
+gap_s: 0.2
+calibration_s: 3.5
+moving_s: 0.0
+subjects: [0]
+motion: {enabled: false}
+seed: 4
+"""
+
+
+def run(capsys, argv: list[str]) -> tuple[int, str, str]:
+    """``sonicskin argv`` in-process: (exit code, stdout, stderr)."""
+    from sonicskin.cli import main
+
+    capsys.readouterr()
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(code: int, err: str, verb: str | None = None) -> str:
+    """Exit code 2 and exactly one message line (no traceback); returns the line."""
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("sonicskin: warning:")
+             and not ln.lstrip().startswith("features:")]
+    assert code == 2, err
+    assert "Traceback" not in err, err
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"sonicskin {verb}: error: " if verb else "sonicskin"), lines[0]
+    return lines[0]

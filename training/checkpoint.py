@@ -1,0 +1,98 @@
+"""Load a training checkpoint without running code from it.
+
+A Lightning ``.ckpt`` is a pickle: ``torch.load`` with weights-only mode off (what ``load_from_checkpoint``
+did here before) executes whatever ``__reduce__`` the file names.  :func:`load_checkpoint` reads it
+with ``weights_only=True`` (tensors and plain containers only; numpy's scalar and dtype are the one
+allow-listed extra, for checkpoints written before the metadata was kept plain), then rebuilds the
+module from its hyper-parameters and state dict.  Anything else in the file is refused with one line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import inspect
+import re
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .module import SkinLitModule
+
+__all__ = ["CheckpointError", "load_checkpoint"]
+
+META_KEYS = ("data", "rig", "layout", "spec", "split", "min_force_n")  # what export needs
+HINT = "export only checkpoints written by `sonicskin train`"
+
+
+class CheckpointError(ValueError):
+    """A file that is not a sonicskin training checkpoint, or one that would run code when loaded."""
+
+
+def _numpy_safe_globals() -> list:
+    """numpy's scalar reconstructor and dtypes: they rebuild a value from a dtype and bytes, nothing else."""
+    try:
+        from numpy._core.multiarray import scalar
+    except ImportError:  # numpy < 2
+        from numpy.core.multiarray import scalar
+    dtypes = [type(np.dtype(c)) for c in "?bhilqBHILQefdgFDGUS"]
+    return [scalar, np.dtype, *dtypes]
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e)
+    m = re.search(r"Unsupported global: GLOBAL (\S+)", text)  # torch's refusal names the offending global
+    if m:
+        return f"it names the Python global {m.group(1)}"
+    m = re.search(r"Unsupported operand \d+", text)
+    if m:
+        return m.group(0)
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return (lines[0] if lines else type(e).__name__)[:200]
+
+
+def load_checkpoint(path: str | Path) -> SkinLitModule:
+    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint.
+
+    Raises :class:`CheckpointError` (one line) for a file that is not such a checkpoint or that holds
+    Python objects other than tensors and plain data; nothing in the file is executed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")
+    if not zipfile.is_zipfile(path):  # torch.save has written zip archives since torch 1.6
+        raise CheckpointError(f"{path} is not a training checkpoint (not the zip archive torch.save writes); {HINT}")
+    try:
+        allow = getattr(torch.serialization, "safe_globals", None)  # torch >= 2.5; plain metadata needs none
+        with allow(_numpy_safe_globals()) if allow else contextlib.nullcontext():
+            ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=False)
+    except Exception as e:  # torch's weights-only refusal, and zip/pickle/format errors of every kind
+        if "Weights only load failed" in str(e):
+            raise CheckpointError(f"refused to load {path}: it holds Python objects beyond tensors and plain data "
+                                  f"({_first_line(e)}), and loading them could run code; {HINT}") from None
+        raise CheckpointError(f"{path} is not a training checkpoint ({_first_line(e)}); {HINT}") from None
+    if not isinstance(ckpt, dict):
+        raise CheckpointError(f"{path} is not a training checkpoint (it holds a {type(ckpt).__name__}); {HINT}")
+    for key, kind in (("state_dict", dict), ("hyper_parameters", dict), ("sonicskin", dict)):
+        if not isinstance(ckpt.get(key), kind):
+            what = "has no sonicskin metadata; train it with `sonicskin train`" if key == "sonicskin" else \
+                f"has no {key}; {HINT}"
+            raise CheckpointError(f"{path} {what}")
+    missing = sorted(set(META_KEYS) - set(ckpt["sonicskin"]))
+    if missing:
+        raise CheckpointError(f"{path}: its sonicskin metadata lacks {missing}; train it again with `sonicskin train`")
+    known = set(inspect.signature(SkinLitModule.__init__).parameters) - {"self"}
+    hp = {k: v for k, v in ckpt["hyper_parameters"].items() if not k.startswith("_")}  # Lightning's own entries
+    unknown = sorted(set(hp) - known)
+    if unknown:
+        raise CheckpointError(f"{path} was trained with hyper-parameters this sonicskin does not know ({unknown}); "
+                              f"export it with the sonicskin version that trained it")
+    try:
+        lit = SkinLitModule(**hp)
+        lit.load_state_dict(ckpt["state_dict"], strict=True)
+    except (TypeError, ValueError, RuntimeError) as e:
+        raise CheckpointError(f"{path}: the weights do not fit the network of its hyper-parameters "
+                              f"({_first_line(e)}); {HINT}") from None
+    lit.meta = ckpt["sonicskin"]
+    return lit.eval()
