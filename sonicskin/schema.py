@@ -68,7 +68,7 @@ _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity"}
 _MODEL_KEYS = {"net": _COMMON | {"hparams"},
                "svm": _COMMON | {"reference_scores", "threshold", "detector", "energy_ref_db", "train_false_touch_rate",
-                                 "train_missed_touch_rate", "force"}}
+                                 "train_missed_touch_rate", "force", "detection"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
 
@@ -297,12 +297,15 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
                                           f"{n_loc + n_in}")
     for i, v in enumerate(ref):
         doc.num(v, f"{f}.reference_scores[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
+    detection = m.get("detection", True)  # False: trained on touches only, no detector (threshold 0)
+    if not isinstance(detection, bool):
+        doc.fail(f"{f}.detection", f"must be true or false, got {_short(detection)}")
+    doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=detection, hi=MAX_THRESHOLD_DB)
     doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
               "the touch detector is from an older sonicskin; " + REEXPORT)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     for k in ("train_false_touch_rate", "train_missed_touch_rate"):
-        if k in m:
+        if k in m and not (m[k] is None and not detection):
             doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
     _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids)
 
