@@ -97,7 +97,8 @@ def test_live_loop_and_offline_replay_agree_chirp_by_chirp(rig, artifact, tmp_pa
     shutil.copytree(artifact, art)
     meta = json.loads((art / "skin.json").read_text())
     # Refresh every 3 s from 0.5 s of rest (the 0.8 s gaps between presses) so the replay crosses several.
-    meta["features"].update(alpha_s=3.0, beta_s=0.5)
+    for k in ("features", "calibration"):
+        meta[k].update(alpha_s=3.0, beta_s=0.5)
     (art / "skin.json").write_text(json.dumps(meta))
     ds = Dataset(artifact.parent / "data")
     t = ds.features(progress=False)

@@ -252,11 +252,11 @@ def add_parsers(sub) -> None:
                        description="Train + export both models (or load --artifact) and compare them on the test "
                                    "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size. "
                                    "Without --artifact, other options go to LightningCLI as in `sonicskin train`.")
-    c.add_argument("--data", help="dataset folder")
+    c.add_argument("--data", help="dataset folder (required unless --scenario; default: none)")
     c.add_argument("--artifact", help="use this artifact instead of training (default: train both models first)")
     c.add_argument("--scenario", nargs="+", metavar="NAME",
                    help="instead of --data: simulate these scenarios with every --sim-seeds, train with every --train-seeds, "
-                        "and report mean, std and the paired net - SVM 95 %% interval (e.g. moving stationary)")
+                        "and report mean, std and the paired net - SVM 95 %% interval (e.g. moving stationary; default: none)")
     c.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="simulator seeds (default: 0-4)")
     c.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1], help="network training seeds (default: 0 1)")
     c.add_argument("--epochs", type=int, help="network epochs with --scenario (default: training.quick's)")
