@@ -23,7 +23,7 @@ from .dsp import rig_chirp
 from .rig import Rig
 
 __all__ = ["Block", "AudioError", "Link", "load_links", "import_sounddevice", "list_devices", "SoundDeviceSource",
-           "SimulatedSource"]
+           "SimulatedSource", "RecordingSource"]
 
 
 class AudioError(RuntimeError):
@@ -324,6 +324,62 @@ class SimulatedSource(_QueueSource):
                 continue
         self._index += 1
         self._pos += len(block)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+class RecordingSource(_QueueSource):
+    """A recorded session of a dataset played as an audio source (its parts in order, block by block),
+    so a recording runs through the live loop exactly as it was received.
+
+    Parameters
+    ----------
+    dataset : :class:`sonicskin.dataset.Dataset`.
+    session : the session to play.
+    realtime : pace the blocks at the rig's sample rate; otherwise as fast as they are read.
+    """
+
+    def __init__(self, dataset, session: str, *, blocksize: int = 1024, realtime: bool = False):
+        super().__init__(dataset.rig, blocksize)
+        self.dataset, self.session, self.realtime = dataset, session, realtime
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._produce, name="sonicskin-recording", daemon=True)
+        self.finished = threading.Event()
+
+    def audio(self) -> np.ndarray:
+        """The session's received stream: its parts concatenated."""
+        import soundfile as sf
+
+        parts = [sf.read(self.dataset.root / self.session / f"part-{p:05d}.flac", dtype="float32", always_2d=True)[0][:, 0]
+                 for p in self.dataset.parts(self.session)]
+        return np.concatenate(parts)
+
+    def _produce(self) -> None:
+        audio, B = self.audio(), self.blocksize
+        t_next = time.perf_counter()
+        for a in range(0, len(audio), B):
+            if self._stop.is_set():
+                break
+            block = audio[a:a + B]
+            if self.realtime:
+                self._deliver(block)
+                t_next += len(block) / self.rig.fs_hz
+                time.sleep(max(0.0, t_next - time.perf_counter()))
+            else:
+                while not self._stop.is_set():
+                    try:
+                        self.queue.put(Block(block, self._index, self._pos, False), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                self._index += 1
+                self._pos += len(block)
+        self.finished.set()
 
     def start(self) -> None:
         self._thread.start()

@@ -1,98 +1,133 @@
-"""Online feature updating (paper Alg. 2) and touch detection by threshold."""
+"""Online feature updating (paper Alg. 2) and touch detection by threshold.
+
+:class:`OnlineReference` is Alg. 2 as the system runs it, fed chirp by chirp: the live loop, the
+offline replays of ``compare``/``evaluate``/``reproduce`` and the training features all go
+through it (a labelled training session feeds it its known no-touch chirps instead of detections).
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable, Iterator
 
 import numpy as np
 from sklearn.metrics import roc_curve
 
-__all__ = ["ScoreCalibrator", "TouchDetector"]
+__all__ = ["OnlineReference", "TouchDetector"]
 
 
-class ScoreCalibrator:
-    """Subtract the mean score of recent no-touch chirps: ``S_final = S - S_c`` (Alg. 2).
+class OnlineReference:
+    """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
 
-    ``S_c`` is the mean score over ``beta_chirps`` no-touch chirps, taken at start-up and
-    again every ``alpha_chirps`` chirps of stream time.  Time is counted in chirps so a
-    replayed stream calibrates exactly as the live loop does (paper: beta = 3 s = 28 chirps,
-    alpha = 20 min = 11250 chirps at 9.375 chirps/s).
+    - **Boot**: the first ``beta`` chirps of the stream are taken as hands-off (the protocol starts
+      every stream with hands off); their mean is the first reference.  When the caller *knows*
+      which chirps are no-touch (the labelled training session), it passes ``touch`` flags during
+      the boot too, and the boot waits for ``beta`` consecutive no-touch chirps.
+    - **Refresh**: once ``alpha`` chirps of stream time have passed since the reference took
+      effect, the next ``beta`` consecutive chirps the detector calls no-touch become the new one.
+
+    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
+    with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).
 
     Parameters
     ----------
-    beta_chirps : chirps averaged into one reference.
-    alpha_chirps : chirps between refreshes; ``None`` never refreshes after the first.
+    beta_chirps : chirps averaged into one reference (paper: 3 s = 28 chirps).
+    alpha_chirps : chirps between refreshes (paper: 20 min); ``None`` never refreshes.
+    chirps_per_s : the stream clock: a ``t_s`` difference times this is a chirp count.
+    relative : :meth:`inputs` subtracts the feature reference (``False``: absolute inputs).
+    score_fn : ``inputs (m, d) -> scores (m, k)``; its mean over the reference chirps is :attr:`scores`.
     """
 
-    def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375):
+    def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
+                 relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None):
         if int(beta_chirps) < 1:
             raise ValueError(f"beta_chirps must be >= 1, got {beta_chirps}")
         if alpha_chirps is not None and int(alpha_chirps) < 1:
             raise ValueError(f"alpha_chirps must be >= 1 or None, got {alpha_chirps}")
-        self.beta_chirps = int(beta_chirps)
-        self.alpha_chirps = None if alpha_chirps is None else int(alpha_chirps)
-        self._cps = float(chirps_per_s)
+        self.beta = int(beta_chirps)
+        self.alpha = None if alpha_chirps is None else int(alpha_chirps)
+        self.cps = float(chirps_per_s)
+        self.relative, self.score_fn = relative, score_fn
+        self.features: np.ndarray | None = None   # mean features of the reference chirps
+        self.scores: np.ndarray | None = None     # mean scores of the same chirps (score_fn)
+        self.t_set_s: float | None = None         # stream time of the reference's last chirp
+        self.refreshes = 0                        # references taken, the boot's included
+        self._run: list[np.ndarray] = []
 
     @classmethod
-    def from_seconds(cls, *, beta_s: float, alpha_s: float | None, chirps_per_s: float) -> ScoreCalibrator:
+    def from_seconds(cls, *, beta_s: float, alpha_s: float | None, chirps_per_s: float, **kw) -> OnlineReference:
         return cls(max(1, round(beta_s * chirps_per_s)),
-                   None if alpha_s is None else max(1, round(alpha_s * chirps_per_s)), chirps_per_s)
+                   None if alpha_s is None else max(1, round(alpha_s * chirps_per_s)), chirps_per_s, **kw)
 
-    def reference_times(self, quiet: np.ndarray, time_s: np.ndarray | None = None) -> list[tuple[int, np.ndarray]]:
-        """When each reference becomes valid and which chirps it averages.
+    @property
+    def ready(self) -> bool:
+        """A reference exists (the boot calibration is complete)."""
+        return self.features is not None
 
-        Returns a list of ``(valid_from, chirp_indices)``: the first reference uses the first
-        ``beta`` consecutive quiet chirps; each later one falls due ``alpha`` chirps after the
-        previous one began and takes the next ``beta`` consecutive quiet chirps (a touch only
-        delays it).
+    def inputs(self, x: np.ndarray) -> np.ndarray:
+        """Model inputs of features ``x`` (..., d): minus the reference in relative mode."""
+        if self.features is None:
+            raise RuntimeError("no reference yet: feed the boot calibration's chirps first")
+        x = np.asarray(x, np.float32)
+        return x - self.features if self.relative else x
+
+    def _set(self, block: np.ndarray, t_s: float) -> None:
+        self.features = block.mean(axis=0).astype(np.float32)
+        if self.score_fn is not None:
+            self.scores = np.asarray(self.score_fn(self.inputs(block)), np.float64).mean(axis=0)
+        self.t_set_s = float(t_s)
+        self.refreshes += 1
+        self._run = []
+
+    def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
+        """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection.
+
+        Call it *after* the model has seen the chirp under the current reference; ``touch`` is
+        ``None`` during the boot (taken as hands-off).  Returns ``True`` when this chirp completed
+        a new reference, in effect from the next chirp on.
         """
-        quiet = np.asarray(quiet, dtype=bool)
-        # Stream time in chirp periods; recordings with gaps pass their clock as time_s.
-        clock = np.arange(quiet.size, dtype=float) if time_s is None else np.asarray(time_s, float) * self._cps
-        # Starts of runs of beta consecutive quiet chirps (a reference is 3 s of uninterrupted rest).
-        c = np.r_[0, np.cumsum(quiet)]
-        b = self.beta_chirps
-        starts = np.flatnonzero(c[b:] - c[:-b] == b) if quiet.size >= b else np.empty(0, int)
-        out: list[tuple[int, np.ndarray]] = []
-        due = -np.inf
-        while True:
-            cand = starts[clock[starts] >= due]
-            if cand.size == 0:
-                break
-            first = int(cand[0])
-            out.append((first + b, np.arange(first, first + b)))
-            if self.alpha_chirps is None:
-                break
-            due = clock[first] + self.alpha_chirps
-        return out
+        if self.features is not None:
+            if self.alpha is None or round((t_s - self.t_set_s) * self.cps) < self.alpha:
+                return False
+        if touch:
+            self._run = []
+            return False
+        self._run.append(np.asarray(x, np.float32))
+        if len(self._run) < self.beta:
+            return False
+        self._set(np.stack(self._run), t_s)
+        return True
 
-    def run(self, scores: np.ndarray, quiet: np.ndarray, *, initial: np.ndarray | None = None,
-            time_s: np.ndarray | None = None) -> np.ndarray:
-        """Calibrate a stream of scores as the live loop would.
+    def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
+               boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:
+        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp,
+        with the model run on whole blocks of chirps that share one reference.
 
-        Parameters
-        ----------
-        scores : (n, K) raw scores in stream order.
-        quiet : (n,) bool, chirps known (or detected) to be no-touch.
-        initial : (K,) reference used before the first one is complete (e.g. the training
-            session's); without it those chirps use the first reference.
-        time_s : (n,) stream clock in seconds when the stream has gaps; chirp count otherwise.
-
-        Returns
-        -------
-        (n, K) calibrated scores.
+        ``predict(inputs)`` runs the model on a block and returns an object with a boolean
+        ``touch`` array (and whatever the caller wants back).  Yields ``(lo, hi, out)``: chirps
+        ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``.  Chirps before the first
+        block are the boot calibration (no prediction).  ``boot_touch`` gives known no-touch flags
+        for the boot (a labelled stream); without it the first ``beta`` chirps are the boot.
         """
-        scores = np.asarray(scores, dtype=np.float64)
-        quiet = np.asarray(quiet, dtype=bool)
-        if quiet.shape != scores.shape[:1]:
-            raise ValueError(f"quiet has {quiet.size} flags for {scores.shape[0]} chirps")
-        refs = self.reference_times(quiet, time_s)
-        if not refs and initial is None:
-            raise ValueError(f"the stream has fewer than beta={self.beta_chirps} no-touch chirps to calibrate on")
-        ref = np.empty_like(scores)
-        first = np.asarray(initial, float) if initial is not None else scores[refs[0][1]].mean(axis=0)
-        ref[:] = first
-        for valid_from, idx in refs:
-            ref[valid_from:] = scores[idx].mean(axis=0)
-        return scores - ref
+        X = np.asarray(X, np.float32)
+        time_s = np.asarray(time_s, float)
+        n = len(X)
+        i = 0
+        while i < n and not self.ready:
+            self.step(X[i], time_s[i], None if boot_touch is None else bool(boot_touch[i]))
+            i += 1
+        chunk = n if self.alpha is None else self.alpha + 8 * self.beta
+        while i < n:
+            hi = min(n, i + chunk)
+            out = predict(self.inputs(X[i:hi]))
+            touch = np.asarray(out.touch, bool)
+            j = i
+            while j < hi:
+                done = self.step(X[j], time_s[j], bool(touch[j - i]))
+                j += 1
+                if done:
+                    break
+            yield i, j, out
+            i = j
 
 
 class TouchDetector:

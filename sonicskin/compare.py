@@ -8,31 +8,53 @@ from pathlib import Path
 
 import numpy as np
 
-from .features import model_inputs, quiet_mask, touch_mask
+from .dataset import Dataset, FeatureTable
+from .features import load_features_cached, touch_mask
 from .metrics import error_cdf, force_report, localization_report
-from .runtime import SkinRuntime
+from .runtime import Predictions, SkinRuntime
 from .schema import load_skin
 
-__all__ = ["compare_artifact", "format_comparison", "save_comparison"]
+__all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison"]
 
 
-def _latency(rt: SkinRuntime, x: np.ndarray, n: int = 300) -> dict:
-    """Per-chirp model latency in onnxruntime (one chirp per call, one thread), this run."""
-    one = x[:1]
-    for _ in range(20):
-        rt.predict_inputs(one)
-    ts = np.empty(n)
-    for i in range(n):
-        t = time.perf_counter()
-        rt.predict_inputs(x[i % len(x)][None])
-        ts[i] = time.perf_counter() - t
-    onnx = np.empty(n)
-    for i in range(n):
-        t = time.perf_counter()
-        rt.run(x[i % len(x)][None])
-        onnx[i] = time.perf_counter() - t
-    return {"median_ms": float(np.median(ts) * 1e3), "p99_ms": float(np.percentile(ts, 99) * 1e3),
+def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20) -> dict:
+    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the
+    whole per-chirp path from band features (reference, model, detection, force; :meth:`SkinStream.chirp`).
+
+    ``X_band``/``time_s``: a recorded stream; its first ``beta`` chirps boot the reference.
+    """
+    st = rt.stream()
+    k = 0
+    while st.calibrating and k < len(X_band):
+        st.chirp(X_band[k], time_s[k])
+        k += 1
+    if k >= len(X_band):
+        raise ValueError(f"the stream has {len(X_band)} chirps, not more than the boot calibration's")
+    rows = np.arange(k, len(X_band))
+    inputs = st.reference.inputs(X_band[rows][:, st.bins])
+    path, onnx = np.empty(n), np.empty(n)
+    for i in range(-warmup, n):
+        r = rows[i % rows.size]
+        t0 = time.perf_counter()
+        st.chirp(X_band[r], time_s[r])
+        dt = time.perf_counter() - t0
+        one = inputs[i % rows.size][None]
+        t0 = time.perf_counter()
+        rt.run(one)
+        dt2 = time.perf_counter() - t0
+        if i >= 0:
+            path[i], onnx[i] = dt, dt2
+    return {"median_ms": float(np.median(path) * 1e3), "p99_ms": float(np.percentile(path, 99) * 1e3),
             "onnx_median_ms": float(np.median(onnx) * 1e3), "onnx_p99_ms": float(np.percentile(onnx, 99) * 1e3)}
+
+
+def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
+    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it."""
+    parts = []
+    for s in sessions:
+        m = t["session"] == s
+        parts.append(rt.replay(t.X[m], t["time_s"][m]))
+    return Predictions.concat(parts)
 
 
 def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
@@ -45,49 +67,56 @@ def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
     return force_report(g, f_pred[sel])
 
 
+def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
+    """Localization, continuous position, force and detection of replayed predictions ``p`` of the
+    chirps of ``t`` (same order).  The boot calibration's chirps (no prediction) count as missed
+    touches and are left out of everything else.  ``detection=False``: the model has no detector
+    (a table of touches only), or the data has no hands-off chirps: detection is not measurable."""
+    touch = touch_mask(t, min_force_n)
+    run = ~p.calibrating
+    no_touch = (t["location"] < 0) & run
+    L = localization_report(t["location"][touch & run], p.location[touch & run], layout)
+    true_xy = np.column_stack([t["x_cm"], t["y_cm"]])
+    ok_xy = touch & run & np.isfinite(p.xy_cm).all(axis=1)
+    cont = layout.distance_cm(p.xy_cm[ok_xy], true_xy[ok_xy])
+    return {
+        "localization": {k: v for k, v in L.items() if k != "errors_cm"},
+        "errors_cm": L["errors_cm"].tolist(),
+        "continuous_error_cm": {"median": float(np.median(cont)) if cont.size else float("nan"),
+                                "mean": float(np.mean(cont)) if cont.size else float("nan")},
+        "force": _force(t["force_n"], p.force_n, touch & p.touch),
+        "detection": ({"false_touch_rate": float(np.mean(p.touch[no_touch])), "missed_touch_rate": float(np.mean(~p.touch[touch]))}
+                      if no_touch.any() and touch.any() and detection else
+                      {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}),
+    }
+
+
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
-                     progress: bool = False) -> dict:
+                     progress: bool = False, latency: bool = True) -> dict:
     """Evaluate both models of ``artifact`` on the test sessions of its split (or ``sessions``).
 
-    Each test session is a stream: relative inputs use its own no-touch chirps (Alg. 2 with the
-    artifact's beta/alpha), and the SVM's scores are calibrated the same way.
+    Each test session is replayed as a stream through :meth:`SkinRuntime.replay`, as the live
+    loop runs it: the first ``beta`` seconds boot the reference, refreshes follow each model's own
+    touch detection.  No test label reaches a model or its reference.
     """
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
     rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
-    ds, t, X = model_inputs(data, rts["net"].spec, progress=progress)
+    ds = Dataset(data)
+    t = load_features_cached(ds, progress=progress)
     test = sessions or meta["training"]["split"]["test"]
     res["test_sessions"] = list(test)
-    m = np.isin(t["session"], test)
-    touch = touch_mask(t, meta.get("min_force_n", 0.5))[m]
-    no_touch = (t["location"] < 0)[m]
+    te = t.select(np.isin(t["session"], test))
     for k, rt in rts.items():
-        preds = [rt.predict_inputs(X[(t["session"] == s)], quiet=quiet_mask(t)[t["session"] == s],
-                                   time_s=t["time_s"][t["session"] == s]) for s in test]
-        loc = np.concatenate([p.location for p in preds])
-        det = np.concatenate([p.touch for p in preds])
-        xy = np.concatenate([p.xy_cm for p in preds])
-        # Force at the true location for a like-for-like Table I (both models, all touched chirps).
-        f = np.concatenate([p.force_n for p in preds])
-        true_loc = t["location"][m]
-        L = localization_report(true_loc[touch], loc[touch], ds.layout)
-        true_xy = np.column_stack([t["x_cm"][m], t["y_cm"][m]])
-        cont_err = ds.layout.distance_cm(xy[touch], true_xy[touch])
-        size = (art / rt.m["file"]).stat().st_size
-        res["models"][k] = {
-            "localization": {kk: v for kk, v in L.items() if kk != "errors_cm"},
-            "errors_cm": L["errors_cm"].tolist(),
-            "continuous_error_cm": {"median": float(np.median(cont_err)), "mean": float(np.mean(cont_err))},
-            "force": _force(t["force_n"][m], f, touch & det),
-            "detection": ({"false_touch_rate": float(np.mean(det[no_touch])), "missed_touch_rate": float(np.mean(~det[touch]))}
-                          if no_touch.any() and meta["models"]["svm"].get("detection", True) else
-                          {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}),
-            "latency": _latency(rt, X[m][touch]),
-            "model_bytes": int(size),
-            "train_time_s": meta["training"].get(f"{k}_train_time_s"),
-        }
+        p = replay_sessions(rt, te, test)
+        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
+                           detection=meta["models"]["svm"].get("detection", True))
+        r["latency"] = chirp_latency(rt, te.X, te["time_s"]) if latency else None
+        r["model_bytes"] = int((art / rt.m["file"]).stat().st_size)
+        r["train_time_s"] = meta["training"].get(f"{k}_train_time_s")
+        res["models"][k] = r
     return res
 
 

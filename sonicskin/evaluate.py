@@ -72,7 +72,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     force) force is reported as absent.  Streams whose rest is shorter than Alg. 2's beta use the
     rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.
     """
-    from .calibration import ScoreCalibrator
+    from .calibration import OnlineReference
     from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
 
     if mode not in ("relative", "absolute"):
@@ -84,11 +84,11 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     moving_tr = (tr["location"] < 0) & (tr["moving"] > 0)
     X_moving = tr.X[moving_tr] if moving_tr.sum() >= 2 else None
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
-    cal = ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
-    beta = rest_beta(table, cal.beta_chirps, log=lambda m: log(f"note: {m}"))
+    cal = OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
+    beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
     rest = beta is not None  # every stream has a no-touch reference: detection and Alg. 2 are measurable
-    if rest and beta < cal.beta_chirps:
-        cal = ScoreCalibrator(beta, cal.alpha_chirps, ds.rig.chirps_per_s)
+    if rest and beta < cal.beta:
+        cal = OnlineReference(beta, cal.alpha, ds.rig.chirps_per_s)
     if not rest:
         log(f"note: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps (touches only?): localization "
             f"and force only, on absolute features; detection and Alg. 2 are {NOT_MEASURABLE}")
@@ -104,7 +104,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     preds = {k: [] for k in ("location", "touch", "force", "location_offline")}
     for s in res["test_sessions"]:
         t = te.select(te["session"] == s)
-        p = model.predict(t.X, quiet=_quiet(t) if rest else None, time_s=t["time_s"], online=rest and mode == "relative")
+        # Alg. 2 from the model's own detection (boot: the stream's first beta chirps); no test labels.
+        p = model.predict(t.X, time_s=t["time_s"], online=rest and mode == "relative")
         p0 = model.predict(t.X, online=False)
         preds["location"].append(p.location)
         preds["touch"].append(p.touch)
@@ -150,7 +151,7 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, *, rest:
     else:
         # Online calibration vs the training reference only.
         out["accuracy_without_online_calibration"] = float(np.mean(P["location_offline"][touch] == te["location"][touch]))
-    beta = model.calibrator.beta_chirps
+    beta = model.calibrator.beta
     if force and rest:
         # Force from total band energy E vs E^O over the OSPA bins.
         all_bins = np.arange(ds.rig.n_band)
@@ -158,7 +159,8 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, *, rest:
         has_f = tr_touch & np.isfinite(tr["force_n"])
         E_tr = energy_db(tr.X[has_f], all_bins, ref_tr)
         fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][has_f], tr["location"][has_f])
-        E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s) & _quiet(te)][:beta])
+        # Test reference: each stream's boot calibration (its first beta chirps), not its labelled rest.
+        E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
                                for s in sorted(set(te["session"]))])
         f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)
         out["force_total_energy"] = force_report(te["force_n"][touch], f_total)
@@ -168,13 +170,13 @@ def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, *, rest:
     sess_touch = te["session"][touch]
     p_rel = None
     if rest:
-        # Alg. 2 applied to the features: both splits minus their own running no-touch reference.
+        # Alg. 2 applied to the features: both splits minus their own running no-touch reference, the
+        # training split's from its labelled rest, the test streams' from the SVM's own detection.
         from .features import relative_features
 
         bins = model.localizer_.selected_
-        rel = {}
-        for name, t in (("train", tr), ("test", te)):
-            rel[name] = relative_features(t.X[:, bins], _quiet(t), t["session"], t["time_s"], model.calibrator)
+        rel = {"train": relative_features(tr.X[:, bins], _quiet(tr), tr["session"], tr["time_s"], model.calibrator),
+               "test": relative_features(te.X[:, bins], ~P["touch"], te["session"], te["time_s"], model.calibrator)}
         rel_model = SVMLocalizer(n_bins=len(bins)).fit(rel["train"][tr_touch], tr["location"][tr_touch])
         p_rel = rel_model.predict(rel["test"][touch])
         out["accuracy_feature_calibration"] = float(np.mean(p_rel == te["location"][touch]))

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import ScoreCalibrator
+from .calibration import OnlineReference
 from .dataset import Dataset, FeatureTable
 
 __all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
@@ -49,15 +49,19 @@ class FeatureSpec:
         if self.mode not in MODES:
             raise ValueError(f"feature mode must be one of {MODES}, got {self.mode!r}")
 
-    def calibrator(self, chirps_per_s: float) -> ScoreCalibrator:
-        return ScoreCalibrator.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s)
+    def reference(self, chirps_per_s: float, **kw) -> OnlineReference:
+        """A fresh Alg. 2 reference for one stream (``kw``: ``score_fn``)."""
+        return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s,
+                                            relative=self.mode == "relative", **kw)
 
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
-        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams)."""
+        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams),
+        the reference from the labelled no-touch chirps: for *training* sessions.  Test streams are
+        replayed through :meth:`sonicskin.runtime.SkinRuntime.replay`."""
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
-        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.calibrator(chirps_per_s),
+        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s),
                                  online=online)
 
     def to_dict(self) -> dict:
@@ -69,18 +73,37 @@ class FeatureSpec:
 
 
 def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
-                      calibrator: ScoreCalibrator, *, online: bool = True) -> np.ndarray:
-    """``X`` minus the running no-touch reference of its own session (Alg. 2 on features)."""
+                      calibrator: OnlineReference, *, online: bool = True) -> np.ndarray:
+    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps.
+
+    Alg. 2 through :class:`~sonicskin.calibration.OnlineReference` (the object the live loop
+    runs), fed with the labels instead of a detector: the boot reference is the first ``beta``
+    consecutive ``quiet`` chirps of each session (the protocol's hands-off calibration) and
+    refreshes take the next ``beta`` quiet chirps once ``alpha`` has passed.  This is for the
+    *training* session(s), whose labels are the protocol; test streams are replayed with the
+    model's own detection (:meth:`sonicskin.runtime.SkinRuntime.replay`) and never see labels.
+    Chirps before the first reference use it too (training only).
+
+    ``calibrator`` gives beta, alpha and the clock (a fresh reference is made per session);
+    ``online=False`` keeps the boot reference throughout.
+    """
+    beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
+    X = np.asarray(X, np.float32)
     out = np.empty(X.shape, np.float32)
-    cal = calibrator if online else ScoreCalibrator(calibrator.beta_chirps, None, calibrator._cps)
     for s in np.unique(session):
-        m = session == s
-        try:
-            out[m] = cal.run(X[m], quiet[m], time_s=time_s[m])
-        except ValueError as e:
-            raise ValueError(f"session {s}: {e}; relative features need {cal.beta_chirps} consecutive hands-off chirps "
-                             f"({cal.beta_chirps / cal._cps:.0f} s) in every session, or use absolute features "
-                             f"(--mode absolute / data.mode: absolute)") from None
+        idx = np.flatnonzero(session == s)
+        ref = OnlineReference(beta, alpha if online else None, cps)
+        cur = np.full(idx.size, -1)
+        refs: list[np.ndarray] = []
+        for k, i in enumerate(idx):
+            cur[k] = len(refs) - 1
+            if ref.step(X[i], time_s[i], not quiet[i]):
+                refs.append(ref.features)
+        if not refs:
+            raise ValueError(f"session {s}: fewer than {beta} consecutive hands-off chirps to calibrate on; relative "
+                             f"features need {beta} ({beta / cps:.0f} s) in every session, or use absolute features "
+                             f"(--mode absolute / data.mode: absolute)")
+        out[idx] = X[idx] - np.stack(refs)[np.maximum(cur, 0)]
     return out
 
 
@@ -249,12 +272,12 @@ def prepare(data: str | Path, *, n_bins: int | None = 300, mode: str = "relative
     if mode == "relative":
         # Relative inputs need Alg. 2's rest in every stream; shorter rest is used down to MIN_REST_CHIRPS,
         # a table of touches only falls back to absolute inputs.
-        beta = rest_beta(t, spec.calibrator(ds.rig.chirps_per_s).beta_chirps)
+        beta = rest_beta(t, spec.reference(ds.rig.chirps_per_s).beta)
         if beta is None:
             warnings.warn(f"{ds.root}: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps for Alg. 2's "
                           f"no-touch reference (touches only?); using absolute features (mode absolute)", stacklevel=2)
             spec = dataclasses.replace(spec, mode="absolute")
-        elif beta < spec.calibrator(ds.rig.chirps_per_s).beta_chirps:
+        elif beta < spec.reference(ds.rig.chirps_per_s).beta:
             spec = dataclasses.replace(spec, beta_s=beta / ds.rig.chirps_per_s)
     X = spec.transform(t, ds.rig.chirps_per_s)
     cls, usable = training_targets(t, ds.layout, min_force_n)

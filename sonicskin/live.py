@@ -6,10 +6,11 @@ one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
 - **Framing** locks onto the chirp train by cross-correlation over one period, then cuts frames
   every ``n_chirp`` samples; a discontinuity (overflow, dropped block) or a drift of the
   correlation peak makes it discard what it holds and lock again.
-- **Calibration** (Alg. 2): the first ``beta`` seconds are taken as no-touch (the system starts
-  with hands off, as in the paper); their mean features (and, for the SVM, scores) are the
-  reference.  Every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected
-  become the new reference.
+- **Per chirp** one call, :meth:`sonicskin.runtime.SkinStream.frame`: features, Alg. 2's online
+  reference (the first ``beta`` seconds are taken as no-touch, as the system starts with hands
+  off; every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected become the
+  new reference), model, detection, force.  Offline evaluation replays recordings through the
+  same object (:meth:`sonicskin.runtime.SkinStream.replay`).
 - **Faults**: frames with NaN/inf, silence or clipping are skipped and counted; overflows and
   underflows are counted; nothing is fatal.
 - **Output**: :class:`TouchEvent` per touched chirp (and one ``release``), as JSON lines and
@@ -27,8 +28,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
-from .runtime import SkinRuntime
+from .dsp import find_chirp_offset, frame_faults, rig_chirp
+from .runtime import Predictions, SkinRuntime
 
 __all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops"]
 
@@ -137,10 +138,13 @@ class LiveLoop:
     source : an audio source (:mod:`sonicskin.acquire`).
     emit : called with each event's JSON line (default: print to stdout).
     status : write a status line to stderr about once a second.
+    on_chirp : called with ``(t_s, predictions)`` for every processed chirp (``None`` during the
+        boot calibration), e.g. to record a replay chirp by chirp.
     """
 
     def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
-                 status: bool = False, link=None, channel: int = 0):
+                 status: bool = False, link=None, channel: int = 0,
+                 on_chirp: Callable[[float, Predictions | None], None] | None = None):
         self.rt, self.source = runtime, source
         self.rig = runtime.rig
         link_rig = link.rig if link is not None and link.rig is not None else source.rig
@@ -152,34 +156,19 @@ class LiveLoop:
         self.channel = channel
         self.slot = (link.slot, link.n_slots) if link is not None else (0, 1)
         self.framer = Framer(link.tx_period(source.rig) if link is not None else rig_chirp(self.rig))
-        cps = self.rig.chirps_per_s
-        cal = runtime.spec.calibrator(cps)
-        self.beta, self.alpha_chirps = cal.beta_chirps, cal.alpha_chirps
-        self.bins = list(runtime.spec.bins)
-        self.relative = runtime.spec.mode == "relative"
-        self._cal_X: list[np.ndarray] = []
-        self._ref_X: np.ndarray | None = None
-        self._ref_S: np.ndarray | None = None
-        self._since_ref = 0
-        self._quiet_run: list[np.ndarray] = []
+        self.stream = runtime.stream()
+        self.on_chirp = on_chirp
         self.touching = False
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
         self.skipped = {"nan": 0, "silent": 0, "clipped": 0}
         self.n_chirps = 0
-        self.refreshes = 0
+
+    @property
+    def refreshes(self) -> int:
+        return self.stream.reference.refreshes
 
     # -- per chirp ---------------------------------------------------------------------
-    def _inputs(self, Xb: np.ndarray) -> np.ndarray:
-        x = Xb[:, self.bins]
-        return x - self._ref_X if self.relative else x
-
-    def _set_reference(self, Xb: np.ndarray) -> None:
-        self._ref_X = Xb[:, self.bins].mean(axis=0)
-        if self.rt.kind == "svm":
-            self._ref_S = self.rt.raw_scores(self._inputs(Xb)).mean(axis=0)
-        self.refreshes += 1
-        self._since_ref = 0
 
     def process_frame(self, start: int, frame: np.ndarray, t_ready: float) -> TouchEvent | None:
         fault = int(frame_faults(frame[None])[0])
@@ -187,23 +176,13 @@ class LiveLoop:
             self.skipped[{1: "nan", 2: "silent", 3: "clipped"}[fault]] += 1
             return None
         self.n_chirps += 1
-        Xb = log_magnitude_db(frame[None], self.rig, check=False)
-        if self._ref_X is None:  # Alg. 2 start-up: beta chirps with hands off
-            self._cal_X.append(Xb)
-            if len(self._cal_X) >= self.beta:
-                self._set_reference(np.concatenate(self._cal_X))
-                self._cal_X = []
-            return None
-        p = self.rt.predict_inputs(self._inputs(Xb), score_reference=self._ref_S)
-        self._since_ref += 1
-        touch = bool(p.touch[0])
-        # Alg. 2 refresh: after alpha chirps, the next beta consecutive no-touch chirps.
-        if self.alpha_chirps is not None and self._since_ref >= self.alpha_chirps:
-            self._quiet_run = [] if touch else self._quiet_run + [Xb]
-            if len(self._quiet_run) >= self.beta:
-                self._set_reference(np.concatenate(self._quiet_run))
-                self._quiet_run = []
         t_s = start / self.rig.fs_hz
+        p = self.stream.frame(frame, t_s)  # features, Alg. 2 reference, model, detection, force
+        if self.on_chirp is not None:
+            self.on_chirp(t_s, p)
+        if p is None:  # boot calibration
+            return None
+        touch = bool(p.touch[0])
         ev = None
         if touch or self.touching:
             ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
@@ -236,7 +215,7 @@ class LiveLoop:
         last = next((e for e in reversed(self.events) if e.kind == "touch"), None)
         c = self.source.counters()
         touch = f"last touch: loc {last.location} ({last.x_cm:.1f}, {last.y_cm:.1f}) cm {last.force_n:.1f} N" if last else "no touch yet"
-        state = "calibrating" if self._ref_X is None else "running"
+        state = "calibrating" if self.stream.calibrating else "running"
         return (f"{state}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
                 f"{touch}  relocks {self.framer.relocks} overflows {c['overflows']} dropped {c['dropped_blocks']} "
                 f"skipped {sum(self.skipped.values())}   ")

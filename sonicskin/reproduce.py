@@ -8,13 +8,15 @@ the paper's.  The network needs the training extra (torch); without it its colum
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
-from .calibration import ScoreCalibrator
+from .calibration import OnlineReference
 from .dataset import Dataset
 from .features import FeatureSpec, load_features_cached, quiet_mask, relative_features, select_bins, touch_mask, training_targets
 from .force import MODELS, PerLocationForce, energy_db, fit_curve
@@ -109,39 +111,82 @@ def _aggregate(runs: list):
     return first
 
 
-def _fit_predict(kind: str, X: np.ndarray, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
-                 seed: int = 0, cps: float = 9.375) -> dict:
-    """Train ``kind`` on the usable chirps of ``train``, predict every chirp of ``test``."""
+@dataclasses.dataclass
+class _Inputs:
+    """Model inputs of one dataset: ``X`` with the labelled training reference (rows that train),
+    and what the test streams are replayed from (absolute features of the same bins, streams, clock)."""
+
+    X: np.ndarray            # (n, d) inputs with the labelled (protocol) reference: training rows only
+    Xa: np.ndarray           # (n, d) absolute dB features of the same bins
+    streams: np.ndarray      # (n,) stream of each chirp (sessions, or one power-on-to-end stream)
+    time_s: np.ndarray
+    beta: int
+    alpha: int | None
+    cps: float
+    relative: bool
+
+
+def _replay(inp: _Inputs, test: np.ndarray, model, score_fn=None) -> dict:
+    """Test chirps as the running system sees them: every stream holding test chirps is replayed in order
+    through :class:`OnlineReference` (boot on its first beta chirps, refreshes from the model's own
+    detection).  ``model(inputs, score_reference)`` returns a namespace of per-chirp arrays with ``touch``."""
+    idx = np.flatnonzero(test)
+    cols: dict[str, np.ndarray] = {}
+    for g in np.unique(inp.streams[idx]):
+        rows = np.flatnonzero(inp.streams == g)
+        ref = OnlineReference(inp.beta, inp.alpha, inp.cps, relative=inp.relative, score_fn=score_fn)
+        for lo, hi, out in ref.replay(inp.Xa[rows], inp.time_s[rows], lambda x, ref=ref: model(x, ref.scores)):
+            for k, v in vars(out).items():
+                if k not in cols:
+                    cols[k] = np.zeros((len(test),) + np.shape(v)[1:], np.asarray(v).dtype)
+                cols[k][rows[lo:hi]] = np.asarray(v)[: hi - lo]
+    return {k: v[idx] for k, v in cols.items()}
+
+
+def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
+                 seed: int = 0) -> dict:
+    """Train ``kind`` on the usable chirps of ``train``, predict every chirp of ``test`` by replaying its stream."""
     n = len(layout)
     cls, usable = training_targets(t, layout)
     force = t["force_n"].astype(np.float32)
+    X = inp.X
     tr = train & usable
     ids = np.asarray(layout.ids)
+    true_cls = cls[test].clip(max=n - 1)
     if kind == "svm":
         pipe, params = fit_svm_head(X[tr], cls[tr], force[tr], quiet_mask(t)[tr], n_locations=n, location_ids=ids)
-        V = score_vector(pipe.decision_function(X[test]), n, X[test])
-        loc = ids[np.argmax(V[:, :n], axis=1)]
-        # Alg. 2 per test session (stream): the reference is refreshed from its own rest chirps.
-        cal = ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=cps)
-        V_cal = np.empty_like(V)
-        ts = t.select(test)
-        for s in np.unique(ts["session"]):
-            m = ts["session"] == s
-            V_cal[m] = cal.run(V[m], quiet_mask(ts)[m], initial=np.asarray(params["reference_scores"]), time_s=ts["time_s"][m])
-        touch = touch_statistic(V_cal, n) >= params["threshold"]
         fm = PerLocationForce.from_dict(params["force"])
-        E = energy_db(X[test], np.arange(X.shape[1])) - params["energy_ref_db"]
-        f = np.clip(fm.predict(E, ids[cls[test].clip(max=n - 1)]), 0, None)  # force at the true location
-        return {"location": loc, "touch": touch, "force": f, "force_model": fm}
+        ref0 = np.asarray(params["reference_scores"])
+
+        def scores(x):
+            return score_vector(pipe.decision_function(x), n, x)
+
+        def svm(x, score_ref):
+            V = scores(x)
+            V_cal = V - (ref0 if score_ref is None else score_ref)
+            return SimpleNamespace(touch=touch_statistic(V_cal, n) >= params["threshold"], cls=np.argmax(V[:, :n], axis=1),
+                                   E=energy_db(x, np.arange(x.shape[1])) - params["energy_ref_db"])
+
+        r = _replay(inp, test, svm, scores)
+        f = np.clip(fm.predict(r["E"], ids[true_cls]), 0, None)  # force at the true location
+        return {"location": ids[r["cls"]], "touch": r["touch"], "force": f, "force_model": fm}
     from training.quick import fit_net
 
     predict = fit_net(X[tr], cls[tr], force[tr], n_locations=n, epochs=epochs, seed=seed)
-    logits, f_all = predict(X[test])
+
+    def net(x, _):
+        logits, f_all = predict(x)
+        return SimpleNamespace(touch=_p_touch(logits, n) >= 0.5,
+                               cls=np.argmax(logits[:, :n], axis=1), f_all=f_all)
+
+    r = _replay(inp, test, net)
+    f = np.take_along_axis(r["f_all"], true_cls[:, None], axis=1)[:, 0]
+    return {"location": ids[r["cls"]], "touch": r["touch"], "force": np.clip(f, 0, None), "predict": predict}
+
+
+def _p_touch(logits: np.ndarray, n: int) -> np.ndarray:
     p = np.exp(logits - logits.max(axis=1, keepdims=True))
-    p /= p.sum(axis=1, keepdims=True)
-    loc = ids[np.argmax(p[:, :n], axis=1)]
-    f = np.take_along_axis(f_all, cls[test].clip(max=n - 1)[:, None], axis=1)[:, 0]
-    return {"location": loc, "touch": p[:, n] < 0.5, "force": np.clip(f, 0, None), "predict": predict}
+    return 1.0 - p[:, n] / p.sum(axis=1)
 
 
 def _evaluate(pred: dict, t, test: np.ndarray, layout) -> dict:
@@ -172,8 +217,16 @@ def _first_session_split(ctx, name: str, scenario: str, **over):
     return ds, t, train, test, select_bins(t.select(train), ds.rig, 300)
 
 
-def _inputs(t, rig, bins, mode="relative"):
-    return FeatureSpec(tuple(int(b) for b in bins), mode).transform(t, rig.chirps_per_s)
+def _inputs(t, rig, bins, mode="relative", *, alpha_s: float | None = 1200.0, one_stream: bool = False) -> _Inputs:
+    """Training inputs (labelled reference) and the replay material of every chirp; ``one_stream``: the
+    whole recording is one stream from power-on (sessions are gaps in it), else each session is one."""
+    spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=alpha_s)
+    streams = np.zeros(len(t), int) if one_stream else t["session"]
+    cps = rig.chirps_per_s
+    Xa = t.X[:, list(spec.bins)].astype(np.float32)
+    ref = spec.reference(cps)
+    X = Xa if mode == "absolute" else relative_features(Xa, quiet_mask(t), streams, t["time_s"], ref)
+    return _Inputs(X, Xa, streams, t["time_s"], ref.beta, ref.alpha, cps, mode == "relative")
 
 
 def _plt():
@@ -243,8 +296,6 @@ def fig12(ctx) -> dict:
     t = load_features_cached(ds, progress=False)
     train, _ = _split_first(t)
     bins = select_bins(t.select(train), ds.rig, 300)
-    X = t.X[:, bins]
-    one_stream = np.zeros(len(t), int)  # power-on to the end is one stream
     alphas = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
     res: dict = {"minutes": [], "temperature_c": []}
     sessions = sorted(set(t["session"]))[1:]
@@ -253,8 +304,7 @@ def fig12(ctx) -> dict:
         res["minutes"].append(float(t["time_s"][m].mean() / 60))
         res["temperature_c"].append(float(t["temperature_c"][m].mean()))
     for name, alpha in alphas.items():
-        cal = ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=alpha, chirps_per_s=ds.rig.chirps_per_s)
-        Xr = relative_features(X, quiet_mask(t), one_stream, t["time_s"], cal)
+        Xr = _inputs(t, ds.rig, bins, alpha_s=alpha, one_stream=True)  # power-on to the end is one stream
         for k in _kinds(ctx):
             if name not in ("20 min", "never") and k == "net":
                 continue
@@ -286,7 +336,6 @@ def _two_months(ctx) -> dict:
     t = load_features_cached(ds, progress=False)
     train, _ = _split_first(t)
     bins = select_bins(t.select(train), ds.rig, 300)
-    X = t.X[:, bins]
     out = {"days": [], "temperature_c": []}
     sessions = sorted(set(t["session"]))[1:]
     for s in sessions:
@@ -294,8 +343,7 @@ def _two_months(ctx) -> dict:
         out["days"].append(float(t["time_s"][m].mean() / 86400))
         out["temperature_c"].append(float(t["temperature_c"][m].mean()))
     for name, alpha in (("with updating", 1200.0), ("without", None)):
-        cal = ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=alpha, chirps_per_s=ds.rig.chirps_per_s)
-        Xr = relative_features(X, quiet_mask(t), np.zeros(len(t), int), t["time_s"], cal)
+        Xr = _inputs(t, ds.rig, bins, alpha_s=alpha, one_stream=True)
         for k in _kinds(ctx):
             pred = _fit_predict(k, Xr, t, ds.layout, train, ~train, epochs=ctx.epochs)
             te = t.select(~train)

@@ -13,7 +13,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .calibration import ScoreCalibrator
 from .dsp import log_magnitude_db
 from .features import FeatureSpec
 from .force import PerLocationForce, energy_db
@@ -21,7 +20,7 @@ from .rig import Layout, Rig
 from .schema import ARTIFACT_FORMAT, ArtifactError, check_layout, check_rig, check_session, load_skin, read_model_file
 from .svm_head import score_vector, touch_statistic
 
-__all__ = ["ArtifactError", "SkinRuntime", "Predictions", "ARTIFACT_FORMAT"]
+__all__ = ["ArtifactError", "SkinRuntime", "SkinStream", "Predictions", "ARTIFACT_FORMAT"]
 
 
 @dataclasses.dataclass
@@ -32,6 +31,16 @@ class Predictions:
     force_n: np.ndarray      # (n,) 0 where no touch is detected
     confidence: np.ndarray   # (n,) probability of the chosen marker given a touch (net) / vote share (svm)
     scores: np.ndarray       # (n, N) per-location scores (net: probabilities; svm: calibrated S_final)
+    calibrating: np.ndarray | None = None  # (n,) bool: boot calibration, no prediction (replays only)
+
+    def take(self, sel) -> Predictions:
+        """The chirps ``sel`` (index, slice or mask)."""
+        return Predictions(*(None if v is None else v[sel] for v in (getattr(self, f.name) for f in dataclasses.fields(self))))
+
+    @classmethod
+    def concat(cls, parts: list[Predictions]) -> Predictions:
+        cols = [[getattr(p, f.name) for p in parts] for f in dataclasses.fields(cls)]
+        return cls(*(None if any(v is None for v in c) else np.concatenate(c) for c in cols))
 
 
 def _softmax(z: np.ndarray) -> np.ndarray:
@@ -87,29 +96,33 @@ class SkinRuntime:
         if model == "svm":
             self.force_model = PerLocationForce.from_dict(self.m["force"])
             self.reference_scores = np.asarray(self.m["reference_scores"])
-        self.calibrator = self.spec.calibrator(self.rig.chirps_per_s)
 
     # -- features ----------------------------------------------------------------------
     def band_features(self, frames: np.ndarray) -> np.ndarray:
         """dB features of chirp-aligned frames (validated: length, NaN, silence, clipping)."""
         return log_magnitude_db(frames, self.rig)
 
-    def inputs(self, X_band: np.ndarray, *, quiet: np.ndarray | None = None, time_s: np.ndarray | None = None,
-               reference: np.ndarray | None = None) -> np.ndarray:
-        """Model inputs from band features of one stream: the artifact's bins, minus the running
-        no-touch reference in ``relative`` mode (from ``quiet`` chirps, or a given ``reference``)."""
+    def inputs(self, X_band: np.ndarray, *, reference: np.ndarray | None = None) -> np.ndarray:
+        """Model inputs from band features: the artifact's bins, minus ``reference`` (over the band
+        or over the bins) in ``relative`` mode.  Streams get their reference from :meth:`stream`."""
         X = np.asarray(X_band, np.float32)
         if X.ndim != 2 or X.shape[1] != self.rig.n_band:
             raise ArtifactError(f"expected band features (n, {self.rig.n_band}), got {X.shape}")
         X = X[:, list(self.spec.bins)]
         if self.spec.mode == "absolute":
             return X
-        if reference is not None:  # a no-touch reference over the band bins, e.g. from a live calibration
-            ref = np.asarray(reference, np.float32)
-            return X - (ref[list(self.spec.bins)] if ref.shape[-1] == self.rig.n_band else ref)
-        if quiet is None:
-            raise ValueError("relative features need the no-touch chirps of the stream (quiet) or a reference")
-        return self.calibrator.run(X, quiet, time_s=time_s).astype(np.float32)
+        if reference is None:
+            raise ValueError("relative features need a no-touch reference; run a stream (SkinRuntime.stream / replay)")
+        ref = np.asarray(reference, np.float32)
+        return X - (ref[list(self.spec.bins)] if ref.shape[-1] == self.rig.n_band else ref)
+
+    def stream(self) -> SkinStream:
+        """A new stream: Alg. 2's online reference and the per-chirp path (see :class:`SkinStream`)."""
+        return SkinStream(self)
+
+    def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
+        """Predict a recorded stream in order, as the live loop would (see :meth:`SkinStream.replay`)."""
+        return SkinStream(self).replay(X_band, time_s)
 
     # -- models ------------------------------------------------------------------------
     def run(self, inputs: np.ndarray) -> list[np.ndarray]:
@@ -131,12 +144,11 @@ class SkinRuntime:
             out[:, 0] %= C
         return out
 
-    def predict_inputs(self, inputs: np.ndarray, *, quiet: np.ndarray | None = None,
-                       time_s: np.ndarray | None = None, score_reference: np.ndarray | None = None) -> Predictions:
+    def predict_inputs(self, inputs: np.ndarray, *, score_reference: np.ndarray | None = None) -> Predictions:
         """Predictions from model inputs (see :meth:`inputs`).
 
-        For the SVM, Alg. 2's ``S_c`` comes from the ``quiet`` chirps of the stream (replayed), or
-        is given as ``score_reference`` (the live loop's), or is the training session's.
+        For the SVM, Alg. 2's ``S_c`` is ``score_reference`` (the stream's, see :class:`SkinStream`),
+        or the training session's.
         """
         if self.kind == "net":
             logits, force_all = self.run(inputs)
@@ -153,11 +165,7 @@ class SkinRuntime:
             V = score_vector(self.run(inputs)[1], K, inputs)
             S = V[:, :K]
             idx = np.argmax(S, axis=1)
-            if quiet is not None:
-                V_cal = ScoreCalibrator(self.calibrator.beta_chirps, self.calibrator.alpha_chirps,
-                                        self.rig.chirps_per_s).run(V, quiet, initial=self.reference_scores, time_s=time_s)
-            else:
-                V_cal = V - (self.reference_scores if score_reference is None else score_reference)
+            V_cal = V - (self.reference_scores if score_reference is None else score_reference)
             S_final = V_cal[:, :K]
             touch = touch_statistic(V_cal, K) >= self.m["threshold"]
             E = energy_db(inputs, np.arange(inputs.shape[1])) - self.m["energy_ref_db"]
@@ -174,7 +182,60 @@ class SkinRuntime:
             raise ValueError("raw scores are the SVM's; the network needs no score reference")
         return score_vector(self.run(inputs)[1], self.n_locations, inputs)
 
-    def predict_frames(self, frames: np.ndarray, *, quiet: np.ndarray | None = None,
-                       reference: np.ndarray | None = None) -> Predictions:
-        X = self.band_features(frames)
-        return self.predict_inputs(self.inputs(X, quiet=quiet, reference=reference), quiet=quiet)
+
+class SkinStream:
+    """One stream through one model: band features -> Alg. 2 reference -> model -> detection -> force.
+
+    The live loop calls :meth:`frame` (or :meth:`chirp`) once per chirp; offline evaluation calls
+    :meth:`replay` on a recorded stream.  Both decide the reference with the same
+    :class:`~sonicskin.calibration.OnlineReference`: the first ``beta`` seconds are the boot
+    calibration (hands off, no predictions), later refreshes take ``beta`` seconds that this
+    model's own detector calls no-touch, every ``alpha`` seconds.  No label reaches it.
+    """
+
+    def __init__(self, runtime: SkinRuntime):
+        self.rt = runtime
+        self.bins = list(runtime.spec.bins)
+        self.reference = runtime.spec.reference(runtime.rig.chirps_per_s,
+                                                score_fn=runtime.raw_scores if runtime.kind == "svm" else None)
+
+    @property
+    def calibrating(self) -> bool:
+        return not self.reference.ready
+
+    def _predict(self, inputs: np.ndarray) -> Predictions:
+        return self.rt.predict_inputs(inputs, score_reference=self.reference.scores)
+
+    def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
+        """One chirp-aligned frame (n_chirp,) at stream time ``t_s``; ``None`` during the boot calibration."""
+        return self.chirp(log_magnitude_db(np.asarray(frame)[None], self.rt.rig, check=False)[0], t_s)
+
+    def chirp(self, x_band: np.ndarray, t_s: float) -> Predictions | None:
+        """One chirp's band features (n_band,); ``None`` during the boot calibration."""
+        x = np.asarray(x_band, np.float32)[self.bins]
+        if not self.reference.ready:
+            self.reference.step(x, t_s, None)
+            return None
+        p = self._predict(self.reference.inputs(x[None]))
+        self.reference.step(x, t_s, bool(p.touch[0]))
+        return p
+
+    def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
+        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference
+        refreshes; the same output as :meth:`chirp` one at a time.  Boot chirps have
+        ``calibrating`` set, no touch, location -1 and NaN position."""
+        X = np.asarray(X_band, np.float32)
+        if X.ndim != 2 or X.shape[1] != self.rt.rig.n_band:
+            raise ArtifactError(f"expected band features (n, {self.rt.rig.n_band}), got {X.shape}")
+        X = X[:, self.bins]
+        parts, lo = [], None
+        for i, j, out in self.reference.replay(X, time_s, self._predict):
+            lo = i if lo is None else lo
+            parts.append(out.take(slice(0, j - i)))
+        n, K = len(X), self.rt.n_locations
+        n_boot = n if lo is None else lo
+        boot = Predictions(np.zeros(n_boot, bool), np.full(n_boot, -1), np.full((n_boot, 2), np.nan), np.zeros(n_boot),
+                           np.zeros(n_boot), np.zeros((n_boot, K)))
+        p = Predictions.concat([boot, *parts]) if parts else boot
+        p.calibrating = np.arange(n) < n_boot
+        return p

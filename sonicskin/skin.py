@@ -15,11 +15,12 @@ Inputs are dB-magnitude features (:func:`sonicskin.dsp.log_magnitude_db`).
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 
 from .baseline import SVMLocalizer
-from .calibration import ScoreCalibrator, TouchDetector
+from .calibration import OnlineReference, TouchDetector
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
 
@@ -45,15 +46,15 @@ class SkinSVM:
     n_bins : OSPA gamma.  C : SVM regularisation.
     force_model : curve model for force (``fourier1`` as in the paper).
     min_force_n : a chirp counts as a touch for training when its force is at least this.
-    calibrator : Alg. 2 settings (``beta``/``alpha`` in chirps).
+    calibrator : Alg. 2 settings (``beta``/``alpha`` in chirps); every predicted stream gets a fresh copy.
     """
 
     def __init__(self, rig: Rig, layout: Layout, *, n_bins: int = 300, C: float = 10.0,
                  force_model: str = "fourier1", min_force_n: float = 0.5,
-                 calibrator: ScoreCalibrator | None = None):
+                 calibrator: OnlineReference | None = None):
         self.rig, self.layout = rig, layout
         self.n_bins, self.C, self.force_model, self.min_force_n = n_bins, C, force_model, min_force_n
-        self.calibrator = calibrator or ScoreCalibrator.from_seconds(beta_s=3.0, alpha_s=1200.0,
+        self.calibrator = calibrator or OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0,
                                                                      chirps_per_s=rig.chirps_per_s)
 
     def _raw(self, X: np.ndarray) -> np.ndarray:
@@ -93,24 +94,39 @@ class SkinSVM:
             self.force_ = PerLocationForce(self.force_model).fit(cal[has_f, -1], force_n[has_f], location[has_f])
         return self
 
-    def predict(self, X: np.ndarray, *, quiet: np.ndarray | None = None, time_s: np.ndarray | None = None,
-                online: bool = True) -> Predictions:
-        """Predict a stream of chirps (in time order).
+    def predict(self, X: np.ndarray, *, time_s: np.ndarray | None = None, online: bool = True) -> Predictions:
+        """Predict one stream of chirps (in time order) as the running system would.
 
-        quiet : chirps known to be no-touch, used by Alg. 2 to refresh ``S_c`` (the live loop
-            uses its own detections).  With ``online=False`` or no ``quiet``, the training
-            session's reference is used throughout (no online updating).
+        ``online``: Alg. 2 through :class:`~sonicskin.calibration.OnlineReference`: the first
+        ``beta`` chirps are the boot calibration (hands off; predicted no-touch), later references
+        are refreshed every ``alpha`` from chirps this model's own detector calls no-touch.  No
+        label is used.  ``online=False``: the training session's reference throughout.
+        ``time_s``: the stream clock when it has gaps (chirp count otherwise).
         """
         raw = self._raw(X)
-        if online and quiet is not None:
-            cal = self.calibrator.run(raw, quiet, initial=self.reference_, time_s=time_s)
+        if online and self.detector_ is not None:  # no detector (touches only): nothing to refresh from
+            c = self.calibrator
+            ref = OnlineReference(c.beta, c.alpha, c.cps, relative=False)
+            clock = np.arange(len(raw)) / c.cps if time_s is None else np.asarray(time_s, float)
+            cal = np.full_like(raw, np.nan)
+
+            def detect(block):
+                d = block - ref.features
+                return SimpleNamespace(touch=self.detector_.predict(d[:, :-1]), cal=d)
+
+            for lo, hi, out in ref.replay(raw, clock, detect):
+                cal[lo:hi] = out.cal[: hi - lo]
+            boot = np.isnan(cal[:, 0])
+            cal[boot] = 0.0  # boot calibration: no touch
         else:
             cal = raw - self.reference_
+            boot = np.zeros(len(raw), bool)
         S, E = cal[:, :-1], cal[:, -1]
         # Location from the raw one-vs-rest scores: they are votes plus a confidence term, and
         # subtracting the no-touch votes S_c scrambles their argmax (measured on the simulated
         # moving robot: 96 % raw vs 33 % calibrated).  S_c serves detection and force instead.
         loc = self.localizer_.classes_[np.argmax(raw[:, :-1], axis=1)]
-        touch = self.detector_.predict(S) if self.detector_ is not None else np.ones(len(loc), bool)
-        F = np.where(touch, np.clip(self.force_.predict(E, loc), 0, None), 0.0) if self.force_ is not None else np.full(len(loc), np.nan)
+        touch = (self.detector_.predict(S) if self.detector_ is not None else np.ones(len(loc), bool)) & ~boot
+        F = (np.where(touch, np.clip(self.force_.predict(E, loc), 0, None), 0.0) if self.force_ is not None
+             else np.full(len(loc), np.nan))
         return Predictions(loc, self.layout.coords(loc), touch, F, S, E)

@@ -22,7 +22,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sonicskin.artifact import build_svm_artifact, skin_json
-from sonicskin.features import FeatureSpec, model_inputs, quiet_mask
+from sonicskin.compare import replay_sessions
+from sonicskin.dataset import Dataset
+from sonicskin.features import FeatureSpec, load_features_cached, quiet_mask
 from sonicskin.rig import Layout, Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
 from sonicskin.schema import check_layout, load_skin, validate_skin
@@ -346,16 +348,15 @@ def test_valid_artifact_loads_and_predicts(built):
     art, data = built
     meta = load_skin(art)
     assert set(meta["models"]) == {"net", "svm"}
+    t = load_features_cached(Dataset(data), progress=False)
     for model in ("net", "svm"):
         rt = SkinRuntime(art, model)
-        ds, t, X = model_inputs(data, rt.spec, progress=False)
-        p = rt.predict_inputs(X, quiet=quiet_mask(t), time_s=t["time_s"])
-        assert p.location.shape == (len(X),) and set(np.unique(p.location)) <= {0, 1, 2}
+        p = replay_sessions(rt, t, sorted(set(t["session"])))  # each session a stream, as the live loop runs it
+        assert p.location.shape == (len(t),) and set(np.unique(p.location[~p.calibrating])) <= {0, 1, 2}
         assert np.all(p.force_n[~p.touch] == 0) and np.isfinite(p.force_n).all()
     # The SVM on its own training recording: it finds the pressed marker and sees the presses.
     rt = SkinRuntime(art, "svm")
-    ds, t, X = model_inputs(data, rt.spec, progress=False)
-    p = rt.predict_inputs(X, quiet=quiet_mask(t), time_s=t["time_s"])
+    p = replay_sessions(rt, t, sorted(set(t["session"])))
     firm = (t["location"] >= 0) & (t["force_n"] > 2)
     assert np.mean(p.location[firm] == t["location"][firm]) > 0.9
     assert np.mean(p.touch[firm]) > 0.8 and np.mean(p.touch[quiet_mask(t)]) < 0.1

@@ -1,42 +1,42 @@
 import numpy as np
 import pytest
 
-from sonicskin.calibration import ScoreCalibrator, TouchDetector
+from sonicskin.calibration import OnlineReference, TouchDetector
+from sonicskin.features import relative_features
 
 
-def test_calibration_cancels_an_injected_drift(rng):
+def test_labelled_reference_cancels_an_injected_drift(rng):
+    """Training sessions: Alg. 2 on the features from the known no-touch chirps (relative_features)."""
     n, K = 6000, 4
     t = np.arange(n)
-    drift = np.outer(t / n, [3.0, -2.0, 1.0, 0.5])  # slow temperature drift of the scores
+    drift = np.outer(t / n, [3.0, -2.0, 1.0, 0.5])  # slow temperature drift of the features
     quiet = np.ones(n, bool)
     for start in rng.choice(np.arange(100, n - 40, 40), 30, replace=False):
         quiet[start : start + 30] = False  # 30 presses of 3 s
-    scores = drift + rng.normal(0, 0.05, (n, K))
-    scores[~quiet, 1] += 5  # touches at location 1
-    cal = ScoreCalibrator(beta_chirps=28, alpha_chirps=500).run(scores, quiet)
+    X = drift + rng.normal(0, 0.05, (n, K))
+    X[~quiet, 1] += 5  # touches at location 1
+    session, clock = np.zeros(n, int), t / 10.0
+    cal = relative_features(X, quiet, session, clock, OnlineReference(28, 500, 10.0))
     # Quiet chirps stay near zero despite a drift of up to 3: residual <= drift over one alpha.
     assert np.abs(cal[quiet]).max() < 3.0 * 600 / n + 0.3
-    assert np.abs(scores[quiet] - scores[quiet][:28].mean(0)).max() > 2.5  # no refresh: drift stays
-    # Touches still stand out.
-    assert np.all(cal[~quiet, 1] > 4)
-    never = ScoreCalibrator(beta_chirps=28, alpha_chirps=None).run(scores, quiet)
+    assert np.abs(X[quiet] - X[quiet][:28].mean(0)).max() > 2.5  # no refresh: drift stays
+    assert np.all(cal[~quiet, 1] > 4)  # touches still stand out
+    never = relative_features(X, quiet, session, clock, OnlineReference(28, 500, 10.0), online=False)
     assert np.abs(never[quiet][-100:]).max() > 2.0
+    with pytest.raises(ValueError, match="session 0: fewer than 28 consecutive hands-off chirps"):
+        relative_features(X[:20], quiet[:20], session[:20], clock[:20], OnlineReference(28, 500, 10.0))
 
 
-def test_reference_schedule_waits_for_quiet(rng):
-    quiet = np.ones(100, bool)
-    quiet[50:70] = False  # a touch when the refresh falls due
-    refs = ScoreCalibrator(beta_chirps=5, alpha_chirps=48).reference_times(quiet)
-    assert [list(r[1]) for r in refs[:2]] == [[0, 1, 2, 3, 4], [70, 71, 72, 73, 74]]
-    assert refs[1][0] == 75  # valid after its last chirp
-    # With a clock, alpha counts seconds of stream time across gaps.
-    cal = ScoreCalibrator.from_seconds(beta_s=1.0, alpha_s=60.0, chirps_per_s=10.0)
-    assert (cal.beta_chirps, cal.alpha_chirps) == (10, 600)
-    times = np.r_[np.arange(20) / 10, 1000 + np.arange(20) / 10]
-    refs = cal.reference_times(np.ones(40, bool), times)
-    assert [int(r[1][0]) for r in refs] == [0, 20]
-    with pytest.raises(ValueError, match="fewer than beta=28 no-touch chirps"):
-        ScoreCalibrator().run(np.zeros((10, 3)), np.ones(10, bool))
+def test_reference_clock_counts_stream_time_across_gaps():
+    ref = OnlineReference.from_seconds(beta_s=1.0, alpha_s=60.0, chirps_per_s=10.0)
+    assert (ref.beta, ref.alpha) == (10, 600)
+    times = np.r_[np.arange(20) / 10, 1000 + np.arange(20) / 10]  # a recording with a 1000 s gap
+    x = np.arange(40, dtype=float)[:, None]
+    done = [i for i in range(40) if ref.step(x[i], times[i], False if ref.ready else None)]
+    assert done == [9, 29]  # boot on chirps 0-9; after the gap alpha has passed: chirps 20-29
+    np.testing.assert_allclose(ref.features, [24.5])
+    with pytest.raises(RuntimeError, match="no reference yet"):
+        OnlineReference().inputs(np.zeros(3))
 
 
 def test_detector_threshold_separates_touch_from_quiet(rng):
@@ -48,3 +48,51 @@ def test_detector_threshold_separates_touch_from_quiet(rng):
     assert d.predict(np.array([[5.0, 0, 0, 0, 0], [-1, -1, -1, -1, -1]])).tolist() == [True, False]
     with pytest.raises(ValueError, match="need both touch and no-touch"):
         TouchDetector().fit(np.empty((0, 5)), quiet)
+
+
+def test_online_reference_boot_and_refresh_by_detection(rng):
+    ref = OnlineReference(beta_chirps=5, alpha_chirps=20, chirps_per_s=10.0, score_fn=lambda x: x.sum(axis=1, keepdims=True))
+    X = rng.normal(0, 0.01, (80, 3)).astype(np.float32) + np.arange(80)[:, None]  # a drifting channel
+    touch = np.zeros(80, bool)
+    touch[22:40] = True  # a press when the refresh falls due (20 chirps after the boot's last chirp, 4)
+    t = np.arange(80) / 10.0
+    done = []
+    for i in range(80):
+        was = ref.ready
+        if ref.step(X[i], t[i], bool(touch[i]) if was else None):
+            done.append(i)
+    # Boot: chirps 0-4, taken as hands-off whatever happens; refresh: 5 no-touch chirps after the press.
+    assert done == [4, 44, 68]  # due 20 chirps after 44: chirps 64-68
+    np.testing.assert_allclose(ref.features, X[64:69].mean(0), rtol=1e-6)
+    np.testing.assert_allclose(ref.scores, [0.0], atol=1e-4)  # scores of the reference's own relative inputs
+    # Known labels during boot (a labelled training stream): the boot waits for 5 quiet chirps.
+    lab = OnlineReference(beta_chirps=5, alpha_chirps=None)
+    flags = np.r_[np.ones(3, bool), np.zeros(10, bool)]
+    assert [i for i in range(13) if lab.step(X[i], t[i], bool(flags[i]))] == [7]
+    assert not any(lab.step(X[i], t[i], False) for i in range(13, 80))  # alpha None: never refreshes
+
+
+def test_online_reference_replay_equals_chirp_by_chirp(rng):
+    from types import SimpleNamespace
+
+    X = rng.normal(0, 1, (400, 4)).astype(np.float32) + np.linspace(0, 3, 400)[:, None]
+    t = np.arange(400) / 10.0
+
+    def predict(inputs):  # a detector that depends on the reference
+        return SimpleNamespace(touch=np.abs(inputs).mean(axis=1) > 1.1, inputs=inputs)
+
+    a = OnlineReference(beta_chirps=6, alpha_chirps=30, chirps_per_s=10.0)
+    step_out = []
+    for i in range(400):
+        if not a.ready:
+            a.step(X[i], t[i])
+            continue
+        p = predict(a.inputs(X[i][None]))
+        step_out.append(p.inputs[0])
+        a.step(X[i], t[i], bool(p.touch[0]))
+    b = OnlineReference(beta_chirps=6, alpha_chirps=30, chirps_per_s=10.0)
+    blocks = list(b.replay(X, t, predict))
+    got = np.concatenate([out.inputs[: hi - lo] for lo, hi, out in blocks])
+    assert blocks[0][0] == 6 and blocks[-1][1] == 400 and b.refreshes == a.refreshes
+    np.testing.assert_array_equal(got, np.stack(step_out))
+    assert a.refreshes >= 4  # boot + refreshes decided on the replayed detections

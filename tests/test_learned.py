@@ -70,13 +70,13 @@ class NoTorch(importlib.abc.MetaPathFinder):  # this process behaves as a machin
             raise ImportError('torch is not installed on this machine')
 sys.meta_path.insert(0, NoTorch())
 from sonicskin.runtime import SkinRuntime
-from sonicskin.features import model_inputs, quiet_mask
+from sonicskin.dataset import Dataset
 import numpy as np
+t = Dataset({str(data)!r}).features(progress=False)
 for k in ('net', 'svm'):
     rt = SkinRuntime({str(art)!r}, k)
-    ds, t, X = model_inputs({str(data)!r}, rt.spec, progress=False)
     s = t['session'] == 's002'
-    p = rt.predict_inputs(X[s], quiet=quiet_mask(t)[s], time_s=t['time_s'][s])
+    p = rt.replay(t.X[s], t['time_s'][s])  # the test stream as the live loop runs it
     touch = (t['location'][s] >= 0) & (t['force_n'][s] > 1)
     acc = np.mean(p.location[touch] == t['location'][s][touch])
     assert acc > 0.6, (k, acc)

@@ -60,12 +60,12 @@ sys.meta_path.insert(0, NoTorch())
 from sonicskin.cli import main
 assert main(['fit-svm', '--data', {str(data)!r}, '--out', {str(tmp_path / 'art')!r}, '--train', 's000', '--n-bins', '50']) == 0
 from sonicskin.runtime import SkinRuntime
-from sonicskin.features import model_inputs, quiet_mask
+from sonicskin.dataset import Dataset
 import numpy as np
 rt = SkinRuntime({str(tmp_path / 'art')!r}, 'svm')
-ds, t, X = model_inputs({str(data)!r}, rt.spec, progress=False)
+t = Dataset({str(data)!r}).features(progress=False)
 s = t['session'] == 's001'
-p = rt.predict_inputs(X[s], quiet=quiet_mask(t)[s], time_s=t['time_s'][s])
+p = rt.replay(t.X[s], t['time_s'][s])
 touch = (t['location'][s] >= 0) & (t['force_n'][s] > 1)
 assert np.mean(p.location[touch] == t['location'][s][touch]) > 0.6
 assert 'torch' not in sys.modules

@@ -143,6 +143,20 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
     from ..dataset import Dataset
     from ..rig import Layout
 
+    if a.scenario:  # simulated scenarios over several simulator and training seeds, paired interval
+        if a.data or a.artifact:
+            raise UsageError("--scenario simulates its own datasets; drop --data/--artifact (or drop --scenario)")
+        need_train_extra("compare --scenario")
+        from ..seeds import compare_seeds, format_markdown
+
+        out = Path(a.out or "reports/compare-seeds")
+        res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
+                            epochs=a.epochs)
+        print(format_markdown(res))
+        print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
+        return 0
+    if not a.data:
+        raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
     Dataset(a.data)  # a bad dataset is refused before anything trains
     artifact = a.artifact
     sessions = None
@@ -232,11 +246,18 @@ def add_parsers(sub) -> None:
                        description="Train + export both models (or load --artifact) and compare them on the test "
                                    "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size. "
                                    "Without --artifact, other options go to LightningCLI as in `sonicskin train`.")
-    c.add_argument("--data", required=True, help="dataset folder")
+    c.add_argument("--data", help="dataset folder (required unless --scenario; default: none)")
     c.add_argument("--artifact", help="use this artifact instead of training (default: train both models first)")
+    c.add_argument("--scenario", nargs="+", metavar="NAME",
+                   help="instead of --data: simulate these scenarios with every --sim-seeds, train with every --train-seeds, "
+                        "and report mean, std and the paired net - SVM 95 %% interval (e.g. moving stationary; default: none)")
+    c.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="simulator seeds (default: 0-4)")
+    c.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1], help="network training seeds (default: 0 1)")
+    c.add_argument("--epochs", type=int, help="network epochs with --scenario (default: training.quick's)")
+    c.add_argument("--cache", default="data/seeds", help="simulated datasets for --scenario (default: data/seeds)")
     c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
-    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>)")
+    c.add_argument("--out", help="report folder (default: reports/compare-<dataset>; reports/compare-seeds with --scenario)")
     add_model_options(c)
     c.set_defaults(func=cmd_compare, passthrough=True)
 

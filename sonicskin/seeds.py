@@ -1,0 +1,252 @@
+"""Network vs SVM over several simulator seeds and training seeds, with a paired confidence interval.
+
+One run of a scenario is an anecdote: the network's training seed moves its accuracy by about
+2 points, and two simulated recordings of the same scenario differ by more.  Here every scenario
+is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
+training split (the network once per ``train_seeds``; the SVM is deterministic), exported to one
+ONNX artifact and evaluated by replaying each test session as the live loop runs it
+(:meth:`sonicskin.runtime.SkinRuntime.replay`: boot calibration on the first 3 s, refreshes from
+each model's own detection; no test label reaches a model).
+
+The paired difference is net minus SVM on the same simulated data.  The unit of the interval
+is the simulator seed (independent data): per seed the network's metric is averaged over its
+training seeds and the SVM's subtracted, and a Student t interval is taken over those
+differences.  Pairs of one seed share data and the SVM, so they are not counted as independent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .compare import replay_sessions, stream_metrics
+from .dataset import Dataset
+from .features import FeatureSpec, Split, load_features_cached, quiet_mask, select_bins, training_targets
+from .rig import Rig
+from .runtime import SkinRuntime
+
+__all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds"]
+
+# Scenario -> how it is split.  One-shot: the first session trains, every later session tests.
+SCENARIOS: dict[str, dict] = {
+    "moving": {}, "stationary": {}, "drift-2h": {}, "two-points": {}, "plate-aluminium": {},
+    "multi-person": {"test_subjects": [8, 9, 10, 11]},  # leave-subjects-out: 8 people train, 4 test
+}
+
+# name -> (how to read it from a stream_metrics result, unit / format, larger is better)
+METRICS: dict[str, tuple] = {
+    "accuracy": (lambda r: r["localization"]["accuracy"], "pct", True),
+    "within_2cm": (lambda r: r["localization"]["within_2cm"], "pct", True),
+    "continuous_error_cm": (lambda r: r["continuous_error_cm"]["median"], "cm", False),
+    "force_rmse_n": (lambda r: r["force"].get("rmse_n", np.nan), "N", False),  # absent without a force sensor
+    "false_touch": (lambda r: r["detection"].get("false_touch_rate", np.nan), "pct", False),
+    "missed_touch": (lambda r: r["detection"].get("missed_touch_rate", np.nan), "pct", False),
+}
+LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "continuous_error_cm": "continuous xy error (median)",
+          "force_rmse_n": "force RMSE", "false_touch": "false touches", "missed_touch": "missed touches"}
+
+
+def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print) -> Dataset:
+    """Scenario ``name`` simulated with ``seed`` under ``cache/<name>-seed<seed>`` (made on first use)."""
+    from .sim.generate import simulate_dataset
+    from .sim.scenario import Scenario
+
+    path = Path(cache) / f"{name}-seed{seed}"
+    done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
+        (path / s / "session.json").is_file() for s in Dataset(path).sessions)
+    if not done:
+        sc = Scenario.load(name).replace(seed=int(seed))
+        simulate_dataset(sc, rig or Rig.load("jaco"), path, mode="overwrite", progress=False, log=log)
+    return Dataset(path)
+
+
+def _split(t, test_subjects=None) -> Split:
+    if test_subjects:
+        sp = Split.make(t, test_subjects=test_subjects)
+        return Split(sp.train + sp.val, (), sp.test)  # no early stopping here: the validation people train too
+    return Split.make(t, val_sessions=[])
+
+
+def _net_model(predict):
+    """The torch module behind ``training.quick.fit_net``'s predict function (to export it)."""
+    import inspect
+
+    import torch
+
+    model = getattr(predict, "model", None)
+    if model is None:
+        model = next((v for v in inspect.getclosurevars(predict).nonlocals.values() if isinstance(v, torch.nn.Module)), None)
+    if model is None:
+        raise RuntimeError("training.quick.fit_net returned no torch module to export (give its predict a .model)")
+    return model.eval()
+
+
+def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log) -> list[dict]:
+    """Both models on one simulated dataset: SVM once, the network per training seed."""
+    from export.onnx import export_net
+    from training.quick import fit_net
+
+    from .artifact import export_svm, skin_json
+    from .svm_head import fit_svm_head
+
+    t = load_features_cached(ds, progress=False)
+    split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
+    tr = t.select(split.mask(t, "train"))
+    te = t.select(split.mask(t, "test"))
+    bins = select_bins(tr, ds.rig, 300)
+    spec = FeatureSpec(tuple(int(b) for b in bins), "relative")
+    # Training inputs: the training sessions' own labelled hands-off reference (the protocol's calibration).
+    X = spec.transform(tr, ds.rig.chirps_per_s)
+    cls, usable = training_targets(tr, ds.layout)
+    force = tr["force_n"].astype(np.float32)
+    n, ids = len(ds.layout), np.asarray(ds.layout.ids)
+    work.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    pipe, params = fit_svm_head(X[usable], cls[usable], force[usable], quiet_mask(tr)[usable], n_locations=n, location_ids=ids)
+    svm_s = time.perf_counter() - t0
+    check = X[np.random.default_rng(0).choice(len(X), size=min(256, len(X)), replace=False)]
+    svm = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": len(bins), "n_locations": n,
+           "parity": export_svm(pipe, n, work / "svm.onnx", check), **params}
+    out, svm_metrics = [], None
+    for seed in train_seeds:
+        t0 = time.perf_counter()
+        kw = {} if epochs is None else {"epochs": epochs}
+        model = _net_model(fit_net(X[usable], cls[usable], force[usable], n_locations=n, seed=int(seed), **kw))
+        net_s = time.perf_counter() - t0
+        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # torch.onnx's progress lines
+            warnings.simplefilter("ignore")
+            logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+            parity = export_net(model, len(bins), work / "net.onnx", check)
+        net = {"file": "net.onnx", "kind": "skinnet", "n_in": len(bins), "n_locations": n, "parity": parity}
+        skin_json(work, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=spec, min_force_n=0.5,
+                  training={"data": str(ds.root), "split": split.to_dict(), "svm_train_time_s": svm_s,
+                            "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm})
+        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s}
+        for k in ("net", "svm"):
+            if k == "svm" and svm_metrics is not None:
+                row[k] = svm_metrics
+                continue
+            p = replay_sessions(SkinRuntime(work, k), te, split.test)
+            row[k] = {m: float(f(stream_metrics(p, te, ds.layout))) for m, (f, _, _) in METRICS.items()}
+        svm_metrics = row["svm"]
+        log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net "
+            f"{row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} (net trained in {net_s:.0f} s)")
+        out.append(row)
+    return out
+
+
+def _t_interval(d: np.ndarray, level: float = 0.95) -> tuple[float, float]:
+    from scipy import stats
+
+    if d.size < 2:
+        return float("nan"), float("nan")
+    half = stats.t.ppf(0.5 + level / 2, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size)
+    return float(d.mean() - half), float(d.mean() + half)
+
+
+def summarize(runs: dict[int, list[dict]]) -> dict:
+    """Mean and std per model (std over every run), and the paired net - SVM difference with its 95 % t
+    interval over simulator seeds (the network averaged over its training seeds within a seed)."""
+    out = {}
+    for m in METRICS:
+        net = np.array([r["net"][m] for rows in runs.values() for r in rows], float)
+        svm = np.array([rows[0]["svm"][m] for rows in runs.values()], float)
+        d = np.array([np.mean([r["net"][m] for r in rows]) - rows[0]["svm"][m] for rows in runs.values()], float)
+        lo, hi = _t_interval(d)
+        out[m] = {"net_mean": float(net.mean()), "net_std": float(net.std(ddof=1)) if net.size > 1 else 0.0,
+                  "svm_mean": float(svm.mean()), "svm_std": float(svm.std(ddof=1)) if svm.size > 1 else 0.0,
+                  "diff_mean": float(d.mean()), "diff_ci95": [lo, hi], "n_sim_seeds": int(d.size), "n_net_runs": int(net.size)}
+    return out
+
+
+def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
+                  out: str | Path = "reports/compare-seeds", epochs: int | None = None, log=print) -> dict:
+    """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries."""
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        raise ValueError(f"unknown scenario(s) {unknown}; the comparison knows {sorted(SCENARIOS)}")
+    if len(sim_seeds) < 2:
+        raise ValueError("a confidence interval needs at least 2 simulator seeds (--sim-seeds 0 1 2)")
+    out = Path(out)
+    res: dict = {"sim_seeds": [int(s) for s in sim_seeds], "train_seeds": [int(s) for s in train_seeds],
+                 "epochs": epochs, "scenarios": {}}
+    for name in scenarios:
+        t0 = time.perf_counter()
+        runs = {}
+        for s in sim_seeds:
+            # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
+            done = out / "runs" / f"{name}-seed{s}.json"
+            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs}
+            if done.is_file() and json.loads(done.read_text())["key"] == key:
+                runs[int(s)] = json.loads(done.read_text())["rows"]
+                continue
+            ds = scenario_dataset(name, s, cache, log=log)
+            runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log)
+            done.parent.mkdir(parents=True, exist_ok=True)
+            done.write_text(json.dumps({"key": key, "rows": runs[int(s)]}))
+        res["scenarios"][name] = {"runs": {str(k): v for k, v in runs.items()}, "summary": summarize(runs),
+                                  "wall_s": time.perf_counter() - t0}
+        save_seeds(res, out)
+    return res
+
+
+def _fmt(v: float, unit: str, signed: bool = False) -> str:
+    s = "+" if signed else ""
+    if unit == "pct":
+        return f"{v * 100:{s}.1f}"
+    return f"{v:{s}.2f}"
+
+
+def format_markdown(res: dict) -> str:
+    """One table: scenario, metric, net mean ± std, SVM mean ± std, net - SVM with its 95 % interval."""
+    lines = [f"Simulator seeds {res['sim_seeds']}, network training seeds {res['train_seeds']}; test sessions replayed "
+             f"as the live loop runs them (no test labels). Percentages in points; interval: 95 % Student t over "
+             f"simulator seeds of the paired difference.", "",
+             "| scenario | metric | network | SVM | net − SVM [95 % CI] |", "|---|---|---|---|---|"]
+    for name, sc in res["scenarios"].items():
+        for m, (_, unit, _) in METRICS.items():
+            r = sc["summary"][m]
+            u = {"pct": " %", "cm": " cm", "N": " N"}[unit]
+            lo, hi = r["diff_ci95"]
+            lines.append(f"| {name} | {LABELS[m]} | {_fmt(r['net_mean'], unit)} ± {_fmt(r['net_std'], unit)}{u} | "
+                         f"{_fmt(r['svm_mean'], unit)} ± {_fmt(r['svm_std'], unit)}{u} | {_fmt(r['diff_mean'], unit, True)} "
+                         f"[{_fmt(lo, unit, True)}, {_fmt(hi, unit, True)}]{u} |")
+    return "\n".join(lines)
+
+
+def save_seeds(res: dict, out: str | Path) -> list[Path]:
+    """``seeds.json``, ``seeds.md`` and ``seeds.png`` (paired differences with their intervals)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "seeds.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / "seeds.md").write_text(format_markdown(res) + "\n")
+    names = list(res["scenarios"])
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(3.2 * len(METRICS), 0.6 * len(names) + 2.2), sharey=True)
+    for ax, (m, (_, unit, better_up)) in zip(axes, METRICS.items()):
+        scale = 100 if unit == "pct" else 1
+        for i, name in enumerate(names):
+            r = res["scenarios"][name]["summary"][m]
+            lo, hi = r["diff_ci95"]
+            ax.errorbar(r["diff_mean"] * scale, i, xerr=[[(r["diff_mean"] - lo) * scale], [(hi - r["diff_mean"]) * scale]],
+                        fmt="o", capsize=3, color="C0")
+        ax.axvline(0, color="gray", lw=0.8)
+        ax.set(title=f"{LABELS[m]}\n(net − SVM, {'points' if unit == 'pct' else unit}; {'>' if better_up else '<'} 0 favours net)")
+        ax.title.set_fontsize(8)
+        ax.grid(alpha=0.3)
+    axes[0].set_yticks(range(len(names)), names)
+    fig.suptitle(f"network minus SVM, 95 % interval over simulator seeds {res['sim_seeds']}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "seeds.png", dpi=110)
+    plt.close(fig)
+    return [out / "seeds.json", out / "seeds.md", out / "seeds.png"]
