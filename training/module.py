@@ -76,6 +76,8 @@ class SkinLitModule(L.LightningModule):
                 p = dm.prepared
                 tr = p["split"].mask(p["table"], "train") & p["usable"]
                 self.init_kernel(p["X"][tr], p["cls"][tr])
+            if self.model.kernel is not None:  # before DDP wraps the model: a frozen layer is no unused parameter
+                self.model.kernel.requires_grad_(self.hparams.kernel_lr > 0)
 
     def on_train_start(self) -> None:
         import time
