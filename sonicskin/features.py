@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import os
+import uuid
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -120,14 +123,25 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
     """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache`` (rebuilt when parts change)."""
     cache = ds.root / ".cache" / f"features-{_signature(ds)}.npz"
     if cache.is_file():
-        return FeatureTable.load_npz(cache)
+        try:
+            return FeatureTable.load_npz(cache)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # damaged cache: rebuilt from the audio below
+            pass
     t = ds.features(progress=progress)
-    cache.parent.mkdir(exist_ok=True)
+    # Several processes may build the cache at once (DDP ranks, parallel `compare` runs): each writes its
+    # own temporary file and renames it atomically; stale caches of other signatures are removed after.
+    tmp = cache.parent / f".{cache.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz"
+    try:
+        cache.parent.mkdir(exist_ok=True)
+        t.save_npz(tmp)
+        os.replace(tmp, cache)
+    except PermissionError:  # a read-only dataset: features are simply not cached
+        return t
+    finally:
+        tmp.unlink(missing_ok=True)
     for old in cache.parent.glob("features-*.npz"):
-        old.unlink()
-    tmp = cache.with_suffix(".tmp.npz")
-    t.save_npz(tmp)
-    Path(tmp).replace(cache)
+        if old.name != cache.name:
+            old.unlink(missing_ok=True)
     return t
 
 

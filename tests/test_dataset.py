@@ -76,3 +76,48 @@ def test_bad_datasets_are_named(tiny, tmp_path, rig):
         DatasetWriter(tiny, rig, Dataset(tiny).layout)
     with pytest.raises(DatasetError, match="other settings"):
         simulate_dataset(Scenario(**{**TINY, "seed": 4}), rig, tiny, mode="resume", progress=False)
+
+
+def _cached_features(root: str, barrier) -> tuple[int, float]:
+    from sonicskin.features import load_features_cached
+
+    barrier.wait()  # every process computes and writes the cache at the same moment
+    t = load_features_cached(Dataset(root), progress=False)
+    return len(t), float(t.X.sum())
+
+
+def test_feature_cache_survives_concurrent_builders(tiny, tmp_path):
+    """DDP ranks (or parallel `compare` runs) build the same feature cache at once: each gets the
+    features, and one complete cache file is left (CI once lost a DDP rank to a shared temp name)."""
+    import multiprocessing as mp
+    import shutil
+    from concurrent.futures import ProcessPoolExecutor
+
+    from sonicskin.dataset import FeatureTable
+
+    root = tmp_path / "ds"
+    shutil.copytree(tiny, root, ignore=shutil.ignore_patterns(".cache"))
+    ctx = mp.get_context("spawn")
+    n = 4
+    with ctx.Manager() as manager, ProcessPoolExecutor(n, mp_context=ctx) as pool:
+        barrier = manager.Barrier(n)
+        results = list(pool.map(_cached_features, [str(root)] * n, [barrier] * n))
+    assert len(set(results)) == 1
+    files = sorted(p.name for p in (root / ".cache").iterdir())
+    assert len(files) == 1 and files[0].startswith("features-"), files  # no temporary file left behind
+    assert len(FeatureTable.load_npz(root / ".cache" / files[0])) == results[0][0]
+
+
+def test_damaged_feature_cache_is_rebuilt(tiny, tmp_path):
+    import shutil
+
+    from sonicskin.features import load_features_cached
+
+    root = tmp_path / "ds"
+    shutil.copytree(tiny, root, ignore=shutil.ignore_patterns(".cache"))
+    want = load_features_cached(Dataset(root), progress=False)
+    (cache,) = (root / ".cache").glob("features-*.npz")
+    cache.write_bytes(cache.read_bytes()[:100])  # e.g. a copy cut short
+    got = load_features_cached(Dataset(root), progress=False)
+    np.testing.assert_array_equal(got.X, want.X)
+    np.testing.assert_array_equal(load_features_cached(Dataset(root), progress=False).X, want.X)  # and rewritten

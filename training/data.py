@@ -54,6 +54,14 @@ class SkinDataModule(L.LightningDataModule):
         """Model inputs: the bins OSPA will select (``n_bins`` clamped to the rig's band)."""
         return self._n_in
 
+    def prepare_data(self) -> None:
+        # Lightning calls this once per machine before `setup` on every rank: the feature cache is built here,
+        # so DDP ranks read it instead of all computing (and writing) it at once.
+        from sonicskin.dataset import Dataset
+        from sonicskin.features import load_features_cached
+
+        load_features_cached(Dataset(self.hparams.data), progress=False)
+
     def setup(self, stage: str | None = None) -> None:
         if self.prepared is not None:
             return
