@@ -63,7 +63,9 @@ class KernelVotes(nn.Module):
         self.pairwise = nn.Linear(n_centres, i.size)
         self.register_buffer("P", torch.from_numpy(P))
         self.register_buffer("tau", torch.tensor(float(tau)))
-        self.scale = nn.Parameter(torch.tensor(1.0))
+        # Scores in units of 1/4 vote, as the SVM runtime sharpens its vote counts before the softmax that weights
+        # the continuous-position centroid: a location one vote behind the winner weighs e^-4 of it.
+        self.scale = nn.Parameter(torch.tensor(4.0))
 
     @classmethod
     def from_svc(cls, svc, n_locations: int, *, tau: float = 0.1) -> KernelVotes:

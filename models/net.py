@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from .kernel import KernelVotes
 
@@ -21,9 +22,9 @@ class SkinNet(nn.Module):
     the exported ONNX graph takes raw features.
 
     Without a kernel layer (``n_centres=0``) it is an MLP: trunk -> (location + no-touch logits, forces).
-    With one, the location logits are the kernel layer's (soft) SVM votes, the trunk gives the
-    no-touch logit, and the force head reads the trunk and the RBF activations; call
-    :meth:`init_from_svm` before training so the layer starts as the SVM.
+    With one, the trunk gives the touch probability, the kernel layer's SVM votes (sharpened, see
+    :class:`~models.kernel.KernelVotes`) where the touch is, and the force head reads the trunk and
+    the RBF activations; call :meth:`init_from_svm` before training so the layer starts as the SVM.
 
     Parameters
     ----------
@@ -76,4 +77,9 @@ class SkinNet(nn.Module):
         if self.kernel is None:
             return self.location(h), self.force(h)
         votes, phi = self.kernel(z)
-        return torch.cat([votes, self.location(h)], 1), self.force(torch.cat([h, phi], 1))
+        # Touch and place factorised: p(location k) = p(touch) softmax(votes)_k, p(no touch) = 1 - p(touch).  The
+        # logits are these log-probabilities, so cross-entropy and the runtime's softmax read them as before, but the
+        # trunk's touch logit no longer has to track the size of the vote scores (which vary with the input).
+        t = self.location(h)
+        loc = F.logsigmoid(t) + torch.log_softmax(votes, 1)
+        return torch.cat([loc, F.logsigmoid(-t)], 1), self.force(torch.cat([h, phi], 1))
