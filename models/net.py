@@ -80,6 +80,6 @@ class SkinNet(nn.Module):
         # Touch and place factorised: p(location k) = p(touch) softmax(votes)_k, p(no touch) = 1 - p(touch).  The
         # logits are these log-probabilities, so cross-entropy and the runtime's softmax read them as before, but the
         # trunk's touch logit no longer has to track the size of the vote scores (which vary with the input).
-        t = self.location(h)
+        t = self.location(h).clamp(-30.0, 30.0)  # ONNX exports logsigmoid as log(sigmoid): keep it finite
         loc = F.logsigmoid(t) + torch.log_softmax(votes, 1)
         return torch.cat([loc, F.logsigmoid(-t)], 1), self.force(torch.cat([h, phi], 1))
