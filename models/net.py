@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from .kernel import KernelVotes
 
@@ -80,6 +79,8 @@ class SkinNet(nn.Module):
         # Touch and place factorised: p(location k) = p(touch) softmax(votes)_k, p(no touch) = 1 - p(touch).  The
         # logits are these log-probabilities, so cross-entropy and the runtime's softmax read them as before, but the
         # trunk's touch logit no longer has to track the size of the vote scores (which vary with the input).
-        t = self.location(h).clamp(-30.0, 30.0)  # ONNX exports logsigmoid as log(sigmoid): keep it finite
-        loc = F.logsigmoid(t) + torch.log_softmax(votes, 1)
-        return torch.cat([loc, F.logsigmoid(-t)], 1), self.force(torch.cat([h, phi], 1))
+        t = self.location(h)
+        # log sigmoid(+-t), written out: the exported Log(Sigmoid) loses the tails in onnxruntime (-inf below t ~ -17)
+        soft = torch.log(1.0 + torch.exp(-t.abs()))
+        loc = (torch.clamp(t, max=0.0) - soft) + torch.log_softmax(votes, 1)
+        return torch.cat([loc, torch.clamp(-t, max=0.0) - soft], 1), self.force(torch.cat([h, phi], 1))
