@@ -63,9 +63,10 @@ class KernelVotes(nn.Module):
         self.pairwise = nn.Linear(n_centres, i.size)
         self.register_buffer("P", torch.from_numpy(P))
         self.register_buffer("tau", torch.tensor(float(tau)))
-        # Scores in units of 1/4 vote, as the SVM runtime sharpens its vote counts before the softmax that weights
-        # the continuous-position centroid: a location one vote behind the winner weighs e^-4 of it.
-        self.scale = nn.Parameter(torch.tensor(4.0))
+        # v_k moves by 2 per pair won, so scale 2 gives 4 x the SVM's vote count (+ a constant): the sharpening the
+        # SVM runtime applies before the softmax that weights the continuous-position centroid (a location one
+        # pairwise vote behind the winner weighs e^-4 of it), and the two models' centroids agree.
+        self.scale = nn.Parameter(torch.tensor(2.0))
 
     @classmethod
     def from_svc(cls, svc, n_locations: int, *, tau: float = 0.1) -> KernelVotes:
