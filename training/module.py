@@ -53,7 +53,8 @@ class SkinLitModule(L.LightningModule):
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.1, lr: float = 2e-3, weight_decay: float = 1e-4, force_weight: float = 0.1,
                  noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
-                 kernel: bool = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0):
+                 kernel: bool = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0,
+                 rest_mix: float = 0.0):
         super().__init__()
         self.save_hyperparameters()
         self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout, n_centres=n_centres, tau=tau)
@@ -100,6 +101,14 @@ class SkinLitModule(L.LightningModule):
 
     def loss_terms(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, *, train: bool) -> dict:
         """The joint loss and its parts on one batch (``train`` adds the input noise and label smoothing)."""
+        if train and self.hparams.rest_mix > 0:
+            # Physical noise: each touch chirp gets the deviation of a random no-touch chirp of the batch from their
+            # mean (motion, drift and electrical noise as this rig records them), scaled by rest_mix.
+            rest = cls == self.hparams.n_locations
+            if int(rest.sum()) >= 2:
+                dev = x[rest] - x[rest].mean(0)
+                pick = torch.randint(dev.shape[0], (x.shape[0],), device=x.device)
+                x = x + self.hparams.rest_mix * dev[pick] * (~rest)[:, None]
         if train and self.hparams.noise_db > 0:
             x = x + self.hparams.noise_db * torch.randn_like(x)
         logits, f_all = self.model(x)
