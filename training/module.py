@@ -48,6 +48,9 @@ class SkinLitModule(L.LightningModule):
     tau : softness of the kernel layer's votes.
     n_centres : RBF units; set when the SVM is fitted (kept so a checkpoint rebuilds the same shapes).
     svm_c : the SVM's C.
+    rest_mix : augmentation with the rig's own noise: each training touch chirp gets a random no-touch
+        chirp's deviation (from the batch's no-touch mean) times ``rest_mix`` (0 = off; measured no gain
+        over ``noise_db`` 0.3 on the simulated moving/stationary/two-points scenarios).
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),

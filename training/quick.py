@@ -15,7 +15,7 @@ from .module import SkinLitModule
 __all__ = ["DEFAULTS", "fit_net"]
 
 #: training.quick's hyperparameters (configs/train/*.yaml set the same for ``sonicskin train``).
-DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_db": 1.0, "kernel": True, "kernel_lr": 0.0}
+DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_db": 0.3, "kernel": True, "kernel_lr": 0.0}
 
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
