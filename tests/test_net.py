@@ -106,3 +106,62 @@ def test_kernel_net_exports_to_onnx_with_parity(tmp_path):
     predict = fit_net(X, cls, force, n_locations=4, epochs=2, seed=0)
     parity = export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
     assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-4
+
+
+def _softmax(z):
+    e = np.exp(z - z.max(1, keepdims=True))
+    return e / e.sum(1, keepdims=True)
+
+
+def test_touch_and_place_are_factorised_and_weigh_markers_as_the_svm_runtime():
+    """p(no touch) is the trunk's sigmoid alone; the location distribution given a touch is the softmax of
+    4 x the SVM's vote counts, the weights the SVM runtime gives the continuous-position centroid."""
+    X, cls, _ = _toy()
+    pipe = svm_pipeline().fit(X, cls)
+    net = SkinNet(X.shape[1], 4, n_centres=pipe[-1].support_vectors_.shape[0]).eval()
+    net.init_from_svm(pipe)
+    Xq, _, _ = _toy(seed=3)
+    with torch.no_grad():
+        logits = net(torch.from_numpy(Xq))[0].numpy().astype(np.float64)
+        t = net.location(net.trunk((torch.from_numpy(Xq) - net.mean) / net.std))[:, 0].numpy()
+    p = _softmax(logits)
+    np.testing.assert_allclose(p[:, -1], 1 / (1 + np.exp(t)), rtol=1e-4)
+    ovr = ovr_scores_from_ovo(pipe.decision_function(Xq), 4)
+    np.testing.assert_allclose(p[:, :4] / p[:, :4].sum(1, keepdims=True), _softmax(4.0 * ovr), atol=1e-4)
+
+
+@pytest.mark.parametrize("bias", [-60.0, 60.0])
+def test_saturated_touch_logit_exports_finite(tmp_path, bias):
+    """A trunk sure of touch / no touch: onnxruntime's Sigmoid underflows there, the exported log-probabilities must not."""
+    pytest.importorskip("onnxruntime")
+    from export.onnx import export_net
+
+    X, cls, force = _toy()
+    predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
+    with torch.no_grad():
+        predict.model.location.bias.fill_(bias)
+    parity = export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
+    assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-3
+
+
+def test_rest_mix_adds_rest_deviations_to_touch_chirps_only():
+    from training.module import SkinLitModule
+
+    m = SkinLitModule(n_in=6, n_locations=3, kernel=False, noise_db=0.0, rest_mix=1.0)
+    seen = []
+    forward = m.model.forward
+    m.model.forward = lambda x: (seen.append(x.clone()), forward(x))[1]
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(40, 6, generator=g)
+    cls = torch.tensor([0, 1, 2, 3] * 10)  # class 3: no touch
+    force = torch.where(cls < 3, 2.0, float("nan"))
+    m.loss_terms(x, cls, force, train=True)
+    rest = cls == 3
+    assert torch.equal(seen[0][rest], x[rest])  # no-touch chirps are real noise already
+    dev = seen[0][~rest] - x[~rest]
+    assert dev.abs().sum() > 0
+    # every added vector is one of the no-touch chirps' deviations from their mean
+    pool = x[rest] - x[rest].mean(0)
+    assert all(torch.isclose(pool, d, atol=1e-6).all(1).any() for d in dev)
+    m.loss_terms(x, cls, force, train=False)
+    assert torch.equal(seen[1], x)  # evaluation sees the inputs as they are
