@@ -32,7 +32,7 @@ PAPER = {
     "fig6b": "54.3 % -> 96.7 %", "fig11": "> 95 % from a few hundred bins; drops with more", "fig12": "drops after 30 min "
     "without updating; stable for two months with it", "fig13": "Fourier-1 best (R2 0.92 with E^O), poly-1 0.9",
     "table1": "stationary 0.59 N / 0.58 N / 99.4 %; moving 1.86 N / 1.73 N / 96.7 %",
-    "fig14": "96.2 %, 97.0 % < 3 cm", "fig15": "97.2 %, 98.5 % < 3 cm", "fig16": "100 % on 2 points; force < 0.5 N",
+    "stationary": "99.4 % (one-shot, robot at rest)", "fig14": "96.2 %, 97.0 % < 3 cm", "fig15": "97.2 %, 98.5 % < 3 cm", "fig16": "100 % on 2 points; force < 0.5 N",
 }
 
 
@@ -385,15 +385,14 @@ def fig13(ctx) -> dict:
 
 
 def table1_fig14_15(ctx) -> dict:
-    res: dict = {"table1": {}, "fig14": {}, "fig15": {}}
+    res: dict = {"table1": {}, "stationary": {}, "fig14": {}, "fig15": {}}
     for name in ("stationary", "moving"):
         ds, t, train, test, bins = _first_session_split(ctx, name, name, sessions=3)
         X = _inputs(t, ds.rig, bins)
         for k in _kinds(ctx):
             ev = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
             res["table1"][f"{name} {k}"] = ev["force"]
-            if name == "moving":
-                res["fig14"][k] = ev
+            res["fig14" if name == "moving" else "stationary"][k] = ev
     n_people = 6 if ctx.quick else 12
     ds = ctx.dataset("multi-person", "multi-person", sessions=n_people, subjects=list(range(n_people)))
     t = load_features_cached(ds, progress=False)
@@ -484,66 +483,78 @@ def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
              f"Every number below is measured in this run as mean +- standard deviation over {len(seeds)} simulator "
              f"seeds {list(seeds)} (each seed is another simulated link and other presses, noise and aims); "
              "the paper's are quoted for comparison. Figures show the first seed.\n"]
-    r = res["fig6b"]
-    lines += ["## Fig. 6b: OSPA on the moving robot (paper: " + PAPER["fig6b"] + ")\n", f"| | {col} |", "|---|" + "---|" * len(ks),
-              "| all 6400 band bins | " + " | ".join(_pct(r[k]["all_bins"]) for k in ks) + " |",
-              "| OSPA, 300 bins | " + " | ".join(_pct(r[k]["ospa"]) for k in ks) + " |", "", "![](fig6b.png)\n"]
-    r = res["fig11"]
-    gs = sorted(next(iter(r.values())))
-    lines += ["## Fig. 11: accuracy vs gamma (paper: " + PAPER["fig11"] + ")\n", "| gamma | " + col + " |",
-              "|---|" + "---|" * len(ks)]
-    lines += [f"| {g} | " + " | ".join(f"{np.mean(_pool(r[k][g])):.1%} +- {np.std(_pool(r[k][g])):.1%}" for k in ks) + " |"
-              for g in gs]
-    lines += ["", "![](fig11.png)\n"]
-    r = res["fig12"]
-    keys = [k for k in r if k not in ("minutes", "temperature_c", "two_months")]
-    lines += ["## Fig. 12: warm-up and online updating (paper: " + PAPER["fig12"] + ")\n",
-              "| min | temp (C) | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]
-    # Session times and temperatures are the same scenario on every seed: their mean, no spread.
-    lines += [f"| {float(m):.0f} | {float(T):.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
-              for i, (m, T) in enumerate(zip(r["minutes"], r["temperature_c"]))]
-    tm = r["two_months"]
-    keys2 = [k for k in tm if k not in ("days", "temperature_c")]
-    lines += ["", "Two months (ambient +-3 C daily swing):\n", "| day | temp (C) | " + " | ".join(keys2) + " |",
-              "|---|---|" + "---|" * len(keys2)]
-    lines += [f"| {float(d):.0f} | {float(T):.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
-              for i, (d, T) in enumerate(zip(tm["days"], tm["temperature_c"]))]
-    lines += ["", "![](fig12.png)\n"]
-    r = res["fig13"]
-    feats = [k for k in r if isinstance(r[k], dict)]
-    lines += ["## Fig. 13: force curve models, mean R2 per location (paper: " + PAPER["fig13"] + ")\n",
-              "| model | " + " | ".join(feats) + " |", "|---|" + "---|" * len(feats)]
-    lines += [f"| {m} | " + " | ".join(f"{r[f][m]:.2f}" for f in feats) + " |" for m in MODELS]
-    if all(f in r for f in ("E (all band bins)", "E^O (OSPA bins)")):
-        d = np.subtract(r["E^O (OSPA bins)"]["fourier1"].values, r["E (all band bins)"]["fourier1"].values)
-        lines.append(f"\nFourier-1, E^O minus E per seed: {', '.join(f'{x:+.3f}' for x in d)}.")
-    if "network (training fit)" in r:
-        lines.append(f"\nNetwork force head on the same training chirps: R2 {r['network (training fit)']:.2f}.")
-    lines += ["", "![](fig13.png)\n"]
-    r = res["table1"]["table1"]
-    lines += ["## Table I: force (paper: " + PAPER["table1"] + ")\n", "| scenario, model | RMSE | sigma | cross-correlation |",
-              "|---|---|---|---|"]
-    lines += [f"| {k} | {v['rmse_n']:.2f} N | {v['sigma_n']:.2f} N | {v['xcorr']:.1%} |" for k, v in r.items()]
-    for fig_name, title in (("fig14", "Fig. 14: moving robot"), ("fig15", "Fig. 15: unseen people")):
-        r = res["table1"][fig_name]
-        lines += ["", f"## {title} (paper: {PAPER[fig_name]})\n", f"| | {col} |", "|---|" + "---|" * len(ks)]
-        for key, lab in (("accuracy", "accuracy"), ("within_2cm", "< 2 cm"), ("within_3cm", "< 3 cm"),
-                         ("false_touch", "false touches"), ("missed_touch", "missed touches")):
-            lines.append(f"| {lab} | " + " | ".join(_pct(r[k][key]) for k in ks) + " |")
-        lines += ["", f"![]({fig_name}.png)"]
-    r = res["fig16"]
-    lines += ["", "## Fig. 16: materials (paper: " + PAPER["fig16"] + ")\n",
-              "| surface | " + " | ".join(f"accuracy {c} | force RMSE {c}" for c in col.split(" | ")) + " |",
-              "|---|" + "---|---|" * len(ks)]
-    lines += [f"| {n} | " + " | ".join(f"{_pct(r[n][k]['accuracy'])} | {r[n][k]['force']['rmse_n']:.2f} N" for k in ks) + " |"
-              for n in r]
-    lines += ["", "![](fig16.png)", ""]
+    if "fig6b" in res:
+        r = res["fig6b"]
+        lines += ["## Fig. 6b: OSPA on the moving robot (paper: " + PAPER["fig6b"] + ")\n", f"| | {col} |", "|---|" + "---|" * len(ks),
+                  "| all 6400 band bins | " + " | ".join(_pct(r[k]["all_bins"]) for k in ks) + " |",
+                  "| OSPA, 300 bins | " + " | ".join(_pct(r[k]["ospa"]) for k in ks) + " |", "", "![](fig6b.png)\n"]
+    if "fig11" in res:
+        r = res["fig11"]
+        gs = sorted(next(iter(r.values())))
+        lines += ["## Fig. 11: accuracy vs gamma (paper: " + PAPER["fig11"] + ")\n", "| gamma | " + col + " |",
+                  "|---|" + "---|" * len(ks)]
+        lines += [f"| {g} | " + " | ".join(f"{np.mean(_pool(r[k][g])):.1%} +- {np.std(_pool(r[k][g])):.1%}" for k in ks) + " |"
+                  for g in gs]
+        lines += ["", "![](fig11.png)\n"]
+    if "fig12" in res:
+        r = res["fig12"]
+        keys = [k for k in r if k not in ("minutes", "temperature_c", "two_months")]
+        lines += ["## Fig. 12: warm-up and online updating (paper: " + PAPER["fig12"] + ")\n",
+                  "| min | temp (C) | " + " | ".join(keys) + " |", "|---|---|" + "---|" * len(keys)]
+        # Session times and temperatures are the same scenario on every seed: their mean, no spread.
+        lines += [f"| {float(m):.0f} | {float(T):.2f} | " + " | ".join(_pct(r[k][i]) for k in keys) + " |"
+                  for i, (m, T) in enumerate(zip(r["minutes"], r["temperature_c"]))]
+        tm = r["two_months"]
+        keys2 = [k for k in tm if k not in ("days", "temperature_c")]
+        lines += ["", "Two months (ambient +-3 C daily swing):\n", "| day | temp (C) | " + " | ".join(keys2) + " |",
+                  "|---|---|" + "---|" * len(keys2)]
+        lines += [f"| {float(d):.0f} | {float(T):.2f} | " + " | ".join(_pct(tm[k][i]) for k in keys2) + " |"
+                  for i, (d, T) in enumerate(zip(tm["days"], tm["temperature_c"]))]
+        lines += ["", "![](fig12.png)\n"]
+    if "fig13" in res:
+        r = res["fig13"]
+        feats = [k for k in r if isinstance(r[k], dict)]
+        lines += ["## Fig. 13: force curve models, mean R2 per location (paper: " + PAPER["fig13"] + ")\n",
+                  "| model | " + " | ".join(feats) + " |", "|---|" + "---|" * len(feats)]
+        lines += [f"| {m} | " + " | ".join(f"{r[f][m]:.2f}" for f in feats) + " |" for m in MODELS]
+        if all(f in r for f in ("E (all band bins)", "E^O (OSPA bins)")):
+            d = np.subtract(r["E^O (OSPA bins)"]["fourier1"].values, r["E (all band bins)"]["fourier1"].values)
+            lines.append(f"\nFourier-1, E^O minus E per seed: {', '.join(f'{x:+.3f}' for x in d)}.")
+        if "network (training fit)" in r:
+            lines.append(f"\nNetwork force head on the same training chirps: R2 {r['network (training fit)']:.2f}.")
+        lines += ["", "![](fig13.png)\n"]
+    if "table1" in res:
+        r = res["table1"]["table1"]
+        lines += ["## Table I: force (paper: " + PAPER["table1"] + ")\n", "| scenario, model | RMSE | sigma | cross-correlation |",
+                  "|---|---|---|---|"]
+        lines += [f"| {k} | {v['rmse_n']:.2f} N | {v['sigma_n']:.2f} N | {v['xcorr']:.1%} |" for k, v in r.items()]
+        for fig_name, title in (("stationary", "Stationary robot, one-shot"), ("fig14", "Fig. 14: moving robot"),
+                                ("fig15", "Fig. 15: unseen people")):
+            if fig_name not in res["table1"]:
+                continue
+            r = res["table1"][fig_name]
+            lines += ["", f"## {title} (paper: {PAPER[fig_name]})\n", f"| | {col} |", "|---|" + "---|" * len(ks)]
+            for key, lab in (("accuracy", "accuracy"), ("within_2cm", "< 2 cm"), ("within_3cm", "< 3 cm"),
+                             ("false_touch", "false touches"), ("missed_touch", "missed touches")):
+                lines.append(f"| {lab} | " + " | ".join(_pct(r[k][key]) for k in ks) + " |")
+            lines += ["", f"![]({fig_name}.png)"] if fig_name != "stationary" else [""]
+    if "fig16" in res:
+        r = res["fig16"]
+        lines += ["", "## Fig. 16: materials (paper: " + PAPER["fig16"] + ")\n",
+                  "| surface | " + " | ".join(f"accuracy {c} | force RMSE {c}" for c in col.split(" | ")) + " |",
+                  "|---|" + "---|---|" * len(ks)]
+        lines += [f"| {n} | " + " | ".join(f"{_pct(r[n][k]['accuracy'])} | {r[n][k]['force']['rmse_n']:.2f} N" for k in ks) + " |"
+                  for n in r]
+        lines += ["", "![](fig16.png)", ""]
     return "\n".join(lines)
 
 
-def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, log=print) -> dict:
-    """Run every experiment once per simulator seed (default: 2 seeds quick, 3 full) and report the
-    mean and spread of each number."""
+EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
+
+
+def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, log=print) -> dict:
+    """Run every experiment (or those in ``only``, names from :data:`EXPERIMENTS`) once per simulator
+    seed (default: 2 seeds quick, 3 full) and report the mean and spread of each number."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
@@ -557,6 +568,11 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
         log("torch/lightning not installed: network columns are skipped (pip install 'sonicskin[train]')")
     steps = [("fig6b", fig6b), ("fig11", fig11), ("fig12", fig12), ("fig13", fig13), ("table1", table1_fig14_15),
              ("fig16", fig16)]
+    if only:
+        unknown = sorted(set(only) - set(EXPERIMENTS))
+        if unknown:
+            raise ValueError(f"unknown experiment(s) {unknown}; choose from {list(EXPERIMENTS)}")
+        steps = [(n, f) for n, f in steps if n in set(only)]
     runs = []
     for seed in seeds:
         ctx.sim_seed, ctx.plots = int(seed), seed == seeds[0]
@@ -583,7 +599,8 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
             return o.item()
         return o
 
-    (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds)}),
+    (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds),
+                                                       "experiments": [n for n, _ in steps]}),
                                                 indent=1))
     log(f"wrote {out / 'report.md'}, report.json and {len(ctx.figs)} figures in {runtime / 60:.1f} min")
     return res

@@ -12,7 +12,8 @@ def test_quick_reproduction(tmp_path):
     out = tmp_path / "rep"
     assert main(["reproduce", "--quick", "--out", str(out)]) == 0
     md = (out / "report.md").read_text()
-    for section in ("Fig. 6b", "Fig. 11", "Fig. 12", "Two months", "Fig. 13", "Table I", "Fig. 14", "Fig. 15", "Fig. 16"):
+    for section in ("Fig. 6b", "Fig. 11", "Fig. 12", "Two months", "Fig. 13", "Table I", "Stationary robot, one-shot",
+                    "Fig. 14", "Fig. 15", "Fig. 16"):
         assert f"{section}" in md, section
     for fig in ("fig6b", "fig11", "fig12", "fig13", "fig14", "fig15", "fig16"):
         assert (out / f"{fig}.png").stat().st_size > 10_000
@@ -25,7 +26,24 @@ def test_quick_reproduction(tmp_path):
     # Physical findings that must hold on the simulated rig, whatever the exact numbers:
     assert res["fig6b"]["svm"]["ospa"]["mean"] > res["fig6b"]["svm"]["all_bins"]["mean"] + 0.15  # OSPA matters on a moving robot
     assert all(r["svm"]["accuracy"]["mean"] >= 0.9 for k, r in res["fig16"].items() if "36" not in k)  # two points apart
-    assert "net" in res["table1"]["fig14"] and "svm" in res["table1"]["fig15"]
+    assert "net" in res["table1"]["fig14"] and "svm" in res["table1"]["fig15"] and "svm" in res["table1"]["stationary"]
+
+
+def test_reproduce_runs_only_the_named_experiments(tmp_path):
+    from sonicskin.cli.models import REPRODUCE_EXPERIMENTS
+    from sonicskin.reproduce import EXPERIMENTS
+
+    assert REPRODUCE_EXPERIMENTS == EXPERIMENTS  # the CLI's choices are the experiments
+    out = tmp_path / "rep"
+    assert main(["reproduce", "--quick", "--only", "fig13", "--seeds", "1", "--out", str(out)]) == 0
+    md = (out / "report.md").read_text()
+    assert "## Fig. 13" in md and "Fig. 6b" not in md and "Table I" not in md
+    res = json.loads((out / "report.json").read_text())
+    assert res["experiments"] == ["fig13"] and res["seeds"] == [1] and "fig6b" not in res
+    assert sorted(p.name for p in out.glob("*.png")) == ["fig13.png"]
+    with pytest.raises(ValueError, match="unknown experiment"):
+        from sonicskin.reproduce import reproduce
+        reproduce(out, quick=True, only=["fig99"])
 
 
 def test_seed_results_aggregate_to_mean_and_spread():

@@ -16,10 +16,15 @@ from ._common import (
     latest_checkpoint,
     lightning_overrides,
     need_train_extra,
+    nonneg_int,
     removed_on_failure,
     resolve_n_bins,
     train_config,
 )
+
+
+# sonicskin.reproduce.EXPERIMENTS, spelled out so that building the parser does not import the simulator (4 s)
+REPRODUCE_EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
 
 
 def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
@@ -196,7 +201,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
 def cmd_reproduce(a: argparse.Namespace) -> int:
     from ..reproduce import reproduce
 
-    reproduce(a.out, quick=a.quick)
+    reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only)
     return 0
 
 
@@ -267,4 +272,8 @@ def add_parsers(sub) -> None:
     rp.add_argument("--out", default="reports/reproduce", help="report folder (default: reports/reproduce)")
     rp.add_argument("--quick", action="store_true",
                     help="small datasets and short training: a few minutes on 2 cores (default: full size)")
+    rp.add_argument("--seeds", type=nonneg_int, nargs="+", metavar="K",
+                    help="simulator seeds, each another simulated link and presses (default: 0 1 quick, 0 1 2 full)")
+    rp.add_argument("--only", nargs="+", choices=REPRODUCE_EXPERIMENTS, metavar="EXP",
+                    help=f"run these experiments only, one of {', '.join(REPRODUCE_EXPERIMENTS)} (default: all)")
     rp.set_defaults(func=cmd_reproduce)
