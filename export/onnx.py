@@ -29,9 +29,18 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
     with torch.no_grad():
         ref_logits, ref_force = (t.numpy() for t in model(torch.from_numpy(X_check.astype(np.float32))))
     logits, force = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
-    parity = {"max_abs_logits": float(np.abs(logits - ref_logits).max()),
-              "max_abs_force_n": float(np.abs(force - ref_force).max()),
-              "labels_equal": bool(np.array_equal(logits.argmax(1), ref_logits.argmax(1)))}
+    # The kernel layer votes with sign(d): a pairwise decision within float32 rounding of zero can vote the other
+    # way in onnxruntime than in torch and move two locations' logits by a whole vote.  Such chirps are counted
+    # (near_ties) and left out of the logits' parity, as for the SVM's export; the force never votes.
+    tie = np.zeros(len(X_check), bool)
+    kernel = getattr(model, "kernel", None)
+    if kernel is not None:
+        with torch.no_grad():
+            z = (torch.from_numpy(X_check.astype(np.float32)) - model.mean) / model.std
+            tie = (kernel.decision(kernel.rbf(z)).abs() < 10 * TOL).any(1).numpy()
+    parity = {"max_abs_logits": float(np.abs(logits - ref_logits)[~tie].max(initial=0.0)),
+              "max_abs_force_n": float(np.abs(force - ref_force).max()), "near_ties": int(tie.sum()),
+              "labels_equal": bool(np.array_equal(logits[~tie].argmax(1), ref_logits[~tie].argmax(1)))}
     if not (parity["labels_equal"] and parity["max_abs_logits"] < TOL and parity["max_abs_force_n"] < TOL):
         raise RuntimeError(f"ONNX export of the network does not match torch: {parity}")
     return parity

@@ -207,7 +207,8 @@ def _fmt(v: float, unit: str, signed: bool = False) -> str:
 def format_markdown(res: dict) -> str:
     """One table: scenario, metric, net mean ± std, SVM mean ± std, net - SVM with its 95 % interval."""
     lines = [f"Simulator seeds {res['sim_seeds']}, network training seeds {res['train_seeds']}; test sessions replayed "
-             f"as the live loop runs them (no test labels). Percentages in points; interval: 95 % Student t over "
+             f"as the live loop runs them (no test labels). Mean ± std over runs (network: every simulator x training "
+             f"seed; SVM, deterministic: every simulator seed). Percentages in points; interval: 95 % Student t over "
              f"simulator seeds of the paired difference.", "",
              "| scenario | metric | network | SVM | net − SVM [95 % CI] |", "|---|---|---|---|---|"]
     for name, sc in res["scenarios"].items():

@@ -165,3 +165,29 @@ def test_rest_mix_adds_rest_deviations_to_touch_chirps_only():
     assert all(torch.isclose(pool, d, atol=1e-6).all(1).any() for d in dev)
     m.loss_terms(x, cls, force, train=False)
     assert torch.equal(seen[1], x)  # evaluation sees the inputs as they are
+
+
+def test_export_parity_holds_at_a_vote_tie(tmp_path):
+    """A chirp on the boundary between two locations (pairwise decision ~ 0) may vote either way in float32:
+    the export counts it as a near tie instead of failing on a whole vote's difference (seen on multi-person)."""
+    pytest.importorskip("onnxruntime")
+    from export.onnx import export_net
+
+    X, cls, force = _toy()
+    predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
+    net = predict.model
+    a, b = X[cls == 0][0].astype(np.float64), X[cls == 1][0].astype(np.float64)
+
+    def d01(w):  # the (0, 1) pairwise decision value at a + w (b - a)
+        x = torch.from_numpy((a + w * (b - a))[None].astype(np.float32))
+        with torch.no_grad():
+            return float(net.kernel.decision(net.kernel.rbf((x - net.mean) / net.std))[0, 0])
+
+    lo, hi = 0.0, 1.0
+    assert d01(lo) > 0 > d01(hi)  # votes for 0 at a, for 1 at b
+    for _ in range(40):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if d01(mid) > 0 else (lo, mid)
+    edge = (a + lo * (b - a)).astype(np.float32)
+    parity = export_net(net, X.shape[1], tmp_path / "net.onnx", np.vstack([X, edge[None]]))
+    assert parity["near_ties"] >= 1 and parity["labels_equal"] and parity["max_abs_logits"] < 1e-4
