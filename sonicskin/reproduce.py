@@ -32,7 +32,7 @@ PAPER = {
     "fig6b": "54.3 % -> 96.7 %", "fig11": "> 95 % from a few hundred bins; drops with more", "fig12": "drops after 30 min "
     "without updating; stable for two months with it", "fig13": "Fourier-1 best (R2 0.92 with E^O), poly-1 0.9",
     "table1": "stationary 0.59 N / 0.58 N / 99.4 %; moving 1.86 N / 1.73 N / 96.7 %",
-    "stationary": "99.4 % (one-shot, robot at rest)", "fig14": "96.2 %, 97.0 % < 3 cm", "fig15": "97.2 %, 98.5 % < 3 cm", "fig16": "100 % on 2 points; force < 0.5 N",
+    "stationary": "99.4 %", "fig14": "96.2 %, 97.0 % < 3 cm", "fig15": "97.2 %, 98.5 % < 3 cm", "fig16": "100 % on 2 points; force < 0.5 N",
 }
 
 

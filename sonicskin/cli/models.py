@@ -22,7 +22,6 @@ from ._common import (
     train_config,
 )
 
-
 # sonicskin.reproduce.EXPERIMENTS, spelled out so that building the parser does not import the simulator (4 s)
 REPRODUCE_EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
 
