@@ -191,7 +191,11 @@ def test_sigint_at_a_random_moment_keeps_every_finished_prompt(tmp_path, small):
     time.sleep(float(rng.uniform(0.0, 0.2)))
     p.send_signal(signal.SIGINT)
     err = p.communicate(timeout=60)[1]
-    assert p.returncode in (0, 130), err
+    # 130: stopped by the Ctrl-C (exit code of an interrupted run).  Under load the prompt lines reach this test
+    # late, and the run may already have written everything and be exiting when SIGINT lands: then the shell's
+    # default (killed by SIGINT, -2) is fine as long as the run said it finished.
+    finished = "wrote " in err and "interrupted" not in err
+    assert p.returncode in (0, 130) or (p.returncode == -signal.SIGINT and finished), err
     assert "Traceback" not in err, err
     before = recorded_locations(out)
     if before:
