@@ -180,7 +180,10 @@ def test_sigint_at_a_random_moment_keeps_every_finished_prompt(tmp_path, small):
     args = [sys.executable, "-m", "sonicskin", "record", "--out", str(out), "--scenario", small, *FAST]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [os.getcwd(), os.environ.get("PYTHONPATH")])),
            "OMP_NUM_THREADS": "1"}
-    p = subprocess.Popen(args, env=env, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as a terminal delivers it, whatever this test runner inherited (a background job starts with
+    # SIGINT ignored, and so would the child)
+    p = subprocess.Popen(args, env=env, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     # Interrupt somewhere in the k-th touch prompt (k random), a random moment after it is shown.
     rng = np.random.default_rng()
     k, seen = int(rng.integers(1, 5)), 0  # not the last of the six: the run is still going when SIGINT comes
@@ -236,8 +239,15 @@ def test_ctrl_c_while_a_part_is_written_keeps_that_part_whole(tmp_path, small, m
         return real_write(self, session, part, audio, labels)
 
     monkeypatch.setattr(DatasetWriter, "write_part", write_part)
+    # Python's Ctrl-C handler, as in a terminal (a runner started in the background inherits SIGINT ignored,
+    # and then a recording rightly keeps going)
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
     out = tmp_path / "rec"
-    assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", "2", "3", *FAST]) == 130
+    try:
+        code = main(["record", "--out", str(out), "--scenario", small, "--locations", "1", "2", "3", *FAST])
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert code == 130
     assert calls == [0, 1]  # stopped right after the part that was being written
     assert Dataset(out).parts("s000") == [0, 1]
     assert recorded_locations(out) == {1}
