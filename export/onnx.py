@@ -36,7 +36,7 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
     kernel = getattr(model, "kernel", None)
     if kernel is not None:
         with torch.no_grad():
-            z = (torch.from_numpy(X_check.astype(np.float32)) - model.mean) / model.std
+            z = model.standardize(torch.from_numpy(X_check.astype(np.float32)))
             tie = (kernel.decision(kernel.rbf(z)).abs() < 10 * TOL).any(1).numpy()
     parity = {"max_abs_logits": float(np.abs(logits - ref_logits)[~tie].max(initial=0.0)),
               "max_abs_force_n": float(np.abs(force - ref_force).max()), "near_ties": int(tie.sum()),

@@ -69,9 +69,13 @@ class SkinNet(nn.Module):
         self.set_normalization(scaler.mean_, scaler.scale_)
         self.kernel.load_state_dict(KernelVotes.from_svc(svc, self.n_locations, tau=float(self.kernel.tau)).state_dict())
 
+    def standardize(self, x: torch.Tensor) -> torch.Tensor:
+        """Raw features -> the standardised inputs the trunk and the kernel layer read."""
+        return (x - self.mean) / self.std
+
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (n, n_in) features -> (logits (n, N + 1), force (n, N) in newtons)."""
-        z = (x - self.mean) / self.std
+        z = self.standardize(x)
         h = self.trunk(z)
         if self.kernel is None:
             return self.location(h), self.force(h)

@@ -123,7 +123,7 @@ def test_touch_and_place_are_factorised_and_weigh_markers_as_the_svm_runtime():
     Xq, _, _ = _toy(seed=3)
     with torch.no_grad():
         logits = net(torch.from_numpy(Xq))[0].numpy().astype(np.float64)
-        t = net.location(net.trunk((torch.from_numpy(Xq) - net.mean) / net.std))[:, 0].numpy()
+        t = net.location(net.trunk(net.standardize(torch.from_numpy(Xq))))[:, 0].numpy()
     p = _softmax(logits)
     np.testing.assert_allclose(p[:, -1], 1 / (1 + np.exp(t)), rtol=1e-4)
     ovr = ovr_scores_from_ovo(pipe.decision_function(Xq), 4)
@@ -181,7 +181,7 @@ def test_export_parity_holds_at_a_vote_tie(tmp_path):
     def d01(w):  # the (0, 1) pairwise decision value at a + w (b - a)
         x = torch.from_numpy((a + w * (b - a))[None].astype(np.float32))
         with torch.no_grad():
-            return float(net.kernel.decision(net.kernel.rbf((x - net.mean) / net.std))[0, 0])
+            return float(net.kernel.decision(net.kernel.rbf(net.standardize(x)))[0, 0])
 
     lo, hi = 0.0, 1.0
     assert d01(lo) > 0 > d01(hi)  # votes for 0 at a, for 1 at b
