@@ -170,7 +170,7 @@ def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np
         r = _replay(inp, test, svm, scores)
         f = np.clip(fm.predict(r["E"], ids[true_cls]), 0, None)  # force at the true location
         return {"location": ids[r["cls"]], "touch": r["touch"], "force": f, "force_model": fm}
-    from training.quick import fit_net
+    from sonicskin.training.quick import fit_net
 
     predict = fit_net(X[tr], cls[tr], force[tr], n_locations=n, epochs=epochs, seed=seed)
 

@@ -90,8 +90,8 @@ def _net_model(predict):
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log) -> list[dict]:
     """Both models on one simulated dataset: SVM once, the network per training seed."""
-    from export.onnx import export_net
-    from training.quick import fit_net
+    from sonicskin.export.onnx import export_net
+    from sonicskin.training.quick import fit_net
 
     from .artifact import export_svm, skin_json
     from .svm_head import fit_svm_head

@@ -538,8 +538,8 @@ def test_checkpoint_loader_rebuilds_the_module(tmp_path):
     """A plain checkpoint (numpy strings in its metadata, as before the metadata was kept plain) loads
     with weights_only=True; one whose weights do not fit its hyper-parameters, or without metadata, is refused."""
     torch = pytest.importorskip("torch")
-    from training.checkpoint import CheckpointError, load_checkpoint
-    from training.module import SkinLitModule
+    from sonicskin.training.checkpoint import CheckpointError, load_checkpoint
+    from sonicskin.training.module import SkinLitModule
 
     lit = SkinLitModule(n_in=6, n_locations=2, hidden=(8,))
     meta = {"data": "d", "rig": {}, "layout": {}, "spec": {}, "split": {"train": [np.str_("s000")]}, "min_force_n": 0.5}

@@ -21,7 +21,7 @@ TINY = dict(sessions=3, layout={"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 
 
 
 def _train(data, root, *extra):
-    from training.cli import main
+    from sonicskin.training.cli import main
 
     return main(["--config", "configs/train/moving.yaml", "--data.data", str(data), "--trainer.default_root_dir", str(root),
                  "--trainer.logger.init_args.save_dir", str(root), "--trainer.enable_progress_bar", "false",
@@ -30,7 +30,7 @@ def _train(data, root, *extra):
 
 @pytest.fixture(scope="module")
 def artifact(tmp_path_factory, rig):
-    from export.onnx import export_artifact
+    from sonicskin.export.onnx import export_artifact
 
     root = tmp_path_factory.mktemp("learned")
     data = root / "data"

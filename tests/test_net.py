@@ -6,9 +6,9 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
+from sonicskin.models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
 from sonicskin.baseline import ovr_scores_from_ovo  # noqa: E402
-from training.quick import fit_net  # noqa: E402
+from sonicskin.training.quick import fit_net  # noqa: E402
 
 
 def _toy(n_per=30, K=4, d=12, seed=0):
@@ -100,7 +100,7 @@ def test_kernel_layer_trains_through_its_votes():
 
 def test_kernel_net_exports_to_onnx_with_parity(tmp_path):
     pytest.importorskip("onnxruntime")
-    from export.onnx import export_net
+    from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
     predict = fit_net(X, cls, force, n_locations=4, epochs=2, seed=0)
@@ -134,7 +134,7 @@ def test_touch_and_place_are_factorised_and_weigh_markers_as_the_svm_runtime():
 def test_saturated_touch_logit_exports_finite(tmp_path, bias):
     """A trunk sure of touch / no touch: onnxruntime's Sigmoid underflows there, the exported log-probabilities must not."""
     pytest.importorskip("onnxruntime")
-    from export.onnx import export_net
+    from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
     predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
@@ -145,7 +145,7 @@ def test_saturated_touch_logit_exports_finite(tmp_path, bias):
 
 
 def test_rest_mix_adds_rest_deviations_to_touch_chirps_only():
-    from training.module import SkinLitModule
+    from sonicskin.training.module import SkinLitModule
 
     m = SkinLitModule(n_in=6, n_locations=3, kernel=False, noise_db=0.0, rest_mix=1.0)
     seen = []
@@ -171,7 +171,7 @@ def test_export_parity_holds_at_a_vote_tie(tmp_path):
     """A chirp on the boundary between two locations (pairwise decision ~ 0) may vote either way in float32:
     the export counts it as a near tie instead of failing on a whole vote's difference (seen on multi-person)."""
     pytest.importorskip("onnxruntime")
-    from export.onnx import export_net
+    from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
     predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)

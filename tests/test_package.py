@@ -131,18 +131,39 @@ def test_a_package_installed_without_configs_says_so(tmp_path):
     assert "no rigs config named 'jaco'; known: none" in r.stderr and "installed without its configs" in r.stderr
 
 
+MAPPED = ("models", "training", "export")  # repository folders installed as sonicskin.<name>
+
+
 def test_pyproject_ships_every_package_and_config_folder():
     """The wheel's package list is explicit (configs/ is mapped in): a new package folder must be listed."""
     tomllib = pytest.importorskip("tomllib")
     from sonicskin.rig import CONFIG_KINDS
 
     st = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
-    code = {".".join(p.parent.relative_to(REPO).parts) for root in ("sonicskin", "models", "training", "export")
-            for p in (REPO / root).rglob("__init__.py")}
+    code = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "sonicskin").rglob("__init__.py")}
+    code |= {f"sonicskin.{'.'.join(p.parent.relative_to(REPO).parts)}" for root in MAPPED
+             for p in (REPO / root).rglob("__init__.py")}
     kinds = sorted(p.name for p in (REPO / "configs").iterdir() if p.is_dir())
     want = code | {"sonicskin.configs"} | {f"sonicskin.configs.{k}" for k in kinds}
     listed = set(st["packages"])
     assert not want - listed, f"add {sorted(want - listed)} to [tool.setuptools] packages in pyproject.toml"
     assert not listed - want, f"[tool.setuptools] packages lists {sorted(listed - want)}, which has no folder"
-    assert st["package-dir"] == {"sonicskin.configs": "configs"}
+    assert st["package-dir"] == {"sonicskin.configs": "configs", **{f"sonicskin.{m}": m for m in MAPPED}}
     assert sorted(CONFIG_KINDS) == kinds
+
+
+@pytest.mark.slow
+def test_built_wheel_holds_one_top_level_package(tmp_path):
+    """`pip install sonicskin` adds exactly one importable name to site-packages: sonicskin."""
+    import zipfile
+
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path),
+                        str(REPO)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
+    (whl,) = tmp_path.glob("sonicskin-*.whl")
+    names = zipfile.ZipFile(whl).namelist()
+    top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith((".dist-info", ".data"))}
+    assert top == {"sonicskin"}, f"the wheel installs top-level {sorted(top)}"
+    for mod in ("sonicskin/models/net.py", "sonicskin/training/module.py", "sonicskin/export/onnx.py",
+                "sonicskin/configs/rigs/jaco.yaml"):
+        assert mod in names, f"the wheel lacks {mod}"

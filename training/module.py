@@ -9,7 +9,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from models import SkinNet, svm_pipeline
+from sonicskin.models import SkinNet, svm_pipeline
 
 __all__ = ["SkinLitModule", "fit_kernel_svm"]
 

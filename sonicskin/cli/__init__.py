@@ -57,7 +57,7 @@ class _LightningHelp(argparse.Action):
         except ImportError:
             print("\n(LightningCLI options appear here with the training extra: pip install 'sonicskin[train]')")
             parser.exit(0)
-        from training.cli import main as train_main
+        from sonicskin.training.cli import main as train_main
 
         from ._common import train_config
 

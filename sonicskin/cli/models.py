@@ -97,7 +97,7 @@ def _train_args(a: argparse.Namespace, data: str | None, extra: list[str]) -> li
 
 def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     need_train_extra("train")
-    from training.cli import main as train_main
+    from sonicskin.training.cli import main as train_main
 
     cli = train_main(_train_args(a, a.data, extra))
     if not cli.trainer.is_global_zero:  # DDP: rank zero reports
@@ -134,8 +134,8 @@ def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> N
     import io
     import sys
 
-    from export.onnx import export_artifact
-    from training.cli import quiet_third_party
+    from sonicskin.export.onnx import export_artifact
+    from sonicskin.training.cli import quiet_third_party
 
     stdout = sys.stdout
     with removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
@@ -175,7 +175,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         sessions = a.test
     else:  # train and export both models on the same split first
         need_train_extra("compare")
-        from training.cli import main as train_main
+        from sonicskin.training.cli import main as train_main
 
         name = Path(a.data).name
         run = Path(a.runs) / f"compare-{name}"
