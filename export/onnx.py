@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from sonicskin.training.checkpoint import load_checkpoint
 
 import sonicskin
 from sonicskin.artifact import PARITY_TOL, ort_session, skin_json, svm_entry
 from sonicskin.features import FeatureSpec, Split, model_inputs, training_targets
 from sonicskin.rig import Layout
-from sonicskin.training.checkpoint import load_checkpoint
 
 __all__ = ["export_artifact", "export_net"]
 

@@ -8,7 +8,6 @@ import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
-
 from sonicskin.models import SkinNet, svm_pipeline
 
 __all__ = ["SkinLitModule", "fit_kernel_svm"]
