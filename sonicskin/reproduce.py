@@ -49,9 +49,9 @@ SEEDS = {"quick": (0, 1), "full": (0, 1, 2)}
 
 
 class _Ctx:
-    def __init__(self, out: Path, quick: bool, log):
+    def __init__(self, out: Path, quick: bool, log, rig: Rig | None = None):
         self.out, self.quick, self.log = out, quick, log
-        self.rig = Rig.load("jaco")
+        self.rig = rig or Rig.load("jaco")
         self.epochs = 30 if quick else 60
         self.net = _net_available()
         self.figs: list[Path] = []
@@ -61,7 +61,8 @@ class _Ctx:
     def dataset(self, name: str, scenario: str, **over) -> Dataset:
         """The simulated dataset ``name`` of the current simulator seed: seed ``k`` is another link
         (``link_seed + k``: its irregularities) and other presses, noise and aims (``seed + 1000 k``)."""
-        path = self.out / "data" / (name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
+        path = self.out / "data" / ("" if self.rig.name == "jaco-link" else self.rig.name) / (
+            name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
         if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists()
                                                              for s in Dataset(path).sessions):
             d = {**Scenario.load(scenario).to_dict(), **over, "name": name}
@@ -552,15 +553,17 @@ def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
 EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
 
 
-def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, log=print) -> dict:
+def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
+              log=print) -> dict:
     """Run every experiment (or those in ``only``, names from :data:`EXPERIMENTS`) once per simulator
-    seed (default: 2 seeds quick, 3 full) and report the mean and spread of each number."""
+    seed (default: 2 seeds quick, 3 full) on ``rig`` (default: the paper's, jaco) and report the mean
+    and spread of each number."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    ctx = _Ctx(out, quick, log)
+    ctx = _Ctx(out, quick, log, rig)
     seeds = tuple(SEEDS["quick" if quick else "full"] if seeds is None else seeds)
     if not seeds:
         raise ValueError("reproduce needs at least one simulator seed")

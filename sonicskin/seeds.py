@@ -53,17 +53,19 @@ LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "continuous_erro
           "force_rmse_n": "force RMSE", "false_touch": "false touches", "missed_touch": "missed touches"}
 
 
-def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print) -> Dataset:
-    """Scenario ``name`` simulated with ``seed`` under ``cache/<name>-seed<seed>`` (made on first use)."""
+def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print, **overrides) -> Dataset:
+    """Scenario ``name`` simulated with ``seed`` on ``rig`` (default: jaco) under ``cache/<name>-seed<seed>``
+    (``cache/<rig>/<name>-seed<seed>`` for another rig; made on first use).  ``overrides`` replace scenario fields."""
     from .sim.generate import simulate_dataset
     from .sim.scenario import Scenario
 
-    path = Path(cache) / f"{name}-seed{seed}"
+    rig = rig or Rig.load("jaco")
+    path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
         (path / s / "session.json").is_file() for s in Dataset(path).sessions)
     if not done:
-        sc = Scenario.load(name).replace(seed=int(seed))
-        simulate_dataset(sc, rig or Rig.load("jaco"), path, mode="overwrite", progress=False, log=log)
+        sc = Scenario.load(name).replace(seed=int(seed), **overrides)
+        simulate_dataset(sc, rig, path, mode="overwrite", progress=False, log=log)
     return Dataset(path)
 
 
@@ -88,8 +90,9 @@ def _net_model(predict):
     return model.eval()
 
 
-def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log) -> list[dict]:
-    """Both models on one simulated dataset: SVM once, the network per training seed."""
+def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, train_stride: int = 1) -> list[dict]:
+    """Both models on one simulated dataset: SVM once, the network per training seed.  ``train_stride`` k
+    trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
     from sonicskin.export.onnx import export_net
     from sonicskin.training.quick import fit_net
 
@@ -105,6 +108,8 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
     # Training inputs: the training sessions' own labelled hands-off reference (the protocol's calibration).
     X = spec.transform(tr, ds.rig.chirps_per_s)
     cls, usable = training_targets(tr, ds.layout)
+    if train_stride > 1:
+        usable = usable & (np.arange(len(usable)) % int(train_stride) == 0)
     force = tr["force_n"].astype(np.float32)
     n, ids = len(ds.layout), np.asarray(ds.layout.ids)
     work.mkdir(parents=True, exist_ok=True)
@@ -167,7 +172,7 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
 
 
 def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
-                  out: str | Path = "reports/compare-seeds", epochs: int | None = None, log=print) -> dict:
+                  out: str | Path = "reports/compare-seeds", epochs: int | None = None, rig: Rig | None = None, log=print) -> dict:
     """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries."""
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
@@ -175,19 +180,20 @@ def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 
     if len(sim_seeds) < 2:
         raise ValueError("a confidence interval needs at least 2 simulator seeds (--sim-seeds 0 1 2)")
     out = Path(out)
+    rig = rig or Rig.load("jaco")
     res: dict = {"sim_seeds": [int(s) for s in sim_seeds], "train_seeds": [int(s) for s in train_seeds],
-                 "epochs": epochs, "scenarios": {}}
+                 "epochs": epochs, "rig": rig.name, "scenarios": {}}
     for name in scenarios:
         t0 = time.perf_counter()
         runs = {}
         for s in sim_seeds:
             # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
             done = out / "runs" / f"{name}-seed{s}.json"
-            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs}
+            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "rig": rig.to_dict()}
             if done.is_file() and json.loads(done.read_text())["key"] == key:
                 runs[int(s)] = json.loads(done.read_text())["rows"]
                 continue
-            ds = scenario_dataset(name, s, cache, log=log)
+            ds = scenario_dataset(name, s, cache, rig=rig, log=log)
             runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log)
             done.parent.mkdir(parents=True, exist_ok=True)
             done.write_text(json.dumps({"key": key, "rows": runs[int(s)]}))

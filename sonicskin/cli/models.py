@@ -154,11 +154,15 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         from ..seeds import compare_seeds, format_markdown
 
         out = Path(a.out or "reports/compare-seeds")
+        from ..rig import Rig
+
         res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
-                            epochs=a.epochs)
+                            epochs=a.epochs, rig=Rig.load(a.rig or "jaco"))
         print(format_markdown(res))
         print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
         return 0
+    if a.rig:
+        raise UsageError("--rig chooses the simulated rig of --scenario; a dataset (--data) carries its own rig")
     if not a.data:
         raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
     Dataset(a.data)  # a bad dataset is refused before anything trains
@@ -200,7 +204,9 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
 def cmd_reproduce(a: argparse.Namespace) -> int:
     from ..reproduce import reproduce
 
-    reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only)
+    from ..rig import Rig
+
+    reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only, rig=Rig.load(a.rig))
     return 0
 
 
@@ -258,6 +264,7 @@ def add_parsers(sub) -> None:
     c.add_argument("--sim-seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="simulator seeds (default: 0-4)")
     c.add_argument("--train-seeds", type=int, nargs="+", default=[0, 1], help="network training seeds (default: 0 1)")
     c.add_argument("--epochs", type=int, help="network epochs with --scenario (default: training.quick's)")
+    c.add_argument("--rig", help="with --scenario: the simulated rig, a name (jaco, fast) or a YAML path (default: jaco)")
     c.add_argument("--cache", default="data/seeds", help="simulated datasets for --scenario (default: data/seeds)")
     c.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     c.add_argument("--runs", default="runs", help="where training runs go (default: runs)")
@@ -273,6 +280,7 @@ def add_parsers(sub) -> None:
                     help="small datasets and short training: a few minutes on 2 cores (default: full size)")
     rp.add_argument("--seeds", type=nonneg_int, nargs="+", metavar="K",
                     help="simulator seeds, each another simulated link and presses (default: 0 1 quick, 0 1 2 full)")
+    rp.add_argument("--rig", default="jaco", help="the simulated rig, a name (jaco, fast) or a YAML path (default: jaco)")
     rp.add_argument("--only", nargs="+", choices=REPRODUCE_EXPERIMENTS, metavar="EXP",
                     help=f"run these experiments only, one of {', '.join(REPRODUCE_EXPERIMENTS)} (default: all)")
     rp.set_defaults(func=cmd_reproduce)
