@@ -113,6 +113,9 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     """
     from jsonargparse import ArgumentError
 
+    from sonicskin import threads
+
+    threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     given = [a.split("=", 1)[0] for a in (args or [])]
     cls = type("SkinCLI", (SkinCLI,), {"follow_root_dir": "--trainer.default_root_dir" in given
                                        and not any(a.startswith("--trainer.logger") for a in given)})

@@ -26,6 +26,9 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
     ``kernel=True`` the SVM baseline is fitted on the touch chirps of (X, cls) first and starts the
     network's location layer.  ``predict.model`` is the trained :class:`models.SkinNet`.
     """
+    from sonicskin import threads
+
+    threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)
     np.random.seed(seed)
     m = SkinLitModule(n_in=X.shape[1], n_locations=n_locations, **{**DEFAULTS, **hparams})

@@ -19,6 +19,7 @@ import warnings
 
 from .. import __version__
 from ..errors import SonicskinError, UsageError
+from .. import threads
 from . import data, live, models
 
 __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
@@ -79,6 +80,10 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_parsers(sub)
     models.add_parsers(sub)
     live.add_parsers(sub)
+    for name, verb in sub.choices.items():  # one thread setting on every verb (sonicskin.threads)
+        verb.add_argument("--threads", metavar="N", default=None,
+                          help=f"threads for training, featurisation and simulation (default: ${threads.ENV}, else half "
+                               f"the cores, at most 4: {threads.default_threads()} here)")
     train = sub.choices["train"]
     train.register("action", "lightning_help", _LightningHelp)
     # Replace train's -h/--help by one that also lists the LightningCLI options.
@@ -104,8 +109,8 @@ def _user_error(exc: BaseException) -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     """Run ``sonicskin`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
-    if not sys.stderr.isatty():  # piped or logged: a progress bar prints its start and end, not every update
-        os.environ.setdefault("TQDM_MININTERVAL", "60")
+    if not sys.stderr.isatty():  # piped or logged: no progress bars (tqdm and Lightning's read TQDM_DISABLE)
+        os.environ.setdefault("TQDM_DISABLE", "1")
     p = build_parser()
     try:
         a, extra = p.parse_known_args(argv)
@@ -122,6 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
     try:
+        threads.configure(getattr(a, "threads", None))
         with warnings.catch_warnings():
             warnings.showwarning = one_line_warning  # the package's warnings as one line each, like errors
             return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)

@@ -1,0 +1,89 @@
+"""One setting for the threads sonicskin's numerical work uses.
+
+Training (torch intra-op threads), featurisation and simulation (scipy.fft workers, BLAS/OpenMP in
+numpy, scipy and scikit-learn) and model selection all take their thread count from here, so that on a
+shared robot computer training and the live loop do not fight each other: each library's own default is
+"every core", and three libraries each taking every core of a 2-4 core computer run many times slower
+under load than one well-sized pool (measured: ``benchmarks/bench_threads.py``).
+
+The count comes from, in order: :func:`configure` (the command line's ``sonicskin --threads N``), the
+environment variable ``SONICSKIN_THREADS``, or the default, half the cores (at least 1, at most 4).
+The live loop's onnxruntime session uses one intra-op thread whatever this says (predictable latency next
+to the audio thread).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+__all__ = ["ENV", "default_threads", "get", "configure", "fft_workers"]
+
+ENV = "SONICSKIN_THREADS"
+_configured: int | None = None
+
+
+def default_threads() -> int:
+    """Half the cores the process may run on, at least 1 and at most 4."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    return max(1, min(4, n // 2))
+
+
+def _parse(value: str, where: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        n = 0
+    if n < 1 or n > 1024:
+        raise ValueError(f"{where} must be a whole number of threads from 1 to 1024, got {value!r} "
+                         f"(unset it for the default, {default_threads()} on this computer)")
+    return n
+
+
+def get() -> int:
+    """The thread count in force (see the module's docstring for where it comes from)."""
+    if _configured is not None:
+        return _configured
+    env = os.environ.get(ENV, "").strip()
+    return _parse(env, ENV) if env else default_threads()
+
+
+def fft_workers() -> int:
+    """``workers`` for :mod:`scipy.fft` calls."""
+    return get()
+
+
+def configure(n: int | str | None = None) -> int:
+    """Fix the thread count for this process and the processes it starts; returns it.
+
+    Limits the BLAS/OpenMP pools of the libraries already loaded (threadpoolctl), sets torch's
+    intra-op threads if torch is loaded (:func:`apply_torch` does it when torch is loaded later), and
+    exports ``OMP_NUM_THREADS``/``MKL_NUM_THREADS``/``OPENBLAS_NUM_THREADS``/``SONICSKIN_THREADS`` for
+    child processes (DDP ranks, the deployment check).
+    """
+    global _configured
+    n = get() if n is None else _parse(str(n), "--threads")
+    _configured = n
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", ENV):
+        os.environ[var] = str(n)
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=n)
+    except ImportError:  # scikit-learn depends on threadpoolctl; without it the env variables still act on children
+        pass
+    if "torch" in sys.modules:
+        apply_torch()
+    return n
+
+
+def apply_torch() -> None:
+    """Set torch's intra-op thread count to :func:`get` (call after importing torch)."""
+    import torch
+
+    n = get()
+    if torch.get_num_threads() != n:
+        torch.set_num_threads(n)
