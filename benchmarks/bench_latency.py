@@ -50,6 +50,12 @@ from sonicskin.sim.simulator import Simulator  # noqa: E402
 MIN_FORCE_N = 0.5
 
 
+def render_frames(sim: Simulator, timeline, chunk: int = 256) -> np.ndarray:
+    """Every chirp frame of ``timeline`` (n, n_chirp), rendered ``chunk`` chirps at a time (bounded memory)."""
+    return np.concatenate([sim.render(timeline.select(np.arange(a, min(a + chunk, len(timeline)))))
+                           for a in range(0, len(timeline), chunk)])
+
+
 class SplicedPresses:
     """A simulated stream whose presses start at a random sample inside a chirp period.
 
@@ -60,8 +66,7 @@ class SplicedPresses:
     def __init__(self, sim: Simulator, timeline, *, blocksize: int, rng: np.random.Generator, offset: int = 1234):
         self.rig = sim.rig
         L = self.rig.n_chirp
-        frames = np.concatenate([sim.render(timeline.select(np.arange(a, min(a + 256, len(timeline)))))
-                                 for a in range(0, len(timeline), 256)])
+        frames = render_frames(sim, timeline)
         f = timeline.force_n
         onsets, releases = [], []
         for ev in np.unique(timeline.event[timeline.event >= 0]):

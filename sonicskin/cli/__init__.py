@@ -17,9 +17,8 @@ import os
 import sys
 import warnings
 
-from .. import __version__
+from .. import __version__, threads
 from ..errors import SonicskinError, UsageError
-from .. import threads
 from . import data, live, models
 
 __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
@@ -80,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_parsers(sub)
     models.add_parsers(sub)
     live.add_parsers(sub)
-    for name, verb in sub.choices.items():  # one thread setting on every verb (sonicskin.threads)
+    for verb in sub.choices.values():  # one thread setting on every verb (sonicskin.threads)
         verb.add_argument("--threads", metavar="N", default=None,
                           help=f"threads for training, featurisation and simulation (default: ${threads.ENV}, else half "
                                f"the cores, at most 4: {threads.default_threads()} here)")

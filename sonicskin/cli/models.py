@@ -203,7 +203,6 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
 
 def cmd_reproduce(a: argparse.Namespace) -> int:
     from ..reproduce import reproduce
-
     from ..rig import Rig
 
     reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only, rig=Rig.load(a.rig))
