@@ -93,7 +93,8 @@ def main(argv=None) -> int:
             mu, sd = np.nanmean(x), (np.nanstd(x, ddof=1) if len(x) > 1 else 0.0)
             return f"{mu:.1%} ± {sd:.1%}" if pct else f"{mu:.2f} ± {sd:.2f} N"
 
-        print(f"| {sc} ({len(v)} seeds) | {per:g} ms | {'network' if model == 'net' else 'SVM'} | {k} | {v[0]['added_latency_ms']:.1f} ms | "
+        name = "network" if model == "net" else "SVM"
+        print(f"| {sc} ({len(v)} seeds) | {per:g} ms | {name} | {k} | {v[0]['added_latency_ms']:.1f} ms | "
               f"{ms('accuracy')} | {ms('within_2cm')} | {ms('force_rmse_n', False)} | {ms('false_touch')} | {ms('missed_touch')} |")
     return 0
 
