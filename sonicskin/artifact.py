@@ -106,13 +106,16 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.schema.check_integrity`
     checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
     in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
-    and the outputs the model gives on them), and the document its ``digest``.
+    and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as
+    ``probe_inputs`` (an RBF SVM is flat far from its data); without them an entry's earlier probe rows are
+    kept, else seeded random rows are used.
     """
     out = Path(out)
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training,
             "models": {k: {kk: vv for kk, vv in e.items() if kk not in ("sha256", "probe")} for k, e in models.items()}}
+    old_probes = {k: e["probe"]["inputs"] for k, e in models.items() if isinstance(e.get("probe"), dict) and "inputs" in e["probe"]}
     where = str(out / "skin.json (being written)")
     skin = validate_skin(json.loads(json.dumps(skin, default=_plain)), source=where, sealed=False)
     try:
@@ -125,7 +128,10 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
         entry["sha256"] = sha256(path)
         sess = ort_session(path)
         check_session(sess, skin, name, source=str(path))
-        x = _default_probe(entry["n_in"]) if probe_inputs is None else np.asarray(probe_inputs, np.float32)[:PROBE_ROWS]
+        x = probe_inputs if probe_inputs is not None else old_probes.get(name)  # resealed: keep its real probe rows
+        x = np.asarray(x, np.float32)[:PROBE_ROWS] if x is not None else None
+        if x is None or x.ndim != 2 or x.shape[1] != entry["n_in"]:
+            x = _default_probe(entry["n_in"])
         got = run_probe(sess, x)
         outs = [None if w is None else np.asarray(g, np.float64).tolist()
                 for g, w in zip(got, probe_widths(name, entry["n_locations"]))]

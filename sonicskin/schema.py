@@ -46,8 +46,8 @@ and the ONNX graphs (:func:`check_session`): one float input ``(batch, B)``; the
 
 Integrity (:func:`check_integrity`): every ONNX file carries, in its ``metadata_props`` under
 ``sonicskin.binding``, what it was trained with: the model's name and kind, the rig, the layout (ids and
-coordinates), the features (bins in their order, mode, Alg. 2's beta/alpha), ``min_force_n`` and the
-sha256 of its ``skin.json`` entry's parameters (threshold, reference scores, force curves, hparams).
+coordinates), the features (bins in their order, mode, Alg. 2's beta/alpha), ``min_force_n``, the
+training split and the sha256 of its ``skin.json`` entry's parameters (threshold, reference scores, force curves, hparams).
 Loading compares that binding with ``skin.json`` field by field, then the document's digest, then
 re-runs the probe inputs.  Each step names what differs in one line.
 """
@@ -470,8 +470,11 @@ def model_file(folder: str | Path, meta: dict, model: str) -> Path:
         if real.parent != root:
             doc.fail(f"models.{model}.file", f"({name}) is a link to {real}, outside the artifact folder",
                      "copy the model file into the artifact folder instead of linking it")
-    if not path.is_file():
+    if not path.exists():
         raise ArtifactError(f"{path} is missing; copy the whole artifact folder or {REEXPORT}")
+    if not path.is_file():
+        raise ArtifactError(f"{path} is not a regular file (a folder, FIFO or device); copy the whole artifact folder or "
+                            f"{REEXPORT}")
     return path
 
 
@@ -615,7 +618,7 @@ def binding(meta: dict, model: str) -> dict:
     """What ``model`` was trained and exported with, as stored inside its ONNX file (``metadata_props``)."""
     entry = {k: v for k, v in meta["models"][model].items() if k not in _UNBOUND}
     return {"model": model, "kind": MODEL_KINDS[model], "rig": meta["rig"], "layout": meta["layout"],
-            "features": meta["features"], "min_force_n": meta["min_force_n"],
+            "features": meta["features"], "min_force_n": meta["min_force_n"], "split": meta["training"]["split"],
             "entry_sha256": hashlib.sha256(canonical(entry)).hexdigest()}
 
 
@@ -623,8 +626,10 @@ def _describe_order(have: list, want: list, what: str) -> str:
     """How the list in skin.json (``have``) differs from the model's (``want``)."""
     if len(have) != len(want):
         return f"{len(have)} {what} listed, the model has {len(want)}"
-    if sorted(have, key=repr) == sorted(want, key=repr):
-        if have == sorted(want, key=repr) and have != want:
+    def order(v):  # numbers by value (bins, ids), anything else after them by its text
+        return (0, v, "") if isinstance(v, (int, float)) and not isinstance(v, bool) else (1, 0, repr(v))
+    if sorted(have, key=order) == sorted(want, key=order):
+        if have == sorted(want, key=order) and have != want:
             return f"the model's {what} sorted"
         if have == want[::-1]:
             return f"the model's {what} reversed"
@@ -671,6 +676,8 @@ def _binding_diff(have: dict, want: dict, file: str) -> tuple[str, str] | None:
         return "layout", f"differs from the layout {file} was trained with (circumference)"
     if have.get("min_force_n") != want["min_force_n"]:
         return "min_force_n", f"is {want['min_force_n']!r} but {file} was trained with {have.get('min_force_n')!r}"
+    if have.get("split") != want["split"]:
+        return "training.split", f"is not the split {file} was trained on (the test sessions would include training ones)"
     if have.get("entry_sha256") != want["entry_sha256"]:
         return (f"models.{want['model']}", f"holds other parameters than were exported with {file} (threshold, reference "
                                            f"scores, force curves, hparams, n_in or n_locations changed)")

@@ -243,9 +243,12 @@ def check_ranges(cfg) -> None:
 class SkinCLI(LightningCLI):
     follow_root_dir = False  # --trainer.default_root_dir given without a logger: the logger writes there too
 
+    def _set_seed(self) -> None:  # the first use of the parsed config (before instantiation): check it here
+        check_ranges(self.config.get(self.subcommand) if self.subcommand else self.config)
+        super()._set_seed()
+
     def before_instantiate_classes(self) -> None:
         cfg = self.config.get(self.subcommand) if self.subcommand else self.config
-        check_ranges(cfg)
         root, logger = cfg.trainer.default_root_dir, cfg.trainer.logger
         init = getattr(logger, "init_args", None)
         if self.follow_root_dir and root and init is not None and "save_dir" in init:
