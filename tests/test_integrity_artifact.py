@@ -456,6 +456,7 @@ def _checkpoint(path: Path, sealed: Path, data: Path) -> Path:
     return path
 
 
+@pytest.mark.slow  # ~10 s: torch and two feature runs / two processes
 def test_export_refuses_other_data(sealed, cli_files, other_data, tmp_path, capsys):
     ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])
     for which, pattern in (("spacing", "checkpoint run.ckpt's markers sit elsewhere than those of dataset"),
@@ -550,6 +551,7 @@ def test_atomic_artifact_refuses_to_replace_other_files(tmp_path):
 
 
 # -- fit-svm is reproducible to the byte ------------------------------------------------------------------------
+@pytest.mark.slow  # ~10 s: torch and two feature runs / two processes
 def test_fit_svm_writes_identical_bytes(cli_files, tmp_path):
     """Two processes with different hash seeds (skl2onnx listed its opsets in set order) write the same svm.onnx."""
     digests = []
