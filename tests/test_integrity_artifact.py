@@ -536,6 +536,24 @@ def test_sigkill_during_fit_svm_keeps_the_old_artifact(cli_files, tmp_path):
     assert _fingerprint(out)["svm.onnx"] == before["svm.onnx"]  # same inputs, same bytes
 
 
+@pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two-renames"])
+def test_atomic_replace_swaps_the_whole_folder(tmp_path, monkeypatch, exchange):
+    import sonicskin.artifact as A
+
+    if not exchange:
+        monkeypatch.setattr(A, "_exchange", lambda a, b: False)
+    out = tmp_path / "art"
+    out.mkdir()
+    (out / "skin.json").write_text("old")
+    (out / "net.onnx").write_text("old net")
+    with atomic_artifact(out) as tmp:
+        assert tmp.parent == tmp_path and tmp != out and not list(tmp.iterdir())
+        (tmp / "skin.json").write_text("new")
+        assert (out / "skin.json").read_text() == "old"  # untouched until the end
+    assert sorted(p.name for p in out.iterdir()) == ["skin.json"] and (out / "skin.json").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["art"]
+
+
 def test_atomic_artifact_refuses_to_replace_other_files(tmp_path):
     out = tmp_path / "notes"
     out.mkdir()
@@ -655,6 +673,6 @@ def test_corpus_counts():
     doc = len(DOC_EDITS) * 2
     files = len(FILE_SWAPS) * 3 + 1 + len(FILES)
     data = 3 + 1 + 2 + 2
-    atomic = 6 + 1 + 1 + 2
+    atomic = 6 + 1 + 1 + 2 + 2
     train = len(CLASS_CASES) + len(RANGE_CASES) + 1
-    assert (doc, files, data, atomic, train) == (78, 33, 8, 10, 29)
+    assert (doc, files, data, atomic, train) == (78, 33, 8, 12, 29)
