@@ -557,7 +557,9 @@ def test_checkpoint_loader_rebuilds_the_module(tmp_path):
     from sonicskin.training.module import SkinLitModule
 
     lit = SkinLitModule(n_in=6, n_locations=2, hidden=(8,))
-    meta = {"data": "d", "rig": {}, "layout": {}, "spec": {}, "split": {"train": [np.str_("s000")]}, "min_force_n": 0.5}
+    meta = {"data": "d", "rig": Rig.load("jaco").to_dict(), "layout": {"ids": [0, 1], "xy_cm": [[0.0, 0.0], [1.2, 0.0]]},
+            "spec": {"bins": [0, 1, 2, 3, 4, 5], "mode": "relative", "beta_s": 3.0, "alpha_s": 1200.0},
+            "split": {"train": [np.str_("s000")], "val": [], "test": []}, "min_force_n": 0.5}
     hp = {**dict(lit.hparams), "_instantiator": "lightning.pytorch.cli.instantiate_module"}
     good = tmp_path / "good.ckpt"
     torch.save({"state_dict": lit.state_dict(), "hyper_parameters": hp, "sonicskin": meta}, good)

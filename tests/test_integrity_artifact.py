@@ -457,6 +457,50 @@ def _checkpoint(path: Path, sealed: Path, data: Path) -> Path:
 
 
 @pytest.mark.slow  # ~10 s: torch and two feature runs / two processes
+def _bad_meta(edit):
+    def f(meta):
+        edit(meta)
+        return meta
+    return f
+
+
+CKPT_META = [
+    ("rig-string", _bad_meta(lambda m: m.update(rig="small")), "its sonicskin metadata rig must be a JSON object"),
+    ("rig-band-above-nyquist", _bad_meta(lambda m: m["rig"].update(f_hi_hz=120_000)), "metadata rig is not a valid rig"),
+    ("layout-ids-duplicate", _bad_meta(lambda m: m["layout"].update(ids=[0, 0, 1])), "metadata layout.ids are not unique"),
+    ("layout-xy-nan", _bad_meta(lambda m: m["layout"]["xy_cm"][0].__setitem__(0, float("nan"))), "metadata layout.xy_cm[0][0]"),
+    ("spec-bin-beyond-band", _bad_meta(lambda m: m["spec"]["bins"].__setitem__(0, 10**6)), r"metadata features.bins[0] is 1000000"),
+    ("spec-mode", _bad_meta(lambda m: m["spec"].update(mode="log")), "metadata features.mode"),
+    ("spec-fewer-bins-than-inputs", _bad_meta(lambda m: m["spec"].update(bins=m["spec"]["bins"][:10])),
+     "metadata spec.bins lists 10 bins but the network takes 60 inputs"),
+    ("layout-fewer-than-outputs", _bad_meta(lambda m: m.update(layout={"ids": [0, 1], "xy_cm": [[0, 0], [1, 0]]})),
+     "metadata layout.ids lists 2 locations but the network has 3"),
+    ("split-not-object", _bad_meta(lambda m: m.update(split=["s000"])), "metadata split must be a JSON object"),
+    ("min-force-inf", _bad_meta(lambda m: m.update(min_force_n=float("inf"))), "metadata min_force_n must be finite"),
+    ("data-number", _bad_meta(lambda m: m.update(data=7)), "metadata data must be a string"),
+]
+
+
+@pytest.mark.parametrize("name, edit, message", CKPT_META, ids=[c[0] for c in CKPT_META])
+def test_checkpoint_metadata_is_checked(sealed, cli_files, tmp_path, capsys, name, edit, message):
+    torch = pytest.importorskip("torch")
+    ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])
+    c = torch.load(ckpt, weights_only=True)
+    c["sonicskin"] = edit(c["sonicskin"])
+    torch.save(c, ckpt)
+    code, _, err = run(capsys, ["export", "--run", ckpt, "--out", tmp_path / "out"])
+    assert message in assert_one_line_error(code, err, "export")
+    assert not (tmp_path / "out").exists()
+
+
+def test_huge_checkpoint_is_refused_by_its_size(tmp_path, capsys):
+    pytest.importorskip("torch")
+    with open(tmp_path / "run.ckpt", "wb") as fh:
+        fh.truncate(3 * 2**30)
+    code, _, err = run(capsys, ["export", "--run", tmp_path / "run.ckpt", "--out", tmp_path / "out"])
+    assert "run.ckpt is 3,072 MB, more than a sonicskin checkpoint can be" in assert_one_line_error(code, err, "export")
+
+
 def test_export_refuses_other_data(sealed, cli_files, other_data, tmp_path, capsys):
     ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])
     for which, pattern in (("spacing", "checkpoint run.ckpt's markers sit elsewhere than those of dataset"),
@@ -672,7 +716,7 @@ def test_corpus_counts():
     """The counts notes/art-README.md states (kept in step here)."""
     doc = len(DOC_EDITS) * 2
     files = len(FILE_SWAPS) * 3 + 1 + len(FILES)
-    data = 3 + 1 + 2 + 2
+    data = 3 + 1 + 2 + 2 + len(CKPT_META) + 1
     atomic = 6 + 1 + 1 + 2 + 2
     train = len(CLASS_CASES) + len(RANGE_CASES) + 1
-    assert (doc, files, data, atomic, train) == (78, 33, 8, 12, 29)
+    assert (doc, files, data, atomic, train) == (78, 33, 20, 12, 29)
