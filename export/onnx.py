@@ -9,10 +9,10 @@ import numpy as np
 import torch
 from sonicskin.training.checkpoint import load_checkpoint
 
-import sonicskin
-from sonicskin.artifact import PARITY_TOL, ort_session, skin_json, svm_entry
+from sonicskin.artifact import PARITY_TOL, atomic_artifact, ort_session, skin_json, svm_entry
 from sonicskin.features import FeatureSpec, Split, model_inputs, training_targets
 from sonicskin.rig import Layout
+from sonicskin.schema import check_layout, check_rig
 
 __all__ = ["export_artifact", "export_net"]
 
@@ -50,31 +50,34 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     """Write ``out/{net.onnx, svm.onnx, skin.json}`` from a training checkpoint.
 
     The SVM is trained here on the checkpoint's training split and inputs, so both models in the
-    artifact see exactly the same bins, reference and sessions.
+    artifact see exactly the same bins, reference and sessions.  ``data`` (default: the checkpoint's)
+    must have the checkpoint's rig and marker layout.  ``out`` is replaced as a whole at the end.
     """
     lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
     meta = lit.meta
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     spec = FeatureSpec.from_dict(meta["spec"])
     ds, t, X = model_inputs(data or meta["data"], spec, progress=False)
-    if ds.rig.mismatch(sonicskin.Rig.from_dict(meta["rig"])):
-        raise ValueError(f"dataset {ds.root} was recorded with another rig than the checkpoint was trained on")
+    # The data must be the checkpoint's rig and marker layout: the SVM is fitted on its positions here.
+    check_rig({"rig": meta["rig"]}, ds.rig, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
+    check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     layout = Layout.from_dict(meta["layout"])
     split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
     n_loc = len(layout)
     cls, usable = training_targets(t, layout, meta["min_force_n"])
     p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
-    svm, svm_train_s = svm_entry(p, out, split.mask(t, "train") & usable)
-    rng = np.random.default_rng(0)
-    check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
-    net_parity = export_net(lit.model, X.shape[1], out / "net.onnx", check)
-    net = {"file": "net.onnx", "kind": "skinnet", "n_in": int(X.shape[1]), "n_locations": n_loc, "parity": net_parity,
-           "hparams": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lit.hparams.items()}}
-    skin = skin_json(out, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
-                     training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
-                               "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
-                     models={"net": net, "svm": svm})
+    with atomic_artifact(out) as tmp:  # an interrupted export keeps the old artifact
+        svm, svm_train_s = svm_entry(p, tmp, split.mask(t, "train") & usable)
+        probe = svm.pop("_probe")
+        rng = np.random.default_rng(0)
+        check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
+        net_parity = export_net(lit.model, X.shape[1], tmp / "net.onnx", check)
+        net = {"file": "net.onnx", "kind": "skinnet", "n_in": int(X.shape[1]), "n_locations": n_loc, "parity": net_parity,
+               "hparams": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lit.hparams.items()}}
+        skin = skin_json(tmp, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
+                         training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
+                                   "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
+                         models={"net": net, "svm": svm}, probe_inputs=probe)
     log(f"exported {out}: net.onnx ({(out / 'net.onnx').stat().st_size / 1e3:.0f} kB, parity max |d logits| "
         f"{net_parity['max_abs_logits']:.1e}), svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max "
         f"|d scores| {svm['parity']['max_abs_scores']:.1e})")

@@ -7,10 +7,18 @@ here, so a machine without torch can still build an SVM-only artifact from a rec
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import glob
 import hashlib
 import json
+import os
+import re
+import shutil
+import sys
 import time
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,12 +26,27 @@ import numpy as np
 from . import __version__
 from .baseline import ovr_scores_from_ovo
 from .features import prepare, quiet_mask
-from .schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, ArtifactError, check_session, model_file, validate_skin
+from .schema import (
+    ARTIFACT_FORMAT,
+    ARTIFACT_VERSION,
+    ArtifactError,
+    artifact_digest,
+    binding,
+    canonical,
+    check_session,
+    model_file,
+    probe_widths,
+    run_probe,
+    stamp_binding,
+    validate_skin,
+)
 from .svm_head import _pairwise, fit_svm_head
 
-__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "sha256", "ort_session", "export_svm", "skin_json", "build_svm_artifact"]
+__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "sha256", "ort_session", "export_svm", "skin_json", "build_svm_artifact",
+           "atomic_artifact"]
 
 PARITY_TOL = 1e-4
+PROBE_ROWS = 4
 
 
 def sha256(path: Path) -> str:
@@ -47,6 +70,11 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     with warnings.catch_warnings():  # skl2onnx reads SVC's deprecated probA_/probB_
         warnings.simplefilter("ignore", FutureWarning)
         onx = to_onnx(pipe, X_check[:1].astype(np.float32), options={SVC: {"zipmap": False}}, target_opset=17)
+    # skl2onnx lists the opsets in set order (it changes with PYTHONHASHSEED): sorted, the same inputs give the same bytes
+    ops = sorted((o.domain, o.version) for o in onx.opset_import)
+    del onx.opset_import[:]
+    for domain, version in ops:
+        onx.opset_import.add(domain=domain, version=version)
     Path(path).write_bytes(onx.SerializeToString())
     sess = ort_session(path)
     label, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
@@ -64,31 +92,68 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     return parity
 
 
-def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict) -> dict:
+def _default_probe(n_in: int) -> np.ndarray:
+    """Probe inputs when the writer passes none: relative-dB-like values from a fixed seed."""
+    return np.random.default_rng(0).normal(0.0, 3.0, size=(PROBE_ROWS, n_in)).astype(np.float32)
+
+
+def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
+              probe_inputs: np.ndarray | None = None) -> dict:
     """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters).
 
     The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
     width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
-    the runtime would refuse.
+    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.schema.check_integrity`
+    checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
+    in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
+    and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as
+    ``probe_inputs`` (an RBF SVM is flat far from its data); without them an entry's earlier probe rows are
+    kept, else seeded random rows are used.
     """
     out = Path(out)
-    for entry in models.values():
-        entry["sha256"] = sha256(out / entry["file"])
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
-            "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training, "models": models}
-    skin = validate_skin(json.loads(json.dumps(skin)), source=str(out / "skin.json (being written)"))
+            "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training,
+            "models": {k: {kk: vv for kk, vv in e.items() if kk not in ("sha256", "probe")} for k, e in models.items()}}
+    old_probes = {k: e["probe"]["inputs"] for k, e in models.items() if isinstance(e.get("probe"), dict) and "inputs" in e["probe"]}
+    where = str(out / "skin.json (being written)")
+    skin = validate_skin(json.loads(json.dumps(skin, default=_plain)), source=where, sealed=False)
     try:
-        text = json.dumps(skin, indent=1, allow_nan=False)  # NaN/Infinity are not JSON: refuse rather than write them
+        canonical(skin)  # NaN/Infinity are not JSON: refuse rather than write them
     except ValueError as e:
         raise ArtifactError(f"{out / 'skin.json'} would hold a NaN or infinite value outside the checked fields ({e})") from None
-    for name in models:
-        model_file(out, skin, name)
-        check_session(ort_session(out / models[name]["file"]), skin, name, source=str(out / models[name]["file"]))
+    for name, entry in skin["models"].items():
+        path = model_file(out, skin, name)
+        stamp_binding(path, binding(skin, name))
+        entry["sha256"] = sha256(path)
+        sess = ort_session(path)
+        check_session(sess, skin, name, source=str(path))
+        x = probe_inputs if probe_inputs is not None else old_probes.get(name)  # resealed: keep its real probe rows
+        x = np.asarray(x, np.float32)[:PROBE_ROWS] if x is not None else None
+        if x is None or x.ndim != 2 or x.shape[1] != entry["n_in"]:
+            x = _default_probe(entry["n_in"])
+        got = run_probe(sess, x)
+        outs = [None if w is None else np.asarray(g, np.float64).tolist()
+                for g, w in zip(got, probe_widths(name, entry["n_locations"]))]
+        entry["probe"] = {"inputs": x.astype(np.float64).tolist(), "outputs": outs}
+        if name in models:  # the caller's entry too (callers log parity from it)
+            models[name].update(sha256=entry["sha256"])
+    skin["digest"] = artifact_digest(skin)
+    skin = validate_skin(skin, source=where)
+    text = json.dumps(skin, indent=1, allow_nan=False)
     tmp = out / "skin.json.tmp"
     tmp.write_text(text)
     tmp.replace(out / "skin.json")
     return skin
+
+
+def _plain(v):
+    """numpy scalars and arrays in a document as JSON numbers and lists."""
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    raise TypeError(f"{type(v).__name__} is not JSON")
 
 
 def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0) -> tuple[dict, float]:
@@ -103,13 +168,93 @@ def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0) ->
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     parity = export_svm(pipe, p["n_locations"], Path(out) / "svm.onnx", check)
     return {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(X.shape[1]), "n_locations": p["n_locations"],
-            "parity": parity, **params}, fit_s
+            "parity": parity, **params, "_probe": check[:PROBE_ROWS]}, fit_s
+
+
+ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx)")
+
+
+@contextlib.contextmanager
+def atomic_artifact(out: str | Path) -> Iterator[Path]:
+    """Write an artifact into a new sibling folder, then swap it in: an interrupted or failed run leaves ``out``
+    as it was (the old, loadable artifact, or nothing).
+
+    ``out`` may be absent, empty, or an artifact folder (``skin.json`` and ONNX files only); anything else in it
+    is refused rather than replaced.  The swap is one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
+    else two renames (a crash between them keeps the old artifact as ``.<name>.old-<pid>`` beside it).
+    """
+    out = Path(out)
+    if out.exists() or out.is_symlink():
+        if out.is_symlink() or not out.is_dir():
+            raise ArtifactError(f"{out} exists and is not a folder; choose another --out")
+        other = sorted(p.name for p in out.iterdir() if not ARTIFACT_FILES.fullmatch(p.name) or not p.is_file())
+        if other:
+            raise ArtifactError(f"{out} holds files that are not part of an artifact ({', '.join(other[:3])}); writing the "
+                                f"artifact would replace them: choose an empty or new --out")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale(out)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        yield tmp
+        _swap_in(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _remove_stale(out: Path) -> None:
+    """Leftovers of runs that were killed (their process is gone)."""
+    for p in out.parent.glob(f".{glob.escape(out.name)}.partial-*"):
+        pid = p.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where that is not available."""
+    if sys.platform != "linux":
+        return False
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    AT_FDCWD, RENAME_EXCHANGE = -100, 2
+    return fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0
+
+
+def _swap_in(tmp: Path, out: Path) -> None:
+    if not out.exists():
+        os.rename(tmp, out)
+        return
+    if _exchange(tmp, out):  # tmp now holds the old artifact
+        shutil.rmtree(tmp, ignore_errors=True)
+        return
+    old = out.parent / f".{out.name}.old-{os.getpid()}"
+    shutil.rmtree(old, ignore_errors=True)
+    os.rename(out, old)
+    os.rename(tmp, out)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def build_svm_artifact(data, out, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
                        min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
     """SVM-only artifact from a dataset, torch-free: OSPA on the training sessions (default: all),
-    scaler + RBF SVM, Alg. 2 reference, detection threshold, per-location force curves."""
+    scaler + RBF SVM, Alg. 2 reference, detection threshold, per-location force curves.
+
+    ``out`` is replaced as a whole when everything is written (:func:`atomic_artifact`)."""
     from .dataset import Dataset
 
     ds = Dataset(data)
@@ -119,12 +264,12 @@ def build_svm_artifact(data, out, *, n_bins: int = 300, mode: str = "relative", 
     p = prepare(data, n_bins=n_bins, mode=mode, train_sessions=train, val_sessions=[],
                 min_force_n=min_force_n, progress=progress, allow_no_test=True)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     tr = p["split"].mask(p["table"], "train") & p["usable"]
-    entry, fit_s = svm_entry(p, out, tr)
-    skin = skin_json(out, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=p["spec"], min_force_n=min_force_n,
-                     training={"data": str(Path(data).resolve()), "split": p["split"].to_dict(), "svm_train_time_s": fit_s},
-                     models={"svm": entry})
+    with atomic_artifact(out) as tmp:
+        entry, fit_s = svm_entry(p, tmp, tr)
+        skin = skin_json(tmp, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=p["spec"], min_force_n=min_force_n,
+                         training={"data": str(Path(data).resolve()), "split": p["split"].to_dict(), "svm_train_time_s": fit_s},
+                         models={"svm": entry}, probe_inputs=entry.pop("_probe"))
     log(f"wrote {out}/svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max |d scores| "
         f"{entry['parity']['max_abs_scores']:.1e}) and skin.json")
     return skin

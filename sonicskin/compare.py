@@ -12,7 +12,7 @@ from .dataset import Dataset, FeatureTable
 from .features import load_features_cached, touch_mask
 from .metrics import error_cdf, force_report, localization_report
 from .runtime import Predictions, SkinRuntime
-from .schema import load_skin
+from .schema import check_layout, check_rig, load_skin
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison"]
 
@@ -103,8 +103,11 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
-    rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
     ds = Dataset(data)
+    # The data's rig and marker layout must be the artifact's (else the scores are of the wrong places).
+    check_rig(meta, ds.rig, here=f"dataset {ds.root}")
+    check_layout(meta, ds.layout, here=f"dataset {ds.root}")
+    rts = {k: SkinRuntime(art, k, rig=ds.rig, layout=ds.layout) for k in ("net", "svm")}
     t = load_features_cached(ds, progress=progress)
     test = sessions or meta["training"]["split"]["test"]
     res["test_sessions"] = list(test)

@@ -3,7 +3,8 @@
 An artifact is a folder with ``skin.json`` (rig, layout, OSPA bins, feature mode, calibration,
 detector threshold, per-location force curves, checksums) and the ONNX models it names
 (``net.onnx``, ``svm.onnx``).  :class:`SkinRuntime` checks the artifact against the rig it is
-asked to run on and against its checksums before anything runs.
+asked to run on, against its checksums, the binding inside each model file (bins, mode, rig, layout,
+parameters), its digest and its probe outputs before anything runs (:func:`sonicskin.schema.check_integrity`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,16 @@ from .dsp import log_magnitude_db
 from .features import FeatureSpec
 from .force import PerLocationForce, energy_db
 from .rig import Layout, Rig
-from .schema import ARTIFACT_FORMAT, ArtifactError, check_layout, check_rig, check_session, load_skin, read_model_file
+from .schema import (
+    ARTIFACT_FORMAT,
+    ArtifactError,
+    check_integrity,
+    check_layout,
+    check_rig,
+    check_session,
+    load_skin,
+    read_model_file,
+)
 from .svm_head import score_vector, touch_statistic
 
 __all__ = ["ArtifactError", "SkinRuntime", "SkinStream", "Predictions", "ARTIFACT_FORMAT"]
@@ -90,6 +100,10 @@ class SkinRuntime:
             raise ArtifactError(f"{path} cannot be loaded by onnxruntime ({str(e).splitlines()[0][:160]}); "
                                 f"export the artifact again") from None
         check_session(self.session, self.meta, model, source=str(path))
+        check_integrity(self.session, self.meta, model, data, folder=self.folder)  # binding, digest, probes
+        for other in self.meta["models"]:  # the artifact is one unit: every file it names is there and intact
+            if other != model:
+                read_model_file(self.folder, self.meta, other)
         self.input_name = self.session.get_inputs()[0].name
         self.n_locations = len(self.layout)
         self.ids = np.asarray(self.layout.ids)

@@ -19,9 +19,14 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
     min_force_n         finite >= 0 (N)
     calibration         optional copy of beta_s / alpha_s, equal to the features' ones
     training            provenance: data (string), split {train, val, test: [session names]}, other keys free
+    digest              64 lowercase hex digits: sha256 of the canonical JSON of this document without
+                        ``digest`` (which holds every model file's sha256): one digest binds the artifact
     models              {"net": ..., "svm": ...}, at least one:
-      file              a plain file name inside the artifact folder (no directories, no symlink out of it)
+      file              a plain file name inside the artifact folder (no directories, no symlink out of it),
+                        at most 256 MB
       sha256            64 lowercase hex digits of that file
+      probe             {inputs: 1..64 rows of B finite numbers, outputs: one entry per graph output, null or
+                        the export-time output rows}: re-run at load, the model must reproduce them
       kind              "skinnet" (net) | "svc-ovo" (svm)
       n_in              == B;  n_locations == N
       parity            optional dict of export parity figures;  hparams: optional dict (net)
@@ -38,6 +43,13 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
 and the ONNX graphs (:func:`check_session`): one float input ``(batch, B)``; the net outputs logits
 ``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
 (2 columns when ``N = 2``).
+
+Integrity (:func:`check_integrity`): every ONNX file carries, in its ``metadata_props`` under
+``sonicskin.binding``, what it was trained with: the model's name and kind, the rig, the layout (ids and
+coordinates), the features (bins in their order, mode, Alg. 2's beta/alpha), ``min_force_n``, the
+training split and the sha256 of its ``skin.json`` entry's parameters (threshold, reference scores, force curves, hparams).
+Loading compares that binding with ``skin.json`` field by field, then the document's digest, then
+re-runs the probe inputs.  Each step names what differs in one line.
 """
 
 from __future__ import annotations
@@ -53,10 +65,15 @@ from typing import Any
 from .errors import SonicskinError
 
 __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "MODEL_KINDS", "load_skin", "validate_skin",
-           "model_file", "read_model_file", "check_session", "check_rig", "check_layout"]
+           "model_file", "read_model_file", "check_session", "check_rig", "check_layout", "canonical", "artifact_digest",
+           "binding", "check_integrity"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
-ARTIFACT_VERSION = 1
+ARTIFACT_VERSION = 2
+BINDING_KEY = "sonicskin.binding"
+MAX_MODEL_BYTES = 256 * 2**20  # an SVM of 31 locations x 300 bins is a few MB; a net < 1 MB
+MAX_PROBES = 64
+PROBE_RTOL = PROBE_ATOL = 1e-3  # onnxruntime on another CPU may round differently; another model differs by far more
 MODEL_KINDS = {"net": "skinnet", "svm": "svc-ovo"}
 REEXPORT = "export the artifact again (`sonicskin export --run DIR` or `sonicskin fit-svm`)"
 MAX_SKIN_JSON_BYTES = 64 * 2**20
@@ -65,10 +82,11 @@ MAX_THRESHOLD_DB = 1e3
 MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned but stay finite
 
 _TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "calibration", "training",
-        "models"}
+        "models", "digest"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
-_COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity"}
+_COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
+_UNBOUND = {"file", "sha256", "parity", "probe"}  # entry keys written after the model file (not in its binding)
 _MODEL_KEYS = {"net": _COMMON | {"hparams"},
                "svm": _COMMON | {"reference_scores", "threshold", "detector", "detection", "energy_ref_db", "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
@@ -210,7 +228,7 @@ def _check_layout(doc: _Doc, layout: Any):
     return Layout.from_dict(layout)
 
 
-def _check_features(doc: _Doc, feats: Any, n_band: int):
+def _check_features(doc: _Doc, feats: Any, n_band: int, rig=None):
     from .features import MODES, FeatureSpec
 
     feats = doc.obj(feats, "features")
@@ -221,6 +239,13 @@ def _check_features(doc: _Doc, feats: Any, n_band: int):
         if not 0 <= b < n_band:
             doc.fail(f"features.bins[{i}]", f"is {b}, outside the rig's {n_band} band bins (0 <= b < {n_band})")
     _unique(doc, bins, "features.bins")
+    if rig is not None:  # OSPA's matched filter never selects a bin inside a PWM band
+        allowed = rig.allowed_mask
+        for i, b in enumerate(bins):
+            if not allowed[b]:
+                f_khz = rig.freqs_hz[rig.band_bins[b]] / 1e3
+                doc.fail(f"features.bins[{i}]", f"is {b} ({f_khz:.2f} kHz), inside a PWM band of the rig, which no model "
+                                                f"reads (the motor's noise is there)")
     doc.choice(doc.get(feats, "mode", "features"), "features.mode", MODES)
     beta = doc.num(doc.get(feats, "beta_s", "features"), "features.beta_s", lo=0, lo_open=True, hi=3600)
     alpha = doc.num(doc.get(feats, "alpha_s", "features"), "features.alpha_s", lo=0, lo_open=True, hi=1e7)
@@ -270,14 +295,15 @@ def _check_file_name(doc: _Doc, name: Any, field: str) -> str:
     return name
 
 
-def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[int]) -> None:
+def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[int], sealed: bool = True) -> None:
     f = f"models.{name}"
     m = doc.obj(m, f)
     doc.keys(m, _MODEL_KEYS[name], f)
     _check_file_name(doc, doc.get(m, "file", f), f"{f}.file")
-    sha = doc.str(doc.get(m, "sha256", f), f"{f}.sha256")
-    if not _SHA.fullmatch(sha):
-        doc.fail(f"{f}.sha256", f"must be 64 lowercase hex digits, got {_short(sha)}")
+    if sealed:
+        sha = doc.str(doc.get(m, "sha256", f), f"{f}.sha256")
+        if not _SHA.fullmatch(sha):
+            doc.fail(f"{f}.sha256", f"must be 64 lowercase hex digits, got {_short(sha)}")
     doc.const(doc.get(m, "kind", f), f"{f}.kind", MODEL_KINDS[name])
     m_in = doc.int(doc.get(m, "n_in", f), f"{f}.n_in", lo=1)
     if m_in != n_in:
@@ -288,6 +314,8 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.fail(f"{f}.n_locations", f"is {m_loc} but layout.ids lists {n_loc} locations")
     if "parity" in m:
         doc.obj(m["parity"], f"{f}.parity")
+    if sealed:
+        _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", n_in, probe_widths(name, n_loc))
     if name == "net":
         if "hparams" in m:
             doc.obj(m["hparams"], f"{f}.hparams")
@@ -316,6 +344,27 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
     _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids)
 
 
+def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int | None]) -> None:
+    """Probe inputs (k rows of n_in) and the outputs the model gave on them at export (null: not compared)."""
+    probe = doc.obj(probe, field)
+    doc.keys(probe, {"inputs", "outputs"}, field)
+    rows = doc.list(doc.get(probe, "inputs", field), f"{field}.inputs", nonempty=True)
+    if len(rows) > MAX_PROBES:
+        doc.fail(f"{field}.inputs", f"has {len(rows)} rows, more than {MAX_PROBES}")
+    for i, r in enumerate(rows):
+        for j, v in enumerate(doc.list(r, f"{field}.inputs[{i}]", n=n_in)):
+            doc.num(v, f"{field}.inputs[{i}][{j}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+    outs = doc.list(doc.get(probe, "outputs", field), f"{field}.outputs", n=len(widths))
+    for k, (o, w) in enumerate(zip(outs, widths)):
+        if w is None:
+            if o is not None:
+                doc.fail(f"{field}.outputs[{k}]", "must be null (this output is not compared)")
+            continue
+        for i, r in enumerate(doc.list(o, f"{field}.outputs[{k}]", n=len(rows))):
+            for j, v in enumerate(doc.list(r, f"{field}.outputs[{k}][{i}]", n=w)):
+                doc.num(v, f"{field}.outputs[{k}][{i}][{j}]", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+
+
 def _check_training(doc: _Doc, tr: Any) -> None:
     tr = doc.obj(tr, "training")
     doc.str(doc.get(tr, "data", "training"), "training.data")
@@ -325,10 +374,11 @@ def _check_training(doc: _Doc, tr: Any) -> None:
             doc.str(s, f"training.split.{k}[{i}]")
 
 
-def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
+def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
     """Check a parsed ``skin.json`` against the schema (without touching any file); return it.
 
-    Raises :class:`ArtifactError` naming the first field that does not fit.
+    Raises :class:`ArtifactError` naming the first field that does not fit.  ``sealed=False`` (the
+    writer, before the model files are stamped): checksums, probes and the digest are not there yet.
     """
     doc = _Doc(source)
     if not isinstance(meta, dict):
@@ -341,7 +391,7 @@ def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
     doc.str(doc.get(meta, "sonicskin_version", ""), "sonicskin_version")
     rig = _check_rig(doc, doc.get(meta, "rig", ""))
     layout = _check_layout(doc, doc.get(meta, "layout", ""))
-    spec = _check_features(doc, doc.get(meta, "features", ""), rig.n_band)
+    spec = _check_features(doc, doc.get(meta, "features", ""), rig.n_band, rig)
     doc.num(doc.get(meta, "min_force_n", ""), "min_force_n", lo=0, hi=1e4)
     if "calibration" in meta:
         cal = doc.obj(meta["calibration"], "calibration")
@@ -355,7 +405,12 @@ def validate_skin(meta: Any, *, source: str = "skin.json") -> dict:
         doc.fail("models", "is empty")
     doc.keys(models, set(MODEL_KINDS), "models")
     for name, m in models.items():
-        _check_model(doc, name, m, n_in=len(spec.bins), layout_ids=list(layout.ids))
+        _check_model(doc, name, m, n_in=len(spec.bins), layout_ids=list(layout.ids), sealed=sealed)
+    if not sealed:
+        return meta
+    digest = doc.str(doc.get(meta, "digest", ""), "digest")
+    if not _SHA.fullmatch(digest):
+        doc.fail("digest", f"must be 64 lowercase hex digits, got {_short(digest)}")
     return meta
 
 
@@ -374,14 +429,25 @@ def load_skin(folder: str | Path) -> dict:
     if not path.is_file():
         raise ArtifactError(f"{folder} is not a sonicskin artifact (skin.json missing); create one with "
                             f"`sonicskin export` or `sonicskin fit-svm`")
-    if path.stat().st_size > MAX_SKIN_JSON_BYTES:
-        raise ArtifactError(f"{path} is {path.stat().st_size / 2**20:.0f} MB, far more than an artifact's metadata; "
-                            f"{REEXPORT}")
+    raw = _read_bounded(path, MAX_SKIN_JSON_BYTES, "an artifact's metadata")
     try:
-        meta = json.loads(path.read_bytes().decode("utf-8"), object_pairs_hook=_no_duplicates)
+        meta = json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates)
     except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise ArtifactError(f"{path} is corrupt ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
     return validate_skin(meta, source=str(path))
+
+
+def _read_bounded(path: Path, limit: int, what: str) -> bytes:
+    """The bytes of ``path``, refused by its size before reading (and never more than ``limit`` read)."""
+    size = path.stat().st_size
+    if size > limit:
+        raise ArtifactError(f"{path} is {size / 2**20:,.0f} MB, more than {what} can be ({limit / 2**20:.0f} MB at most); "
+                            f"{REEXPORT}")
+    with open(path, "rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:  # grew while being read
+        raise ArtifactError(f"{path} is larger than {what} can be ({limit / 2**20:.0f} MB at most); {REEXPORT}")
+    return data
 
 
 def model_file(folder: str | Path, meta: dict, model: str) -> Path:
@@ -395,19 +461,27 @@ def model_file(folder: str | Path, meta: dict, model: str) -> Path:
     name = _check_file_name(doc, models[model]["file"], f"models.{model}.file")
     path = folder / name
     if path.is_symlink() or path.exists():
-        real, root = path.resolve(), folder.resolve()
+        try:
+            real, root = path.resolve(strict=True), folder.resolve()
+        except (OSError, RuntimeError) as e:  # a symlink loop (RuntimeError before Python 3.13), a dangling link
+            doc.fail(f"models.{model}.file", f"({name}) is a link that leads nowhere ({type(e).__name__}: "
+                                             f"{' '.join(str(e).split())[:80]})",
+                     "copy the model file into the artifact folder instead of linking it")
         if real.parent != root:
             doc.fail(f"models.{model}.file", f"({name}) is a link to {real}, outside the artifact folder",
                      "copy the model file into the artifact folder instead of linking it")
-    if not path.is_file():
+    if not path.exists():
         raise ArtifactError(f"{path} is missing; copy the whole artifact folder or {REEXPORT}")
+    if not path.is_file():
+        raise ArtifactError(f"{path} is not a regular file (a folder, FIFO or device); copy the whole artifact folder or "
+                            f"{REEXPORT}")
     return path
 
 
 def read_model_file(folder: str | Path, meta: dict, model: str) -> bytes:
     """The bytes of ``model``'s ONNX file after the confinement and checksum checks."""
     path = model_file(folder, meta, model)
-    data = path.read_bytes()
+    data = _read_bounded(path, MAX_MODEL_BYTES, "a model file")
     if hashlib.sha256(data).hexdigest() != meta["models"][model]["sha256"]:
         raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
                             f"replaced; {REEXPORT}")
@@ -482,22 +556,22 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
                                 f"expected {what}: the model does not fit layout.ids; {REEXPORT}")
 
 
-def check_rig(meta: dict, rig) -> None:
+def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") -> None:
     """Refuse to run an artifact on a rig it was not trained for (sample rate, chirp, bands)."""
     from .rig import Rig
 
     diffs = Rig.from_dict(meta["rig"]).mismatch(rig)
     if diffs:
-        raise ArtifactError(f"the artifact was trained for another rig ({'; '.join(diffs)}); "
-                            f"record and train on this rig, or run with the artifact's rig")
+        raise ArtifactError(f"{what} was trained for another rig ({'; '.join(diffs)}){f' than {here}' if here else ''}; "
+                            f"record and train on this rig, or run with {what}'s rig")
 
 
-def check_layout(meta: dict, layout) -> None:
+def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = "the surface here") -> None:
     """Refuse to run an artifact on a marker layout it was not trained for.
 
     ``layout`` is the :class:`sonicskin.rig.Layout` of the surface it will run on (e.g. a scenario's
-    ``make_layout()``).  Different ids or count is an error; the same ids at other positions too
-    (the model's locations would be reported at the wrong places).
+    ``make_layout()`` or a dataset's layout).  Different ids or count is an error; the same ids at other
+    positions too (the model's locations would be reported at the wrong places).
     """
     import numpy as np
 
@@ -507,10 +581,181 @@ def check_layout(meta: dict, layout) -> None:
     if mine.ids != layout.ids:
         def span(ids):
             return f"{len(ids)} locations (ids {ids[0]}..{ids[-1]})" if ids else "no locations"
-        raise ArtifactError(f"the artifact was trained for {span(mine.ids)} but the surface here has {span(layout.ids)}; "
-                            f"record and train on this layout, or run a scenario with the artifact's layout")
+        order = " in another order" if sorted(mine.ids) == sorted(layout.ids) else ""
+        raise ArtifactError(f"{what} was trained for {span(mine.ids)} but {here} has {span(layout.ids)}{order}; "
+                            f"record and train on this layout, or use data of {what}'s layout")
     if mine != layout:
         d = float(np.max(np.abs(mine.xy_cm - np.asarray(layout.xy_cm, float)))) if mine.xy_cm.shape == np.shape(layout.xy_cm) \
             else float("nan")
-        raise ArtifactError(f"the artifact's markers sit elsewhere than this surface's (up to {d:.2g} cm apart, or another "
-                            f"circumference); record and train on this layout, or run a scenario with the artifact's layout")
+        raise ArtifactError(f"{what}'s markers sit elsewhere than those of {here} (up to {d:.2g} cm apart, or another "
+                            f"circumference); record and train on this layout, or use data of {what}'s layout")
+
+
+# -- integrity: one digest over the document, a binding inside every model, probes re-run at load -----------------
+RESTORE = "restore the artifact folder as it was exported, or " + REEXPORT
+
+
+def probe_widths(model: str, n_loc: int) -> list[int | None]:
+    """Width of each graph output compared on the probes (``None``: not compared, the SVM's label)."""
+    return [n_loc + 1, n_loc] if model == "net" else [None, n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2]
+
+
+def canonical(obj: Any) -> bytes:
+    """One byte string per JSON value: sorted keys, no spaces, ASCII, no NaN (a ``ValueError``)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False).encode("ascii")
+
+
+def artifact_digest(meta: dict) -> str:
+    """sha256 of the canonical document without ``digest`` and of every model file's sha256: one value covers
+    ``skin.json`` and the model files together."""
+    body = {k: v for k, v in meta.items() if k != "digest"}
+    models = body.get("models") if isinstance(body.get("models"), dict) else {}
+    files = b"".join(f"{k}={m.get('sha256') if isinstance(m, dict) else None}\n".encode() for k, m in sorted(models.items()))
+    return hashlib.sha256(b"sonicskin-artifact/2\0" + canonical(body) + b"\0" + files).hexdigest()
+
+
+def binding(meta: dict, model: str) -> dict:
+    """What ``model`` was trained and exported with, as stored inside its ONNX file (``metadata_props``)."""
+    entry = {k: v for k, v in meta["models"][model].items() if k not in _UNBOUND}
+    return {"model": model, "kind": MODEL_KINDS[model], "rig": meta["rig"], "layout": meta["layout"],
+            "features": meta["features"], "min_force_n": meta["min_force_n"], "split": meta["training"]["split"],
+            "entry_sha256": hashlib.sha256(canonical(entry)).hexdigest()}
+
+
+def _describe_order(have: list, want: list, what: str) -> str:
+    """How the list in skin.json (``have``) differs from the model's (``want``)."""
+    if len(have) != len(want):
+        return f"{len(have)} {what} listed, the model has {len(want)}"
+    def order(v):  # numbers by value (bins, ids), anything else after them by its text
+        return (0, v, "") if isinstance(v, (int, float)) and not isinstance(v, bool) else (1, 0, repr(v))
+    if sorted(have, key=order) == sorted(want, key=order):
+        if have == sorted(want, key=order) and have != want:
+            return f"the model's {what} sorted"
+        if have == want[::-1]:
+            return f"the model's {what} reversed"
+        diff = [i for i, (a, b) in enumerate(zip(have, want)) if a != b]
+        return (f"the model's {what} in another order: {len(diff)} positions differ, first index {diff[0]} "
+                f"({have[diff[0]]} where the model has {want[diff[0]]})")
+    extra = [(i, a) for i, a in enumerate(have) if a not in want]
+    i, a = extra[0]
+    return f"{len(extra)} not among the model's, first {a} at index {i} where the model has {want[i]}"
+
+
+def _binding_diff(have: dict, want: dict, file: str) -> tuple[str, str] | None:
+    """The first field where skin.json (``want``, from the document) and the model's binding (``have``) differ."""
+    if have.get("model") != want["model"] or have.get("kind") != want["kind"]:
+        return (f"models.{want['model']}.file", f"({file}) is the {have.get('model')!r} model of an artifact "
+                                                f"({have.get('kind')}), not its {want['model']!r} ({want['kind']})")
+    hf = have.get("features") if isinstance(have.get("features"), dict) else {}
+    wf = want["features"]
+    if hf.get("bins") != wf["bins"]:
+        return "features.bins", (f"are not the bins {file} was trained with "
+                                 f"({_describe_order(wf['bins'], list(hf.get('bins') or []), 'bins')})")
+    for k in ("mode", "beta_s", "alpha_s"):
+        if hf.get(k) != wf.get(k):
+            return f"features.{k}", f"is {wf.get(k)!r} but {file} was trained with {hf.get(k)!r}"
+    if hf != wf:
+        return "features", f"has other keys than {file} was trained with"
+    if have.get("rig") != want["rig"]:
+        hr = have.get("rig") if isinstance(have.get("rig"), dict) else {}
+        wr = want["rig"]
+        keys = sorted(k for k in set(hr) | set(wr) if hr.get(k) != wr.get(k))
+        what = ", ".join(f"{k}: {_short(wr.get(k), 24)} vs {_short(hr.get(k), 24)}" for k in keys[:3])
+        return "rig", f"differs from the rig {file} was trained on ({what})"
+    hl = have.get("layout") if isinstance(have.get("layout"), dict) else {}
+    wl = want["layout"]
+    if hl.get("ids") != wl["ids"]:
+        return "layout.ids", (f"are not the location ids {file} was trained with "
+                              f"({_describe_order(wl['ids'], list(hl.get('ids') or []), 'ids')})")
+    if hl.get("xy_cm") != wl["xy_cm"]:
+        hxy = hl.get("xy_cm") if isinstance(hl.get("xy_cm"), list) else []
+        bad = [i for i, a in enumerate(wl["xy_cm"]) if i >= len(hxy) or a != hxy[i]] or [0]
+        return "layout.xy_cm", (f"differs from the marker positions {file} was trained with (first at location "
+                                f"{wl['ids'][bad[0]]}: {wl['xy_cm'][bad[0]]} vs {hxy[bad[0]] if bad[0] < len(hxy) else None} cm)")
+    if hl != wl:
+        return "layout", f"differs from the layout {file} was trained with (circumference)"
+    if have.get("min_force_n") != want["min_force_n"]:
+        return "min_force_n", f"is {want['min_force_n']!r} but {file} was trained with {have.get('min_force_n')!r}"
+    if have.get("split") != want["split"]:
+        return "training.split", f"is not the split {file} was trained on (the test sessions would include training ones)"
+    if have.get("entry_sha256") != want["entry_sha256"]:
+        return (f"models.{want['model']}", f"holds other parameters than were exported with {file} (threshold, reference "
+                                           f"scores, force curves, hparams, n_in or n_locations changed)")
+    if have != want:
+        return "the document", f"does not match the binding inside {file}"
+    return None
+
+
+def read_binding(data: bytes) -> dict | None:
+    """The binding stored in an ONNX file's ``metadata_props`` (``None``: none, or not parseable)."""
+    import onnx
+
+    m = onnx.ModelProto()
+    try:
+        m.ParseFromString(data)
+    except Exception:  # protobuf's DecodeError and friends
+        return None
+    props = {p.key: p.value for p in m.metadata_props}
+    if BINDING_KEY not in props:
+        return None
+    try:
+        b = json.loads(props[BINDING_KEY])
+    except (ValueError, RecursionError):
+        return None
+    return b if isinstance(b, dict) else None
+
+
+def stamp_binding(path: Path, b: dict) -> None:
+    """Store binding ``b`` in the ONNX file at ``path`` (replacing an older one); the graph is unchanged."""
+    import onnx
+
+    m = onnx.ModelProto()
+    m.ParseFromString(Path(path).read_bytes())
+    keep = [(p.key, p.value) for p in m.metadata_props if p.key != BINDING_KEY]
+    del m.metadata_props[:]
+    for k, v in [*keep, (BINDING_KEY, canonical(b).decode("ascii"))]:
+        m.metadata_props.add(key=k, value=v)
+    Path(path).write_bytes(m.SerializeToString())
+
+
+def run_probe(session, inputs) -> list:
+    import numpy as np
+
+    return session.run(None, {session.get_inputs()[0].name: np.asarray(inputs, np.float32)})
+
+
+def check_integrity(session, meta: dict, model: str, data: bytes, *, folder: str | Path) -> None:
+    """The model file belongs to this ``skin.json``, and the document is the one exported.
+
+    1. the binding inside the ONNX file equals what ``skin.json`` says (features, rig, layout, parameters);
+    2. the document's digest matches its content (every model file's sha256 included);
+    3. the probe inputs give the export-time outputs (finite, within 1e-3).
+    """
+    import numpy as np
+
+    folder = Path(folder)
+    src = str(folder / "skin.json")
+    file = meta["models"][model]["file"]
+    have = read_binding(data)
+    if have is None:
+        raise ArtifactError(f"{folder / file} carries no sonicskin binding (the bins, layout and rig it was trained with): "
+                            f"it is not a model this sonicskin exported; {REEXPORT}")
+    diff = _binding_diff(have, binding(meta, model), file)
+    if diff:
+        raise ArtifactError(f"{src}: {diff[0]} {diff[1]}; {RESTORE}")
+    if artifact_digest(meta) != meta["digest"]:
+        raise ArtifactError(f"{src} was changed after export: its digest does not match its content; {RESTORE}")
+    probe = meta["models"][model]["probe"]
+    try:
+        got = run_probe(session, probe["inputs"])
+    except Exception as e:  # onnxruntime raises its own exception types
+        raise ArtifactError(f"{folder / file} fails on its probe inputs ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
+    for k, want in enumerate(probe["outputs"]):
+        if want is None:
+            continue
+        g, w = np.asarray(got[k], np.float64), np.asarray(want, np.float64)
+        if g.shape != w.shape or not np.isfinite(g).all() or not np.allclose(g, w, rtol=PROBE_RTOL, atol=PROBE_ATOL):
+            why = (f"shape {g.shape} vs {w.shape}" if g.shape != w.shape else "non-finite outputs" if not np.isfinite(g).all()
+                   else f"max |difference| {np.abs(g - w).max():.3g}")
+            raise ArtifactError(f"{folder / file} does not reproduce the outputs it gave at export on the probe inputs in "
+                                f"skin.json (output {k}: {why}): it is not the model this artifact was exported with; {RESTORE}")

@@ -27,7 +27,7 @@ from sonicskin.dataset import Dataset
 from sonicskin.features import FeatureSpec, load_features_cached, quiet_mask
 from sonicskin.rig import Layout, Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
-from sonicskin.schema import check_layout, load_skin, validate_skin
+from sonicskin.schema import artifact_digest, binding, check_layout, load_skin, stamp_binding, validate_skin
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
 
@@ -86,6 +86,15 @@ def _write(a: Path, meta) -> None:
     (a / "skin.json").write_text(json.dumps(meta))
 
 
+def _reseal(a: Path, meta: dict) -> None:
+    """What skin_json does after the models are written: binding into each file, its sha256, the digest."""
+    for name, m in meta["models"].items():
+        stamp_binding(a / m["file"], binding(meta, name))
+        _resha(a, meta, name)
+    meta["digest"] = artifact_digest(meta)
+    _write(a, meta)
+
+
 def _resha(a: Path, meta: dict, model: str) -> None:
     meta["models"][model]["sha256"] = hashlib.sha256((a / meta["models"][model]["file"]).read_bytes()).hexdigest()
 
@@ -136,6 +145,8 @@ def _drop_location(meta, _a):  # fewer layout ids than the models' outputs
 def _drop_location_consistent(meta, _a):  # the document agrees with itself, the ONNX graph does not
     _drop_location(meta, _a)
     meta["models"]["net"]["n_locations"] = 2
+    outs = meta["models"]["net"]["probe"]["outputs"]
+    outs[:] = [[row[:n] for row in o] for o, n in zip(outs, (3, 2))]  # the probes too: only the graph disagrees
     del meta["models"]["svm"]
 
 
@@ -292,7 +303,8 @@ MUTATIONS = [
     ("rig-string", "svm", _set("rig", "jaco"), "rig must be a JSON object"),
     # document
     ("format-wrong", "svm", _set("format", "onnx-bundle"), "format"),
-    ("version-2", "svm", _set("version", 2), "version"),
+    ("version-1", "svm", _set("version", 1), "version must be 2"),  # written before artifacts were sealed
+    ("version-3", "svm", _set("version", 3), "version must be 2"),
     ("version-string", "svm", _set("version", "1"), "version"),
     ("unknown-top-key", "svm", _set("modles", {}), "has unknown keys ['modles']"),
     ("models-list", "svm", _set("models", ["svm"]), "models must be a JSON object"),
@@ -375,6 +387,9 @@ def test_valid_variants_still_load(art, edit):
     meta = _meta(art)
     edit(meta, art)
     _write(art, meta)
+    with pytest.raises(ArtifactError, match="svm.onnx was trained with|exported with svm.onnx|digest does not match"):
+        SkinRuntime(art, "svm")  # an edit after export is refused ...
+    _reseal(art, meta)  # ... and the same variant sealed as a writer seals it loads
     rt = SkinRuntime(art, "svm")
     assert rt.predict_inputs(np.zeros((3, N_BINS), np.float32)).location.shape == (3,)
 
@@ -542,7 +557,9 @@ def test_checkpoint_loader_rebuilds_the_module(tmp_path):
     from sonicskin.training.module import SkinLitModule
 
     lit = SkinLitModule(n_in=6, n_locations=2, hidden=(8,))
-    meta = {"data": "d", "rig": {}, "layout": {}, "spec": {}, "split": {"train": [np.str_("s000")]}, "min_force_n": 0.5}
+    meta = {"data": "d", "rig": Rig.load("jaco").to_dict(), "layout": {"ids": [0, 1], "xy_cm": [[0.0, 0.0], [1.2, 0.0]]},
+            "spec": {"bins": [0, 1, 2, 3, 4, 5], "mode": "relative", "beta_s": 3.0, "alpha_s": 1200.0},
+            "split": {"train": [np.str_("s000")], "val": [], "test": []}, "min_force_n": 0.5}
     hp = {**dict(lit.hparams), "_instantiator": "lightning.pytorch.cli.instantiate_module"}
     good = tmp_path / "good.ckpt"
     torch.save({"state_dict": lit.state_dict(), "hyper_parameters": hp, "sonicskin": meta}, good)

@@ -99,7 +99,12 @@ def test_live_loop_and_offline_replay_agree_chirp_by_chirp(rig, artifact, tmp_pa
     # Refresh every 3 s from 0.5 s of rest (the 0.8 s gaps between presses) so the replay crosses several.
     for k in ("features", "calibration"):
         meta[k].update(alpha_s=3.0, beta_s=0.5)
-    (art / "skin.json").write_text(json.dumps(meta))
+    from sonicskin.artifact import skin_json
+    from sonicskin.features import FeatureSpec
+
+    # Written as a writer writes it: the models' bindings and the digest record the new settings (an edit is refused).
+    skin_json(art, rig=meta["rig"], layout=meta["layout"], spec=FeatureSpec.from_dict(meta["features"]),
+              min_force_n=meta["min_force_n"], training=meta["training"], models=meta["models"])
     ds = Dataset(artifact.parent / "data")
     t = ds.features(progress=False)
     for model in ("svm", "net") if "net" in meta["models"] else ("svm",):

@@ -26,6 +26,7 @@ __all__ = ["CheckpointError", "load_checkpoint"]
 
 META_KEYS = ("data", "rig", "layout", "spec", "split", "min_force_n")  # what export needs
 HINT = "export only checkpoints written by `sonicskin train`"
+MAX_CHECKPOINT_BYTES = 1024 * 2**20  # a SkinNet with its kernel layer is a few MB
 
 
 class CheckpointError(SonicskinError):
@@ -63,6 +64,9 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")
+    if path.stat().st_size > MAX_CHECKPOINT_BYTES:  # refused by its size before anything is read
+        raise CheckpointError(f"{path} is {path.stat().st_size / 2**20:,.0f} MB, more than a sonicskin checkpoint can be "
+                              f"({MAX_CHECKPOINT_BYTES / 2**20:.0f} MB at most); {HINT}")
     if not zipfile.is_zipfile(path):  # torch.save has written zip archives since torch 1.6
         raise CheckpointError(f"{path} is not a training checkpoint (not the zip archive torch.save writes); {HINT}")
     try:
@@ -96,5 +100,32 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
     except (TypeError, ValueError, RuntimeError) as e:
         raise CheckpointError(f"{path}: the weights do not fit the network of its hyper-parameters "
                               f"({_first_line(e)}); {HINT}") from None
+    _check_meta(ckpt["sonicskin"], lit, path)
     lit.meta = ckpt["sonicskin"]
     return lit.eval()
+
+
+def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
+    """The sonicskin metadata with the artifact schema's own checks (rig, layout, features), and against the
+    network it describes (input width = bins, outputs = locations): one line naming the field."""
+    from sonicskin.schema import _check_features, _check_layout, _check_rig, _Doc
+
+    class Doc(_Doc):
+        def fail(self, field, problem, fix=None):
+            raise CheckpointError(f"{self.source}: its sonicskin metadata {field} {problem}; {HINT}")
+
+    doc = Doc(str(path))
+    rig = _check_rig(doc, meta["rig"])
+    layout = _check_layout(doc, meta["layout"])
+    spec = _check_features(doc, meta["spec"], rig.n_band, rig)
+    doc.str(meta["data"], "data")
+    doc.num(meta["min_force_n"], "min_force_n", lo=0, hi=1e4)
+    split = doc.obj(meta["split"], "split")
+    for k in ("train", "val", "test"):
+        for i, s in enumerate(doc.list(doc.get(split, k, "split"), f"split.{k}")):
+            doc.str(s, f"split.{k}[{i}]")
+    hp = lit.hparams
+    if hp.n_in != len(spec.bins):
+        doc.fail("spec.bins", f"lists {len(spec.bins)} bins but the network takes {hp.n_in} inputs")
+    if hp.n_locations != len(layout.ids):
+        doc.fail("layout.ids", f"lists {len(layout.ids)} locations but the network has {hp.n_locations}")

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
+import os
+import re
 import sys
 import time
 import warnings
@@ -88,8 +91,161 @@ class EpochBar(L.Callback):
                         **self._metrics(trainer)}
 
 
+# -- what a training YAML or option may name, and the ranges of its numbers --------------------------------------
+# jsonargparse imports a ``class_path`` while parsing: a YAML naming ``os.system`` would be imported (and its
+# module's top-level code run) before any check.  Only the Lightning classes below may be named.
+ALLOWED_CLASSES = frozenset(
+    f"{prefix}{name}" for name, mods in {
+        "CSVLogger": ("lightning.pytorch.loggers.", "lightning.pytorch.loggers.csv_logs."),
+        "TensorBoardLogger": ("lightning.pytorch.loggers.", "lightning.pytorch.loggers.tensorboard."),
+        "ModelCheckpoint": ("lightning.pytorch.callbacks.", "lightning.pytorch.callbacks.model_checkpoint."),
+        "EarlyStopping": ("lightning.pytorch.callbacks.", "lightning.pytorch.callbacks.early_stopping."),
+        "LearningRateMonitor": ("lightning.pytorch.callbacks.", "lightning.pytorch.callbacks.lr_monitor."),
+    }.items() for prefix in ("", *mods))
+# Options whose string value jsonargparse resolves to a class (and imports when it is a dotted path).
+CLASS_OPTIONS = ("trainer.logger", "trainer.callbacks", "trainer.strategy", "trainer.plugins", "trainer.profiler",
+                 "trainer.accelerator", "optimizer", "lr_scheduler")
+_DOTTED = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+")
+
+
+def _refuse_class(name: object, where: str) -> None:
+    if not isinstance(name, str) or name not in ALLOWED_CLASSES:
+        allowed = sorted(n for n in ALLOWED_CLASSES if "." not in n)
+        raise UsageError(f"{where} names the class {str(name)[:80]!r}, which sonicskin train does not load (it would be "
+                         f"imported to check it); allowed: {', '.join(allowed)} from lightning.pytorch")
+
+
+def _walk_classes(node: object, path: tuple[str, ...], where: str) -> None:
+    """Every ``class_path`` in a parsed YAML/JSON value, and dotted names given to a class option."""
+    key = ".".join(path)
+    if isinstance(node, dict):
+        for k, v in node.items():
+            if k == "class_path":
+                _refuse_class(v, f"{where} ({key}.class_path)" if key else where)
+            else:
+                _walk_classes(v, (*path, str(k)), where)
+    elif isinstance(node, list):
+        for v in node:
+            _walk_classes(v, path, where)
+    elif isinstance(node, str) and key.rstrip("+") in CLASS_OPTIONS and _DOTTED.fullmatch(node.strip()):
+        _refuse_class(node.strip(), where if where == f"--{key}" else f"{where} ({key})")
+
+
+def _yaml_file(path: str) -> object:
+    import yaml
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return yaml.safe_load(fh)
+    except OSError as e:
+        raise UsageError(f"cannot read the training config {path} ({e.strerror or e})") from None
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as e:
+        line = " ".join(str(e).split())[:160]
+        raise UsageError(f"{path} is not a valid YAML training config ({line}); fix the file") from None
+
+
+def refuse_unlisted_classes(args: list[str]) -> None:
+    """Refuse, before jsonargparse parses anything, a ``class_path`` (in a ``--config`` file or an option)
+    that is not in :data:`ALLOWED_CLASSES`: nothing named by a file is imported before it is checked."""
+    import yaml
+
+    i = 0
+    while i < len(args):
+        arg = args[i]
+        if not arg.startswith("--"):
+            i += 1
+            continue
+        key, eq, value = arg[2:].partition("=")
+        if not eq:
+            value = args[i + 1] if i + 1 < len(args) and not args[i + 1].startswith("--") else None
+            i += 1
+        i += 1
+        if value is None:
+            continue
+        if key == "config" or (value.endswith((".yaml", ".yml", ".json")) and os.path.isfile(value)):
+            _walk_classes(_yaml_file(value), () if key == "config" else tuple(key.split(".")), value)
+            continue
+        if key.endswith(".class_path") or key == "class_path":
+            _refuse_class(value, f"--{key}")
+            continue
+        try:
+            parsed = yaml.safe_load(value)
+        except (yaml.YAMLError, RecursionError):
+            parsed = value
+        _walk_classes(parsed, tuple(key.split(".")), f"--{key}")
+
+
+def _num(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+# option -> (check, what it must be); None values are Lightning's "not set" and pass
+_INT_GE = {"trainer.min_epochs": 0, "trainer.min_steps": 0, "trainer.log_every_n_steps": 1, "trainer.num_nodes": 1,
+           "trainer.accumulate_grad_batches": 1, "trainer.check_val_every_n_epoch": 1, "trainer.num_sanity_val_steps": -1,
+           "model.n_in": 1, "model.n_locations": 1, "model.n_centres": 0, "data.n_bins": 1}
+_FLOAT_RANGES = {  # (lo, lo_open, hi)
+    "model.lr": (0.0, True, 10.0), "model.weight_decay": (0.0, False, 10.0), "model.dropout": (0.0, False, 0.99),
+    "model.input_dropout": (0.0, False, 0.99), "model.label_smoothing": (0.0, False, 0.99),
+    "model.force_weight": (0.0, False, 1e6), "model.kernel_lr": (0.0, False, 10.0), "model.tau": (0.0, True, 1e6),
+    "model.svm_c": (0.0, True, 1e9), "model.rest_mix": (0.0, False, 1.0), "model.noise_db": (0.0, False, 100.0),
+    "data.noise_db": (0.0, False, 100.0), "data.min_force_n": (0.0, False, 1e4), "trainer.gradient_clip_val": (0.0, False, 1e9),
+}
+MAX_EPOCHS = 1_000_000
+MAX_BATCH = 1_000_000
+
+
+def check_ranges(cfg) -> None:
+    """Numbers of a parsed training config in their ranges: one :class:`UsageError` line naming the option."""
+    def get(key):
+        try:
+            return cfg.get(key)
+        except (KeyError, AttributeError):
+            return None
+
+    def bad(key, must, v):
+        raise UsageError(f"--{key} must be {must}, got {v!r}")
+
+    for key, hi in (("trainer.max_epochs", MAX_EPOCHS), ("trainer.max_steps", MAX_EPOCHS * 1000)):
+        v = get(key)
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or not (v == -1 or 1 <= v <= hi)):
+            bad(key, f"-1 (no limit) or an integer from 1 to {hi}", v)
+    for key, lo in _INT_GE.items():
+        v = get(key)
+        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < lo or v > 2**31):
+            bad(key, f"an integer >= {lo}", v)
+    v = get("data.batch_size")
+    if v is not None and (not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= MAX_BATCH):
+        bad("data.batch_size", f"an integer from 1 to {MAX_BATCH}", v)
+    for key, (lo, lo_open, hi) in _FLOAT_RANGES.items():
+        v = get(key)
+        if v is None:
+            continue
+        if not _num(v) or not math.isfinite(v) or (v <= lo if lo_open else v < lo) or v > hi:
+            bad(key, f"a finite number {'>' if lo_open else '>='} {lo:g} and <= {hi:g}", v)
+    hidden = get("model.hidden")
+    if hidden is not None and (not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 65536 for h in hidden)):
+        bad("model.hidden", "a list of layer widths from 1 to 65536", list(hidden))
+    for key in ("trainer.limit_train_batches", "trainer.limit_val_batches", "trainer.val_check_interval"):
+        v, lo = get(key), (0 if key == "trainer.limit_val_batches" else 1)  # 0 validation batches: no validation
+        if v is None:
+            continue
+        is_int = isinstance(v, int) and not isinstance(v, bool)
+        if not ((is_int and v >= lo) or (isinstance(v, float) and math.isfinite(v) and (lo == 0 or v > 0) and 0 <= v <= 1)):
+            bad(key, f"a fraction in {'[0' if lo == 0 else '(0'}, 1] or a batch count >= {lo}", v)
+    v = get("trainer.fast_dev_run")
+    if v is not None and not isinstance(v, bool) and (not isinstance(v, int) or v < 0):
+        bad("trainer.fast_dev_run", "true, false or a batch count >= 0", v)
+    seed = get("seed_everything")
+    if seed is not None and not isinstance(seed, bool) and (not isinstance(seed, int) or not 0 <= seed < 2**32):
+        bad("seed_everything", "true, false or an integer from 0 to 2**32 - 1", seed)
+
+
 class SkinCLI(LightningCLI):
     follow_root_dir = False  # --trainer.default_root_dir given without a logger: the logger writes there too
+
+    def _set_seed(self) -> None:  # the first use of the parsed config (before instantiation): check it here
+        check_ranges(self.config.get(self.subcommand) if self.subcommand else self.config)
+        super()._set_seed()
 
     def before_instantiate_classes(self) -> None:
         cfg = self.config.get(self.subcommand) if self.subcommand else self.config
@@ -116,6 +272,7 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     from sonicskin import threads
 
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
+    refuse_unlisted_classes(list(args or []))  # before jsonargparse imports any class a file names
     given = [a.split("=", 1)[0] for a in (args or [])]
     cls = type("SkinCLI", (SkinCLI,), {"follow_root_dir": "--trainer.default_root_dir" in given
                                        and not any(a.startswith("--trainer.logger") for a in given)})
