@@ -91,7 +91,7 @@ def test_config_names_resolve_from_the_package_and_paths_from_the_filesystem(tmp
     (tmp_path / "mine.yaml").write_text("fs_hz: 96000\nf_hi_hz: 40000\n")
     assert resolve_config("mine.yaml", "rigs") == Path("mine.yaml")  # ... a path is read where it is
     assert resolve_config(tmp_path / "mine.yaml", "rigs") == tmp_path / "mine.yaml"
-    with pytest.raises(FileNotFoundError, match=r"no rigs config named 'mine'; known: jaco; or give a path"):
+    with pytest.raises(FileNotFoundError, match=r"no rigs config named 'mine'; known: fast, jaco; or give a path"):
         resolve_config("mine", "rigs")
     with pytest.raises(FileNotFoundError, match=r"rigs config file sub/jaco.yaml does not exist"):
         resolve_config("sub/jaco.yaml", "rigs")
