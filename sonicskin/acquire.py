@@ -246,8 +246,18 @@ class SoundDeviceSource(_QueueSource):
         self.stream.start()
 
     def stop(self) -> None:
-        self.stream.stop()
-        self.stream.close()
+        # A stream whose audio server died can block in stop(): close it from a helper thread and
+        # give up after 2 s (the process exits anyway; the device is gone).
+        def close():
+            try:
+                self.stream.stop()
+                self.stream.close()
+            except Exception:  # sounddevice.PortAudioError from a dead server: nothing left to close
+                pass
+
+        t = threading.Thread(target=close, name="sonicskin-audio-close", daemon=True)
+        t.start()
+        t.join(timeout=2.0)
 
 
 class SimulatedSource(_QueueSource):

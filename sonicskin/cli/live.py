@@ -44,7 +44,7 @@ def json_safe(obj):
 
 def cmd_live(a: argparse.Namespace) -> int:
     from ..acquire import Link, SimulatedSource, SoundDeviceSource
-    from ..live import LiveLoop, UdpSink
+    from ..live import DeviceLost, LiveLoop, UdpSink
     from ..rig import Rig
     from ..runtime import SkinRuntime
 
@@ -57,6 +57,13 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
         raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin fit-svm` or `sonicskin export`")
+    sinks = [lambda line: print(line, flush=True)]
+    if a.udp:
+        sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))  # resolved here: a bad host is one line before the run
+    if a.lsl:
+        from ..lsl import LslSink
+
+        sinks.append(LslSink(a.lsl))
     rig = Rig.load(a.rig)
     if a.device == "sim":
         from ..sim import Scenario, Simulator, build_timeline
@@ -76,13 +83,16 @@ def cmd_live(a: argparse.Namespace) -> int:
     else:
         rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
         source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
-    sinks = [lambda line: print(line, flush=True)]
-    if a.udp:
-        sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))
     loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
+    lost = None
     with source:
-        summary = loop.run(duration_s=a.duration)
+        try:
+            summary = loop.run(duration_s=a.duration, watchdog_s=a.watchdog)
+        except DeviceLost as e:
+            lost, summary = e, loop.summary(0.0, 0.0, 0.0)
     print(json.dumps({"summary": json_safe(summary)}, allow_nan=False), file=sys.stderr)
+    if lost is not None:
+        raise lost
     return 0
 
 
@@ -127,9 +137,14 @@ def add_parsers(sub) -> None:
     lv.add_argument("--scenario", default="stationary",
                     help="simulated device: scenario of the link and the touches (default: stationary)")
     lv.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
-    lv.add_argument("--duration", type=positive_float, default=30.0, help="seconds of stream to run (default: 30)")
+    lv.add_argument("--duration", type=positive_float, default=30.0, help="seconds to run, by the clock (a --fast simulated stream may end sooner) (default: 30)")
     lv.add_argument("--udp", type=udp_target, metavar="[HOST:]PORT",
                     help="also send events as UDP datagrams; host defaults to 127.0.0.1 (default: off)")
+    lv.add_argument("--lsl", metavar="NAME", nargs="?", const="sonicskin",
+                    help="also publish events as a Lab Streaming Layer string stream of this name (needs pylsl: "
+                         "pip install 'sonicskin[lsl]') (default: off; NAME defaults to sonicskin)")
+    lv.add_argument("--watchdog", type=positive_float, default=3.0, metavar="S",
+                    help="stop with an error when the device delivers no audio for S seconds (default: 3)")
     lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
     lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
     lv.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
