@@ -96,6 +96,28 @@ def cmd_live(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check(a: argparse.Namespace) -> int:
+    from ..check import SimulatedDevice, analyse, device_capture, simulated_capture
+    from ..rig import Rig
+
+    rig = Rig.load(a.rig)
+    if a.device == "sim":
+        cap = simulated_capture(SimulatedDevice(rig, a.scenario, fault=a.sim_fault, motors=a.sim_motors), tx=a.tx, rx=a.rx,
+                                rest_s=a.rest, press_s=a.press)
+    else:
+        if a.sim_fault != "none":
+            raise UsageError("--sim-fault is for the simulated device (--device sim)")
+        cap = device_capture(rig, a.device, tx=a.tx, rx=a.rx, rest_s=a.rest, press_s=a.press, blocksize=a.blocksize)
+    report = analyse(cap, rig)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(report.table())
+    (out / "check.json").write_text(report.to_json() + "\n")
+    report.plot(out / "check.png")
+    print(f"wrote {out / 'check.png'} and {out / 'check.json'}", file=sys.stderr)
+    return 0 if report.ok else 1
+
+
 def cmd_devices(a: argparse.Namespace) -> int:
     from ..acquire import list_devices
 
@@ -153,6 +175,26 @@ def add_parsers(sub) -> None:
                     help="simulated device: drop one audio block in N, fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
     lv.set_defaults(func=cmd_live)
+
+    ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
+                        description="Play the rig's chirp, record every input, ask for one firm press, and print one table: "
+                                    "each measurement with pass/warn/fail and its fix. Writes check.png (|H(f)| at rest and "
+                                    "pressed, noise floor, PWM bands, the band used) and check.json to --out. Exit code 0 "
+                                    "when nothing fails, 1 otherwise. Runs on the simulated device by default.")
+    ck.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    ck.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    ck.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    ck.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    ck.add_argument("--rest", type=positive_float, default=4.0, help="seconds of hands-off chirps (default: 4)")
+    ck.add_argument("--press", type=positive_float, default=3.0, help="seconds of the press (default: 3)")
+    ck.add_argument("--out", default=".", help="folder for check.png and check.json (default: .)")
+    ck.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
+    ck.add_argument("--scenario", default="stationary", help="simulated device: the link (default: stationary)")
+    ck.add_argument("--sim-fault", default="none", choices=("none", "disconnected", "clipping", "weak", "wrong-channel", "rate"),
+                    help="simulated device: inject a fault (default: none)")
+    ck.add_argument("--sim-motors", type=float, default=0.0, metavar="LEVEL",
+                    help="simulated device: motor activity 0..1 during the check (default: 0, robot still)")
+    ck.set_defaults(func=cmd_check)
 
     dv = sub.add_parser("devices", help="list audio devices",
                         description="List the audio interfaces PortAudio sees (index, name, host API, input and output "
