@@ -228,7 +228,7 @@ class SimulatedDevice:
 def simulated_capture(device: SimulatedDevice, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
                       press_s: float = 3.0) -> Capture:
     """Run the check's recording on the simulated device (the press is scripted)."""
-    rig, fs = device.rig, device.rig.fs_hz
+    fs = device.rig.fs_hz
     rest = (int(settle_s * fs), int((settle_s + rest_s) * fs))
     press = (rest[1], int((settle_s + rest_s + press_s) * fs))
     if fs not in device.rates:

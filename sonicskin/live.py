@@ -24,8 +24,6 @@ one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import socket
 import sys
 import time
