@@ -322,7 +322,7 @@ def _lock(x: np.ndarray, ref: np.ndarray) -> tuple[float, int]:
     H[0] = 1.0
     env = np.abs(scipy.fft.ifft(X * np.conj(S) * H, axis=-1)).mean(axis=0)
     med = np.median(env)
-    return float(20 * np.log10(env.max() / max(med, 1e-30))), int(np.argmax(env))
+    return float(20 * np.log10(max(env.max(), 1e-30) / max(med, 1e-30))), int(np.argmax(env))
 
 
 def _grade(value: float, good: float, ok: float, *, lower_is_better: bool = False) -> str:
@@ -392,20 +392,36 @@ def analyse(cap: Capture, rig: Rig, *, n_subbands: int = 6) -> CheckReport:
     if status == "fail":
         skip(*later[1:])
         return CheckReport(lines, meas, spectra, rig)
-    # 3. delay and its stability (rest periods, cut on the lock)
+    # 3. delay and its stability (rest periods, cut on the lock).  A chirp hit by a dropout (an xrun:
+    #    the audio path repeated or lost a block) is counted and left out of the spectral statistics.
     n_rest = (rest.shape[0] - off) // L
     frames = rest[off:off + n_rest * L, cap.rx].reshape(n_rest, L)
+    S = chirp_spectrum(rig)
+    bb, allowed = rig.band_bins, rig.allowed_mask
+    R = scipy.fft.rfft(frames.astype(np.float64), axis=-1)
+    Hb = (R[:, bb] / S[bb])[:, allowed]
+    centre = np.median(Hb.real, axis=0) + 1j * np.median(Hb.imag, axis=0)
+    dev_db = 10 * np.log10(np.sum(np.abs(Hb - centre) ** 2, axis=1) / np.sum(np.abs(centre) ** 2) + 1e-30)
+    glitch = dev_db > np.median(dev_db) + 10.0
+    clean = ~glitch
+    frames, R = frames[clean], R[clean]
+    n_rest = len(frames)
     per = np.array([find_chirp_offset(f, ref, max_periods=1) for f in frames])
     per = (per + L // 2) % L - L // 2
     jitter = int(np.ptp(per))
     delay_ms = ((cap.rest[0] + off) % L) / fs * 1e3
-    meas.update(delay_ms=delay_ms, delay_jitter_samples=jitter)
+    n_glitch = int(glitch.sum())
+    meas.update(delay_ms=delay_ms, delay_jitter_samples=jitter, dropout_chirps=n_glitch, rest_chirps=int(glitch.size))
     good, ok = THRESHOLDS["jitter_samples"]
     status = _grade(jitter, good, ok, lower_is_better=True)
-    lines.append(CheckLine("output-to-input delay", f"{delay_ms:.2f} ms (mod {rig.period_s * 1e3:.1f} ms), wander {jitter} samples",
-                           status, "" if status == "pass" else
-                           "the delay moves between chirps: play and record on ONE interface (one clock), raise --blocksize, "
-                           "close other audio programs"))
+    if n_glitch:
+        status = "fail" if n_glitch > 0.25 * glitch.size else "warn" if status == "pass" else status
+    value = f"{delay_ms:.2f} ms (mod {rig.period_s * 1e3:.1f} ms), wander {jitter} samples"
+    if n_glitch:
+        value += f", {n_glitch} of {glitch.size} chirps hit by dropouts"
+    lines.append(CheckLine("output-to-input delay", value, status, "" if status == "pass" else
+                           "the audio path drops or repeats blocks / the delay moves: play and record on ONE interface (one "
+                           "clock), raise --blocksize, close other audio programs, use real-time scheduling for the audio server"))
     # 4. level and clipping (the receive channel, the whole capture)
     x = cap.audio[cap.rest[0]:cap.press[1], cap.rx]
     peak = float(np.max(np.abs(x)))
@@ -423,14 +439,10 @@ def analyse(cap: Capture, rig: Rig, *, n_subbands: int = 6) -> CheckReport:
     else:
         lines.append(CheckLine("input level", f"peak {peak_db:.1f} dBFS, rms {rms_db:.1f} dBFS, no clipping", "pass"))
     # 5. spectra: coherent mean and chirp-to-chirp variance of the rest chirps
-    S = chirp_spectrum(rig)
-    R = scipy.fft.rfft(frames.astype(np.float64), axis=-1)
     f_all = np.arange(R.shape[1]) * fs / L
     mean = R.mean(axis=0)
     var = np.mean(np.abs(R - mean) ** 2, axis=0) * n_rest / max(n_rest - 1, 1)
-    bb = rig.band_bins
     snr_db = 10 * np.log10(np.abs(mean[bb]) ** 2 / np.maximum(var[bb], 1e-30))
-    allowed = rig.allowed_mask
     edges = np.linspace(rig.f_lo_hz, rig.f_hi_hz, n_subbands + 1)
     fb = f_all[bb]
     sub = []
