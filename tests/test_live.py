@@ -355,3 +355,166 @@ def simulated_capture_for(dev):
     from sonicskin.check import simulated_capture
 
     return simulated_capture(dev, rest_s=3.0, press_s=2.0)
+
+
+# -- a live loop that survives its device (issue 16.5) ------------------------------------------------
+
+class _Replay(acquire._QueueSource):
+    """A finite stream delivered block by block, as fast as it is read."""
+
+    def __init__(self, rig, stream):
+        super().__init__(rig, 1024, max_queued_s=600)
+        self.stream = stream
+
+    def start(self):
+        for k in range(0, len(self.stream), 1024):
+            self._deliver(self.stream[k:k + 1024])
+        self.finished = type("E", (), {"is_set": lambda self: True})()
+
+    def stop(self):
+        pass
+
+
+@pytest.fixture(scope="module")
+def boot_stream(rig):
+    sim, tl = _live_timeline(rig, seed=79)
+    return sim.render(tl).ravel(), tl
+
+
+def _chirp_errors(events, tl, rig, offset):
+    """Share of the chirps after the 3 s boot that the loop gets wrong: a pressed chirp (>= 0.5 N)
+    without a touch event naming its marker, or a hands-off chirp with a touch event."""
+    L = rig.n_chirp
+    got = {int(round((e.t_s * rig.fs_hz + offset) / L)): e.location for e in events if e.kind == "touch"}
+    boot = rig.seconds_to_chirps(3.0)
+    wrong = n = 0
+    for k in range(boot + 1, len(tl) - 1):
+        if 0 < tl.force_n[k] < 0.5:
+            continue
+        n += 1
+        wrong += (got.get(k) != tl.location[k]) if tl.force_n[k] >= 0.5 else (k in got)
+    return wrong / n
+
+
+def _run_stream(rig, artifact, stream, **kw):
+    warnings = []
+    src = _Replay(rig, stream)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None, warn=warnings.append, **kw)
+    src.start()
+    summary = loop.run(idle_timeout_s=0.1)
+    return loop, summary, warnings
+
+
+@pytest.mark.parametrize("fault", ["nan", "zeros"])
+def test_a_fault_in_the_boot_calibration_does_not_poison_the_session(rig, artifact, boot_stream, fault):
+    """NaN samples in 8 chirps, or 0.43 s of zeros, inside the first 3 s (hands off; the first press
+    starts at 3 s): the reference comes from the clean chirps of the hands-off window, with one
+    warning, and the error rate stays near the clean run's."""
+    stream, tl = boot_stream
+    offset = 3000
+    clean_loop, _, clean_warn = _run_stream(rig, artifact, stream[offset:])
+    base = _chirp_errors(clean_loop.events, tl, rig, offset)
+    bad = stream[offset:].copy()
+    L, fs = rig.n_chirp, int(rig.fs_hz)
+    if fault == "nan":
+        bad[np.arange(5, 13) * L + 777] = np.nan
+    else:
+        bad[fs: fs + int(0.43 * fs)] = 0.0
+    loop, summary, warn = _run_stream(rig, artifact, bad)
+    err = _chirp_errors(loop.events, tl, rig, offset)
+    assert not clean_warn and base < 0.06
+    assert err < base + 0.04, (err, base)
+    assert summary["boot_disturbed"] and len(warn) == 1 and warn[0].startswith("boot calibration disturbed:"), warn
+    skipped = summary["skipped"]["nan"] if fault == "nan" else summary["skipped"]["silent"] + summary["skipped"]["dropout"]
+    assert skipped >= (8 if fault == "nan" else 4)
+    assert 28 // 4 <= loop.stream.reference.boot_chirps < 28
+
+
+def test_non_finite_samples_never_reach_the_model(rig, artifact, boot_stream):
+    stream, tl = boot_stream
+    bad = stream[5000:].copy()
+    L = rig.n_chirp
+    bad[:50] = np.nan                              # before the lock
+    bad[40 * L + 10: 40 * L + 20] = np.inf         # mid-stream
+    bad[60 * L + 3] = -np.inf
+    rt = SkinRuntime(artifact, "svm")
+    seen = []
+    real_run = rt.run
+    rt.run = lambda x: seen.append(np.isfinite(x).all()) or real_run(x)
+    src = _Replay(rig, bad)
+    loop = LiveLoop(rt, src, emit=lambda _: None, warn=lambda _: None)
+    src.start()
+    summary = loop.run(idle_timeout_s=0.1)
+    assert seen and all(seen) and summary["skipped"]["nan"] >= 2  # the first NaNs fall before the first whole chirp
+    assert summary["relocks"] <= 1 and summary["chirps"] > len(tl) - 10
+    assert _chirp_errors(loop.events, tl, rig, 5000) < 0.08
+
+
+def test_dropout_frames():
+    from sonicskin.live import dropout_frames
+
+    x = np.random.default_rng(0).normal(0, 1e-3, (4, 2048)).astype(np.float32)
+    x[1, 100:164] = 0      # 64 zeros in a row: a dropout
+    x[2, ::2] = 0          # many zeros, never two in a row
+    x[3, 10:73] = 0        # 63 in a row
+    np.testing.assert_array_equal(dropout_frames(x), [False, True, False, False])
+
+
+class _Dying(acquire._QueueSource):
+    """A device that delivers ``n`` blocks and then falls silent without a word (the server died);
+    ``every_s`` paces the blocks."""
+
+    def __init__(self, rig, n, every_s=0.0):
+        super().__init__(rig, 1024)
+        self.n, self.every_s = n, every_s
+        self._stop = False
+
+    def start(self):
+        chirp = np.tile(rig_chirp(self.rig).astype(np.float32) * 0.1, 1 + self.n * 1024 // self.rig.n_chirp + 1)
+
+        def produce():
+            for i in range(self.n):
+                if self._stop:
+                    return
+                self._deliver(chirp[i * 1024:(i + 1) * 1024])
+                time.sleep(self.every_s)
+
+        import threading
+        threading.Thread(target=produce, daemon=True).start()
+
+    def stop(self):
+        self._stop = True
+
+
+def test_watchdog_stops_a_loop_whose_device_died(rig, artifact):
+    from sonicskin.live import DeviceLost
+
+    src = _Dying(rig, 100)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    src.start()
+    t0 = time.perf_counter()
+    with pytest.raises(DeviceLost, match=r"no audio from the device for 1 s \(the audio server or the interface stopped"):
+        loop.run(duration_s=20, watchdog_s=1.0)
+    assert 1.0 <= time.perf_counter() - t0 < 2.5
+
+
+def test_duration_is_honoured_by_the_clock(rig, artifact):
+    """A device that delivers 10 x slower than real time: --duration 1.5 still ends after 1.5 s."""
+    src = _Dying(rig, 10_000, every_s=0.05)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    src.start()
+    t0 = time.perf_counter()
+    summary = loop.run(duration_s=1.5, watchdog_s=None)
+    src.stop()
+    assert 1.5 <= time.perf_counter() - t0 < 2.0 and summary["stream_s"] < 0.5
+
+
+def test_cli_live_on_a_device_that_dies_ends_with_one_line(rig, artifact, monkeypatch, capsys):
+    monkeypatch.setattr(acquire, "SoundDeviceSource", lambda rig, device, **kw: _Dying(rig, 50))
+    from sonicskin.cli import main
+
+    t0 = time.perf_counter()
+    code = main(["live", "--device", "0", "--artifact", str(artifact), "--duration", "20", "--watchdog", "1", "--no-status"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and time.perf_counter() - t0 < 5
+    assert err[-1].startswith("sonicskin live: error: no audio from the device for 1 s") and err[-2].startswith('{"summary"')
