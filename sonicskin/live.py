@@ -277,8 +277,8 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
               idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0, stop=None) -> list[dict]:
     """Feed every block of one source to several loops (one per link of a multi-link rig).
 
-    Ends at ``duration_s`` seconds of wall clock since the call (or of stream time, if a fast
-    simulated source delivers it sooner), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or
+    Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
+    first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or
     when a finite source ends.  When no block arrives for ``watchdog_s`` seconds from an audio
     device (a source without a ``finished`` event), raises :class:`DeviceLost` (``None``: wait for ever); ``idle_timeout_s``
     is kept for callers that set it, the wait for a block is never longer than 0.1 s.
@@ -291,10 +291,13 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
     status = any(lp.status for lp in loops)
     finished = getattr(source, "finished", None)
     poll = min(0.1, idle_timeout_s)
+    # A faster-than-real-time simulated source (--fast) runs on its own stream clock; everything that
+    # claims to be real time (devices, real-time simulation) is also bounded by the wall clock.
+    wall_bound = getattr(source, "realtime", True)
     try:
         while True:
             now = time.perf_counter()
-            if duration_s is not None and now - started >= duration_s:
+            if duration_s is not None and wall_bound and now - started >= duration_s:
                 break
             if stop is not None and stop.is_set():
                 break

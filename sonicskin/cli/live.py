@@ -160,7 +160,7 @@ def add_parsers(sub) -> None:
                     help="simulated device: scenario of the link and the touches (default: stationary)")
     lv.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
     lv.add_argument("--duration", type=positive_float, default=30.0,
-                    help="seconds to run, by the clock (a --fast simulated stream may end sooner) (default: 30)")
+                    help="seconds to run, by the clock (--fast: seconds of simulated stream) (default: 30)")
     lv.add_argument("--udp", type=udp_target, metavar="[HOST:]PORT",
                     help="also send events as UDP datagrams; host defaults to 127.0.0.1 (default: off)")
     lv.add_argument("--lsl", metavar="NAME", nargs="?", const="sonicskin",
