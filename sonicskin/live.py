@@ -278,9 +278,10 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
     """Feed every block of one source to several loops (one per link of a multi-link rig).
 
     Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
-    first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or
-    when a finite source ends.  When no block arrives for ``watchdog_s`` seconds from an audio
-    device (a source without a ``finished`` event), raises :class:`DeviceLost` (``None``: wait for ever); ``idle_timeout_s``
+    first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
+    after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  When no
+    block arrives for ``watchdog_s`` seconds from an audio device (a source without a ``finished``
+    event), raises :class:`DeviceLost` (``None``: wait for ever); ``idle_timeout_s``
     is kept for callers that set it, the wait for a block is never longer than 0.1 s.
     """
     t_last_status = time.perf_counter()
