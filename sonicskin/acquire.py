@@ -260,7 +260,7 @@ class SoundDeviceSource(_QueueSource):
 
     def stop(self) -> None:
         # A stream whose audio server died can block in stop(): close it from a helper thread and
-        # give up after 2 s (the process exits anyway; the device is gone).
+        # give up after 10 s (the process exits anyway; the device is gone).
         def close():
             try:
                 self.stream.stop()
@@ -270,7 +270,7 @@ class SoundDeviceSource(_QueueSource):
 
         t = threading.Thread(target=close, name="sonicskin-audio-close", daemon=True)
         t.start()
-        t.join(timeout=2.0)
+        t.join(timeout=10.0)
 
 
 class SimulatedSource(_QueueSource):

@@ -2,6 +2,7 @@
 end-to-end run through a real audio server (JACK with its dummy driver)."""
 
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -210,46 +211,66 @@ JACK_PERIOD = 4096
 
 @pytest.fixture(scope="module")
 def jack(rig):
+    """A JACK server of this test run's own (a unique server name through JACK_DEFAULT_SERVER), so
+    test runs in parallel on one machine never wire or stop each other's clients."""
     if shutil.which("jackd") is None:
         pytest.skip("JACK is not installed (apt-get install jackd2); .ci/run installs it")
-    if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
-        proc = None  # a server is already running
+    name = f"sonicskin-test-{os.getpid()}"
+    old = os.environ.get("JACK_DEFAULT_SERVER")
+    os.environ["JACK_DEFAULT_SERVER"] = name  # read by libjack in PortAudio and by jack_lsp/jack_connect
+    # 4096-frame periods (21 ms): without real-time scheduling on 2 shared cores, a Python
+    # callback can miss 5 ms deadlines and JACK then repeats or drops a period (an xrun).
+    proc = subprocess.Popen(["jackd", "-n", name, "--no-realtime", "-d", "dummy", "-r", str(int(rig.fs_hz)), "-p",
+                             str(JACK_PERIOD)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(50):
+        if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
+            break
+        time.sleep(0.1)
     else:
-        # 4096-frame periods (21 ms): without real-time scheduling on 2 shared cores, a Python
-        # callback can miss 5 ms deadlines and JACK then repeats or drops a period (an xrun).
-        proc = subprocess.Popen(["jackd", "--no-realtime", "-d", "dummy", "-r", str(int(rig.fs_hz)), "-p", str(JACK_PERIOD)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        for _ in range(50):
-            if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
-                break
-            time.sleep(0.1)
-        else:
-            proc.kill()
-            pytest.skip("jackd did not start with the dummy driver at 192 kHz")
+        proc.kill()
+        _restore_env("JACK_DEFAULT_SERVER", old)
+        pytest.skip("jackd did not start with the dummy driver at 192 kHz")
     sd = acquire.import_sounddevice()
     sd._terminate()  # PortAudio enumerates host APIs at initialisation: look again now JACK runs
     sd._initialize()
     yield
-    if proc is not None:
-        sd._terminate()  # leave JACK before the server goes (PortAudio asserts at exit otherwise)
-        proc.terminate()
-        proc.wait(timeout=5)
-        sd._initialize()
+    sd._terminate()  # leave JACK before the server goes (PortAudio asserts at exit otherwise)
+    proc.terminate()
+    proc.wait(timeout=5)
+    _restore_env("JACK_DEFAULT_SERVER", old)
+    sd._initialize()
+
+
+def _restore_env(key, value):
+    if value is None:
+        os.environ.pop(key, None)
+    else:
+        os.environ[key] = value
 
 
 def _wire_loopback() -> str:
-    """Connect every PortAudio client's out_0 to its own in_0, away from the dummy system ports.
-    (A client of an earlier run that is still closing makes JACK name ours PortAudio-01.)"""
+    """Connect every PortAudio client's first output to its first input, away from the dummy system ports.
+    (A client of an earlier run that is still closing makes JACK name ours PortAudio-01, and PortAudio
+    numbers the ports of a process's later streams on: in_1, out_1...; so read the names.)"""
     ports = subprocess.run(["jack_lsp"], capture_output=True, text=True).stdout.split()
     clients = sorted({p.split(":")[0] for p in ports if p.startswith("PortAudio")})
     assert clients, f"no PortAudio client in JACK: {ports}"
+
+    def num(port):
+        return int(port.rsplit("_", 1)[1])
+
     for c in clients:
+        ins = sorted((p for p in ports if p.startswith(f"{c}:in_")), key=num)
+        outs = sorted((p for p in ports if p.startswith(f"{c}:out_")), key=num)
+        if not ins or not outs:
+            continue
         for sys_port in ("system:capture_1", "system:capture_2"):
-            subprocess.run(["jack_disconnect", sys_port, f"{c}:in_0"], capture_output=True)
+            subprocess.run(["jack_disconnect", sys_port, ins[0]], capture_output=True)
         for sys_port in ("system:playback_1", "system:playback_2"):
-            subprocess.run(["jack_disconnect", f"{c}:out_0", sys_port], capture_output=True)
-        assert subprocess.run(["jack_connect", f"{c}:out_0", f"{c}:in_0"], capture_output=True).returncode == 0
-    return subprocess.run(["jack_lsp", "-c"], capture_output=True, text=True).stdout
+            subprocess.run(["jack_disconnect", outs[0], sys_port], capture_output=True)
+        subprocess.run(["jack_connect", outs[0], ins[0]], capture_output=True)  # fails harmlessly when already connected
+    lsp = subprocess.run(["jack_lsp", "-c"], capture_output=True, text=True).stdout
+    return lsp
 
 
 def test_end_to_end_through_jack(rig, artifact, jack):
