@@ -539,3 +539,14 @@ def test_cli_live_on_a_device_that_dies_ends_with_one_line(rig, artifact, monkey
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and time.perf_counter() - t0 < 5
     assert err[-1].startswith("sonicskin live: error: no audio from the device for 1 s") and err[-2].startswith('{"summary"')
+
+
+def test_rig_check_through_jack_names_a_rate_the_server_does_not_run(jack):
+    """JACK runs at 192 kHz; a 48 kHz rig is refused by the real device, with the fix."""
+    from sonicskin.check import analyse, device_capture
+    from sonicskin.rig import Rig
+
+    rig48 = Rig(fs_hz=48_000.0, f_lo_hz=5_000.0, f_hi_hz=20_000.0, n_chirp=4096, pwm_hz=(30_000.0,))
+    rep = analyse(device_capture(rig48, "system", prompt=lambda m: None), rig48)
+    assert rep.status("sample rate") == "fail" and not rep.ok
+    assert rep.line("sample rate").fix.startswith("set the interface to 48000 Hz"), rep.table()
