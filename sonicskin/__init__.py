@@ -7,6 +7,8 @@ top-level ``training``, ``models`` and ``export`` packages (``pip install sonics
 
 __version__ = "0.1.0"
 
+from .api import Listener, listen  # noqa: E402
+from .events import TouchEvent  # noqa: E402
 from .rig import Layout, Rig  # noqa: E402
 
-__all__ = ["Rig", "Layout", "__version__"]
+__all__ = ["Rig", "Layout", "listen", "Listener", "TouchEvent", "__version__"]

@@ -22,7 +22,8 @@ import numpy as np
 from .dsp import rig_chirp
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "Link", "load_links", "import_sounddevice", "list_devices", "SoundDeviceSource",
+__all__ = ["Block", "AudioError", "Link", "load_links", "import_sounddevice", "list_devices", "find_device", "resolve_device",
+           "check_device_rate", "SoundDeviceSource",
            "SimulatedSource", "RecordingSource"]
 
 
@@ -124,6 +125,13 @@ def list_devices() -> list[dict]:
 
 def find_device(spec: str | int | None, rig: Rig, n_in: int, n_out: int) -> int:
     """Resolve a device name (substring) or index and check it runs the rig's rate and channels."""
+    idx = resolve_device(spec)
+    check_device_rate(idx, rig, n_in, n_out)
+    return idx
+
+
+def resolve_device(spec: str | int | None) -> int:
+    """The index of a device name (substring) or index (``None``: the default input device)."""
     sd = import_sounddevice()
     devs = list_devices()
     if not devs:
@@ -141,7 +149,13 @@ def find_device(spec: str | int | None, rig: Rig, n_in: int, n_out: int) -> int:
             raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: "
                              + ", ".join(d["name"] for d in devs))
         idx = hits[0]["index"]
-    d = devs[idx]
+    return idx
+
+
+def check_device_rate(idx: int, rig: Rig, n_in: int, n_out: int) -> None:
+    """Raise :class:`AudioError` unless device ``idx`` has the channels and runs the rig's rate."""
+    sd = import_sounddevice()
+    d = list_devices()[idx]
     if d["inputs"] < n_in or d["outputs"] < n_out:
         raise AudioError(f"device {d['name']!r} has {d['inputs']} inputs / {d['outputs']} outputs; "
                          f"the links need {n_in} / {n_out}")
@@ -151,7 +165,6 @@ def find_device(spec: str | int | None, rig: Rig, n_in: int, n_out: int) -> int:
     except Exception as e:  # sounddevice.PortAudioError and ValueError
         raise AudioError(f"device {d['name']!r} cannot run at {rig.fs_hz:g} Hz ({e}); set the interface to "
                          f"{rig.fs_hz:g} Hz or use a rig config with its rate") from None
-    return idx
 
 
 class _QueueSource:
@@ -210,11 +223,11 @@ class SoundDeviceSource(_QueueSource):
     """
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
-                 blocksize: int = 1024, playback: np.ndarray | None = None):
+                 blocksize: int = 1024, playback: np.ndarray | None = None, rx_channels: list[int] | None = None):
         super().__init__(rig, blocksize)
         self.sd = import_sounddevice()
         self.links = list(links) if links else [link]
-        n_in = max(lk.rx for lk in self.links) + 1
+        n_in = max([lk.rx for lk in self.links] + list(rx_channels or [])) + 1
         n_out = max(lk.tx for lk in self.links) + 1
         self.device = find_device(device, rig, n_in, n_out)
         # One period of every output channel, precomputed: the callback only indexes into it.
@@ -223,7 +236,7 @@ class SoundDeviceSource(_QueueSource):
         self._tx = np.zeros((period, n_out), np.float32)
         for lk, sig in zip(self.links, signals):
             self._tx[:, lk.tx] += np.resize(sig, period)  # a shorter period repeats
-        self._rx = [lk.rx for lk in self.links]
+        self._rx = list(rx_channels) if rx_channels else [lk.rx for lk in self.links]  # rx_channels: the rig check
         self._tx_pos = 0
         self.link = self.links[0]
         self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
@@ -246,8 +259,18 @@ class SoundDeviceSource(_QueueSource):
         self.stream.start()
 
     def stop(self) -> None:
-        self.stream.stop()
-        self.stream.close()
+        # A stream whose audio server died can block in stop(): close it from a helper thread and
+        # give up after 10 s (the process exits anyway; the device is gone).
+        def close():
+            try:
+                self.stream.stop()
+                self.stream.close()
+            except Exception:  # sounddevice.PortAudioError from a dead server: nothing left to close
+                pass
+
+        t = threading.Thread(target=close, name="sonicskin-audio-close", daemon=True)
+        t.start()
+        t.join(timeout=10.0)
 
 
 class SimulatedSource(_QueueSource):

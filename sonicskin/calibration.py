@@ -19,9 +19,15 @@ class OnlineReference:
     """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
 
     - **Boot**: the first ``beta`` chirps of the stream are taken as hands-off (the protocol starts
-      every stream with hands off); their mean is the first reference.  When the caller *knows*
-      which chirps are no-touch (the labelled training session), it passes ``touch`` flags during
-      the boot too, and the boot waits for ``beta`` consecutive no-touch chirps.
+      every stream with hands off); their mean is the first reference.  The hands-off window is a
+      span of *stream time* (``beta`` chirp periods from the first chirp), not a chirp count: when
+      faults (NaN samples, dropouts, a re-lock) cost chirps inside it, the reference is the mean of
+      the clean chirps of the window (at least ``beta // 4``; fewer, and the window starts again),
+      never chirps after it (where the first press may already be), and the boot is marked
+      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it
+      at once, without waiting ``alpha``.  When the caller *knows* which chirps are no-touch (the
+      labelled training session), it passes ``touch`` flags during the boot too, and the boot waits
+      for ``beta`` consecutive no-touch chirps.
     - **Refresh**: once ``alpha`` chirps of stream time have passed since the reference took
       effect, the next ``beta`` consecutive chirps the detector calls no-touch become the new one.
 
@@ -51,6 +57,10 @@ class OnlineReference:
         self.scores: np.ndarray | None = None     # mean scores of the same chirps (score_fn)
         self.t_set_s: float | None = None         # stream time of the reference's last chirp
         self.refreshes = 0                        # references taken, the boot's included
+        self.boot_disturbed = False               # the boot window lost chirps to faults (see class doc)
+        self.boot_chirps = 0                      # chirps in the boot reference
+        self._boot_t0: float | None = None
+        self._early = False                       # a disturbed boot: re-take the reference from the next rest
         self._run: list[np.ndarray] = []
 
     @classmethod
@@ -86,16 +96,41 @@ class OnlineReference:
         a new reference, in effect from the next chirp on.
         """
         if self.features is not None:
-            if self.alpha is None or round((t_s - self.t_set_s) * self.cps) < self.alpha:
+            if not self._early and (self.alpha is None or round((t_s - self.t_set_s) * self.cps) < self.alpha):
                 return False
+        elif touch is None:  # the boot, hands off by protocol: a window of stream time
+            return self._boot_step(x, t_s)
         if touch:
             self._run = []
             return False
         self._run.append(np.asarray(x, np.float32))
         if len(self._run) < self.beta:
             return False
+        self._early = False
         self._set(np.stack(self._run), t_s)
         return True
+
+    def _boot_step(self, x: np.ndarray, t_s: float) -> bool:
+        if self._boot_t0 is None:
+            self._boot_t0 = float(t_s)
+        # Chirp k of the window starts at t0 + k / cps: the window holds k = 0 .. beta - 1.
+        k = round((t_s - self._boot_t0) * self.cps)
+        if k < self.beta:
+            self._run.append(np.asarray(x, np.float32))
+            if len(self._run) < self.beta:
+                return False
+            self.boot_chirps = len(self._run)
+            self._set(np.stack(self._run), t_s)
+            return True
+        # The window has passed with chirps missing (faults): its clean chirps, not the ones after it.
+        if len(self._run) >= max(1, self.beta // 4):
+            self.boot_chirps = len(self._run)
+            self.boot_disturbed = self._early = True
+            self._set(np.stack(self._run), t_s)
+            return True
+        self.boot_disturbed = True  # too few clean chirps: a new window from this chirp on
+        self._boot_t0, self._run = float(t_s), [np.asarray(x, np.float32)]
+        return False
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:

@@ -11,16 +11,19 @@ one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
   off; every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected become the
   new reference), model, detection, force.  Offline evaluation replays recordings through the
   same object (:meth:`sonicskin.runtime.SkinStream.replay`).
-- **Faults**: frames with NaN/inf, silence or clipping are skipped and counted; overflows and
-  underflows are counted; nothing is fatal.
-- **Output**: :class:`TouchEvent` per touched chirp (and one ``release``), as JSON lines and
-  optionally as UDP datagrams to localhost.
+- **Faults**: frames with NaN/inf, silence, clipping or a dropout (a run of exact zeros, which no
+  live ADC produces) are skipped and counted and never reach the model; overflows and underflows
+  are counted.  A boot calibration that loses chirps to such faults is detected
+  (:class:`~sonicskin.calibration.OnlineReference`) and re-taken from later rest, with one warning.
+- **Watchdog and clock**: ``duration_s`` is honoured by the wall clock (and by stream time, when a
+  fast simulated source runs ahead of it); when no audio arrives for ``watchdog_s`` (the audio
+  server or the interface died), the run stops with :class:`DeviceLost`.
+- **Output**: :class:`~sonicskin.events.TouchEvent` per touched chirp (and one ``release``), as
+  JSON lines (the contract of :mod:`sonicskin.events`) and optionally as UDP datagrams.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import socket
 import sys
 import time
@@ -28,29 +31,28 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .acquire import AudioError
 from .dsp import find_chirp_offset, frame_faults, rig_chirp
+from .errors import SonicskinError
+from .events import TouchEvent
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "dropout_frames"]
 
 
-@dataclasses.dataclass
-class TouchEvent:
-    t_s: float            # stream time of the chirp's start
-    kind: str             # "touch" (every touched chirp) or "release" (first chirp after a touch)
-    location: int
-    x_cm: float
-    y_cm: float
-    force_n: float
-    confidence: float
-    model: str
-    latency_ms: float     # frame complete -> event
+class DeviceLost(AudioError):
+    """No audio arrived for the watchdog's time: the audio server or the interface stopped."""
 
-    def to_json(self) -> str:
-        d = dataclasses.asdict(self)
-        for k in ("t_s", "x_cm", "y_cm", "force_n", "confidence", "latency_ms"):
-            d[k] = round(float(d[k]), 4) if np.isfinite(d[k]) else None  # no force model: null
-        return json.dumps(d)
+
+def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
+    """(n,) bool: frames holding a run of at least ``min_run`` exact zeros (a dropout; a live 24-bit
+    ADC with its noise floor never gives 64 zeros in a row, a driver filling a gap does)."""
+    z = np.asarray(frames) == 0
+    out = np.zeros(z.shape[0], bool)
+    for i in np.flatnonzero(z.sum(axis=-1) >= min_run):
+        edges = np.flatnonzero(np.diff(np.r_[0, z[i].view(np.int8), 0]))
+        out[i] = bool(np.any(edges[1::2] - edges[::2] >= min_run))
+    return out
 
 
 class Framer:
@@ -92,14 +94,14 @@ class Framer:
         if self.next_start is None:
             if self.buf.size < self.L:
                 return out
-            off = find_chirp_offset(self.buf[: self.L], self.ref, max_periods=1)
+            off = find_chirp_offset(np.nan_to_num(self.buf[: self.L], nan=0.0, posinf=0.0, neginf=0.0), self.ref, max_periods=1)
             self.next_start = self.buf_start + off
         while self.next_start + self.L <= self.buf_start + self.buf.size:
             a = self.next_start - self.buf_start
             frame = self.buf[a:a + self.L]
             self.n_frames += 1
             if self.n_frames % self.check_every == 0:
-                drift = find_chirp_offset(frame, self.ref, max_periods=1)
+                drift = find_chirp_offset(np.nan_to_num(frame, nan=0.0, posinf=0.0, neginf=0.0), self.ref, max_periods=1)
                 drift = min(drift, self.L - drift)
                 if drift > self.tolerance:  # lost lock without a reported gap
                     self.relocks += 1
@@ -118,15 +120,40 @@ class Framer:
 
 
 class UdpSink:
-    """Send event JSON as UDP datagrams; localhost unless told otherwise."""
+    """Send event JSON as UDP datagrams; localhost unless told otherwise.
+
+    The host is resolved once, here: an unknown name is one :class:`SonicskinError` before the
+    run starts.  A datagram that cannot be sent later (network down) is counted in :attr:`errors`
+    and reported once on stderr; the loop goes on.
+    """
 
     def __init__(self, target: str):
         host, _, port = target.rpartition(":")
-        self.addr = (host or "127.0.0.1", int(port))
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        host = host or "127.0.0.1"
+        try:
+            port_n = int(port)
+            if not 1 <= port_n <= 65535:
+                raise ValueError
+        except ValueError:
+            raise SonicskinError(f"--udp {target}: expected [HOST:]PORT with a port 1-65535") from None
+        try:
+            info = socket.getaddrinfo(host, port_n, socket.AF_UNSPEC, socket.SOCK_DGRAM)
+        except (socket.gaierror, UnicodeError) as e:
+            msg = e.strerror if isinstance(e, socket.gaierror) else str(e)
+            raise SonicskinError(f"--udp {host}:{port_n}: cannot resolve host {host!r} ({msg}); "
+                                 f"pass an IP address or a name this machine resolves") from None
+        family, _, _, _, self.addr = info[0]
+        self.sock = socket.socket(family, socket.SOCK_DGRAM)
+        self.errors = 0
 
     def __call__(self, line: str) -> None:
-        self.sock.sendto(line.encode(), self.addr)
+        try:
+            self.sock.sendto(line.encode(), self.addr)
+        except OSError as e:
+            self.errors += 1
+            if self.errors == 1:
+                print(f"sonicskin: warning: UDP to {self.addr[0]}:{self.addr[1]} failed ({e.strerror or e}); "
+                      f"events still go to stdout", file=sys.stderr)
 
 
 class LiveLoop:
@@ -144,7 +171,8 @@ class LiveLoop:
 
     def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
                  status: bool = False, link=None, channel: int = 0,
-                 on_chirp: Callable[[float, Predictions | None], None] | None = None):
+                 on_chirp: Callable[[float, Predictions | None], None] | None = None,
+                 on_event: Callable[[TouchEvent], None] | None = None, warn: Callable[[str], None] | None = None):
         self.rt, self.source = runtime, source
         self.rig = runtime.rig
         link_rig = link.rig if link is not None and link.rig is not None else source.rig
@@ -158,10 +186,13 @@ class LiveLoop:
         self.framer = Framer(link.tx_period(source.rig) if link is not None else rig_chirp(self.rig))
         self.stream = runtime.stream()
         self.on_chirp = on_chirp
+        self.on_event = on_event
+        self.warn = warn or (lambda msg: print(f"sonicskin: warning: {msg}", file=sys.stderr, flush=True))
+        self.boot_faults = 0  # chirps skipped before the boot reference was taken
         self.touching = False
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
-        self.skipped = {"nan": 0, "silent": 0, "clipped": 0}
+        self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0}
         self.n_chirps = 0
 
     @property
@@ -172,12 +203,21 @@ class LiveLoop:
 
     def process_frame(self, start: int, frame: np.ndarray, t_ready: float) -> TouchEvent | None:
         fault = int(frame_faults(frame[None])[0])
-        if fault:
-            self.skipped[{1: "nan", 2: "silent", 3: "clipped"}[fault]] += 1
+        if not fault and dropout_frames(frame[None])[0]:
+            fault = 4
+        if fault:  # never reaches the features or the model
+            self.skipped[{1: "nan", 2: "silent", 3: "clipped", 4: "dropout"}[fault]] += 1
+            self.boot_faults += self.stream.calibrating
             return None
         self.n_chirps += 1
         t_s = start / self.rig.fs_hz
+        was_calibrating = self.stream.calibrating
         p = self.stream.frame(frame, t_s)  # features, Alg. 2 reference, model, detection, force
+        ref = self.stream.reference
+        if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
+            self.warn(f"boot calibration disturbed: {self.boot_faults} faulty chirp(s) (NaN, dropout, silence or clipping) "
+                      f"in the first {ref.beta / ref.cps:.1f} s; reference from the {ref.boot_chirps} clean chirps of "
+                      f"that window, re-taken from the next {ref.beta / ref.cps:.1f} s of rest")
         if self.on_chirp is not None:
             self.on_chirp(t_s, p)
         if p is None:  # boot calibration
@@ -204,11 +244,15 @@ class LiveLoop:
             if ev is not None:
                 self.events.append(ev)
                 self.emit(ev.to_json())
+                if self.on_event is not None:
+                    self.on_event(ev)
 
-    def run(self, *, duration_s: float | None = None, max_chirps: int | None = None, idle_timeout_s: float = 2.0) -> dict:
-        """Run until ``duration_s`` of stream time, ``max_chirps``, Ctrl-C, or the source ends."""
+    def run(self, *, duration_s: float | None = None, max_chirps: int | None = None, idle_timeout_s: float = 2.0,
+            watchdog_s: float | None = 3.0, stop=None) -> dict:
+        """Run until ``duration_s`` (wall clock, or stream time if that runs ahead), ``max_chirps``,
+        Ctrl-C, ``stop`` (a :class:`threading.Event`) is set, or the source ends; see :func:`run_loops`."""
         return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
-                         idle_timeout_s=idle_timeout_s)[0]
+                         idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s, stop=stop)[0]
 
     def status_line(self) -> str:
         lat = np.asarray(self.latencies_ms[-200:]) if self.latencies_ms else np.zeros(1)
@@ -225,24 +269,53 @@ class LiveLoop:
         return {"chirps": self.n_chirps, "stream_s": stream_s, "wall_s": wall_s, "cpu_share": cpu_s / max(wall_s, 1e-9),
                 "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
                 "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
-                "reference_refreshes": self.refreshes, "skipped": dict(self.skipped), **self.source.counters()}
+                "reference_refreshes": self.refreshes, "boot_disturbed": self.stream.reference.boot_disturbed,
+                "skipped": dict(self.skipped), **self.source.counters()}
 
 
 def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None, max_chirps: int | None = None,
-              idle_timeout_s: float = 2.0) -> list[dict]:
-    """Feed every block of one source to several loops (one per link of a multi-link rig)."""
+              idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0, stop=None) -> list[dict]:
+    """Feed every block of one source to several loops (one per link of a multi-link rig).
+
+    Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
+    first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
+    after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  When no
+    block arrives for ``watchdog_s`` seconds from an audio device (a source without a ``finished``
+    event), raises :class:`DeviceLost` (``None``: wait for ever); ``idle_timeout_s``
+    is kept for callers that set it, the wait for a block is never longer than 0.1 s.
+    """
     t_last_status = time.perf_counter()
     started = time.perf_counter()
+    t_last_block = started
     cpu0 = time.process_time()
     stream_s = 0.0
     status = any(lp.status for lp in loops)
+    finished = getattr(source, "finished", None)
+    poll = min(0.1, idle_timeout_s)
+    # A faster-than-real-time simulated source (--fast) runs on its own stream clock; everything that
+    # claims to be real time (devices, real-time simulation) is also bounded by the wall clock.
+    wall_bound = getattr(source, "realtime", True)
     try:
         while True:
-            block = source.read(timeout=idle_timeout_s)
+            now = time.perf_counter()
+            if duration_s is not None and wall_bound and now - started >= duration_s:
+                break
+            if stop is not None and stop.is_set():
+                break
+            block = source.read(timeout=poll)
             if block is None:
-                if getattr(source, "finished", None) is not None and source.finished.is_set():
-                    break
+                if finished is not None and finished.is_set():
+                    if source.queue.empty():
+                        break
+                    continue
+                # A finite source (simulated, recording) ends by itself; a device can die silently.
+                if watchdog_s is not None and finished is None and time.perf_counter() - t_last_block > watchdog_s:
+                    if status:
+                        print(file=sys.stderr)
+                    raise DeviceLost(f"no audio from the device for {watchdog_s:g} s (the audio server or the interface "
+                                     f"stopped, or the cable is out); check it with `sonicskin devices` and start again")
                 continue
+            t_last_block = time.perf_counter()
             for lp in loops:
                 lp.feed(block)
             stream_s = (block.start + len(block.samples)) / source.rig.fs_hz

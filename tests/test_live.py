@@ -2,6 +2,7 @@
 end-to-end run through a real audio server (JACK with its dummy driver)."""
 
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -166,7 +167,7 @@ def test_bad_frames_are_skipped_and_counted(rig, artifact):
     loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
     src.start()
     summary = loop.run(idle_timeout_s=0.1)
-    assert summary["skipped"] == {"nan": 1, "silent": 0, "clipped": 1}
+    assert summary["skipped"] == {"nan": 1, "silent": 0, "clipped": 1, "dropout": 0}
     assert summary["chirps"] == loop.framer.n_frames - 2 >= 57  # the last chirp is cut by the channel delay
 
 
@@ -215,46 +216,66 @@ JACK_PERIOD = 4096
 
 @pytest.fixture(scope="module")
 def jack(rig):
+    """A JACK server of this test run's own (a unique server name through JACK_DEFAULT_SERVER), so
+    test runs in parallel on one machine never wire or stop each other's clients."""
     if shutil.which("jackd") is None:
         pytest.skip("JACK is not installed (apt-get install jackd2); .ci/run installs it")
-    if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
-        proc = None  # a server is already running
+    name = f"sonicskin-test-{os.getpid()}"
+    old = os.environ.get("JACK_DEFAULT_SERVER")
+    os.environ["JACK_DEFAULT_SERVER"] = name  # read by libjack in PortAudio and by jack_lsp/jack_connect
+    # 4096-frame periods (21 ms): without real-time scheduling on 2 shared cores, a Python
+    # callback can miss 5 ms deadlines and JACK then repeats or drops a period (an xrun).
+    proc = subprocess.Popen(["jackd", "-n", name, "--no-realtime", "-d", "dummy", "-r", str(int(rig.fs_hz)), "-p",
+                             str(JACK_PERIOD)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    for _ in range(50):
+        if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
+            break
+        time.sleep(0.1)
     else:
-        # 4096-frame periods (21 ms): without real-time scheduling on 2 shared cores, a Python
-        # callback can miss 5 ms deadlines and JACK then repeats or drops a period (an xrun).
-        proc = subprocess.Popen(["jackd", "--no-realtime", "-d", "dummy", "-r", str(int(rig.fs_hz)), "-p", str(JACK_PERIOD)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        for _ in range(50):
-            if subprocess.run(["jack_lsp"], capture_output=True).returncode == 0:
-                break
-            time.sleep(0.1)
-        else:
-            proc.kill()
-            pytest.skip("jackd did not start with the dummy driver at 192 kHz")
+        proc.kill()
+        _restore_env("JACK_DEFAULT_SERVER", old)
+        pytest.skip("jackd did not start with the dummy driver at 192 kHz")
     sd = acquire.import_sounddevice()
     sd._terminate()  # PortAudio enumerates host APIs at initialisation: look again now JACK runs
     sd._initialize()
     yield
-    if proc is not None:
-        sd._terminate()  # leave JACK before the server goes (PortAudio asserts at exit otherwise)
-        proc.terminate()
-        proc.wait(timeout=5)
-        sd._initialize()
+    sd._terminate()  # leave JACK before the server goes (PortAudio asserts at exit otherwise)
+    proc.terminate()
+    proc.wait(timeout=5)
+    _restore_env("JACK_DEFAULT_SERVER", old)
+    sd._initialize()
+
+
+def _restore_env(key, value):
+    if value is None:
+        os.environ.pop(key, None)
+    else:
+        os.environ[key] = value
 
 
 def _wire_loopback() -> str:
-    """Connect every PortAudio client's out_0 to its own in_0, away from the dummy system ports.
-    (A client of an earlier run that is still closing makes JACK name ours PortAudio-01.)"""
+    """Connect every PortAudio client's first output to its first input, away from the dummy system ports.
+    (A client of an earlier run that is still closing makes JACK name ours PortAudio-01, and PortAudio
+    numbers the ports of a process's later streams on: in_1, out_1...; so read the names.)"""
     ports = subprocess.run(["jack_lsp"], capture_output=True, text=True).stdout.split()
     clients = sorted({p.split(":")[0] for p in ports if p.startswith("PortAudio")})
     assert clients, f"no PortAudio client in JACK: {ports}"
+
+    def num(port):
+        return int(port.rsplit("_", 1)[1])
+
     for c in clients:
+        ins = sorted((p for p in ports if p.startswith(f"{c}:in_")), key=num)
+        outs = sorted((p for p in ports if p.startswith(f"{c}:out_")), key=num)
+        if not ins or not outs:
+            continue
         for sys_port in ("system:capture_1", "system:capture_2"):
-            subprocess.run(["jack_disconnect", sys_port, f"{c}:in_0"], capture_output=True)
+            subprocess.run(["jack_disconnect", sys_port, ins[0]], capture_output=True)
         for sys_port in ("system:playback_1", "system:playback_2"):
-            subprocess.run(["jack_disconnect", f"{c}:out_0", sys_port], capture_output=True)
-        assert subprocess.run(["jack_connect", f"{c}:out_0", f"{c}:in_0"], capture_output=True).returncode == 0
-    return subprocess.run(["jack_lsp", "-c"], capture_output=True, text=True).stdout
+            subprocess.run(["jack_disconnect", outs[0], sys_port], capture_output=True)
+        subprocess.run(["jack_connect", outs[0], ins[0]], capture_output=True)  # fails harmlessly when already connected
+    lsp = subprocess.run(["jack_lsp", "-c"], capture_output=True, text=True).stdout
+    return lsp
 
 
 def test_end_to_end_through_jack(rig, artifact, jack):
@@ -333,3 +354,204 @@ def test_two_time_duplexed_links_from_one_stream(rig, artifact):
                 n_ev += 1
                 hits += e.location == tl.location[k]
         assert n_ev > 0.8 * int((tl.force_n[:n] >= 0.5).sum()) and hits / n_ev > 0.9
+
+
+def test_rig_check_through_jack(rig, jack):
+    """`sonicskin check` on a real duplex stream: what the simulated receiver would hear (rest, then a
+    press) is played on JACK's output, looped back to its input, recorded on every input and measured."""
+    from sonicskin.check import SimulatedDevice, analyse, device_capture
+
+    dev = SimulatedDevice(rig, SC)
+    play = dev.received(settle_s=0.5, rest_s=3.0, press_s=2.0, tail_s=1.5)
+    asked = []
+    cap = device_capture(rig, "system", rest_s=3.0, press_s=2.0, playback=play, blocksize=JACK_PERIOD,
+                         on_start=lambda: (time.sleep(0.2), _wire_loopback()), prompt=asked.append)
+    rep = analyse(cap, rig)
+    assert any("PRESS NOW" in m for m in asked)
+    # Chirps the loopback had not wired yet, or an xrun of JACK's dummy driver: counted, not fatal.
+    assert rep.status("output-to-input delay") != "fail", rep.table()
+    for name in ("sample rate", "chirp lock", "input level", "SNR per sub-band", "touch contrast"):
+        assert rep.status(name) == "pass", rep.table()
+    # The loopback adds whole blocks of latency to the simulated interface's 2.9 ms + the acoustic path.
+    extra = rep.measurements["delay_ms"] - analyse(simulated_capture_for(dev), rig).measurements["delay_ms"]
+    assert extra == pytest.approx(round(extra * rig.fs_hz / 1e3 / JACK_PERIOD) * JACK_PERIOD / rig.fs_hz * 1e3, abs=0.05), extra
+
+
+def simulated_capture_for(dev):
+    from sonicskin.check import simulated_capture
+
+    return simulated_capture(dev, rest_s=3.0, press_s=2.0)
+
+
+# -- a live loop that survives its device (issue 16.5) ------------------------------------------------
+
+class _Replay(acquire._QueueSource):
+    """A finite stream delivered block by block, as fast as it is read."""
+
+    def __init__(self, rig, stream):
+        super().__init__(rig, 1024, max_queued_s=600)
+        self.stream = stream
+
+    def start(self):
+        for k in range(0, len(self.stream), 1024):
+            self._deliver(self.stream[k:k + 1024])
+        self.finished = type("E", (), {"is_set": lambda self: True})()
+
+    def stop(self):
+        pass
+
+
+@pytest.fixture(scope="module")
+def boot_stream(rig):
+    sim, tl = _live_timeline(rig, seed=79)
+    return sim.render(tl).ravel(), tl
+
+
+def _chirp_errors(events, tl, rig, offset):
+    """Share of the chirps after the 3 s boot that the loop gets wrong: a pressed chirp (>= 0.5 N)
+    without a touch event naming its marker, or a hands-off chirp with a touch event."""
+    L = rig.n_chirp
+    got = {int(round((e.t_s * rig.fs_hz + offset) / L)): e.location for e in events if e.kind == "touch"}
+    boot = rig.seconds_to_chirps(3.0)
+    wrong = n = 0
+    for k in range(boot + 1, len(tl) - 1):
+        if 0 < tl.force_n[k] < 0.5:
+            continue
+        n += 1
+        wrong += (got.get(k) != tl.location[k]) if tl.force_n[k] >= 0.5 else (k in got)
+    return wrong / n
+
+
+def _run_stream(rig, artifact, stream, **kw):
+    warnings = []
+    src = _Replay(rig, stream)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None, warn=warnings.append, **kw)
+    src.start()
+    summary = loop.run(idle_timeout_s=0.1)
+    return loop, summary, warnings
+
+
+@pytest.mark.parametrize("fault", ["nan", "zeros"])
+def test_a_fault_in_the_boot_calibration_does_not_poison_the_session(rig, artifact, boot_stream, fault):
+    """NaN samples in 8 chirps, or 0.43 s of zeros, inside the first 3 s (hands off; the first press
+    starts at 3 s): the reference comes from the clean chirps of the hands-off window, with one
+    warning, and the error rate stays near the clean run's."""
+    stream, tl = boot_stream
+    offset = 3000
+    clean_loop, _, clean_warn = _run_stream(rig, artifact, stream[offset:])
+    base = _chirp_errors(clean_loop.events, tl, rig, offset)
+    bad = stream[offset:].copy()
+    L, fs = rig.n_chirp, int(rig.fs_hz)
+    if fault == "nan":
+        bad[np.arange(5, 13) * L + 777] = np.nan
+    else:
+        bad[fs: fs + int(0.43 * fs)] = 0.0
+    loop, summary, warn = _run_stream(rig, artifact, bad)
+    err = _chirp_errors(loop.events, tl, rig, offset)
+    assert not clean_warn and base < 0.06
+    assert err < base + 0.04, (err, base)
+    assert summary["boot_disturbed"] and len(warn) == 1 and warn[0].startswith("boot calibration disturbed:"), warn
+    skipped = summary["skipped"]["nan"] if fault == "nan" else summary["skipped"]["silent"] + summary["skipped"]["dropout"]
+    assert skipped >= (8 if fault == "nan" else 4)
+    assert 28 // 4 <= loop.stream.reference.boot_chirps < 28
+
+
+def test_non_finite_samples_never_reach_the_model(rig, artifact, boot_stream):
+    stream, tl = boot_stream
+    bad = stream[5000:].copy()
+    L = rig.n_chirp
+    bad[:50] = np.nan                              # before the lock
+    bad[40 * L + 10: 40 * L + 20] = np.inf         # mid-stream
+    bad[60 * L + 3] = -np.inf
+    rt = SkinRuntime(artifact, "svm")
+    seen = []
+    real_run = rt.run
+    rt.run = lambda x: seen.append(np.isfinite(x).all()) or real_run(x)
+    src = _Replay(rig, bad)
+    loop = LiveLoop(rt, src, emit=lambda _: None, warn=lambda _: None)
+    src.start()
+    summary = loop.run(idle_timeout_s=0.1)
+    assert seen and all(seen) and summary["skipped"]["nan"] >= 2  # the first NaNs fall before the first whole chirp
+    assert summary["relocks"] <= 1 and summary["chirps"] > len(tl) - 10
+    assert _chirp_errors(loop.events, tl, rig, 5000) < 0.08
+
+
+def test_dropout_frames():
+    from sonicskin.live import dropout_frames
+
+    x = np.random.default_rng(0).normal(0, 1e-3, (4, 2048)).astype(np.float32)
+    x[1, 100:164] = 0      # 64 zeros in a row: a dropout
+    x[2, ::2] = 0          # many zeros, never two in a row
+    x[3, 10:73] = 0        # 63 in a row
+    np.testing.assert_array_equal(dropout_frames(x), [False, True, False, False])
+
+
+class _Dying(acquire._QueueSource):
+    """A device that delivers ``n`` blocks and then falls silent without a word (the server died);
+    ``every_s`` paces the blocks."""
+
+    def __init__(self, rig, n, every_s=0.0):
+        super().__init__(rig, 1024)
+        self.n, self.every_s = n, every_s
+        self._stop = False
+
+    def start(self):
+        chirp = np.tile(rig_chirp(self.rig).astype(np.float32) * 0.1, 1 + self.n * 1024 // self.rig.n_chirp + 1)
+
+        def produce():
+            for i in range(self.n):
+                if self._stop:
+                    return
+                self._deliver(chirp[i * 1024:(i + 1) * 1024])
+                time.sleep(self.every_s)
+
+        import threading
+        threading.Thread(target=produce, daemon=True).start()
+
+    def stop(self):
+        self._stop = True
+
+
+def test_watchdog_stops_a_loop_whose_device_died(rig, artifact):
+    from sonicskin.live import DeviceLost
+
+    src = _Dying(rig, 100)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    src.start()
+    t0 = time.perf_counter()
+    with pytest.raises(DeviceLost, match=r"no audio from the device for 1 s \(the audio server or the interface stopped"):
+        loop.run(duration_s=20, watchdog_s=1.0)
+    assert 1.0 <= time.perf_counter() - t0 < 2.5
+
+
+def test_duration_is_honoured_by_the_clock(rig, artifact):
+    """A device that delivers 10 x slower than real time: --duration 1.5 still ends after 1.5 s."""
+    src = _Dying(rig, 10_000, every_s=0.05)
+    loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
+    src.start()
+    t0 = time.perf_counter()
+    summary = loop.run(duration_s=1.5, watchdog_s=None)
+    src.stop()
+    assert 1.5 <= time.perf_counter() - t0 < 2.0 and summary["stream_s"] < 0.5
+
+
+def test_cli_live_on_a_device_that_dies_ends_with_one_line(rig, artifact, monkeypatch, capsys):
+    monkeypatch.setattr(acquire, "SoundDeviceSource", lambda rig, device, **kw: _Dying(rig, 50))
+    from sonicskin.cli import main
+
+    t0 = time.perf_counter()
+    code = main(["live", "--device", "0", "--artifact", str(artifact), "--duration", "20", "--watchdog", "1", "--no-status"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and time.perf_counter() - t0 < 5
+    assert err[-1].startswith("sonicskin live: error: no audio from the device for 1 s") and err[-2].startswith('{"summary"')
+
+
+def test_rig_check_through_jack_names_a_rate_the_server_does_not_run(jack):
+    """JACK runs at 192 kHz; a 48 kHz rig is refused by the real device, with the fix."""
+    from sonicskin.check import analyse, device_capture
+    from sonicskin.rig import Rig
+
+    rig48 = Rig(fs_hz=48_000.0, f_lo_hz=5_000.0, f_hi_hz=20_000.0, n_chirp=4096, pwm_hz=(30_000.0,))
+    rep = analyse(device_capture(rig48, "system", prompt=lambda m: None), rig48)
+    assert rep.status("sample rate") == "fail" and not rep.ok
+    assert rep.line("sample rate").fix.startswith("set the interface to 48000 Hz"), rep.table()

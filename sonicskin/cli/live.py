@@ -44,7 +44,7 @@ def json_safe(obj):
 
 def cmd_live(a: argparse.Namespace) -> int:
     from ..acquire import Link, SimulatedSource, SoundDeviceSource
-    from ..live import LiveLoop, UdpSink
+    from ..live import DeviceLost, LiveLoop, UdpSink
     from ..rig import Rig
     from ..runtime import SkinRuntime
 
@@ -57,6 +57,13 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
         raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin fit-svm` or `sonicskin export`")
+    sinks = [lambda line: print(line, flush=True)]
+    if a.udp:
+        sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))  # resolved here: a bad host is one line before the run
+    if a.lsl:
+        from ..lsl import LslSink
+
+        sinks.append(LslSink(a.lsl))
     rig = Rig.load(a.rig)
     if a.device == "sim":
         from ..sim import Scenario, Simulator, build_timeline
@@ -76,14 +83,39 @@ def cmd_live(a: argparse.Namespace) -> int:
     else:
         rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
         source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
-    sinks = [lambda line: print(line, flush=True)]
-    if a.udp:
-        sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))
     loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
+    lost = None
     with source:
-        summary = loop.run(duration_s=a.duration)
+        try:
+            summary = loop.run(duration_s=a.duration, watchdog_s=a.watchdog)
+        except DeviceLost as e:
+            lost, summary = e, loop.summary(0.0, 0.0, 0.0)
     print(json.dumps({"summary": json_safe(summary)}, allow_nan=False), file=sys.stderr)
+    if lost is not None:
+        raise lost
     return 0
+
+
+def cmd_check(a: argparse.Namespace) -> int:
+    from ..check import SimulatedDevice, analyse, device_capture, simulated_capture
+    from ..rig import Rig
+
+    rig = Rig.load(a.rig)
+    if a.device == "sim":
+        cap = simulated_capture(SimulatedDevice(rig, a.scenario, fault=a.sim_fault, motors=a.sim_motors), tx=a.tx, rx=a.rx,
+                                rest_s=a.rest, press_s=a.press)
+    else:
+        if a.sim_fault != "none":
+            raise UsageError("--sim-fault is for the simulated device (--device sim)")
+        cap = device_capture(rig, a.device, tx=a.tx, rx=a.rx, rest_s=a.rest, press_s=a.press, blocksize=a.blocksize)
+    report = analyse(cap, rig)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(report.table())
+    (out / "check.json").write_text(report.to_json() + "\n")
+    report.plot(out / "check.png")
+    print(f"wrote {out / 'check.png'} and {out / 'check.json'}", file=sys.stderr)
+    return 0 if report.ok else 1
 
 
 def cmd_devices(a: argparse.Namespace) -> int:
@@ -127,9 +159,15 @@ def add_parsers(sub) -> None:
     lv.add_argument("--scenario", default="stationary",
                     help="simulated device: scenario of the link and the touches (default: stationary)")
     lv.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
-    lv.add_argument("--duration", type=positive_float, default=30.0, help="seconds of stream to run (default: 30)")
+    lv.add_argument("--duration", type=positive_float, default=30.0,
+                    help="seconds to run, by the clock (--fast: seconds of simulated stream) (default: 30)")
     lv.add_argument("--udp", type=udp_target, metavar="[HOST:]PORT",
                     help="also send events as UDP datagrams; host defaults to 127.0.0.1 (default: off)")
+    lv.add_argument("--lsl", metavar="NAME", nargs="?", const="sonicskin",
+                    help="also publish events as a Lab Streaming Layer string stream of this name (needs pylsl: "
+                         "pip install 'sonicskin[lsl]') (default: off; NAME defaults to sonicskin)")
+    lv.add_argument("--watchdog", type=positive_float, default=3.0, metavar="S",
+                    help="stop with an error when the device delivers no audio for S seconds (default: 3)")
     lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
     lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
     lv.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
@@ -138,6 +176,26 @@ def add_parsers(sub) -> None:
                     help="simulated device: drop one audio block in N, fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
     lv.set_defaults(func=cmd_live)
+
+    ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
+                        description="Play the rig's chirp, record every input, ask for one firm press, and print one table: "
+                                    "each measurement with pass/warn/fail and its fix. Writes check.png (|H(f)| at rest and "
+                                    "pressed, noise floor, PWM bands, the band used) and check.json to --out. Exit code 0 "
+                                    "when nothing fails, 1 otherwise. Runs on the simulated device by default.")
+    ck.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    ck.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    ck.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    ck.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    ck.add_argument("--rest", type=positive_float, default=4.0, help="seconds of hands-off chirps (default: 4)")
+    ck.add_argument("--press", type=positive_float, default=3.0, help="seconds of the press (default: 3)")
+    ck.add_argument("--out", default=".", help="folder for check.png and check.json (default: .)")
+    ck.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
+    ck.add_argument("--scenario", default="stationary", help="simulated device: the link (default: stationary)")
+    ck.add_argument("--sim-fault", default="none", choices=("none", "disconnected", "clipping", "weak", "wrong-channel", "rate"),
+                    help="simulated device: inject a fault (default: none)")
+    ck.add_argument("--sim-motors", type=float, default=0.0, metavar="LEVEL",
+                    help="simulated device: motor activity 0..1 during the check (default: 0, robot still)")
+    ck.set_defaults(func=cmd_check)
 
     dv = sub.add_parser("devices", help="list audio devices",
                         description="List the audio interfaces PortAudio sees (index, name, host API, input and output "

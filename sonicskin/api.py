@@ -1,0 +1,187 @@
+"""The Python API for robot programs: touch events from a deployed skin, without torch.
+
+Two forms over one implementation (:class:`Listener`, a background thread running
+:class:`sonicskin.live.LiveLoop`):
+
+- an iterator, for scripts::
+
+      for ev in sonicskin.listen("artifacts/moving", duration_s=5):
+          print(ev.kind, ev.location, ev.x_cm, ev.y_cm, ev.force_n)
+
+- a callback or a non-blocking poll, for a controller loop that owns its own timing::
+
+      with sonicskin.Listener("artifacts/moving", device=2, on_event=handle) as skin:
+          while robot.ok():
+              for ev in skin.poll():   # events since the last call, never blocks
+                  ...
+              robot.step()
+
+Events are :class:`sonicskin.events.TouchEvent`, the same objects whose JSON ``sonicskin live``
+prints (schema in :mod:`sonicskin.events`).  ``device=None`` or ``"sim"`` is the simulated rig
+(scripted touches of ``scenario``), as in ``sonicskin live``; an index or a name substring opens
+that audio interface (``sonicskin devices``).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+from .errors import SonicskinError
+from .events import TouchEvent
+
+__all__ = ["listen", "Listener"]
+
+_END = object()
+
+
+class Listener:
+    """Run a skin in a background thread; events go to ``on_event`` and to :meth:`poll` / iteration.
+
+    Parameters
+    ----------
+    artifact : artifact folder (``sonicskin fit-svm`` / ``sonicskin export``).
+    device : ``None`` or ``"sim"`` (the simulated rig), or an audio device index or name.
+    model : ``"svm"`` or ``"net"``.
+    duration_s : stop after this many seconds (wall clock); ``None``: until :meth:`stop`.
+    scenario : simulated device only: the scenario of the link and its scripted touches (name or YAML);
+        its marker layout must be the artifact's.
+    rig : rig name or YAML (default: the artifact's own).
+    tx, rx : output and input channel (0-based) of a real interface.
+    fast : simulated device only: run faster than real time.
+    on_event : called in the listener's thread with each :class:`TouchEvent`; keep it short.
+    watchdog_s : a real device that delivers no audio for this long ends the run with
+        :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`).
+    """
+
+    def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str = "svm",
+                 duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
+                 tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
+                 watchdog_s: float = 3.0, blocksize: int = 1024):
+        from .acquire import Link, SimulatedSource, SoundDeviceSource
+        from .live import LiveLoop
+        from .rig import Rig
+        from .runtime import SkinRuntime
+
+        art = Path(artifact)
+        if not (art / "skin.json").is_file():
+            raise SonicskinError(f"{art} is not a sonicskin artifact (no skin.json there); create one with "
+                                 f"`sonicskin fit-svm` or `sonicskin export`")
+        if duration_s is not None and not duration_s > 0:
+            raise SonicskinError(f"duration_s must be > 0 or None, got {duration_s}")
+        the_rig = Rig.load(rig) if rig is not None else None
+        self.runtime = SkinRuntime(art, model, rig=the_rig)
+        if device is None or device == "sim":
+            from .sim import Scenario, Simulator, build_timeline
+
+            sc = Scenario.load(scenario)
+            layout = sc.make_layout()
+            if self.runtime.layout != layout:
+                raise SonicskinError(f"the artifact knows {len(self.runtime.layout)} markers but scenario {sc.name!r} has "
+                                     f"{len(layout)} in another layout; pass the scenario it was trained on (scenario=...)")
+            live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
+            the_rig = the_rig or self.runtime.rig
+            self.source = SimulatedSource(Simulator(live_sc, the_rig), build_timeline(live_sc, the_rig), realtime=not fast,
+                                          blocksize=blocksize)
+        else:
+            self.source = SoundDeviceSource(the_rig or self.runtime.rig, device, link=Link(tx=tx, rx=rx), blocksize=blocksize)
+        self._queue: queue.Queue = queue.Queue()
+        self._user_cb = on_event
+        self.loop = LiveLoop(self.runtime, self.source, emit=lambda line: None, on_event=self._on_event)
+        self.duration_s, self.watchdog_s = duration_s, watchdog_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        self.summary: dict | None = None
+
+    def _on_event(self, ev: TouchEvent) -> None:
+        self._queue.put(ev)
+        if self._user_cb is not None:
+            self._user_cb(ev)
+
+    def _run(self) -> None:
+        try:
+            with self.source:
+                self.summary = self.loop.run(duration_s=self.duration_s, watchdog_s=self.watchdog_s, stop=self._stop)
+        except BaseException as e:  # handed to the caller's thread
+            self.error = e
+        finally:
+            self._queue.put(_END)
+
+    # -- control -------------------------------------------------------------------------
+    def start(self) -> Listener:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="sonicskin-listener", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> dict | None:
+        """Stop and wait for the thread; returns the run's summary (as ``sonicskin live`` prints it)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        self._raise()
+        return self.summary
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            e, self.error = self.error, None
+            raise e
+
+    def __enter__(self) -> Listener:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        if exc[0] is None:
+            self._raise()
+
+    # -- events --------------------------------------------------------------------------
+    def poll(self) -> list[TouchEvent]:
+        """Events since the last call, without waiting (for a controller loop)."""
+        out = []
+        while True:
+            try:
+                ev = self._queue.get_nowait()
+            except queue.Empty:
+                break
+            if ev is _END:
+                self._queue.put(_END)  # stays ended for later calls
+                break
+            out.append(ev)
+        self._raise()
+        return out
+
+    def __iter__(self) -> Iterator[TouchEvent]:
+        self.start()
+        while True:
+            ev = self._queue.get()
+            if ev is _END:
+                self._queue.put(_END)
+                break
+            yield ev
+        self._raise()
+
+
+def listen(artifact: str | Path, *, device: str | int | None = None, duration_s: float | None = None, **kw) -> Iterator[TouchEvent]:
+    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...``.
+
+    Keywords as :class:`Listener`.  The run stops when the loop ends (``duration_s``, a finite
+    simulated session) or when the caller leaves the loop (``break``); errors of the device are
+    raised here.
+    """
+    lst = Listener(artifact, device=device, duration_s=duration_s, **kw)
+    try:
+        yield from lst
+    finally:
+        lst._stop.set()
+        if lst._thread is not None:
+            lst._thread.join(timeout=10)

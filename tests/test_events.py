@@ -1,0 +1,120 @@
+"""The event stream is a contract: the schema (v1) and its validator, and `live`'s stdout, UDP and
+LSL output checked against it."""
+
+import json
+import math
+import socket
+import threading
+import time
+
+import pytest
+from cli_helpers import run
+
+from sonicskin.events import EVENT_SCHEMA, SCHEMA_VERSION, EventError, TouchEvent, parse_event, validate_event
+
+GOOD = {"v": 1, "t_s": 4.2667, "kind": "touch", "location": 3, "x_cm": 6.1, "y_cm": 12.0, "force_n": 2.5,
+        "confidence": 0.9, "model": "svm", "latency_ms": 0.8}
+
+
+def test_event_round_trip_and_nulls():
+    ev = TouchEvent(4.26667, "touch", 3, 6.1, 12.0, math.nan, 0.9, "svm", 0.81234)
+    d = json.loads(ev.to_json())
+    assert list(d)[0] == "v" and d["v"] == SCHEMA_VERSION == EVENT_SCHEMA["properties"]["v"]["const"]
+    assert d["force_n"] is None and d["t_s"] == 4.2667  # no force model: null; 4 decimals
+    back = parse_event(ev.to_json())
+    assert back.kind == "touch" and back.location == 3 and math.isnan(back.force_n)
+    assert set(EVENT_SCHEMA["required"]) == set(d) == set(EVENT_SCHEMA["properties"])
+
+
+@pytest.mark.parametrize("change, msg", [
+    ({"v": 2}, "v must be 1, got 2 (a reader for schema v1)"),
+    ({"kind": "press"}, "kind must be one of ['touch', 'release'], got 'press'"),
+    ({"confidence": 1.5}, "confidence must be <= 1, got 1.5"),
+    ({"force_n": -0.1}, "force_n must be >= 0, got -0.1"),
+    ({"location": 2.5}, "location must be integer, got 2.5"),
+    ({"t_s": "now"}, "t_s must be number, got 'now'"),
+    ({"model": "cnn"}, "model must be one of ['svm', 'net'], got 'cnn'"),
+    ({"extra": 1}, "event has unknown fields ['extra']"),
+])
+def test_validator_names_the_problem(change, msg):
+    validate_event(GOOD)
+    with pytest.raises(EventError) as e:
+        validate_event({**GOOD, **change})
+    assert str(e.value) == msg
+    with pytest.raises(EventError, match=r"event lacks \['x_cm'\]"):
+        validate_event({k: v for k, v in GOOD.items() if k != "x_cm"})
+    with pytest.raises(EventError, match="not a JSON event"):
+        parse_event("{nan")
+
+
+def _check_stream(events, period_s):
+    """Every event valid; t_s on the chirp grid; each run of touches ends in exactly one release with force 0."""
+    assert events
+    for d in events:
+        validate_event(d)
+    t = [d["t_s"] for d in events]
+    assert t == sorted(t)
+    steps = [(b - a) / period_s for a, b in zip(t, t[1:])]
+    assert all(abs(s - round(s)) * period_s < 2e-4 for s in steps)  # t_s has 4 decimals
+    kinds = [d["kind"] for d in events]
+    assert "touch" in kinds and "release" in kinds
+    for i, d in enumerate(events):
+        if d["kind"] == "release":
+            assert d["force_n"] == 0 and events[i - 1]["kind"] == "touch"
+
+
+def test_live_stdout_and_udp_follow_the_schema(cli_files, capsys):
+    from sonicskin.rig import Rig
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    code, out, err = run(capsys, ["live", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--artifact",
+                                  cli_files["artifact"], "--fast", "--duration", "30", "--no-status", "--udp",
+                                  str(rx.getsockname()[1])])
+    assert code == 0, err
+    lines = out.splitlines()
+    events = [json.loads(x) for x in lines]
+    _check_stream(events, Rig.load(cli_files["rig"]).period_s)
+    rx.settimeout(1.0)
+    got = []
+    while len(got) < len(lines):
+        got.append(rx.recv(65536).decode())
+    assert got == lines  # the same bytes on both transports
+
+
+def test_udp_to_an_unresolvable_host_is_one_line_before_the_run(cli_files, capsys):
+    code, out, err = run(capsys, ["live", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--artifact",
+                                  cli_files["artifact"], "--fast", "--duration", "5", "--no-status", "--udp",
+                                  "no-such-host.invalid:9999"])
+    assert code == 2 and out == ""
+    assert err.startswith("sonicskin live: error: --udp no-such-host.invalid:9999: cannot resolve host 'no-such-host.invalid'")
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_live_publishes_on_lab_streaming_layer(cli_files, capsys):
+    pylsl = pytest.importorskip("pylsl")
+    from sonicskin.lsl import STREAM_TYPE
+
+    name = f"sonicskin-test-{time.monotonic_ns()}"
+    result = {}
+    t = threading.Thread(target=lambda: result.update(r=run(capsys, [
+        "live", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--artifact", cli_files["artifact"],
+        "--duration", "12", "--no-status", "--lsl", name])))
+    t.start()
+    streams = pylsl.resolve_byprop("name", name, timeout=10)
+    assert streams and streams[0].type() == STREAM_TYPE
+    inlet = pylsl.StreamInlet(streams[0])
+    inlet.open_stream(timeout=5)
+    assert inlet.info(timeout=5).desc().child_value("schema_version") == str(SCHEMA_VERSION)
+    samples = []
+    while t.is_alive() or samples == []:
+        s, _ = inlet.pull_sample(timeout=0.5)
+        if s is not None:
+            samples.append(json.loads(s[0]))
+        elif not t.is_alive():
+            break
+    t.join()
+    assert result["r"][0] == 0
+    assert samples and all(validate_event(d) is None for d in samples)
+    assert any(d["kind"] == "touch" for d in samples)
