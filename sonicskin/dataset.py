@@ -30,7 +30,6 @@ import csv
 import hashlib
 import io
 import json
-import math
 import os
 import re
 import warnings
@@ -307,7 +306,8 @@ def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, opti
                 with zf.open(info) as fh:
                     shape, dtype = _npy_header(fh)
                 if dtype.hasobject or dtype.kind not in kinds:
-                    raise DatasetError(f"{path}: array {k!r} has dtype {dtype}, expected {'numbers' if 'f' in kinds else 'whole numbers' if 'i' in kinds else 'text'}")
+                    want = "numbers" if "f" in kinds else "whole numbers" if "i" in kinds else "text"
+                    raise DatasetError(f"{path}: array {k!r} has dtype {dtype}, expected {want}")
                 if ndim is not None and len(shape) != ndim:
                     raise DatasetError(f"{path}: array {k!r} has shape {shape}, expected {ndim} dimension(s)")
                 nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
@@ -535,7 +535,7 @@ class Dataset:
             return out
         listed = manifest["parts"]
         fix = f"restore the session's files from a copy, or delete {d} and re-create it (--resume)"
-        for k, e in enumerate(listed):
+        for e in listed:
             for ext in ("flac", "csv"):
                 if not (d / f"{e['part']}.{ext}").is_file():
                     raise DatasetError(f"{d / (e['part'] + '.' + ext)} is missing but session.json lists it "
@@ -579,7 +579,7 @@ class Dataset:
             fpath = d / f"part-{p:05d}.flac"
             try:
                 x, sr = sf.read(io.BytesIO(flac), dtype="float32", always_2d=True)
-            except (RuntimeError, sf.LibsndfileError if hasattr(sf, "LibsndfileError") else RuntimeError, TypeError) as e:
+            except (RuntimeError, TypeError, ValueError, AssertionError) as e:  # soundfile.LibsndfileError is a RuntimeError
                 raise DatasetError(f"{fpath}: unreadable audio ({str(e).splitlines()[0] if str(e) else type(e).__name__}); {fix}") from None
             if sr != int(self.rig.fs_hz):
                 raise DatasetError(f"{fpath}: sample rate {sr} Hz, but the dataset's rig runs at {self.rig.fs_hz:g} Hz")
