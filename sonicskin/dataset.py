@@ -126,7 +126,8 @@ def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -
     def bad(col: str, mask: np.ndarray, want: str) -> None:
         if np.any(mask):
             k = int(np.flatnonzero(mask)[0])
-            raise DatasetError(f"{where}: row {k} (chirp {lab['chirp'][k]}): {col} = {lab[col][k]!r} but {want}; "
+            v = lab[col][k]
+            raise DatasetError(f"{where}: row {k} (chirp {lab['chirp'][k]}): {col} = {getattr(v, 'item', lambda: v)()!r} but {want}; "
                                f"fix the value or {REDO}")
 
     ids = np.asarray(layout.ids)
@@ -450,8 +451,11 @@ class Dataset:
 
     @property
     def sessions(self) -> list[str]:
-        return sorted(p.name for p in self.root.iterdir()
-                      if p.is_dir() and SAFE_NAME.fullmatch(p.name) and any(p.glob("part-*.csv")))
+        """Session folders (those holding a labels CSV); one with an unsafe name is refused, not skipped."""
+        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.csv")))
+        for name in out:
+            check_name(name, "session folder", str(self.root))
+        return out
 
     def _session_dir(self, session: str) -> Path:
         d = self.root / check_name(session, where=str(self.root))
@@ -566,9 +570,9 @@ class Dataset:
         import soundfile as sf
 
         d = self._session_dir(session)
-        if not self.parts(session):
-            raise DatasetError(f"{d}: no complete part")
         manifest = self.manifest(session)
+        if not self.parts(session) and (manifest is None or "parts" not in manifest):
+            raise DatasetError(f"{d}: no complete part")
         if manifest is not None and "parts" not in manifest and not self._warned_old:
             self._warned_old = True
             warnings.warn(f"{self.root}: written by an older sonicskin, its session.json files bind no content hashes; "
@@ -613,11 +617,13 @@ class Dataset:
             raise DatasetError(
                 f"{d}: label row {k} (t_s={lab['t_s'][k]:.6f}) does not fall on a chirp of the stream "
                 f"(chirps start at {offset / self.rig.fs_hz:.6f} s + k * {self.rig.period_s:.6f} s); labels and audio disagree")
-        same = np.flatnonzero(np.diff(idx) <= 0)
-        if same.size:
-            k = int(same[0]) + 1
-            raise DatasetError(f"{d}: label rows {k - 1} and {k} (chirps {lab['chirp'][k - 1]} and {lab['chirp'][k]}) label the "
-                               f"same chirp of the stream, or go back in time; a chirp is labelled once, in order; {REDO}")
+        step = np.flatnonzero(np.diff(idx) != 1)
+        if step.size:
+            k = int(step[0]) + 1
+            how = ("label the same chirp of the stream, or go back in time" if idx[k] <= idx[k - 1] else
+                   f"skip {idx[k] - idx[k - 1] - 1} chirp(s) of the stream: a label row was removed")
+            raise DatasetError(f"{d}: label rows {k - 1} and {k} (t_s {lab['t_s'][k - 1]:.6f} and {lab['t_s'][k]:.6f}) {how}; "
+                               f"every chirp of a session is labelled once, in order; {REDO}")
         keep = ~cut
         lab = {k: v[keep] for k, v in lab.items()}
         lab["session"] = np.full(int(keep.sum()), session)

@@ -101,6 +101,7 @@ class Scenario:
             raise ValueError("touch_s and calibration_s must be positive")
         if min(self.gap_s, self.moving_s, self.session_interval_s, self.start_s) < 0 or self.part_s <= 0:
             raise ValueError("gap_s, moving_s, session_interval_s and start_s must be >= 0 and part_s > 0")
+        layout_count(self)
         level = self.motion.get("level", 1.0)
         if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
             raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {level!r}")
