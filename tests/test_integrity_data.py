@@ -357,10 +357,6 @@ CACHE_MUTATIONS = _cache_mutations()
 CORPUS["feature cache"] = len(CACHE_MUTATIONS) + 2  # + the label edit and the replaced part below
 
 
-def _pickled_npz(path: Path) -> None:
-    """np.savez refuses nothing; an object array is stored as a pickle, which the loader must refuse."""
-
-
 @pytest.fixture(scope="module")
 def cached(small, tmp_path_factory):
     d = _copy(small["data"], tmp_path_factory.mktemp("cache") / "d")
@@ -409,16 +405,18 @@ def test_a_label_edit_or_a_replaced_part_invalidates_the_cache(small, tmp_path):
     changed = np.flatnonzero(before["location"] != after["location"])
     assert changed.size == 1 and after["location"][changed[0]] == 2
     assert len(list((d / ".cache").glob("features-*.npz"))) == 1
-    # A part replaced by another of the same size and time: the content key changes too.
-    f0, f1 = d / "s000" / "part-00000.flac", d / "s000" / "part-00001.flac"
+    # A part's audio replaced (its mtime kept): the content key changes, the features follow the new audio.
+    f0 = d / "s000" / "part-00000.flac"
+    st = f0.stat()
     x = sf.read(f0)[0]
-    sf.write(f0, -x, int(small["rig"].fs_hz), format="FLAC", subtype="PCM_24")
-    (d / "s000" / "session.json").unlink()
-    flipped = load_features_cached(Dataset(d), progress=False)
-    assert not np.array_equal(flipped.X, after.X) or f1.exists()
-    with pytest.raises(SonicskinError):  # and with the manifest in place, the replaced part is refused
-        shutil.copy(small["data"] / "s000" / "session.json", d / "s000" / "session.json")
+    sf.write(f0, 0.5 * x, int(small["rig"].fs_hz), format="FLAC", subtype="PCM_24")
+    os.utime(f0, ns=(st.st_atime_ns, st.st_mtime_ns))
+    with pytest.raises(DatasetError, match="part-00000.flac does not match its sha256"):  # the manifest refuses it
         load_features_cached(Dataset(d), progress=False)
+    (d / "s000" / "session.json").unlink()
+    halved = load_features_cached(Dataset(d), progress=False)
+    first = np.flatnonzero(halved["session"] == "s000")[:5]
+    np.testing.assert_allclose(halved.X[first] - after.X[first], 20 * np.log10(0.5), atol=0.05)
 
 
 # -- family 4: import-spectra ------------------------------------------------------------------------------------
