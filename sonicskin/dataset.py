@@ -20,7 +20,8 @@ CSV bytes, and the sha256 of ``dataset.json``'s content (canonical JSON).  The r
 manifest (a missing, swapped, added or edited part is refused), then the label rows of the whole
 session (every chirp labelled once, in order, numbered without a gap; values in range; each row on a
 chirp of the stream).  A session without ``session.json`` is an unfinished recording: its parts are
-read up to the first gap and checked by their label rows only.  Session names are plain names
+read (a FLAC without its CSV at the end is the part a killed run was writing; a part missing before
+later ones is damage and refused) and checked by their label rows only.  Session names are plain names
 (:data:`SAFE_NAME`): a writer never writes outside its dataset folder.
 """
 
@@ -464,7 +465,7 @@ class Dataset:
         return d
 
     def parts(self, session: str) -> list[int]:
-        """Complete parts of a session, contiguous from 0 (a part after a gap is ignored)."""
+        """Complete parts of a session, contiguous from 0 (up to a gap; :meth:`read_session` refuses a gap)."""
         d = self._session_dir(session)
         nums = sorted(int(m.group(1)) for p in d.iterdir() if (m := _PART.match(p.name)))
         out = []
@@ -534,6 +535,13 @@ class Dataset:
         parts = self.parts(session)
         out = []
         if manifest is None or "parts" not in manifest:
+            # Writers write parts in order (FLAC, then CSV): a run killed mid-way leaves at most a FLAC without
+            # its CSV at the end.  A part missing before later ones is damage, not an interruption.
+            later = sorted(p.name for p in d.iterdir() if (m := _PART.match(p.name)) and int(m.group(1)) > len(parts))
+            if later:
+                raise DatasetError(f"{d / f'part-{len(parts):05d}'}.flac/.csv is missing but {later[0]} comes after it: the "
+                                   f"session is damaged; restore the part, or delete the parts after the gap and record them "
+                                   f"again (--resume)")
             for p in parts:
                 out.append((p, (d / f"part-{p:05d}.flac").read_bytes(), (d / f"part-{p:05d}.csv").read_bytes()))
             return out
@@ -572,6 +580,7 @@ class Dataset:
         d = self._session_dir(session)
         manifest = self.manifest(session)
         if not self.parts(session) and (manifest is None or "parts" not in manifest):
+            self._part_bytes(session, manifest)  # refuses a gap before later parts
             raise DatasetError(f"{d}: no complete part")
         if manifest is not None and "parts" not in manifest and not self._warned_old:
             self._warned_old = True

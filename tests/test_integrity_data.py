@@ -233,6 +233,9 @@ def _unfinished_mutations() -> list[tuple[str, object, str]]:
         out.append((f"duplicate row {i}", lambda d, i=i: dup(d, i), "labelled twice"))
         out.append((f"delete row {i}", lambda d, i=i: delete(d, i), "has no label row"))
         out.append((f"delete row {i} and renumber", lambda d, i=i: renumbered_delete(d, i), "a label row was removed"))
+    for k in range(N_PARTS - 1):  # a part deleted before later ones: damage, not an interruption
+        out.append((f"delete middle part {k} flac", lambda d, k=k: (d / "s001" / f"part-{k:05d}.flac").unlink(), "is missing but"))
+        out.append((f"delete middle part {k} csv", lambda d, k=k: (d / "s001" / f"part-{k:05d}.csv").unlink(), "is missing but"))
     for k in range(N_PARTS - 1):
         def swap(d, k=k):
             for ext in ("flac", "csv"):
@@ -274,7 +277,10 @@ def test_unfinished_and_old_sessions_are_read_correctly(small, tmp_path):
     full_frames, full_lab = Dataset(small["data"]).read_session("s001")
     d = _copy(small["data"], tmp_path / "d")
     (d / "s001" / "session.json").unlink()
-    (d / "s001" / "part-00003.flac").unlink()  # an interrupted run that lost part 3
+    for k in range(4, N_PARTS):  # a run killed while writing part 3: its FLAC is there, its CSV is not
+        for ext in ("flac", "csv"):
+            (d / "s001" / f"part-{k:05d}.{ext}").unlink()
+    (d / "s001" / "part-00003.csv").unlink()
     frames, lab = Dataset(d).read_session("s001")
     n3 = sum(len(_rows(d / "s001" / f"part-{k:05d}.csv")) - 1 for k in range(3))
     n = frames.shape[0]  # the last labelled chirp of part 2 may run on into part 3: it is dropped
