@@ -13,15 +13,28 @@ exactly as for a live recording).  Each label row is one chirp: ``t_s`` is where
 the session stream, in seconds.  Parts are written atomically (temporary file, then rename;
 the CSV last), so an interrupted run keeps every part already written and a reader never
 sees half a part.  Label columns: see :data:`COLUMNS`.
+
+Integrity: when a session is complete its ``session.json`` is a manifest that binds the parts to
+each other and to ``dataset.json``: every part with its chirp count and the sha256 of its FLAC and
+CSV bytes, and the sha256 of ``dataset.json``'s content (canonical JSON).  The reader checks the
+manifest (a missing, swapped, added or edited part is refused), then the label rows of the whole
+session (every chirp labelled once, in order, numbered without a gap; values in range; each row on a
+chirp of the stream).  A session without ``session.json`` is an unfinished recording: its parts are
+read (a FLAC without its CSV at the end is the part a killed run was writing; a part missing before
+later ones is damage and refused) and checked by their label rows only.  Session names are plain names
+(:data:`SAFE_NAME`): a writer never writes outside its dataset folder.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
 import re
+import warnings
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -32,7 +45,8 @@ from .dsp import frame_stream, log_magnitude_db, rig_chirp
 from .errors import SonicskinError
 from .rig import Layout, Rig
 
-__all__ = ["FORMAT", "VERSION", "COLUMNS", "DatasetError", "DatasetWriter", "Dataset", "FeatureTable"]
+__all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
+           "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json"]
 
 FORMAT = "sonicskin-dataset"
 VERSION = 1
@@ -42,10 +56,102 @@ COLUMNS: dict[str, type] = {
     "y_cm": float, "force_n": float, "moving": float, "temperature_c": float, "subject": int,
 }
 _PART = re.compile(r"part-(\d{5})\.csv$")
+SEGMENTS = ("calibration", "moving", "touch", "gap")
+#: Session (and other file-derived) names: a letter or digit, then letters, digits, ``.``, ``_``, ``-``;
+#: at most 64 characters.  No separators, no ``..``, no hidden names: a name stays inside its folder.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+MANIFEST_VERSION = 1
+MAX_FORCE_N = 1000.0      # a press on a robot link; 1e300 N is a corrupt value, not a force
+MAX_ABS_CM = 1e5          # 1 km of surface
+TEMPERATURE_C = (-100.0, 200.0)
+REDO = "re-create the dataset (simulate/record/import again with --overwrite)"
 
 
 class DatasetError(SonicskinError):
     """A dataset folder that cannot be read as it is; the message says what and where."""
+
+
+def check_name(name, what: str = "session name", where: str = "") -> str:
+    """``name`` if it is a plain file name (:data:`SAFE_NAME`), else a one-line :class:`DatasetError`."""
+    if not isinstance(name, str) or not SAFE_NAME.fullmatch(name) or ".." in name:
+        raise DatasetError(f"{where + ': ' if where else ''}{what} {name!r} is not a plain name (letters, digits, '.', '_', "
+                           f"'-', starting with a letter or digit, at most 64 characters): it would be written outside "
+                           f"the dataset folder or hidden; rename it")
+    return name
+
+
+def _no_duplicates(pairs):
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"the key {k!r} appears twice")
+        out[k] = v
+    return out
+
+
+def load_json(path: Path, *, max_bytes: int = 64 * 2**20, fix: str = REDO):
+    """Parse a JSON file strictly: bounded size, UTF-8, no duplicated keys, no NaN/Infinity."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > max_bytes:
+            raise DatasetError(f"{path} is {size / 2**20:.0f} MB, more than a file of its kind can be ({max_bytes / 2**20:.0f} MB); "
+                               f"the file is corrupt; {fix}")
+        text = path.read_bytes().decode("utf-8")
+
+        def no_constant(c):
+            raise ValueError(f"{c} is not a JSON number")
+        return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=no_constant)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeDecodeError, duplicates
+        raise DatasetError(f"{path} is not valid JSON ({str(e).splitlines()[0][:120]}); the file is corrupt; {fix}") from None
+
+
+def meta_digest(meta: dict) -> str:
+    """sha256 of a parsed ``dataset.json`` in canonical form (sorted keys, no spaces)."""
+    return hashlib.sha256(json.dumps(meta, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -> None:
+    """Every label column in range: one line naming the first bad row and column, else nothing.
+
+    location -1 or a layout id; force_n NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite
+    in [0, 1]; t_s/time_s finite, t_s >= 0; x_cm/y_cm NaN or finite; temperature_c NaN or finite in
+    range; subject >= 0; segment one of :data:`SEGMENTS`.
+    """
+    n = len(lab["chirp"])
+
+    def bad(col: str, mask: np.ndarray, want: str) -> None:
+        if np.any(mask):
+            k = int(np.flatnonzero(mask)[0])
+            v = lab[col][k]
+            raise DatasetError(f"{where}: row {k} (chirp {lab['chirp'][k]}): {col} = {getattr(v, 'item', lambda: v)()!r} but {want}; "
+                               f"fix the value or {REDO}")
+
+    ids = np.asarray(layout.ids)
+    loc = np.asarray(lab["location"])
+    bad("location", (loc != -1) & ~np.isin(loc, ids), f"a location is -1 (no touch) or a layout id {ids[0]}..{ids[-1]}")
+    f = np.asarray(lab["force_n"], float)
+    bad("force_n", ~np.isnan(f) & ~((f >= 0) & (f <= MAX_FORCE_N)), f"a force is NaN (no sensor) or in 0..{MAX_FORCE_N:g} N")
+    m = np.asarray(lab["moving"], float)
+    bad("moving", ~((m >= 0) & (m <= 1)), "the motion level is a number in [0, 1]")
+    for c in ("t_s", "time_s"):
+        v = np.asarray(lab[c], float)
+        bad(c, ~np.isfinite(v) | (np.abs(v) > 1e10), "a time is a finite number of seconds")
+    bad("t_s", np.asarray(lab["t_s"], float) < 0, "a stream time is >= 0")
+    for c in ("x_cm", "y_cm"):
+        v = np.asarray(lab[c], float)
+        bad(c, ~np.isnan(v) & ~(np.abs(v) <= MAX_ABS_CM), "a coordinate is NaN (no touch) or finite cm")
+    T = np.asarray(lab["temperature_c"], float)
+    bad("temperature_c", ~np.isnan(T) & ~((T >= TEMPERATURE_C[0]) & (T <= TEMPERATURE_C[1])),
+        f"a temperature is NaN or in {TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C")
+    bad("subject", np.asarray(lab["subject"]) < 0, "a subject is a whole number >= 0")
+    bad("segment", ~np.isin(np.asarray(lab["segment"]).astype(str), SEGMENTS), f"a segment is one of {', '.join(SEGMENTS)}")
+    if n and np.any(np.asarray(lab["chirp"]) < 0):
+        bad("chirp", np.asarray(lab["chirp"]) < 0, "chirp numbers are >= 0")
 
 
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -70,6 +176,10 @@ class DatasetWriter:
     rig, layout : stored in ``dataset.json``; resuming checks they match.
     source : free metadata (scenario config, recorder settings).
     mode : ``"create"`` (fails if the folder holds a dataset), ``"overwrite"`` or ``"resume"``.
+
+    Every label row is checked before it is written (:func:`check_label_values`), session names
+    must be plain names (:func:`check_name`), and :meth:`finish_session` writes the session's
+    manifest: each part's chirp count and the sha256 of the bytes written.
     """
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,
@@ -78,6 +188,8 @@ class DatasetWriter:
         meta_path = self.root / "dataset.json"
         meta = {"format": FORMAT, "version": VERSION, "rig": rig.to_dict(), "layout": layout.to_dict(),
                 "source": source or {}}
+        if mode not in ("create", "overwrite", "resume"):
+            raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
         if meta_path.exists():
             if mode == "create":
                 raise FileExistsError(f"{self.root} already holds a dataset; pass --resume to continue it "
@@ -88,44 +200,134 @@ class DatasetWriter:
             elif mode == "resume":
                 old = Dataset(self.root)
                 diffs = old.rig.mismatch(rig)
-                if diffs or old.layout != layout or old.meta.get("source") != meta["source"]:
+                if diffs or old.layout != layout or old.meta.get("source") != json.loads(json.dumps(meta["source"])):
                     raise DatasetError(f"cannot resume {self.root}: it was made with other settings "
                                        f"({'; '.join(diffs) or 'layout or source differ'})")
-            else:
-                raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
         self.root.mkdir(parents=True, exist_ok=True)
         if not meta_path.exists():
             _atomic_write_json(meta_path, meta)
+        self.meta_sha256 = meta_digest(load_json(meta_path))
+        self._written: dict[str, dict[int, dict]] = {}  # session -> part -> manifest entry of what this writer wrote
 
     def session_done(self, session: str) -> bool:
-        return (self.root / session / "session.json").exists()
+        return (self.root / check_name(session) / "session.json").exists()
 
     def write_part(self, session: str, part: int, audio: np.ndarray, labels: dict[str, np.ndarray]) -> Path:
         """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1] and its chirps' labels."""
         import soundfile as sf
 
-        d = self.root / session
-        d.mkdir(exist_ok=True)
+        d = self.root / check_name(session)
+        if not (isinstance(part, (int, np.integer)) and 0 <= part <= 99_999):
+            raise ValueError(f"part must be a whole number 0..99999, got {part!r}")
         missing = set(COLUMNS) - set(labels)
         if missing:
             raise ValueError(f"labels lack columns {sorted(missing)}")
         n = {len(np.atleast_1d(v)) for v in labels.values()}
         if len(n) != 1:
             raise ValueError(f"label columns have different lengths {sorted(n)}")
+        audio = np.asarray(audio, dtype=np.float32)
+        if audio.ndim != 1 or not np.isfinite(audio).all():
+            raise DatasetError(f"{d}/part-{part:05d}: the audio must be one finite channel (NaN, inf or several "
+                               f"channels are not recordings)")
+        check_label_values({c: np.atleast_1d(labels[c]) for c in COLUMNS}, self.layout, f"{d}/part-{part:05d}.csv")
+        d.mkdir(exist_ok=True)
         buf = io.BytesIO()
-        sf.write(buf, np.asarray(audio, dtype=np.float32), int(self.rig.fs_hz), format="FLAC", subtype="PCM_24")
-        _atomic_write_bytes(d / f"part-{part:05d}.flac", buf.getvalue())
+        sf.write(buf, audio, int(self.rig.fs_hz), format="FLAC", subtype="PCM_24")
+        flac = buf.getvalue()
         text = io.StringIO()
         w = csv.writer(text, lineterminator="\n")
         w.writerow(COLUMNS)
         cols = [np.atleast_1d(labels[c]) for c in COLUMNS]
         for row in zip(*cols):
             w.writerow([f"{v:.9g}" if isinstance(v, (float, np.floating)) else v for v in row])
-        _atomic_write_bytes(d / f"part-{part:05d}.csv", text.getvalue().encode())
+        data = text.getvalue().encode()
+        _atomic_write_bytes(d / f"part-{part:05d}.flac", flac)
+        _atomic_write_bytes(d / f"part-{part:05d}.csv", data)
+        self._written.setdefault(session, {})[int(part)] = {
+            "part": f"part-{part:05d}", "chirps": int(n.pop()), "flac_sha256": _sha(flac), "csv_sha256": _sha(data)}
         return d / f"part-{part:05d}.csv"
 
     def finish_session(self, session: str, info: dict | None = None) -> None:
-        _atomic_write_json(self.root / session / "session.json", {"complete": True, **(info or {})})
+        """Mark ``session`` complete: its ``session.json`` lists every part (0..k, no gap) with its chirp
+        count and content hashes, and the digest of ``dataset.json``."""
+        d = self.root / check_name(session)
+        nums = sorted(int(m.group(1)) for p in d.iterdir() if (m := _PART.match(p.name)))
+        if nums != list(range(len(nums))) or not nums:
+            raise DatasetError(f"{d}: parts {nums} are not numbered 0..k without a gap; cannot mark the session complete")
+        written = self._written.get(session, {})
+        parts = []
+        for k in nums:
+            entry = written.get(k)
+            if entry is None:  # a part written by an earlier run: bound as it is on disk
+                flac, data = (d / f"part-{k:05d}.flac").read_bytes(), (d / f"part-{k:05d}.csv").read_bytes()
+                rows = max(0, len(data.decode("utf-8", "replace").splitlines()) - 1)
+                entry = {"part": f"part-{k:05d}", "chirps": rows, "flac_sha256": _sha(flac), "csv_sha256": _sha(data)}
+            parts.append(entry)
+        total = sum(p["chirps"] for p in parts)
+        _atomic_write_json(d / "session.json", {**(info or {}), "complete": True, "manifest": MANIFEST_VERSION,
+                                                 "n_chirps": total, "dataset_sha256": self.meta_sha256, "parts": parts})
+
+
+def _npy_header(fh) -> tuple[tuple[int, ...], np.dtype]:
+    fmt = np.lib.format
+    version = fmt.read_magic(fh)
+    if version == (1, 0):
+        shape, _, dtype = fmt.read_array_header_1_0(fh)
+    elif version == (2, 0):
+        shape, _, dtype = fmt.read_array_header_2_0(fh)
+    else:
+        raise ValueError(f"unsupported .npy format version {version}")
+    return tuple(shape), dtype
+
+
+def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, optional: tuple[str, ...] = (),
+             max_bytes: int | None = None, what: str = "table") -> dict[str, np.ndarray]:
+    """Read only the arrays ``names`` of an ``.npz``, each checked from its header before it is loaded.
+
+    ``names``: array name -> (dtype kinds allowed, e.g. ``"fiu"``, and ndim or ``None``).  Arrays not
+    asked for are never read (an unused 3 GB array costs nothing); each array's size from its header
+    (and the zip member's declared size) must fit ``max_bytes`` (default: what memory can hold,
+    :func:`sonicskin.limits.check_memory`).  Object arrays (pickles) are refused.
+    Raises :class:`DatasetError` (one line naming the file and the array).
+    """
+    from .limits import check_memory
+
+    path = Path(path)
+    out: dict[str, np.ndarray] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            members = {n[:-4]: n for n in zf.namelist() if n.endswith(".npy")}
+            missing = [k for k in names if k not in members and k not in optional]
+            if missing:
+                raise DatasetError(f"{path}: missing arrays {missing}; the {what} needs {', '.join(k for k in names if k not in optional)}")
+            total = 0
+            for k, (kinds, ndim) in names.items():
+                if k not in members:
+                    continue
+                info = zf.getinfo(members[k])
+                with zf.open(info) as fh:
+                    shape, dtype = _npy_header(fh)
+                if dtype.hasobject or dtype.kind not in kinds:
+                    want = "numbers" if "f" in kinds else "whole numbers" if "i" in kinds else "text"
+                    raise DatasetError(f"{path}: array {k!r} has dtype {dtype}, expected {want}")
+                if ndim is not None and len(shape) != ndim:
+                    raise DatasetError(f"{path}: array {k!r} has shape {shape}, expected {ndim} dimension(s)")
+                nbytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if info.file_size < nbytes:
+                    raise DatasetError(f"{path}: array {k!r} is cut short ({info.file_size} of {nbytes} bytes); the file is damaged")
+                total += nbytes
+                if max_bytes is not None and total > max_bytes:
+                    raise DatasetError(f"{path}: array {k!r} {shape} is larger than a {what} of this kind can be")
+                check_memory(2 * total, f"the arrays of {path}", "split the table into smaller files")
+            with np.load(path, allow_pickle=False) as z:
+                for k in names:
+                    if k in members:
+                        out[k] = z[k]
+    except DatasetError:
+        raise
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile) as e:
+        raise DatasetError(f"{path}: not a readable .npz {what} ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__})") from None
+    return out
 
 
 class FeatureTable:
@@ -147,15 +349,32 @@ class FeatureTable:
     def touch(self) -> np.ndarray:
         return self.labels["location"] >= 0
 
-    def save_npz(self, path: str | Path) -> None:
-        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``."""
+    def save_npz(self, path: str | Path, *, key: str = "") -> None:
+        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``."""
         arrays = {f"label_{k}": v for k, v in self.labels.items()}
-        np.savez(path, X=self.X, **arrays)
+        np.savez(path, X=self.X, key=np.array(key), **arrays)
 
     @classmethod
-    def load_npz(cls, path: str | Path) -> FeatureTable:
-        with np.load(path, allow_pickle=False) as z:
-            return cls(z["X"], {k[6:]: z[k] for k in z.files if k.startswith("label_")})
+    def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:
+        """Load a table saved by :meth:`save_npz`, checked: every label column of :data:`COLUMNS` plus
+        ``session``, one value per row of ``X``, finite features (``n_features`` wide), and the stored
+        ``key`` equal to ``key`` when given.  Anything else is a :class:`DatasetError`."""
+        names = {"X": ("f", 2), "key": ("U", 0)}
+        names.update({f"label_{c}": ("iuf" if t in (int, float) else "U", 1) for c, t in COLUMNS.items()})
+        names["label_session"] = ("U", 1)
+        z = read_npz(path, names, optional=("key",), what="feature cache")
+        X = z["X"]
+        if key is not None and str(z.get("key", "")) != key:
+            raise DatasetError(f"{path}: a feature cache of other data (key {str(z.get('key', ''))[:16]!r})")
+        if n_features is not None and X.shape[1] != n_features:
+            raise DatasetError(f"{path}: {X.shape[1]} features per chirp, expected {n_features}")
+        labels = {k[6:]: z[k] for k in names if k.startswith("label_")}
+        short = [k for k, v in labels.items() if v.shape != (X.shape[0],)]
+        if short:
+            raise DatasetError(f"{path}: label {short[0]!r} has {labels[short[0]].shape[0]} values for {X.shape[0]} rows")
+        if not np.isfinite(X).all():
+            raise DatasetError(f"{path}: features hold NaN or inf")
+        return cls(X, labels)
 
 
 # Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time.
@@ -226,86 +445,177 @@ class Dataset:
         if not meta_path.is_file():
             raise DatasetError(f"{self.root} is not a sonicskin dataset: dataset.json is missing "
                                f"(create one with `sonicskin simulate` or `sonicskin record`)")
-        try:
-            self.meta = json.loads(meta_path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DatasetError(f"{meta_path} is not valid JSON ({e}); the file is corrupt") from None
+        self.meta = load_json(meta_path)
         self.rig, self.layout = check_meta(self.meta, meta_path)
+        self.meta_sha256 = meta_digest(self.meta)
+        self._warned_old = False
 
     @property
     def sessions(self) -> list[str]:
-        return sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.csv")))
+        """Session folders (those holding a labels CSV); one with an unsafe name is refused, not skipped."""
+        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.csv")))
+        for name in out:
+            check_name(name, "session folder", str(self.root))
+        return out
+
+    def _session_dir(self, session: str) -> Path:
+        d = self.root / check_name(session, where=str(self.root))
+        if not d.is_dir():
+            raise DatasetError(f"{self.root}: no session {session!r} (sessions: {', '.join(self.sessions) or 'none'})")
+        return d
 
     def parts(self, session: str) -> list[int]:
-        """Complete parts of a session, contiguous from 0 (a part after a gap is ignored)."""
-        nums = sorted(int(m.group(1)) for p in (self.root / session).iterdir() if (m := _PART.match(p.name)))
+        """Complete parts of a session, contiguous from 0 (up to a gap; :meth:`read_session` refuses a gap)."""
+        d = self._session_dir(session)
+        nums = sorted(int(m.group(1)) for p in d.iterdir() if (m := _PART.match(p.name)))
         out = []
         for k, n in enumerate(nums):
-            if n != k or not (self.root / session / f"part-{n:05d}.flac").is_file():
+            if n != k or not (d / f"part-{n:05d}.flac").is_file():
                 break
             out.append(n)
         return out
 
-    def _read_labels(self, path: Path) -> dict[str, np.ndarray]:
+    def _read_labels(self, path: Path, data: bytes | None = None) -> dict[str, np.ndarray]:
+        fix = "delete this part and the ones after it (and session.json) and record them again (--resume)"
         try:
-            with open(path, newline="", encoding="utf-8") as fh:
-                rows = list(csv.reader(fh))
+            text = (path.read_bytes() if data is None else data).decode("utf-8")
+            rows = [r for r in csv.reader(io.StringIO(text, newline=""))]
         except (UnicodeDecodeError, csv.Error) as e:
-            raise DatasetError(f"{path}: not a readable labels CSV ({e}); delete this part and the ones after it "
-                               f"and record them again (--resume)") from None
+            raise DatasetError(f"{path}: not a readable labels CSV ({e}); {fix}") from None
         if not rows or rows[0] != list(COLUMNS):
-            raise DatasetError(f"{path}: header must be {','.join(COLUMNS)}; got {','.join(rows[0]) if rows else 'nothing'}")
-        body = rows[1:]
+            raise DatasetError(f"{path}: header must be {','.join(COLUMNS)}; got {','.join(rows[0]) if rows else 'nothing'}; {fix}")
+        body = [r for r in rows[1:] if r]
+        short = [i for i, r in enumerate(body) if len(r) != len(COLUMNS)]
+        if short:
+            raise DatasetError(f"{path}: row {short[0]} has {len(body[short[0]])} values, expected {len(COLUMNS)}; {fix}")
         out = {}
         for j, (name, typ) in enumerate(COLUMNS.items()):
             try:
                 vals = [r[j] for r in body]
                 out[name] = np.array(vals, dtype=object if typ is str else typ).astype(str if typ is str else typ)
-            except (ValueError, IndexError) as e:
-                raise DatasetError(f"{path}: column {name!r} has a bad value ({e})") from None
+            except (ValueError, IndexError, OverflowError) as e:
+                raise DatasetError(f"{path}: column {name!r} has a bad value ({e}); {fix}") from None
         return out
 
-    def _check_session_json(self, session: str) -> None:
-        """``session.json`` (written last, when the session is complete) must be a JSON object
-        ``{"complete": true, ...}`` when present."""
-        path = self.root / session / "session.json"
+    def manifest(self, session: str) -> dict | None:
+        """The session's ``session.json`` checked as a manifest, or ``None`` for an unfinished session."""
+        path = self._session_dir(session) / "session.json"
         if not path.exists():
-            return
-        try:
-            info = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError, OSError) as e:
-            raise DatasetError(f"{path} is corrupt ({e}); delete it to treat the session as unfinished") from None
+            return None
+        fix = "delete it to treat the session as unfinished (--resume records it again), or re-create the dataset"
+        info = load_json(path, max_bytes=16 * 2**20, fix=fix)
         if not isinstance(info, dict) or info.get("complete") is not True:
-            raise DatasetError(f"{path}: expected a JSON object with \"complete\": true; delete it to treat the "
-                               f"session as unfinished")
+            raise DatasetError(f"{path}: expected a JSON object with \"complete\": true; {fix}")
+        if "parts" not in info and "manifest" not in info:
+            return info  # written before manifests (sonicskin < 0.9): checked by its label rows only
+        parts = info.get("parts")
+        ok = (info.get("manifest") == MANIFEST_VERSION and isinstance(parts, list) and parts
+              and isinstance(info.get("dataset_sha256"), str))
+        if ok:
+            for k, e in enumerate(parts):
+                if not (isinstance(e, dict) and e.get("part") == f"part-{k:05d}"
+                        and isinstance(e.get("chirps"), int) and not isinstance(e.get("chirps"), bool) and e["chirps"] >= 0
+                        and all(isinstance(e.get(h), str) and re.fullmatch(r"[0-9a-f]{64}", e[h])
+                                for h in ("flac_sha256", "csv_sha256"))):
+                    ok = False
+                    break
+        if not ok:
+            raise DatasetError(f"{path}: not a session manifest of version {MANIFEST_VERSION} (parts numbered from 0, "
+                               f"each with chirps, flac_sha256 and csv_sha256; dataset_sha256); {fix}")
+        if info.get("n_chirps", sum(e["chirps"] for e in parts)) != sum(e["chirps"] for e in parts):
+            raise DatasetError(f"{path}: n_chirps {info['n_chirps']!r} is not the sum of its parts' chirps; {fix}")
+        if info["dataset_sha256"] != self.meta_sha256:
+            raise DatasetError(f"{path} was written for another dataset.json (its rig, layout or source changed since); "
+                               f"restore the dataset.json that came with the data, or {REDO}")
+        return info
+
+    def _part_bytes(self, session: str, manifest: dict | None) -> list[tuple[int, bytes, bytes]]:
+        """(part, FLAC bytes, CSV bytes) of every part, checked against the manifest when there is one."""
+        d = self._session_dir(session)
+        parts = self.parts(session)
+        out = []
+        if manifest is None or "parts" not in manifest:
+            # Writers write parts in order (FLAC, then CSV): a run killed mid-way leaves at most a FLAC without
+            # its CSV at the end.  A part missing before later ones is damage, not an interruption.
+            later = sorted(p.name for p in d.iterdir() if (m := _PART.match(p.name)) and int(m.group(1)) > len(parts))
+            if later:
+                raise DatasetError(f"{d / f'part-{len(parts):05d}'}.flac/.csv is missing but {later[0]} comes after it: the "
+                                   f"session is damaged; restore the part, or delete the parts after the gap and record them "
+                                   f"again (--resume)")
+            for p in parts:
+                out.append((p, (d / f"part-{p:05d}.flac").read_bytes(), (d / f"part-{p:05d}.csv").read_bytes()))
+            return out
+        listed = manifest["parts"]
+        fix = f"restore the session's files from a copy, or delete {d} and re-create it (--resume)"
+        for e in listed:
+            for ext in ("flac", "csv"):
+                if not (d / f"{e['part']}.{ext}").is_file():
+                    raise DatasetError(f"{d / (e['part'] + '.' + ext)} is missing but session.json lists it "
+                                       f"({len(listed)} parts); {fix}")
+        extra = sorted(p.name for p in d.iterdir() if (m := _PART.match(p.name)) and int(m.group(1)) >= len(listed))
+        extra += sorted(p.name for p in d.glob("part-*.flac") if not re.fullmatch(r"part-\d{5}\.flac", p.name)
+                        or int(p.name[5:10]) >= len(listed))
+        if extra:
+            raise DatasetError(f"{d / extra[0]} is not in session.json ({len(listed)} parts); remove it, or {fix}")
+        by_hash = {(ext, e[f"{ext}_sha256"]): e["part"] for e in listed for ext in ("flac", "csv")}
+        for k, e in enumerate(listed):
+            got = []
+            for ext in ("flac", "csv"):
+                path = d / f"{e['part']}.{ext}"
+                data = path.read_bytes()
+                h = _sha(data)
+                if h != e[f"{ext}_sha256"]:
+                    other = by_hash.get((ext, h))
+                    why = (f"it holds the content of {other}.{ext} (parts swapped or renamed)" if other
+                           else "the file was edited, replaced or damaged")
+                    raise DatasetError(f"{path} does not match its sha256 in session.json: {why}; {fix}")
+                got.append(data)
+            out.append((k, got[0], got[1]))
+        return out
 
     def read_session(self, session: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """The session's chirp-aligned frames (n, n_chirp) float32 and their labels."""
         import soundfile as sf
 
-        parts = self.parts(session)
-        if not parts:
-            raise DatasetError(f"{self.root / session}: no complete part")
-        self._check_session_json(session)
+        d = self._session_dir(session)
+        manifest = self.manifest(session)
+        if not self.parts(session) and (manifest is None or "parts" not in manifest):
+            self._part_bytes(session, manifest)  # refuses a gap before later parts
+            raise DatasetError(f"{d}: no complete part")
+        if manifest is not None and "parts" not in manifest and not self._warned_old:
+            self._warned_old = True
+            warnings.warn(f"{self.root}: written by an older sonicskin, its session.json files bind no content hashes; "
+                          f"its parts are checked by their label rows only ({REDO} to bind them)", stacklevel=2)
         audio, labels = [], []
-        for p in parts:
-            fpath = self.root / session / f"part-{p:05d}.flac"
+        fix = "delete this part and the ones after it (and session.json) and record them again (--resume)"
+        for p, flac, text in self._part_bytes(session, manifest):
+            fpath = d / f"part-{p:05d}.flac"
             try:
-                x, sr = sf.read(fpath, dtype="float32", always_2d=True)
-            except RuntimeError as e:
-                raise DatasetError(f"{fpath}: unreadable audio ({e}); delete this part and the ones after it") from None
+                x, sr = sf.read(io.BytesIO(flac), dtype="float32", always_2d=True)
+            except (RuntimeError, TypeError, ValueError, AssertionError) as e:  # soundfile.LibsndfileError is a RuntimeError
+                raise DatasetError(f"{fpath}: unreadable audio ({str(e).splitlines()[0] if str(e) else type(e).__name__}); {fix}") from None
             if sr != int(self.rig.fs_hz):
                 raise DatasetError(f"{fpath}: sample rate {sr} Hz, but the dataset's rig runs at {self.rig.fs_hz:g} Hz")
             if x.shape[1] != 1:
                 raise DatasetError(f"{fpath}: {x.shape[1]} channels; a part holds the receiver channel only")
+            if not np.isfinite(x).all():
+                raise DatasetError(f"{fpath}: audio holds NaN or inf; {fix}")
+            lab = self._read_labels(d / f"part-{p:05d}.csv", text)
+            if manifest is not None and "parts" in manifest and len(lab["chirp"]) != manifest["parts"][p]["chirps"]:
+                raise DatasetError(f"{d / f'part-{p:05d}.csv'}: {len(lab['chirp'])} label rows but session.json counts "
+                                   f"{manifest['parts'][p]['chirps']} chirps; {fix}")
             audio.append(x[:, 0])
-            labels.append(self._read_labels(self.root / session / f"part-{p:05d}.csv"))
+            labels.append(lab)
         stream = np.concatenate(audio)
-        lab = {k: np.concatenate([d[k] for d in labels]) for k in COLUMNS}
+        lab = {k: np.concatenate([part[k] for part in labels]) for k in COLUMNS}
+        if manifest is not None and isinstance(manifest.get("n_chirps"), int) and lab["chirp"].size != manifest["n_chirps"]:
+            raise DatasetError(f"{d}: {lab['chirp'].size} label rows but session.json counts {manifest['n_chirps']} chirps; "
+                               f"a part or row was removed or added; restore the files or {REDO}")
+        self._check_rows(d, lab)
         L = self.rig.n_chirp
         frames, offset = frame_stream(stream, rig_chirp(self.rig))
         pos = (lab["t_s"] * self.rig.fs_hz - offset) / L
-        idx = np.round(pos).astype(int)
+        idx = np.round(pos).astype(np.int64)
         bad = (np.abs(pos - idx) > 0.25) | (idx < 0)
         # A recording may stop inside its last labelled chirp: that chirp is dropped, not an error.
         cut = idx >= frames.shape[0]
@@ -314,12 +624,32 @@ class Dataset:
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             raise DatasetError(
-                f"{self.root / session}: label row {k} (t_s={lab['t_s'][k]:.6f}) does not fall on a chirp of the stream "
+                f"{d}: label row {k} (t_s={lab['t_s'][k]:.6f}) does not fall on a chirp of the stream "
                 f"(chirps start at {offset / self.rig.fs_hz:.6f} s + k * {self.rig.period_s:.6f} s); labels and audio disagree")
+        step = np.flatnonzero(np.diff(idx) != 1)
+        if step.size:
+            k = int(step[0]) + 1
+            how = ("label the same chirp of the stream, or go back in time" if idx[k] <= idx[k - 1] else
+                   f"skip {idx[k] - idx[k - 1] - 1} chirp(s) of the stream: a label row was removed")
+            raise DatasetError(f"{d}: label rows {k - 1} and {k} (t_s {lab['t_s'][k - 1]:.6f} and {lab['t_s'][k]:.6f}) {how}; "
+                               f"every chirp of a session is labelled once, in order; {REDO}")
         keep = ~cut
         lab = {k: v[keep] for k, v in lab.items()}
         lab["session"] = np.full(int(keep.sum()), session)
         return frames[idx[keep]], lab
+
+    def _check_rows(self, d: Path, lab: dict[str, np.ndarray]) -> None:
+        """Label rows of a whole session: chirps numbered 0, 1, 2, ... (each once, in order, no gap), values in range."""
+        chirp = lab["chirp"]
+        expect = np.arange(chirp.size)
+        wrong = np.flatnonzero(chirp != expect)
+        if wrong.size:
+            k = int(wrong[0])
+            how = ("labelled twice" if k and chirp[k] <= chirp[k - 1] else
+                   f"a gap: chirp {expect[k]} has no label row" if chirp[k] > expect[k] else "out of order")
+            raise DatasetError(f"{d}: label row {k} is chirp {chirp[k]}, expected {expect[k]} ({how}); every chirp of a "
+                               f"session is labelled once, in order; restore the files or {REDO}")
+        check_label_values(lab, self.layout, str(d))
 
     def iter_sessions(self, sessions: list[str] | None = None) -> Iterator[tuple[str, np.ndarray, dict[str, np.ndarray]]]:
         for s in sessions or self.sessions:

@@ -110,22 +110,56 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     return out
 
 
+def _code_version() -> bytes:
+    """What the cached values depend on in the code: the package version and the bytes of the modules
+    that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
+    from . import __version__, dataset, dsp
+
+    h = hashlib.sha256(f"sonicskin {__version__}".encode())
+    for mod in (dataset, dsp):
+        try:
+            h.update(Path(mod.__file__).read_bytes())
+        except (OSError, TypeError):  # a frozen build without sources: the version alone
+            h.update(mod.__name__.encode())
+    return h.digest()
+
+
 def _signature(ds: Dataset) -> str:
-    h = hashlib.sha256()
+    """Cache key of a dataset's features: the sha256 of everything that changes their values: the code
+    (:func:`_code_version`), ``dataset.json`` (rig, layout), and per session the bytes of every part's
+    FLAC and CSV and of ``session.json`` (which parts count)."""
+    h = hashlib.sha256(_code_version())
+    h.update(ds.meta_sha256.encode())
     for s in ds.sessions:
+        d = ds.root / s
+        info = d / "session.json"
+        h.update(f"session {s} {len(ds.parts(s))}\n".encode())
+        if info.is_file():
+            h.update(hashlib.sha256(info.read_bytes()).digest())
         for p in ds.parts(s):
-            f = ds.root / s / f"part-{p:05d}.flac"
-            h.update(f"{s}/{p}:{f.stat().st_size}:{f.stat().st_mtime_ns}".encode())
-    return h.hexdigest()[:16]
+            for ext in ("flac", "csv"):
+                f = d / f"part-{p:05d}.{ext}"
+                fh = hashlib.sha256()
+                with open(f, "rb") as stream:
+                    for block in iter(lambda: stream.read(1 << 20), b""):
+                        fh.update(block)
+                h.update(f"{p}.{ext}".encode() + fh.digest())
+    return h.hexdigest()
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache`` (rebuilt when parts change)."""
-    cache = ds.root / ".cache" / f"features-{_signature(ds)}.npz"
+    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``.
+
+    The cache is keyed by content (:func:`_signature`: code, dataset.json, the bytes of every part's
+    audio and labels), so editing a label or replacing a part rebuilds it; a cache file that is
+    damaged, of other data or inconsistent (a label column one short) is rebuilt, never trusted.
+    """
+    key = _signature(ds)
+    cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
     if cache.is_file():
         try:
-            return FeatureTable.load_npz(cache)
-        except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # damaged cache: rebuilt from the audio below
+            return FeatureTable.load_npz(cache, key=key, n_features=ds.rig.n_band)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # damaged or stale cache: rebuilt from the audio below
             pass
     t = ds.features(progress=progress)
     # Several processes may build the cache at once (DDP ranks, parallel `compare` runs): each writes its
@@ -133,7 +167,7 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
     tmp = cache.parent / f".{cache.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz"
     try:
         cache.parent.mkdir(exist_ok=True)
-        t.save_npz(tmp)
+        t.save_npz(tmp, key=key)
         os.replace(tmp, cache)
     except PermissionError:  # a read-only dataset: features are simply not cached
         return t

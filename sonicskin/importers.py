@@ -44,8 +44,10 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
-from .dataset import COLUMNS, DatasetWriter
+from .dataset import COLUMNS, MAX_ABS_CM, MAX_FORCE_N, DatasetWriter, check_name, read_npz
 from .dsp import chirp_spectrum, frame_stream
+from .errors import SonicskinError
+from .limits import check_memory
 from .rig import Layout, Rig
 
 __all__ = ["import_wav", "import_spectra", "sweep_rig", "rig_from_axis", "label_layout", "STANDARD_RATES_HZ"]
@@ -56,6 +58,38 @@ NO_TOUCH_LABELS = frozenset({"", "-1", "nan", "none", "no-touch", "no_touch", "n
 STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000,
                      11_025, 22_050, 24_000)
 PEAK_LEVEL = 0.5  # imported streams are scaled to this peak (-6 dBFS)
+SILENT_RMS = 1e-7  # a recording quieter than this (about -140 dBFS) holds no received sweep
+
+
+class ImportDataError(SonicskinError):
+    """Input an importer refuses: the message names the file, the row or array, and the fix."""
+
+
+def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=None, y_cm=None, rows=None) -> None:
+    """Label values at the door: force NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite in [0, 1];
+    subject a whole number >= 0; coordinates NaN or finite.  ``rows``: names of the rows for the message."""
+    def first(mask, col, vals, want):
+        mask = np.asarray(mask, bool)
+        if mask.any():
+            k = int(np.flatnonzero(mask)[0])
+            name = rows[k] if rows is not None else f"row {k}"
+            raise ImportDataError(f"{where}: {name}: {col} = {np.asarray(vals)[k]!r}, but {want}; fix the value")
+
+    if force is not None:
+        f = np.asarray(force, float)
+        first(~np.isnan(f) & ~((f >= 0) & (f <= MAX_FORCE_N)), "force_n", force,
+              f"a force is empty/NaN (no sensor) or a number in 0..{MAX_FORCE_N:g} N")
+    if moving is not None:
+        m = np.asarray(moving, float)
+        first(~((m >= 0) & (m <= 1)), "moving", moving, "the motion level is a number in [0, 1]")
+    if subject is not None:
+        v = np.asarray(subject, float)
+        first(~(np.isfinite(v) & (v >= 0) & (v < 2**31) & (v == np.round(v))), "subject", subject,
+              "a subject is a whole number >= 0")
+    for col, c in (("x_cm", x_cm), ("y_cm", y_cm)):
+        if c is not None:
+            v = np.asarray(c, float)
+            first(~np.isnan(v) & ~(np.abs(v) <= MAX_ABS_CM), col, c, "a coordinate is empty/NaN or a finite number of cm")
 
 
 # -- the rig --------------------------------------------------------------------------
@@ -243,8 +277,13 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
 
 
 def _read_labels(path: Path) -> list[dict]:
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        if path.stat().st_size > 256 * 2**20:
+            raise ImportDataError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is not a label CSV of touch intervals")
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise ImportDataError(f"{path}: not a readable CSV ({str(e)[:120]}); save it as UTF-8 text") from None
     if not rows:
         raise ValueError(f"{path}: no label rows")
     missing = [c for c in _LABEL_COLS if c not in rows[0]]
@@ -261,12 +300,64 @@ def _read_labels(path: Path) -> list[dict]:
             d = {"file": r["file"], "start_s": float(r["start_s"]), "end_s": float(r["end_s"]), "label": r["location"].strip(),
                  "x_cm": num(r, "x_cm", np.nan), "y_cm": num(r, "y_cm", np.nan), "force_n": num(r, "force_n", np.nan),
                  "moving": num(r, "moving", 0.0), "subject": int(num(r, "subject", 0))}
-        except ValueError as e:
-            raise ValueError(f"{path} line {i}: {e}") from None
+        except (ValueError, TypeError, OverflowError, AttributeError) as e:
+            raise ImportDataError(f"{path} line {i}: {e}") from None
+        if not (np.isfinite(d["start_s"]) and np.isfinite(d["end_s"]) and d["start_s"] >= 0):
+            raise ImportDataError(f"{path} line {i}: start_s and end_s must be finite seconds >= 0, got {r['start_s']}, {r['end_s']}")
         if d["end_s"] <= d["start_s"]:
-            raise ValueError(f"{path} line {i}: end_s must be after start_s")
+            raise ImportDataError(f"{path} line {i}: end_s must be after start_s")
+        d["line"] = i
         out.append(d)
+    _check_values(str(path), force=[d["force_n"] for d in out], moving=[d["moving"] for d in out],
+                  subject=[d["subject"] for d in out],
+                  x_cm=[d["x_cm"] for d in out], y_cm=[d["y_cm"] for d in out], rows=[f"line {d['line']}" for d in out])
     return out
+
+
+def _check_intervals(rows: list[dict], path: Path, name: str, duration_s: float, period_s: float) -> None:
+    """Intervals of one recording: inside it (give or take one sweep period), and overlapping ones agree."""
+    mine = sorted((r for r in rows if r["file"] == name), key=lambda r: (r["start_s"], r["end_s"]))
+    for r in mine:
+        if r["start_s"] >= duration_s or r["end_s"] > duration_s + period_s:
+            raise ImportDataError(f"{path} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s ends past the end of "
+                               f"{name} ({duration_s:.3f} s long); fix the times or the file name")
+    keys = ("location", "force_n", "moving", "subject")
+    for i, a in enumerate(mine):
+        for b in mine[i + 1:]:
+            if b["start_s"] >= a["end_s"]:
+                break
+            same = all(a[k] == b[k] or (isinstance(a[k], float) and np.isnan(a[k]) and np.isnan(b[k])) for k in keys)
+            if not same:
+                raise ImportDataError(f"{path} lines {a['line']} and {b['line']}: the intervals {a['start_s']:g}-{a['end_s']:g} s "
+                                   f"and {b['start_s']:g}-{b['end_s']:g} s of {name} overlap with different labels "
+                                   f"(location {a['label']!r} vs {b['label']!r}); a chirp has one label: fix the times")
+
+
+def _sf_info(p: Path):
+    import soundfile as sf
+
+    try:
+        return sf.info(str(p))
+    except (RuntimeError, TypeError, ValueError, OSError) as e:  # soundfile.LibsndfileError is a RuntimeError
+        raise ImportDataError(f"{p}: not a readable audio file ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); "
+                           f"the file is damaged or not WAV/FLAC") from None
+
+
+def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
+    import soundfile as sf
+
+    info = _sf_info(p)
+    check_memory(4.0 * info.frames * max(1, info.channels) * 3, f"reading {p}", f"split the {what} into shorter files")
+    try:
+        x, sr = sf.read(str(p), dtype="float32", always_2d=True)
+    except (RuntimeError, TypeError, ValueError, OSError, AssertionError) as e:
+        raise ImportDataError(f"{p}: not a readable audio file ({str(e).splitlines()[0][:120] if str(e) else type(e).__name__}); "
+                           f"the file is damaged") from None
+    if x.size == 0:
+        raise ImportDataError(f"{p}: holds no samples")
+    if not np.isfinite(x).all():
+        raise ImportDataError(f"{p}: the {what} holds NaN or inf samples (float WAV); it is damaged: export it again")
+    return x, sr
 
 
 # -- writing all or nothing -----------------------------------------------------------
@@ -318,7 +409,6 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     ``mode``: ``"create"`` (refuses an existing dataset), ``"overwrite"`` or ``"resume"`` (keeps the
     recordings imported already).  A failed import leaves no new dataset behind.
     """
-    import soundfile as sf
 
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
     if not wav_dir.is_dir():
@@ -330,16 +420,20 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     unknown = {r["file"] for r in rows} - {p.name for p in files}
     if unknown:
         raise ValueError(f"{labels}: labels name files that are not in {wav_dir}: {sorted(unknown)}")
-    rates = {sf.info(p).samplerate for p in files}
+    infos = {p: _sf_info(p) for p in files}
+    rates = {i.samplerate for i in infos.values()}
     if len(rates) != 1:
         raise ValueError(f"{wav_dir}: recordings at different sample rates {sorted(rates)}; resample them to one")
     fs = float(rates.pop())
     if sweep_wav is not None:
-        sweep, sr = sf.read(sweep_wav, dtype="float32", always_2d=True)
+        sweep, sr = _sf_read(Path(sweep_wav), "sweep")
         if sr != fs:
             raise ValueError(f"{sweep_wav}: the sweep is at {sr} Hz but the recordings at {fs:g} Hz")
         rig = sweep_rig(sweep[:, 0], fs, pwm_hz=pwm_hz, pwm_halfwidth_hz=pwm_halfwidth_hz)
     elif chirp_hz is not None and period_s is not None:
+        if not (np.isfinite(period_s) and 0 < period_s * fs <= 1 << 22):
+            raise ImportDataError(f"--period {period_s:g} s is {period_s * fs:.3g} samples at {fs:g} Hz; a sweep period is "
+                                  f"64..{1 << 22} samples")
         n = int(round(period_s * fs))
         rig = Rig(fs_hz=fs, f_lo_hz=chirp_hz[0], f_hi_hz=chirp_hz[1], n_chirp=n, pwm_hz=tuple(pwm_hz),
                   pwm_halfwidth_hz=pwm_halfwidth_hz, amplitude=amplitude, name="imported")
@@ -352,6 +446,8 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     from .dsp import rig_chirp
 
     ref = rig_chirp(rig)
+    for p in files:
+        _check_intervals(rows, labels, p.name, infos[p].frames / fs, rig.period_s)
     source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()}}
     with _staged(out, mode) as (root, wmode):
         w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
@@ -360,10 +456,13 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             session = f"s{k:03d}"
             if w.session_done(session):
                 continue
-            x, _ = sf.read(p, dtype="float32", always_2d=True)
+            x, _ = _sf_read(p)
             if channel >= x.shape[1]:
                 raise ValueError(f"{p}: has {x.shape[1]} channels; --channel {channel} does not exist")
             x = x[:, channel]
+            if not np.sqrt(np.mean(np.square(x, dtype=np.float64))) > SILENT_RMS:
+                raise ImportDataError(f"{p}: channel {channel} is silent (all zeros or below {SILENT_RMS:g} RMS): no sweep "
+                                      f"was received; check the file and --channel")
             if x.size < 2 * rig.n_chirp:
                 raise ValueError(f"{p}: {x.size} samples hold less than two sweeps of {rig.n_chirp}; is --sweep/--period right?")
             frames, offset = frame_stream(x, ref)
@@ -417,16 +516,11 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
     """
     table, out = Path(table), Path(out)
-    try:
-        with np.load(table, allow_pickle=False) as npz:
-            z = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{table}: not a readable .npz table ({e})") from None
-    need = ("freqs_hz", "magnitude_db", "location", "session")
-    missing = [k for k in need if k not in z]
-    if missing:
-        raise ValueError(f"{table}: missing arrays {missing}; need {', '.join(need)} (optional x_cm, y_cm, force_n, "
-                         f"moving, subject)")
+    # Only the arrays this importer uses are read, each checked from its header first.
+    z = read_npz(table, {"freqs_hz": ("fiu", 1), "magnitude_db": ("fiu", 2), "location": ("fiuU", 1),
+                         "session": ("iuU", 1), "x_cm": ("fiu", 1), "y_cm": ("fiu", 1), "force_n": ("fiu", 1),
+                         "moving": ("fiu", 1), "subject": ("fiu", 1)},
+                 optional=("x_cm", "y_cm", "force_n", "moving", "subject"), what="table")
     f, M = np.asarray(z["freqs_hz"], float), np.asarray(z["magnitude_db"], float)
     if M.ndim != 2 or M.shape[1] != f.size:
         raise ValueError(f"{table}: magnitude_db must be (n, {f.size}) for {f.size} frequencies, got {M.shape}")
@@ -434,6 +528,12 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     for k in ("location", "session", "x_cm", "y_cm", "force_n", "moving", "subject"):
         if k in z and np.shape(z[k]) != (n,):
             raise ValueError(f"{table}: {k} has shape {np.shape(z[k])}; need one value per row ({n},)")
+    if not np.isfinite(f).all():
+        raise ImportDataError(f"{table}: freqs_hz has NaN or inf")
+    _check_values(str(table), force=z.get("force_n"), moving=z.get("moving"), subject=z.get("subject"),
+                  x_cm=z.get("x_cm"), y_cm=z.get("y_cm"))
+    for name in sorted(set(np.asarray(z["session"]).astype(str))):
+        check_name(name, "session", str(table))
     if not np.all(np.diff(f) > 0):
         raise ValueError(f"{table}: freqs_hz must increase")
     if not np.isfinite(M).all():
@@ -465,6 +565,11 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
         A = M
     else:
         A = np.stack([np.interp(fb, f, m) for m in M])
+    sessions_n = max(int(np.sum(sessions == s)) for s in set(sessions))
+    # frames_of holds a session's spectra (complex) and its frames (float64) at once, plus the audio.
+    check_memory(sessions_n * (rig.n_chirp // 2 + 1) * 16 * 3 + sessions_n * rig.n_chirp * 8 * 3,
+                 f"building the longest session of {table} ({sessions_n} rows of {rig.n_chirp}-sample frames)",
+                 "pass a smaller --frame or --fs, or split the table's sessions")
     S = chirp_spectrum(rig)
 
     def frames_of(idx):
@@ -498,7 +603,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
                    "y_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 1], np.nan),
                    "force_n": force[idx], "moving": np.asarray(z.get("moving", np.zeros(n)), float)[idx],
                    "temperature_c": np.full(idx.size, np.nan),
-                   "subject": np.asarray(z.get("subject", np.zeros(n)), int)[idx]}
+                   "subject": np.asarray(z.get("subject", np.zeros(n)), float).astype(np.int64)[idx]}
             _write_session(w, s, audio, lab, {"rows": int(idx.size)})
     log(f"imported {n} spectra in {len(set(sessions))} sessions into {out} (levels scaled by {gain_db:+.1f} dB, "
         f"stored as source.gain_db)")

@@ -377,6 +377,27 @@ def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
+def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
+                      gap_s: float) -> None:
+    """Refuse prompt lengths whose audio would not fit in memory, before anything is opened or written.
+
+    The recorder holds one prompt's received audio until the prompt ends (float32, plus the copy that
+    is written), and the simulated person's timeline holds ~256 bytes per chirp of the session.
+    """
+    from .limits import check_memory
+
+    for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
+        if not np.isfinite(v):
+            raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
+    longest = max(calibration_s, moving_s, touch_s, gap_s)
+    n_prompt = rig.seconds_to_chirps(longest)
+    check_memory(3.0 * 4 * rig.n_chirp * n_prompt, f"a prompt of {longest:g} s ({n_prompt:.3g} chirps of audio held until it ends)",
+                 "record shorter prompts (--calibration-s, --moving-s, --touch-s, --gap-s)")
+    total = (rig.seconds_to_chirps(calibration_s) + rig.seconds_to_chirps(moving_s)
+             + n_locations * (rig.seconds_to_chirps(touch_s) + rig.seconds_to_chirps(gap_s)))
+    check_memory(256.0 * total, f"the session's labels ({total:.3g} chirps)", "record fewer or shorter prompts")
+
+
 def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device="sim", resume: bool = False,
                    overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
@@ -404,6 +425,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     for name, v in (("moving-s", moving_s), ("gap-s", gap_s)):
         if not v >= 0:
             raise ValueError(f"--{name} must be >= 0 s, got {v:g}")
+    check_record_size(rig, len(wanted), calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s)
     if calibration_s < 3.0:
         log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "
             f"fit-svm will need --mode absolute on this recording")

@@ -17,7 +17,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Rig", "Layout", "load_yaml", "config_dir", "config_names", "resolve_config", "CONFIG_KINDS"]
+from .errors import SonicskinError
+
+__all__ = ["Rig", "Layout", "ConfigError", "MAX_N_CHIRP", "MAX_FS_HZ",
+           "load_yaml", "config_dir", "config_names", "resolve_config", "CONFIG_KINDS"]
+
+class ConfigError(SonicskinError):
+    """A rig, scenario or training config that cannot be used as it is; the message names the file or key."""
+
+
+#: Bounds of a rig: a chirp of 4 Mi samples (21.8 s at 192 kHz) and a 10 MHz sample rate are far
+#: beyond any audio interface; larger values are corrupt files or typos that would ask for terabytes.
+MAX_N_CHIRP = 1 << 22
+MAX_FS_HZ = 10e6
 
 #: The config folders (``configs/<kind>/<name>.yaml``) a bare name can refer to.
 CONFIG_KINDS = ("rigs", "scenarios", "links", "train")
@@ -78,26 +90,72 @@ _resolve_config = resolve_config  # the old private name, for callers not yet up
 CONFIG_DIR = config_dir()
 
 
+MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a config
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping, with an error that names the file when it is not one."""
+    """Read a YAML mapping of plain values, with one-line errors (:class:`ConfigError`) that name the file.
+
+    Refused: a file over :data:`MAX_YAML_BYTES`, text that is not UTF-8, YAML syntax errors (with the
+    line), tags that construct objects (``!!python/object``: plain values only), a key given twice
+    in one mapping, and a top level that is not a mapping.
+    """
     import yaml
 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file {path} does not exist")
-    with path.open() as fh:
-        data = yaml.safe_load(fh)
+    if path.stat().st_size > MAX_YAML_BYTES:
+        raise ConfigError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is too large for a config file "
+                          f"(at most {MAX_YAML_BYTES // 2**20} MB)")
+
+    class _Loader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=True)
+            try:
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} appears twice", key_node.start_mark)
+                seen.add(key)
+            except TypeError:  # an unhashable key: SafeLoader reports it below
+                pass
+        return loader.construct_mapping(node, deep=deep)
+
+    _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    try:
+        text = path.read_bytes().decode("utf-8")
+        loader = _Loader(text)  # a SafeLoader that also refuses duplicated keys
+        try:
+            data = loader.get_single_data()
+        finally:
+            loader.dispose()
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); save the config as UTF-8") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None) or getattr(e, "context_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = " ".join(str(getattr(e, "problem", None) or e).split())
+        if "could not determine a constructor" in problem or "tag" in problem and "python" in problem:
+            problem = f"{problem.split(' for the tag ')[-1]} is a tag that builds an object; configs hold plain values only"
+        raise ConfigError(f"{path}: not a valid YAML config ({where}{problem[:160]}); fix the file") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a config file") from None
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
+        raise ConfigError(f"{path}: expected a YAML mapping at the top level, got {type(data).__name__}")
     return data
 
 
 def check_keys(cls, d: dict[str, Any], what: str) -> None:
     """Reject config keys a dataclass does not have, naming the valid ones."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"a {what} must be a mapping of keys to values, got {type(d).__name__}")
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(d) - names
     if unknown:
-        raise ValueError(f"unknown {what} keys {sorted(unknown)}; valid keys: {sorted(names)}")
+        raise ConfigError(f"unknown {what} keys {sorted(unknown, key=str)}; valid keys: {sorted(names)}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,10 +188,29 @@ class Rig:
     sweep_b64: str | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "pwm_hz", tuple(float(f) for f in self.pwm_hz))
+        for k in ("fs_hz", "f_lo_hz", "f_hi_hz", "pwm_halfwidth_hz", "amplitude"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+                raise ConfigError(f"rig {k} must be a finite number, got {v!r}")
+        if isinstance(self.n_chirp, bool) or not isinstance(self.n_chirp, (int, float, np.integer, np.floating)) \
+                or not np.isfinite(self.n_chirp):
+            raise ConfigError(f"rig n_chirp must be a whole number of samples, got {self.n_chirp!r}")
+        if not isinstance(self.pwm_hz, (list, tuple)) or len(self.pwm_hz) > 64:
+            raise ConfigError(f"rig pwm_hz must be a list of at most 64 frequencies in Hz, got {self.pwm_hz!r}")
+        try:
+            object.__setattr__(self, "pwm_hz", tuple(float(f) for f in self.pwm_hz))
+        except (TypeError, ValueError):
+            raise ConfigError(f"rig pwm_hz must be a list of frequencies in Hz, got {self.pwm_hz!r}") from None
+        if not all(np.isfinite(self.pwm_hz)):
+            raise ConfigError(f"rig pwm_hz must be finite, got {list(self.pwm_hz)}")
+        if self.sweep_b64 is not None and not isinstance(self.sweep_b64, str):
+            raise ConfigError("rig sweep_b64 must be a base64 text")
         nyq = self.fs_hz / 2
-        if self.fs_hz <= 0:
-            raise ValueError(f"fs_hz must be positive, got {self.fs_hz}")
+        if not 0 < self.fs_hz <= MAX_FS_HZ:
+            raise ValueError(f"fs_hz must be in (0, {MAX_FS_HZ:g}] Hz, got {self.fs_hz:g}")
+        if not 64 <= self.n_chirp <= MAX_N_CHIRP:
+            raise ValueError(f"n_chirp must be 64..{MAX_N_CHIRP} samples (a frame of {MAX_N_CHIRP} samples is "
+                             f"{MAX_N_CHIRP / self.fs_hz:.3g} s here), got {self.n_chirp:g}")
         if not 0 < self.f_lo_hz < self.f_hi_hz <= nyq:
             raise ValueError(
                 f"need 0 < f_lo_hz < f_hi_hz <= fs_hz/2 = {nyq:g}, got f_lo_hz={self.f_lo_hz:g}, "

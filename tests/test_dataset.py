@@ -67,9 +67,13 @@ def test_bad_datasets_are_named(tiny, tmp_path, rig):
     shutil.copy(tiny / "dataset.json", d / "dataset.json")
     x, sr = sf.read(d / "s000" / "part-00000.flac")
     sf.write(d / "s000" / "part-00000.flac", x, 48000, format="FLAC", subtype="PCM_24")
+    with pytest.raises(DatasetError, match="part-00000.flac does not match its sha256 in session.json"):
+        Dataset(d).read_session("s000")
+    (d / "s000" / "session.json").unlink()  # an unfinished session: no manifest, the reader's own checks
     with pytest.raises(DatasetError, match="sample rate 48000 Hz, but the dataset's rig runs at 192000 Hz"):
         Dataset(d).read_session("s000")
     (d / "s001" / "part-00000.csv").write_text("chirp,time\n1,2\n")
+    (d / "s001" / "session.json").unlink()
     with pytest.raises(DatasetError, match="header must be"):
         Dataset(d).read_session("s001")
     with pytest.raises(FileExistsError, match="--resume"):

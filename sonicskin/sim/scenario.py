@@ -64,6 +64,7 @@ class Scenario:
     def from_dict(cls, d: dict[str, Any]) -> Scenario:
         check_keys(cls, d, "scenario")
         d = dict(d)
+        _check_types(cls, d)
         for k in ("tx_cm", "rx_cm", "subjects", "peak_force_n"):
             if k in d:
                 d[k] = tuple(d[k])
@@ -98,6 +99,12 @@ class Scenario:
         check_keys(HotMeltBond, self.bond, "bond")
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
+        if min(self.gap_s, self.moving_s, self.session_interval_s, self.start_s) < 0 or self.part_s <= 0:
+            raise ValueError("gap_s, moving_s, session_interval_s and start_s must be >= 0 and part_s > 0")
+        layout_count(self)
+        level = self.motion.get("level", 1.0)
+        if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
+            raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {level!r}")
 
     def make_layout(self) -> Layout:
         lay = dict(self.layout)
@@ -162,6 +169,7 @@ def _motion_level(rng: np.random.Generator, n: int, cps: float) -> np.ndarray:
 
 def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
     """Ground truth for every chirp of every session of ``sc`` (deterministic in ``sc.seed``)."""
+    check_size(sc, rig)
     rng = np.random.default_rng([sc.seed, 101])
     layout = sc.make_layout()
     subjects = make_subjects()
@@ -224,3 +232,80 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
     arrays = {name: np.concatenate(v) for name, v in cols.items() if name != "temperature_c"}
     arrays["temperature_c"] = sc.temperature_c(arrays["time_s"])
     return Timeline(**arrays)
+
+
+def _check_types(cls, d: dict) -> None:
+    """Numbers where the scenario has numbers (finite), whole numbers where it has counts: one line each."""
+    import math
+
+    for f in dataclasses.fields(cls):
+        if f.name not in d:
+            continue
+        v, default = d[f.name], f.default
+        if isinstance(default, bool):
+            continue
+        if f.name in ("sessions", "repeats", "seed", "link_seed") or (f.name == "train_repeats" and v is not None):
+            if isinstance(v, bool) or not isinstance(v, int):
+                raise ValueError(f"scenario {f.name} must be a whole number, got {v!r}")
+        elif isinstance(default, float):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"scenario {f.name} must be a finite number, got {v!r}")
+        elif f.name in ("tx_cm", "rx_cm", "peak_force_n"):
+            if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {v!r}")
+        elif f.name == "subjects":
+            if not (isinstance(v, (list, tuple)) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+                raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {v!r}")
+        elif isinstance(f.default, str) or f.name == "name":
+            if not isinstance(v, str):
+                raise ValueError(f"scenario {f.name} must be a text, got {v!r}")
+        elif f.default is dataclasses.MISSING and not isinstance(v, dict):
+            raise ValueError(f"scenario {f.name} must be a mapping {{key: value}}, got {v!r}")
+
+
+MAX_LOCATIONS = 100_000
+
+
+def layout_count(sc: Scenario) -> int:
+    """Markers of the scenario's layout, counted from its settings (before building it)."""
+    lay = sc.layout
+    kind = lay.get("kind", "rings")
+    try:
+        n = sum(int(c) for c in lay.get("counts", (16, 15))) if kind == "rings" else int(lay["nx"]) * int(lay["ny"])
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"layout {lay!r}: rings need counts [n, ...], a grid nx and ny (whole numbers)") from None
+    if not 1 <= n <= MAX_LOCATIONS:
+        raise ValueError(f"the layout has {n} markers; a scenario has 1..{MAX_LOCATIONS}")
+    return n
+
+
+def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
+    """Chirps of the first session and of each other one, from the settings alone (what
+    :func:`build_timeline` will make)."""
+    n_loc = layout_count(sc)
+    per = rig.seconds_to_chirps(sc.touch_s) + (rig.seconds_to_chirps(sc.gap_s) if sc.gap_s > 0 else 0)
+    head = rig.seconds_to_chirps(sc.calibration_s) + (
+        rig.seconds_to_chirps(sc.moving_s) if sc.motion.get("enabled", False) and sc.moving_s > 0 else 0)
+    subj = 1 if sc.subject_per_session else len(sc.subjects)
+    first = sc.repeats if sc.train_repeats is None else sc.train_repeats
+    return head + n_loc * subj * first * per, head + n_loc * subj * sc.repeats * per
+
+
+def check_size(sc: Scenario, rig: Rig) -> int:
+    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything.
+
+    Returns the total number of chirps.  The estimate: ~256 bytes per chirp of ground truth (plus one
+    press profile), and one rendering block (about 1024 chirps, or one part) of spectra and frames.
+    """
+    from ..limits import check_memory
+
+    first, other = session_chirps(sc, rig)
+    total = first + (sc.sessions - 1) * other
+    fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
+    check_memory(256.0 * total + 64.0 * rig.seconds_to_chirps(max(sc.touch_s, sc.moving_s)),
+                 f"the ground truth of scenario {sc.name!r} ({total:.3g} chirps in {sc.sessions} sessions)", fix)
+    per_part = rig.seconds_to_chirps(sc.part_s)
+    block = min(max(first, other), per_part * max(1, 1024 // per_part))
+    check_memory(64.0 * rig.n_chirp * block, f"rendering scenario {sc.name!r} in blocks of {block} chirps", fix)
+    return int(total)
