@@ -215,7 +215,8 @@ def format_report(res: dict) -> str:
     lines = [
         f"dataset {res['dataset']}: train {','.join(res['train_sessions'])} ({res['n_train']} chirps), "
         f"test {len(res['test_sessions'])} sessions ({res['n_test']} chirps)",
-        f"  sessions: {split_line({'train': res['train_sessions'], 'val': res.get('val_sessions', []), 'test': res['test_sessions']})}",
+        f"  sessions: {split_line({'train': res['train_sessions'], 'val': res.get('val_sessions', []), 'test': res['test_sessions']})}"
+        + (" (validation held out: the SVM has no validation step)" if res.get("val_sessions") else ""),
         f"  {counts_line(res['chirps_per_location'])}" if "chirps_per_location" in res else "",
         f"  note: {res['coverage_note']}" if res.get("coverage_note") else "",
         f"  localization  accuracy {L['accuracy']:.1%}   < 2 cm {L['within_2cm']:.1%}   < 3 cm {L['within_3cm']:.1%}   "

@@ -63,3 +63,40 @@ def test_simulate_cli_draws_the_rig_of_the_seed(tmp_path, capsys):
     want = Scenario.load("random", seed=5).to_dict()
     assert src["name"] == "random-5" and src["geometry"] == want["geometry"] and src["loss_factor"] == want["loss_factor"]
     assert src["sessions"] == 2
+
+
+def test_benchmark_summary_pairs_rigs_and_floors_score_the_named_split(cli_files, tmp_path):
+    """bench_random_rigs: paired differences and t intervals by hand; the floors fit s000 and score s002 + s003."""
+    import importlib.util
+    from pathlib import Path
+
+    from scipy import stats
+
+    from sonicskin.dataset import Dataset
+    from sonicskin.features import touch_mask
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_random_rigs.py"
+    spec = importlib.util.spec_from_file_location("bench_random_rigs", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    acc_net, acc_svm, svc = [0.8, 0.6, 0.7], [0.7, 0.6, 0.5], [0.6, 0.65, 0.5]
+    rows = [{"net": {"accuracy": a, "within_2cm": a, "force_rmse_n": 2.0, "missed_touch": 0.0, "false_touch": 0.0},
+             "svm": {"accuracy": b, "within_2cm": b, "force_rmse_n": 1.0 + i, "missed_touch": 0.0, "false_touch": 0.0},
+             "floor": {"svc_accuracy": c, "svr_force_rmse_n": 1.5, "mean_force_rmse_n": 3.0}}
+            for i, (a, b, c) in enumerate(zip(acc_net, acc_svm, svc))]
+    S = bench.summarize(rows)
+    d = np.array(acc_net) - np.array(acc_svm)  # 0.1, 0.0, 0.2
+    half = stats.t.ppf(0.975, 2) * d.std(ddof=1) / np.sqrt(3)
+    p = S["pairs"]["accuracy/net - accuracy/svm"]
+    assert p["mean"] == pytest.approx(0.1) and p["ci95"] == pytest.approx([0.1 - half, 0.1 + half])
+    assert S["pairs"]["accuracy/svm - accuracy/svc_floor"]["mean"] == pytest.approx(np.mean([0.1, -0.05, 0.0]))
+    assert S["pairs"]["force_rmse_n/svm - force_rmse_n/svr_floor"]["mean"] == pytest.approx(0.5)
+    assert S["values"]["force_rmse_n/svm"] == {"mean": pytest.approx(2.0), "std": pytest.approx(1.0), "n": 3}
+    # Floors on a real dataset: trained on s000's touches, scored on every touch chirp of the test sessions.
+    ds = Dataset(cli_files["data"])
+    fl = bench.floors(ds)
+    t = ds.features(progress=False)
+    assert fl["n_test_touch"] == int((np.isin(t["session"], ["s002", "s003"]) & touch_mask(t)).sum())
+    assert fl["n_train_touch"] == int(((t["session"] == "s000") & touch_mask(t)).sum())
+    assert fl["n_bins"] == int(ds.rig.allowed_mask.sum()) and 0 <= fl["svc_accuracy"] <= 1
+    assert fl["svr_force_rmse_n"] > 0 and fl["mean_force_rmse_n"] > 0

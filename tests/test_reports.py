@@ -76,6 +76,19 @@ def test_val_none_and_test_reach_training_as_an_empty_validation(four_sessions, 
     assert "'none' means no validation session; give it alone" in line
 
 
+def test_evaluate_report_names_its_sessions_and_counts(four_sessions, tmp_path, capsys):
+    code, out, err = run(capsys, ["evaluate", "--data", four_sessions, "--train", "s000", "--test", "s002", "s003",
+                                  "--n-bins", "40", "--no-ablations", "--out", tmp_path / "rep"])
+    assert code == 0, err
+    rep = json.loads((tmp_path / "rep/report.json").read_text())
+    assert (rep["train_sessions"], rep["val_sessions"], rep["test_sessions"]) == (["s000"], ["s001"], ["s002", "s003"])
+    assert "sessions: train s000 | validation s001 | test s002, s003 (validation held out" in out
+    t = Dataset(four_sessions).features(progress=False)
+    m = np.isin(t["session"], ["s002", "s003"]) & touch_mask(t)
+    assert rep["chirps_per_location"] == {str(i): int(np.sum(t["location"][m] == i)) for i in (0, 1, 2)}
+    assert rep["localization"]["n"] == m.sum()
+
+
 def test_artifact_without_test_sessions_asks_for_them(cli_files, capsys):
     code, _, err = run(capsys, ["compare", "--data", cli_files["data"], "--artifact", cli_files["artifact"]])
     line = assert_one_line_error(code, err, "compare")
