@@ -15,7 +15,7 @@ from .runtime import Predictions, SkinRuntime
 from .schema import load_skin
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
-           "chirps_per_location", "coverage_note", "split_line", "counts_line"]
+           "chirps_per_location", "coverage_note", "split_line", "counts_line", "leading_rest"]
 
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
@@ -57,23 +57,34 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
 def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
     """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it.
 
-    A stream without hands-off chirps (a table of touches only) has no rest to boot Alg. 2's reference
-    on: with absolute inputs every chirp is scored as it is (the training reference, no boot
-    calibration); relative inputs cannot be formed there and are refused in one line.
+    The live loop boots Alg. 2's reference on the stream's first ``beta`` chirps, which the recording
+    protocol keeps hands-off.  A stream that starts with less rest than that (a table of touches only, or
+    rest too short for a reference, where training fell back to absolute inputs) has nothing to boot on:
+    with absolute inputs every chirp is scored as it is (the training reference, no boot calibration);
+    relative inputs cannot be formed there and are refused in one line.
     """
     parts = []
+    beta = rt.spec.reference(rt.rig.chirps_per_s).beta
     for s in sessions:
         m = t["session"] == s
-        if (t["location"][m] >= 0).all():
+        lead_rest = leading_rest(t, s)
+        if lead_rest < beta:
             if rt.spec.mode != "absolute":
-                raise ValueError(f"session {s} has no hands-off chirps to calibrate the no-touch reference on, and the "
-                                 f"artifact's inputs are relative; train with --mode absolute for data of touches only")
+                raise ValueError(f"session {s} starts with {lead_rest} hands-off chirps, fewer than the {beta} "
+                                 f"({rt.spec.beta_s:g} s) the artifact's relative inputs boot their no-touch reference on; "
+                                 f"record {rt.spec.beta_s:g} s of rest first, or train with --mode absolute")
             p = rt.predict_inputs(rt.inputs(t.X[m]))
             p.calibrating = np.zeros(int(m.sum()), bool)
             parts.append(p)
         else:
             parts.append(rt.replay(t.X[m], t["time_s"][m]))
     return Predictions.concat(parts)
+
+
+def leading_rest(t: FeatureTable, session: str) -> int:
+    """Hands-off chirps at the start of ``session`` (before its first touch): what a boot calibration can use."""
+    touched = t["location"][t["session"] == session] >= 0
+    return int(np.argmax(touched)) if touched.any() else int(touched.size)
 
 
 def chirps_per_location(t: FeatureTable, scored: np.ndarray, layout) -> dict[str, int]:
@@ -169,14 +180,18 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
         p = replay_sessions(rt, te, test)
         r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
                            detection=svm_meta.get("detection", True))
-        if latency:  # on the first test stream, as it was scored (booted, or touches only without a boot)
+        if latency:  # on the first test stream, as it was scored (booted, or without a boot: replay_sessions)
             first = te["session"] == test[0]
-            r["latency"] = chirp_latency(rt, te.X[first], te["time_s"][first], boot=bool((te["location"][first] < 0).any()))
+            boot = leading_rest(te, test[0]) >= rt.spec.reference(rt.rig.chirps_per_s).beta
+            r["latency"] = chirp_latency(rt, te.X[first], te["time_s"][first], boot=boot)
         else:
             r["latency"] = None
         r["model_bytes"] = int((art / rt.m["file"]).stat().st_size)
         r["train_time_s"] = meta["training"].get(f"{k}_train_time_s")
         res["models"][k] = r
+    beta = rts[names[0]].spec.reference(rts[names[0]].rig.chirps_per_s).beta
+    res["boot_chirps"] = beta
+    res["no_boot_sessions"] = [s for s in test if leading_rest(te, s) < beta]
     first = res["models"][names[0]]
     res["chirps_per_location"] = first["chirps_per_location"]
     res["coverage_note"] = coverage_note(first["chirps_per_location"])
@@ -233,6 +248,9 @@ def format_comparison(res: dict, title: str = "") -> str:
         out.append(f"  {counts_line(res['chirps_per_location'])}")
     if res.get("coverage_note"):
         out.append(f"  note: {res['coverage_note']}")
+    if res.get("no_boot_sessions"):
+        out.append(f"  note: no boot calibration on {', '.join(res['no_boot_sessions'])} (fewer than the {res['boot_chirps']} "
+                   f"hands-off chirps it needs at the start): every chirp scored, against the training reference")
     if res.get("trained_on_test"):
         out.append(f"  note: {', '.join(res['trained_on_test'])} trained or validated this artifact: not a held-out test")
     out.append(f"  {'':{w}}" + "".join(f"  {head[k]:>12}" for k in models))

@@ -124,7 +124,25 @@ def test_touch_only_short_sessions_are_scored_on_every_chirp(tmp_path, capsys):
     assert res["chirps_per_location"] == {str(i): 4 for i in range(9)}  # 2 per session x 2 test sessions, none skipped
     assert res["models"]["svm"]["localization"]["n"] == 36 and res["coverage_note"] is None
     assert "scored 36 touch chirps: 4 at each of 9 locations" in out
+    assert "note: no boot calibration on fold2, fold3 (fewer than the 320 hands-off chirps it needs at the start)" in out
     assert res["models"]["svm"]["detection"]["measurable"] is False
+
+
+def test_rest_too_short_for_a_reference_scores_every_touch(cli_files, tmp_path, capsys):
+    # 0.04 s of rest (7 chirps on the small rig, fewer than MIN_REST_CHIRPS): training falls back to absolute
+    # inputs, and a 3 s boot calibration would swallow every press of these 0.3 s-press sessions.
+    sc = Scenario.load(cli_files["scenario"]).replace(calibration_s=0.04, gap_s=0.03, touch_s=0.3)
+    data = tmp_path / "shortrest"
+    simulate_dataset(sc, Rig.load(cli_files["rig"]), data, progress=False, **QUIET)
+    with pytest.warns(UserWarning, match="using absolute features"):
+        build_svm_artifact(data, tmp_path / "art", n_bins=60, train_sessions=["s000"], progress=False, **QUIET)
+    code, out, err = run(capsys, ["compare", "--data", data, "--artifact", tmp_path / "art", "--out", tmp_path / "cmp"])
+    assert code == 0, err
+    res = json.loads((tmp_path / "cmp/compare.json").read_text())
+    t = Dataset(data).features(progress=False)
+    m = np.isin(t["session"], ["s001", "s002"]) & touch_mask(t)
+    assert res["models"]["svm"]["localization"]["n"] == m.sum() > 0
+    assert res["no_boot_sessions"] == ["s001", "s002"] and "note: no boot calibration on s001, s002" in out
 
 
 def test_fewer_locations_than_the_layout_are_named(tmp_path, capsys):
@@ -148,7 +166,8 @@ def test_relative_artifact_on_a_session_without_rest_is_one_line(cli_files, tmp_
 
     t = Dataset(cli_files["data"]).features(progress=False)
     te = t.select((t["session"] == "s002") & (t["location"] >= 0))
-    with pytest.raises(ValueError, match="session s002 has no hands-off chirps .* train with --mode absolute"):
+    with pytest.raises(ValueError, match=r"session s002 starts with 0 hands-off chirps, fewer than the \d+ \(3 s\) .* "
+                                         r"record 3 s of rest first, or train with --mode absolute"):
         replay_sessions(SkinRuntime(cli_files["artifact"], "svm"), te, ["s002"])
 
 
