@@ -37,6 +37,7 @@ import contextlib
 import io
 import json
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -110,6 +111,10 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     from sonicskin.sim.scenario import Scenario
 
     t0 = time.perf_counter()
+    path = cache / f"random-seed{seed}"
+    want = json.loads(json.dumps(Scenario.load("random", seed=seed).to_dict()))
+    if (path / "dataset.json").is_file() and json.loads((path / "dataset.json").read_text()).get("source", {}).get("scenario") != want:
+        shutil.rmtree(path)  # drawn from an older family definition: simulate again
     ds = scenario_dataset("random", seed, cache, rig=Rig.load(rig_name), log=lambda *_: None)
     sim_s = time.perf_counter() - t0
     rep = out / "compare" / f"random-{seed}"
