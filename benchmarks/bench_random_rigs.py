@@ -207,15 +207,16 @@ def format_markdown(res: dict) -> str:
         lo, hi = v["ci95"]
         lines.append(f"| {LABELS[m]}: {NAMES[a.split('/')[1]]} − {NAMES[b.split('/')[1]]} | {_f(v['mean'], unit, True)} "
                      f"[{_f(lo, unit, True)}, {_f(hi, unit, True)}]{u[unit]} |")
-    lines += ["", "| seed | rig | locations | motion | net acc | SVM acc | SVC floor | net F | SVM F | SVR F | mean F | "
-                  "net missed | SVM missed |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += ["", "Per rig (F: force RMSE in N; missed / false: touch detection in %):", "",
+              "| seed | rig | locations | motion | net acc | SVM acc | SVC floor | net F | SVM F | SVR F | mean F | "
+              "net missed | SVM missed | net false | SVM false |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in res["rows"]:
         g, n, s, fl = r["rig"], r["net"], r["svm"], r["floor"]
         counts = np.array(list(r["chirps_per_location"].values()))
         lines.append(f"| {r['seed']} | {g['material']} {g['surface']} | {g['locations']} ({counts.min()}-{counts.max()} chirps each) | "
                      f"{g['motion']:.2f} | {n['accuracy']:.1%} | {s['accuracy']:.1%} | {fl['svc_accuracy']:.1%} | "
                      f"{n['force_rmse_n']:.2f} | {s['force_rmse_n']:.2f} | {fl['svr_force_rmse_n']:.2f} | {fl['mean_force_rmse_n']:.2f} | "
-                     f"{n['missed_touch']:.1%} | {s['missed_touch']:.1%} |")
+                     f"{n['missed_touch']:.1%} | {s['missed_touch']:.1%} | {n['false_touch']:.1%} | {s['false_touch']:.1%} |")
     return "\n".join(lines)
 
 
