@@ -184,6 +184,7 @@ def test_compare_train_two_test_two_trains_without_validation_and_tests_both(fou
     res = json.loads((tmp_path / "cmp/compare.json").read_text())
     assert res["split"] == {"train": ["s000", "s001"], "val": [], "test": ["s002", "s003"]}
     assert "sessions: train s000, s001 | validation none | test s002, s003" in out
+    assert "(no validation session: on the training sessions s000, s001)" in out  # the val_ metrics of training
     skin = json.loads((tmp_path / "runs/compare-tiny4/artifact/skin.json").read_text())
     assert skin["training"]["split"]["val"] == [] and skin["training"]["split"]["test"] == ["s002", "s003"]
     t = Dataset(data).features(progress=False)

@@ -112,6 +112,10 @@ def _report_training(cli) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
+        split = (getattr(getattr(cli, "datamodule", None), "prepared", None) or {}).get("split")
+        if split is not None:  # say where the val_ metrics come from (no validation session: the training data)
+            metrics += (f" (validation {', '.join(split.val)})" if split.val else
+                        f" (no validation session: on the training sessions {', '.join(split.train)})")
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
 
 

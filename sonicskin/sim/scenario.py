@@ -9,6 +9,9 @@ Each *session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 
 ``moving_s`` of no-touch while the robot moves (OSPA's moving variance; only when motion is
 on), then one press-hold-release at each location (``repeats`` times, in random order) with
 ``gap_s`` of no-touch between presses.
+
+A scenario *family* (``configs/scenarios/random.yaml``, :class:`RandomFamily`) draws a whole scenario
+from a seed: ``Scenario.load("random", seed=N)`` is rig N, one we did not design on.
 """
 
 from __future__ import annotations
