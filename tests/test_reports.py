@@ -191,3 +191,13 @@ def test_compare_train_two_test_two_trains_without_validation_and_tests_both(fou
     m = np.isin(t["session"], ["s002", "s003"]) & touch_mask(t)
     # Every touch chirp of both test sessions is scored (the boot calibration takes the rest before the first press).
     assert sum(res["chirps_per_location"].values()) == m.sum() and set(res["models"]) == {"net", "svm"}
+
+
+def test_seed_comparison_report_names_each_scenarios_split():
+    from sonicskin.seeds import METRICS, format_markdown, summarize
+
+    runs = {s: [{"train_seed": 0, "split": {"train": ["s000"], "val": [], "test": ["s001", "s002"]},
+                 "net": {m: 0.5 for m in METRICS}, "svm": {m: 0.4 + 0.01 * s for m in METRICS}}] for s in (0, 1)}
+    md = format_markdown({"sim_seeds": [0, 1], "train_seeds": [0],
+                          "scenarios": {"moving": {"summary": summarize(runs), "runs": {str(k): v for k, v in runs.items()}}}})
+    assert "- moving: train s000 | validation none | test s001, s002" in md
