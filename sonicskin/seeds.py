@@ -64,7 +64,9 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
         (path / s / "session.json").is_file() for s in Dataset(path).sessions)
     if not done:
-        sc = Scenario.load(name).replace(seed=int(seed), **overrides)
+        sc = Scenario.load(name, seed=int(seed))  # a family (random) draws another rig per seed
+        if overrides:
+            sc = sc.replace(**overrides)
         simulate_dataset(sc, rig, path, mode="overwrite", progress=False, log=log)
     return Dataset(path)
 
@@ -133,7 +135,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         skin_json(work, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=spec, min_force_n=0.5,
                   training={"data": str(ds.root), "split": split.to_dict(), "svm_train_time_s": svm_s,
                             "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm})
-        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s}
+        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s, "split": split.to_dict()}
         for k in ("net", "svm"):
             if k == "svm" and svm_metrics is not None:
                 row[k] = svm_metrics
@@ -225,6 +227,12 @@ def format_markdown(res: dict) -> str:
             lines.append(f"| {name} | {LABELS[m]} | {_fmt(r['net_mean'], unit)} ± {_fmt(r['net_std'], unit)}{u} | "
                          f"{_fmt(r['svm_mean'], unit)} ± {_fmt(r['svm_std'], unit)}{u} | {_fmt(r['diff_mean'], unit, True)} "
                          f"[{_fmt(lo, unit, True)}, {_fmt(hi, unit, True)}]{u} |")
+    splits = {name: next((r["split"] for rows in sc.get("runs", {}).values() for r in rows if "split" in r), None)
+              for name, sc in res["scenarios"].items()}
+    if any(splits.values()):
+        from .compare import split_line
+
+        lines += [""] + [f"- {name}: {split_line(sp)}" for name, sp in splits.items() if sp]
     return "\n".join(lines)
 
 
