@@ -87,7 +87,8 @@ def test_commands_are_echoed_without_comments_and_continuations_stay_one_command
 
 
 def test_timings_are_masked_and_progress_bars_dropped():
-    assert readme.mask("in 53.7 s: 107 chirps/s, 216 us, 9.7 min; 3 sessions, 0.04 cm") == "in # s: # chirps/s, # us, # min; 3 sessions, 0.04 cm"
+    assert (readme.mask("in 53.7 s: 107 chirps/s, 216 us, 9.7 min; 3 sessions, 0.04 cm")
+            == "in # s: # chirps/s, # us, # min; 3 sessions, 0.04 cm")
     raw = "features:   0%|   | 0/3 [00:00<?, ?session/s]\rfeatures: 100%|###| 3/3 [00:00<00:00, 35.8session/s]\nkept  \nx\rdone"
     assert readme.clean(raw) == "kept\ndone"
 

@@ -327,11 +327,11 @@ def prepare(folder: Path) -> None:
     for name in COPY:
         src = ROOT / name
         if src.is_dir():
-            shutil.copytree(src, folder / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+            shutil.copytree(src, folder / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"), dirs_exist_ok=True)
         elif src.is_file():
             shutil.copy2(src, folder / name)  # keeps mtimes: make must not see pyproject.toml as newer than the install
-    venv = _venv_bin().parent
-    (folder / ".venv").symlink_to(venv, target_is_directory=True)
+    if not (folder / ".venv").exists():
+        (folder / ".venv").symlink_to(_venv_bin().parent, target_is_directory=True)
 
 
 def environment(folder: Path) -> dict[str, str]:
@@ -361,18 +361,22 @@ def run_block(block: Block, folder: Path, small: bool, echo=None) -> Ran:
     load = os.getloadavg()[0]
     t0 = time.monotonic()
     proc = subprocess.Popen(["bash", "-c", script], cwd=folder, env=environment(folder), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, errors="replace", start_new_session=True)
+                            stderr=subprocess.STDOUT, start_new_session=True)  # bytes: keep carriage returns
     timer = threading.Timer(block.timeout_s, lambda: os.killpg(proc.pid, 9))
     timer.start()
     chunks = []
     try:
-        for ln in proc.stdout:
+        for raw in proc.stdout:
+            ln = raw.decode("utf-8", errors="replace")
             chunks.append(ln)
             if echo:
                 echo(ln)
         code = proc.wait()
     finally:
         timer.cancel()
+        if proc.poll() is None:  # interrupted: take the block's processes along
+            os.killpg(proc.pid, 9)
+            proc.wait()
     seconds = time.monotonic() - t0
     out = "".join(chunks)
     for p in sorted({str(folder), os.path.realpath(folder)}, key=len, reverse=True):
@@ -429,9 +433,13 @@ def run_all(small: bool, check: bool, readme: Readme | None = None, echo=None, f
             use_small = b.name not in as_written
             if echo:
                 echo(f"\n=== {b.name} ({'small variant' if use_small and b.small else 'as written'}, README.md:{b.line})\n")
-            ran = run_block(b, folder, use_small, echo)
-            if check and b.exact:
-                compare_exact(ran, readme)
+            try:
+                ran = run_block(b, folder, use_small, echo)
+                if check and b.exact:
+                    compare_exact(ran, readme)
+            except ReadmeError as e:
+                e.results = results  # what ran before: make docs still writes their outputs
+                raise
             results.append(ran)
             if figures:
                 for fig in readme.figures:
@@ -500,7 +508,7 @@ def main(argv=None) -> int:
         results = run_all(small=a.check, check=a.check, readme=readme, echo=echo, figures=not a.check, keep=a.keep,
                           full=a.full, only=a.only)
         if not a.check:
-            README.write_text(render(readme, results))
+            README.write_text(render(parse(README.read_text()), results))  # as it is now: it may have been edited meanwhile
             names = {r.block.name for r in results}
             n_out = sum(o.name in names for o in readme.outputs)
             n_fig = sum(f.after in names or (f.after is None and not a.only) for f in readme.figures)
@@ -509,6 +517,10 @@ def main(argv=None) -> int:
         else:
             print(f"\n{len(results)} blocks ran, exact outputs match ({_duration(time.monotonic() - t0)})")
     except ReadmeError as e:
+        done = getattr(e, "results", None)
+        if done and not (a.check or a.list):
+            README.write_text(render(parse(README.read_text()), done))
+            print(f"readme: the outputs of the {len(done)} blocks before it were written to README.md", file=sys.stderr)
         print(f"readme: error: {e}", file=sys.stderr)
         return 1
     return 0
