@@ -48,6 +48,7 @@ import platform
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -337,10 +338,12 @@ def prepare(folder: Path) -> None:
 def environment(folder: Path) -> dict[str, str]:
     env = dict(os.environ)
     bin_ = str(_venv_bin())
+    for k in ("MAKELEVEL", "MAKEFLAGS", "MFLAGS"):  # under `make docs`: the blocks' make is a top-level make
+        env.pop(k, None)
     env.update(PATH=bin_ + os.pathsep + env.get("PATH", ""), VIRTUAL_ENV=str(_venv_bin().parent),
                PYTHONUNBUFFERED="1", PYTHONDONTWRITEBYTECODE="1", TERM="dumb", COLUMNS="120", LC_ALL="C.UTF-8",
                # `make demo` must use the linked venv as installed, never re-install into it from the copy
-               MAKEFLAGS=(env.get("MAKEFLAGS", "") + " -o .venv/.installed").strip())
+               MAKEFLAGS="-o .venv/.installed", TQDM_DISABLE="1")
     for k in ("PYTEST_CURRENT_TEST", "PYTEST_XDIST_WORKER", "PYTHONPATH"):
         env.pop(k, None)
     return env
@@ -493,6 +496,7 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", type=Path, help="run in this folder (kept afterwards) instead of a temporary one")
     ap.add_argument("--quiet", action="store_true", help="do not echo the commands' output")
     a = ap.parse_args(argv)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # so a killed run takes its block's processes along
     try:
         readme = parse(README.read_text())
         if a.list:
