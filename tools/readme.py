@@ -27,14 +27,23 @@ The README marks its shell blocks with HTML comments, which GitHub does not rend
     ``width`` pixels wide (default 900) to keep the committed PNGs small.
 
 The run folder is a fresh temporary folder holding copies of what the commands need from the
-repository (``COPY``: examples/, configs/, the Makefile and the files it depends on), ``.venv`` a link
-to the project's virtual environment (the one running this script), whose ``bin`` is first on PATH,
-so ``sonicskin``, ``python`` and ``make demo`` run the installed code as a user's shell would.
+repository (``COPY``: examples/, configs/, benchmarks/, the Makefile and the files it depends on; extend
+it when a new block needs more), ``.venv`` a link to the project's virtual environment (the one running
+this script), whose ``bin`` is first on PATH, so ``sonicskin``, ``python`` and ``make demo`` run the
+installed code as a user's shell would (``make`` never re-installs there: ``MAKEFLAGS=-o .venv/.installed``).
+Output is stdout and stderr interleaved as a terminal shows them (``PYTHONUNBUFFERED``), with what a
+carriage return overwrote and progress bars left out (``TQDM_DISABLE=1``, and any bar that still gets
+through is dropped), trailing blanks stripped.
+
+A failing command stops the run with the block's name, README line and last output lines; ``make docs``
+still writes the outputs of the blocks before it. It re-reads README.md before writing, so edits made
+while it ran are kept.
 
     python tools/readme.py            # make docs: run the blocks, rewrite README.md and docs/*.png
     python tools/readme.py --full     # the same, every block as written (hours: the seed sweeps)
     python tools/readme.py --check    # what the test does: small variants, compare exact outputs
     python tools/readme.py --list     # the marked blocks and their variants
+    python tools/readme.py --only spectra wav   # re-run blocks that need nothing before them
 """
 
 from __future__ import annotations
@@ -58,7 +67,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
-COPY = ("examples", "configs", "Makefile", "pyproject.toml", "constraints.txt")
+COPY = ("examples", "configs", "benchmarks", "Makefile", "pyproject.toml", "constraints.txt")
 DEFAULT_TIMEOUT_S = 1800.0
 # Volatile numbers masked before an exact comparison: durations and rates.
 MASKS = (
