@@ -28,9 +28,10 @@ The README marks its shell blocks with HTML comments, which GitHub does not rend
 
 The run folder is a fresh temporary folder holding copies of what the commands need from the
 repository (``COPY``: examples/, configs/, benchmarks/, the Makefile and the files it depends on; extend
-it when a new block needs more), ``.venv`` a link to the project's virtual environment (the one running
-this script), whose ``bin`` is first on PATH, so ``sonicskin``, ``python`` and ``make demo`` run the
-installed code as a user's shell would (``make`` never re-installs there: ``MAKEFLAGS=-o .venv/.installed``).
+it when a new block needs more), and ``.venv``, links to the entries of the project's virtual environment
+(the one running this script) plus a fresh install marker, so ``make`` never re-installs into it; its
+``bin`` is first on PATH, so ``sonicskin``, ``python`` and ``make demo`` run the installed code as a
+user's shell would.
 Output is stdout and stderr interleaved as a terminal shows them (``PYTHONUNBUFFERED``), with what a
 carriage return overwrote and progress bars left out (``TQDM_DISABLE=1``, and any bar that still gets
 through is dropped), trailing blanks stripped.
@@ -340,8 +341,13 @@ def prepare(folder: Path) -> None:
             shutil.copytree(src, folder / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"), dirs_exist_ok=True)
         elif src.is_file():
             shutil.copy2(src, folder / name)  # keeps mtimes: make must not see pyproject.toml as newer than the install
-    if not (folder / ".venv").exists():
-        (folder / ".venv").symlink_to(_venv_bin().parent, target_is_directory=True)
+    venv, link = _venv_bin().parent, folder / ".venv"
+    if not link.exists():  # the venv's entries linked, and a fresh install marker: `make demo` never installs there
+        link.mkdir()
+        for entry in venv.iterdir():
+            if entry.name != ".installed":
+                (link / entry.name).symlink_to(entry, target_is_directory=entry.is_dir())
+        (link / ".installed").touch()
 
 
 def environment(folder: Path) -> dict[str, str]:
