@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 DATA ?= data
 REPORTS ?= reports
 
-.PHONY: install demo test deploy-check lint bench clean
+.PHONY: install demo test deploy-check lint bench docs clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -21,11 +21,14 @@ install: $(VENV)/.installed
 
 # The main job on the simulated rig: a moving robot, 31 markers 1.2 cm apart; the paper's SVM
 # pipeline with its ablations, then the network and the SVM trained on the same split, exported
-# to ONNX and compared in onnxruntime.
+# to ONNX and compared in onnxruntime. A smaller run (tests/test_readme.py uses one):
+# make demo SIM_OPTS="--set sessions=2 --set touch_s=1" TRAIN_OPTS="--trainer.max_epochs 2"
+SIM_OPTS ?=
+TRAIN_OPTS ?=
 demo: install
-	$(PY) -m sonicskin simulate --scenario moving --out $(DATA)/moving --overwrite
+	$(PY) -m sonicskin simulate --scenario moving --out $(DATA)/moving --overwrite $(SIM_OPTS)
 	$(PY) -m sonicskin evaluate --data $(DATA)/moving --out $(REPORTS)/moving
-	$(PY) -m sonicskin compare --data $(DATA)/moving --out $(REPORTS)/compare-moving
+	$(PY) -m sonicskin compare --data $(DATA)/moving --out $(REPORTS)/compare-moving $(TRAIN_OPTS)
 
 test: install
 	$(PY) -m pytest -q
@@ -39,6 +42,11 @@ lint: install
 
 bench: install
 	$(PY) benchmarks/bench_pipeline.py
+
+# The README's outputs and figures: runs its marked command blocks in a fresh folder and writes what they
+# print into README.md and docs/*.png (tools/readme.py; tests/test_readme.py checks them).
+docs: install
+	$(PY) tools/readme.py
 
 clean:
 	rm -rf $(DATA) $(REPORTS) .pytest_cache
