@@ -119,11 +119,14 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     given = [a.split("=", 1)[0] for a in (args or [])]
     cls = type("SkinCLI", (SkinCLI,), {"follow_root_dir": "--trainer.default_root_dir" in given
                                        and not any(a.startswith("--trainer.logger") for a in given)})
+    parser_kwargs = {"prog": PROG, "exit_on_error": False}
+    if "--help" in given or "-h" in given:  # --help shows the defaults `train` runs with: those of its --config
+        parser_kwargs["default_config_files"] = [v for k, v in zip(args, args[1:]) if k == "--config"]
     bar = EpochBar()
     with quiet_third_party():
         try:
             cli = cls(SkinLitModule, SkinDataModule, args=list(args or []), run=False,
-                          parser_kwargs={"prog": PROG, "exit_on_error": False},
+                          parser_kwargs=parser_kwargs,
                           trainer_defaults={"callbacks": [bar], "enable_progress_bar": False,
                                             "enable_model_summary": False},
                           save_config_kwargs={"overwrite": True}, seed_everything_default=0)

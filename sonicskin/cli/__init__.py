@@ -64,10 +64,22 @@ class _LightningHelp(argparse.Action):
 
         print("\nLightningCLI options (model, data, trainer), all accepted by `sonicskin train` and `sonicskin compare`:")
         sys.stdout.flush()
+        import contextlib
+        import io
+        import re
+
+        buf = io.StringIO()
         try:
-            train_main(["--config", train_config("moving"), "--help"])
+            with contextlib.redirect_stdout(buf):
+                train_main(["--config", train_config("moving"), "--help"])
         except SystemExit:
             pass
+        text = re.sub(r"\Ausage:.*?\n\n", "", buf.getvalue(), flags=re.S)  # its usage block repeats the list below
+        # Two meanings of --data: on `sonicskin train` it is the dataset folder (above), LightningCLI's is a YAML.
+        text = text.replace("--data CONFIG         Path to a configuration file.",
+                            "--data CONFIG         LightningCLI's YAML of data.* options; not on `sonicskin train`,\n"
+                            "                        where --data is the dataset folder (put data.* in the --config YAML)")
+        print(text, end="")
         parser.exit(0)
 
 

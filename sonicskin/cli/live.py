@@ -108,7 +108,7 @@ def cmd_info(a: argparse.Namespace) -> int:
     print(f"rig {rig.name}: {rig.fs_hz:g} Hz, chirp {rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz, "
           f"{rig.n_chirp} samples = {rig.period_s * 1e3:.1f} ms ({rig.chirps_per_s:.3f} chirps/s), "
           f"{rig.n_band} band bins, {int(rig.allowed_mask.sum())} after the PWM notches")
-    for kind in ("rigs", "scenarios", "train"):
+    for kind in ("rigs", "scenarios", "train", "links"):
         names = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
         if names:
             print(f"{kind}: {', '.join(names)}")

@@ -111,7 +111,10 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
 def _report_training(cli) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
-        metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
+        prep = getattr(cli.datamodule, "prepared", None)  # no finite force anywhere: RMSE 0 would be a made-up number
+        no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+        metrics = ", ".join(f"{k} n/a (no force sensor)" if no_force and "force" in k else f"{k} {v:.3f}"
+                            for k, v in res.items() if k.startswith("val_"))
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
 
 
