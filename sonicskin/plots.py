@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 
 __all__ = ["location_names", "confusion_panel", "cdf_panel", "force_panel", "MODEL_STYLE"]
@@ -36,8 +37,12 @@ def location_names(data: str | Path | None, layout) -> list[str]:
 def confusion_panel(fig, ax, confusion, names: list[str], title: str):
     """Row-normalised confusion matrix with the location names on both axes and a labelled colourbar."""
     cm = np.asarray(confusion, float)
-    cm = cm / np.maximum(cm.sum(axis=1, keepdims=True), 1)
-    im = ax.imshow(cm, cmap="viridis", vmin=0, vmax=1)
+    rows = cm.sum(axis=1, keepdims=True)
+    cm = np.where(rows > 0, cm / np.maximum(rows, 1), np.nan)  # a location never touched in the test: no row, not 0 %
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
+    im = ax.imshow(cm, cmap=cmap, vmin=0, vmax=1)
+    if (rows == 0).any():
+        title += f"\n(grey rows: {int((rows == 0).sum())} locations not touched in the test)"
     n = len(names)
     step = max(1, int(np.ceil(n / 16)))  # at most ~16 tick labels per axis
     ticks = np.arange(0, n, step)
@@ -68,7 +73,7 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
     ax.axvline(3, color="gray", lw=0.8, ls="-.", label="3 cm")
     ax.set(xlabel="localization error (cm)", ylabel="share of touch chirps with error ≤ x", ylim=(0, 1.02),
            xlim=(-0.05 * max(emax, 4.0), 1.05 * max(emax, 4.0)), title=title)
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8)  # outside: covers no data
     ax.grid(alpha=0.3)
 
 
@@ -99,5 +104,5 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
     hi = 1.05 * hi or 1.0
     ax.plot([0, hi], [0, hi], color="gray", lw=0.8, label="predicted = true")
     ax.set(xlim=(0, hi), ylim=(0, hi))
-    ax.legend(loc="upper left", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8)  # outside: covers no data
     ax.grid(alpha=0.3)

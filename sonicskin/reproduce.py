@@ -344,7 +344,7 @@ def _draw_fig12(res: dict):
         ax.plot(res["minutes"], v, color=colours[alphas[0]], ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"],
                 ms=5, label=f"{_MODEL[k]}, {upd}" + (" (identical)" if len(alphas) > 1 else ""))
     ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)",
-           title="Fig. 12: warm-up, with online updating of the reference every alpha")
+           title="Fig. 12: warm-up and online updating")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), title="model, reference update", title_fontsize=7)
     ax.grid(alpha=0.3)
     return fig
