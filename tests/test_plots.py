@@ -122,7 +122,8 @@ def test_compare_png_without_force_sensor_says_so(tmp_path, saved, named_data):
 def test_localization_png_labels_colourbar_and_thresholds(tmp_path, saved, named_data):
     from sonicskin.evaluate import save_report
 
-    res = {"dataset": str(named_data), "localization": {"accuracy": 0.75, "within_2cm": 0.9, "confusion": [[3, 1, 0], [0, 4, 0], [0, 0, 4]]},
+    cm = [[3, 1, 0], [0, 4, 0], [0, 0, 4]]
+    res = {"dataset": str(named_data), "localization": {"accuracy": 0.75, "within_2cm": 0.9, "confusion": cm},
            "errors_cm": [0.0, 0.0, 1.2, 9.5]}
     save_report(res, tmp_path / "rep", LAYOUT)
     fig = saved["localization.png"]
