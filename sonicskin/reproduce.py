@@ -249,13 +249,13 @@ def fig6b(ctx) -> dict:
             "ospa": _evaluate(_fit_predict(k, _inputs(t, ds.rig, bins), t, ds.layout, train, test, epochs=ctx.epochs),
                               t, test, ds.layout)["accuracy"]}
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
     x = np.arange(2)
     for i, k in enumerate(res):
         ax.bar(x + 0.38 * i, [res[k]["all_bins"], res[k]["ospa"]], 0.36, label=k)
     ax.set_xticks(x + 0.19, ["all 6400 bins", "OSPA 300 bins"])
     ax.set(ylim=(0, 1), ylabel="accuracy", title="Fig. 6b: moving robot")
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: bars reach 1
     return _save(ctx, fig, "fig6b.png", res)
 
 
@@ -394,7 +394,7 @@ def fig13(ctx) -> dict:
         g = t["force_n"][train][m]
         res["network (training fit)"] = float(1 - np.sum((pred["force"][m] - g) ** 2) / np.sum((g - g.mean()) ** 2))
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    fig, ax = plt.subplots(figsize=(8.5, 3.5))
     names = list(MODELS)
     for i, feat in enumerate(k for k in res if isinstance(res[k], dict)):
         ax.bar(np.arange(len(names)) + 0.4 * i, [res[feat][n] for n in names], 0.38, label=feat)
@@ -402,7 +402,7 @@ def fig13(ctx) -> dict:
         ax.axhline(res["network (training fit)"], color="k", ls="--", lw=1, label="network force head")
     ax.set_xticks(np.arange(len(names)) + 0.2, names)
     ax.set(ylabel="mean R2 per location", ylim=(0, 1.05), title="Fig. 13: force curve models")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: bars reach 1
     return _save(ctx, fig, "fig13.png", res)
 
 
