@@ -73,3 +73,14 @@ def test_live_links_runs_one_loop_per_link(capsys, cli_files, monkeypatch):
     assert set(summary) == {"upper-arm", "forearm"}
     assert all(s["touch_events"] == 0 for s in summary.values())
     assert all(s["chirps"] > 0 for s in summary.values()), summary  # both loops framed their own chirp slots
+
+
+def test_training_report_says_force_is_not_measurable_without_a_force_sensor(capsys):
+    from sonicskin.cli.models import _report_training
+
+    res = {"epochs": 3, "train_time_s": 1.0, "val_loss": 0.5, "val_acc": 0.9, "val_force_rmse": 0.0}
+    for force, want in ((np.full(4, np.nan), "val_force_rmse n/a (no force sensor)"), (np.array([1.0, np.nan]), "val_force_rmse 0.000")):
+        cli = SimpleNamespace(epoch_bar=SimpleNamespace(results=res), datamodule=SimpleNamespace(prepared={"force": force}))
+        _report_training(cli)
+        out = capsys.readouterr().out
+        assert want in out and "val_acc 0.900" in out
