@@ -225,11 +225,12 @@ class LiveLoop:
                 f"{self._startup_note(c['dropped_blocks'])}  skipped frames {sum(self.skipped.values())}   ")
 
     def _startup_note(self, dropped: int) -> str:
-        """Why blocks were dropped when it was at start-up: the queue filled before the loop framed its first chirp."""
+        """Why blocks were dropped when it was at start-up: the 2 s queue filled before the loop framed its first chirp
+        (a slow first render of the simulated device catching up, or a loaded machine); not a fault of the link."""
         d0 = self.startup_dropped if self.startup_dropped is not None else dropped
         if not d0:
             return ""
-        return f" ({d0} at start-up: audio ran while the model loaded, before the first chirp was framed)"
+        return f" ({d0} at start-up, before the first chirp was framed: the source ran ahead while the loop started)"
 
     def summary(self, wall_s: float, cpu_s: float, stream_s: float) -> dict:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.full(1, np.nan)
