@@ -84,3 +84,19 @@ def test_training_report_says_force_is_not_measurable_without_a_force_sensor(cap
         _report_training(cli)
         out = capsys.readouterr().out
         assert want in out and "val_acc 0.900" in out
+
+
+def test_epoch_bar_shows_force_as_na_without_a_force_sensor():
+    import pytest
+
+    pytest.importorskip("lightning")
+    from sonicskin.training.cli import EpochBar
+
+    for force, want in ((np.full(3, np.nan), "n/a"), (np.array([2.0, np.nan]), "0")):
+        shown: dict = {}
+        bar = EpochBar()
+        bar._bar = SimpleNamespace(set_postfix=lambda d, refresh: shown.update(d), update=lambda n: None)
+        trainer = SimpleNamespace(callback_metrics={"val_force_rmse": 0.0, "val_acc": 0.9},
+                                  datamodule=SimpleNamespace(prepared={"force": force}))
+        bar.on_train_epoch_end(trainer, None)
+        assert shown == {"val_force_rmse": want, "val_acc": "0.9"}

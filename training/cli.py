@@ -77,7 +77,10 @@ class EpochBar(L.Callback):
     def on_train_epoch_end(self, trainer, pl_module) -> None:
         m = self._metrics(trainer)
         if self._bar is not None:
-            self._bar.set_postfix({k: f"{v:.3g}" for k, v in m.items() if k.startswith("val_")}, refresh=False)
+            prep = getattr(getattr(trainer, "datamodule", None), "prepared", None)  # no force sensor: force RMSE is n/a, not 0
+            no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+            self._bar.set_postfix({k: "n/a" if no_force and "force" in k else f"{v:.3g}" for k, v in m.items()
+                                   if k.startswith("val_")}, refresh=False)
             self._bar.update(1)
 
     def on_train_end(self, trainer, pl_module) -> None:
