@@ -95,7 +95,7 @@ def test_epoch_bar_shows_force_as_na_without_a_force_sensor():
     for force, want in ((np.full(3, np.nan), "n/a"), (np.array([2.0, np.nan]), "0")):
         shown: dict = {}
         bar = EpochBar()
-        bar._bar = SimpleNamespace(set_postfix=lambda d, refresh: shown.update(d), update=lambda n: None)
+        bar._bar = SimpleNamespace(set_postfix=lambda d, refresh, shown=shown: shown.update(d), update=lambda n: None)
         trainer = SimpleNamespace(callback_metrics={"val_force_rmse": 0.0, "val_acc": 0.9},
                                   datamodule=SimpleNamespace(prepared={"force": force}))
         bar.on_train_epoch_end(trainer, None)
