@@ -252,7 +252,7 @@ def fig6b(ctx) -> dict:
     fig, ax = plt.subplots(figsize=(6, 3.5))
     x = np.arange(2)
     for i, k in enumerate(res):
-        ax.bar(x + 0.38 * i, [res[k]["all_bins"], res[k]["ospa"]], 0.36, label=k)
+        ax.bar(x + 0.38 * i, [res[k]["all_bins"], res[k]["ospa"]], 0.36, label=_MODEL[k])
     ax.set_xticks(x + 0.19, ["all 6400 bins", "OSPA 300 bins"])
     ax.set(ylim=(0, 1), ylabel="accuracy", title="Fig. 6b: moving robot")
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: bars reach 1
@@ -326,25 +326,24 @@ _MODEL = {"svm": "SVM", "net": "network"}
 
 
 def _draw_fig12(res: dict):
-    """Accuracy over time, one line per model and updating interval; settings whose curves are
-    identical share one line and one legend entry (so no entry names a hidden line)."""
+    """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves
+    are identical share one line and one legend entry, so no entry names a hidden line."""
     from .plots import MODEL_STYLE
 
     groups: dict = {}
     for key, v in res.items():
         if " alpha=" in key:
             k, alpha = key.split(" alpha=")
-            groups.setdefault((k, tuple(np.round(np.asarray(v, float), 9))), []).append(alpha)
-    fig, ax = _plt().subplots(figsize=(8.5, 3.8))
-    colours = {}
-    for (k, v), alphas in groups.items():
-        st = MODEL_STYLE[_MODEL[k]]
-        upd = " = ".join("no updating" if a == "never" else f"every {a}" for a in alphas)
-        colours.setdefault(alphas[0], f"C{len(colours)}")
-        ax.plot(res["minutes"], v, color=colours[alphas[0]], ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"],
-                ms=5, label=f"{_MODEL[k]}, {upd}" + (" (identical)" if len(alphas) > 1 else ""))
-    ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)",
-           title="Fig. 12: warm-up and online updating")
+            groups.setdefault(tuple(np.round(np.asarray(v, float), 9)), []).append((k, alpha))
+    fig, ax = _plt().subplots(figsize=(10, 3.8))
+    # Shared curves first (underneath), so a single setting that differs only slightly stays visible on top.
+    for i, (v, members) in enumerate(sorted(groups.items(), key=lambda g: -len(g[1]))):
+        kinds = {k for k, _ in members}
+        st = MODEL_STYLE[_MODEL[kinds.pop()]] if len(kinds) == 1 else {"ls": "-", "lw": 2.0, "alpha": 1.0, "marker": "s"}
+        label = " = ".join(f"{_MODEL[k]}, {'no updating' if a == 'never' else 'every ' + a}" for k, a in members)
+        ax.plot(res["minutes"], v, color=f"C{i}", ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"], ms=5,
+                label=label + (" (identical)" if len(members) > 1 else ""))
+    ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)", title="Fig. 12: warm-up and online updating")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), title="model, reference update", title_fontsize=7)
     ax.grid(alpha=0.3)
     return fig

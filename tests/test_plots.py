@@ -152,7 +152,11 @@ def test_fig12_legend_names_only_visible_lines():
     ax = fig.axes[0]
     labels = _legend_texts(ax)
     assert len(labels) == len(ax.get_lines()) == 4  # the three identical SVM curves are one line, one entry
-    assert "SVM, every 5 min = every 20 min = every 60 min (identical)" in labels
+    assert "SVM, every 5 min = SVM, every 20 min = SVM, every 60 min (identical)" in labels
+    # Identical across models too (the network's kernel layer is the SVM's): one line.
+    res2 = {**res, "net alpha=20 min": same}
+    labels2 = _legend_texts(_draw_fig12(res2).axes[0])
+    assert len(labels2) == 3 and "SVM, every 5 min = SVM, every 20 min = SVM, every 60 min = network, every 20 min (identical)" in labels2
     # The legend is outside the data area: it covers no line.
     fig.canvas.draw()
     leg = ax.get_legend().get_window_extent()
