@@ -16,7 +16,7 @@ __all__ = ["SkinDataModule"]
 
 
 class SkinDataModule(L.LightningDataModule):
-    """Chirps of a dataset as (features, class, force) tensors; class N means no touch.
+    """Data options: the chirps of a dataset as (features, class, force) tensors (class N = no touch).
 
     Parameters
     ----------

@@ -30,7 +30,9 @@ def _plain(o):
 
 
 class SkinLitModule(L.LightningModule):
-    """Joint loss ``CE(location + no-touch) + force_weight * MSE(force at the true location)``
+    """Model options: SkinNet trained jointly for location and force.
+
+    The loss is ``CE(location + no-touch) + force_weight * MSE(force at the true location)``
     (the force term over touched chirps only).
 
     Parameters

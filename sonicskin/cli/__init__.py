@@ -79,6 +79,10 @@ class _LightningHelp(argparse.Action):
         text = text.replace("--data CONFIG         Path to a configuration file.",
                             "--data CONFIG         LightningCLI's YAML of data.* options; not on `sonicskin train`,\n"
                             "                        where --data is the dataset folder (put data.* in the --config YAML)")
+        text = text.replace("Base class for all optimizers:", "Optimizer (default: none, the model's own AdamW with model.lr and "
+                            "model.weight_decay; --optimizer replaces it):")
+        text = re.sub(r"^\(<class 'torch\.optim\.lr_scheduler\.LRScheduler'>.*\):$", "Learning-rate scheduler (default: "
+                      "none, the model's own cosine schedule over the epochs; --lr_scheduler replaces it):", text, flags=re.M)
         print(text, end="")
         parser.exit(0)
 
