@@ -59,7 +59,8 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
     2 and 3 cm thresholds in the legend.  Identical curves are said so in the legend."""
     emax = 0.0
     first = None
-    for name, err in errors.items():
+    # The thicker line first, so a thinner one on the same path stays visible on top of it.
+    for name, err in sorted(errors.items(), key=lambda kv: -MODEL_STYLE.get(kv[0], {}).get("lw", 1.5)):
         e = np.sort(np.asarray(err, float))
         c = np.arange(1, e.size + 1) / max(e.size, 1)
         st = MODEL_STYLE.get(name, {})
@@ -73,7 +74,8 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
     ax.axvline(3, color="gray", lw=0.8, ls="-.", label="3 cm")
     ax.set(xlabel="localization error (cm)", ylabel="share of touch chirps with error ≤ x", ylim=(0, 1.02),
            xlim=(-0.05 * max(emax, 4.0), 1.05 * max(emax, 4.0)), title=title)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8)  # outside: covers no data
+    # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
     ax.grid(alpha=0.3)
 
 
@@ -104,5 +106,6 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
     hi = 1.05 * hi or 1.0
     ax.plot([0, hi], [0, hi], color="gray", lw=0.8, label="predicted = true")
     ax.set(xlim=(0, hi), ylim=(0, hi))
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8)  # outside: covers no data
+    # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
     ax.grid(alpha=0.3)
