@@ -79,8 +79,11 @@ def main() -> None:
         print(f"  {k:3s}  ONNX call        {_stats(onnx[k])}   ({(art / rts[k].m['file']).stat().st_size / 1e3:.0f} kB)")
         print(f"  {k:3s}  whole per chirp  {_stats(path[k])}   (frame -> features -> reference -> model -> detection -> force)")
     if set(rts) == {"net", "svm"}:
-        print(f"  the network's ONNX call is {np.median(onnx['svm']) / np.median(onnx['net']):.1f}x faster than the SVM's, "
-              f"its whole per-chirp path {np.median(path['svm']) / np.median(path['net']):.1f}x")
+        from sonicskin.metrics import speed_ratio
+
+        line = (f"  the network's ONNX call is {speed_ratio(np.median(onnx['net']), np.median(onnx['svm']))} than the SVM's, "
+                f"its whole per-chirp path {speed_ratio(np.median(path['net']), np.median(path['svm']))}")
+        print(line.replace("as fast than", "as fast as"))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import numpy as np
 
 from .dataset import Dataset, FeatureTable
 from .features import load_features_cached, touch_mask
-from .metrics import error_cdf, force_report, localization_report
+from .metrics import force_report, localization_report, speed_ratio
 from .runtime import Predictions, SkinRuntime
 from .schema import check_layout, check_rig, load_skin
 
@@ -183,6 +183,8 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
         p = replay_sessions(rt, te, test)
         r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
                            detection=svm_meta.get("detection", True))
+        sel = touch_mask(te, meta.get("min_force_n", 0.5)) & p.touch  # the chirps force is scored on (plotted)
+        r["force_points"] = {"true_n": te["force_n"][sel].tolist(), "predicted_n": p.force_n[sel].tolist()}
         if latency:  # on the first test stream, as it was scored (booted, or without a boot: replay_sessions)
             first = te["session"] == test[0]
             boot = leading_rest(te, test[0]) >= rt.spec.reference(rt.rig.chirps_per_s).beta
@@ -264,10 +266,10 @@ def format_comparison(res: dict, title: str = "") -> str:
             out.append(f"  {what}: {first[key]['reason']}")
     if "net" in models and "svm" in models and models["net"]["latency"] and models["svm"]["latency"]:
         net, svm = models["net"], models["svm"]
-        speed = svm["latency"]["onnx_median_ms"] / net["latency"]["onnx_median_ms"]
-        speed2 = svm["latency"]["median_ms"] / net["latency"]["median_ms"]
-        out.append(f"  per chirp, the network is {speed:.1f}x faster than the SVM in onnxruntime ({speed2:.1f}x with "
-                   f"post-processing; same run)")
+        speed = speed_ratio(net["latency"]["onnx_median_ms"], svm["latency"]["onnx_median_ms"])
+        speed2 = speed_ratio(net["latency"]["median_ms"], svm["latency"]["median_ms"])
+        out.append(f"  per chirp, the network is {speed} than the SVM in onnxruntime ({speed2} with post-processing; same run)"
+                   .replace("as fast than", "as fast as"))
     return "\n".join(out)
 
 
@@ -279,23 +281,21 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "compare.json").write_text(json.dumps(res, indent=1, default=float))
-    names = list(res["models"])
-    fig, ax = plt.subplots(1, len(names) + 1, figsize=(5.4 * (len(names) + 1), 4.8))
-    for a, k in zip(ax[:-1], names):
+    from .plots import cdf_panel, confusion_panel, force_panel, location_names
+
+    names = location_names(res.get("data"), layout)
+    label = {"net": "network", "svm": "SVM"}
+    models = [k for k in ("net", "svm") if k in res["models"]]
+    fig, ax = plt.subplots(2, 2, figsize=(13, 10.5))
+    for a, k in zip(ax[0], models):
         r = res["models"][k]
-        cm = np.asarray(r["localization"]["confusion"], float)
-        cm /= np.maximum(cm.sum(axis=1, keepdims=True), 1)
-        a.imshow(cm, cmap="viridis", vmin=0, vmax=1)
-        a.set(title=f"{'network' if k == 'net' else 'SVM'}: accuracy {r['localization']['accuracy']:.1%}",
-              xlabel="predicted location", ylabel="true location")
-    for k, style in (("net", "-"), ("svm", "--")):
-        if k not in res["models"]:
-            continue
-        e, c = error_cdf(np.asarray(res["models"][k]["errors_cm"]))
-        ax[-1].step(e, c, style, where="post", label=f"{'network' if k == 'net' else 'SVM'}")
-    ax[-1].axvline(2, color="gray", lw=0.8)
-    ax[-1].set(xlabel="localization error (cm)", ylabel="CDF", ylim=(0, 1.01), xlim=(-0.1, 6), title="error CDF")
-    ax[-1].legend(); ax[-1].grid(alpha=0.3)
+        confusion_panel(fig, a, r["localization"]["confusion"], names, f"{label[k]}: accuracy {r['localization']['accuracy']:.1%}")
+    for a in ax[0][len(models):]:
+        a.axis("off")
+    cdf_panel(ax[1, 0], {label[k]: np.asarray(res["models"][k]["errors_cm"]) for k in models})
+    pts = {label[k]: (lambda q: None if q is None else (q["true_n"], q["predicted_n"]))(res["models"][k].get("force_points"))
+           for k in models}
+    force_panel(ax[1, 1], pts, res["models"][models[0]]["force"].get("reason", ""))
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -256,25 +256,16 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .metrics import error_cdf
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "report.json").write_text(json.dumps(res, indent=2, default=float))
     paths = [out / "report.json"]
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
-    cm = np.asarray(res["localization"]["confusion"], float)
-    cm = cm / np.maximum(cm.sum(axis=1, keepdims=True), 1)
-    im = ax[0].imshow(cm, cmap="viridis", vmin=0, vmax=1)
-    ax[0].set(xlabel="predicted location", ylabel="true location",
-              title=f"confusion (accuracy {res['localization']['accuracy']:.1%})")
-    fig.colorbar(im, ax=ax[0], fraction=0.046)
-    e, c = error_cdf(np.asarray(res["errors_cm"]))
-    ax[1].step(e, c, where="post")
-    ax[1].axvline(2, color="gray", ls="--"); ax[1].axvline(3, color="gray", ls=":")
-    ax[1].set(xlabel="localization error (cm)", ylabel="CDF", xlim=(-0.1, max(5, float(e.max()) if e.size else 5)),
-              ylim=(0, 1.01), title=f"< 2 cm: {res['localization']['within_2cm']:.1%}")
-    ax[1].grid(alpha=0.3)
+    from .plots import cdf_panel, confusion_panel, location_names
+
+    fig, ax = plt.subplots(1, 2, figsize=(12.5, 5))
+    confusion_panel(fig, ax[0], res["localization"]["confusion"], location_names(res.get("dataset"), layout),
+                    f"SVM: accuracy {res['localization']['accuracy']:.1%}")
+    cdf_panel(ax[1], {"SVM": np.asarray(res["errors_cm"])}, f"error CDF: < 2 cm {res['localization']['within_2cm']:.1%}")
     fig.tight_layout()
     fig.savefig(out / "localization.png", dpi=110)
     plt.close(fig)

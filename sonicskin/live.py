@@ -169,6 +169,8 @@ class LiveLoop:
         boot calibration), e.g. to record a replay chirp by chirp.
     """
 
+    startup_dropped: int | None = None  # audio blocks dropped before the first chirp was framed
+
     def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
                  status: bool = False, link=None, channel: int = 0,
                  on_chirp: Callable[[float, Predictions | None], None] | None = None,
@@ -237,6 +239,8 @@ class LiveLoop:
         """Process one block from the source (frames, features, model, events)."""
         samples = block.samples if block.samples.ndim == 1 else block.samples[:, self.channel]
         for start, frame in self.framer.push(samples, block.start, block.discontinuity):
+            if self.startup_dropped is None:  # blocks lost before the first chirp was framed (loading, first lock)
+                self.startup_dropped = self.source.counters()["dropped_blocks"]
             if self.slot[1] > 1:  # this link's chirp within the duplex period
                 L = self.rig.n_chirp
                 start, frame = start + self.slot[0] * L, frame[self.slot[0] * L:(self.slot[0] + 1) * L]
@@ -261,8 +265,16 @@ class LiveLoop:
         touch = f"last touch: loc {last.location} ({last.x_cm:.1f}, {last.y_cm:.1f}) cm {last.force_n:.1f} N" if last else "no touch yet"
         state = "calibrating" if self.stream.calibrating else "running"
         return (f"{state}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
-                f"{touch}  relocks {self.framer.relocks} overflows {c['overflows']} dropped {c['dropped_blocks']} "
-                f"skipped {sum(self.skipped.values())}   ")
+                f"{touch}  relocks {self.framer.relocks}  driver overflows {c['overflows']}  dropped blocks {c['dropped_blocks']}"
+                f"{self._startup_note(c['dropped_blocks'])}  skipped frames {sum(self.skipped.values())}   ")
+
+    def _startup_note(self, dropped: int) -> str:
+        """Why blocks were dropped when it was at start-up: the 2 s queue filled before the loop framed its first chirp
+        (a slow first render of the simulated device catching up, or a loaded machine); not a fault of the link."""
+        d0 = self.startup_dropped if self.startup_dropped is not None else dropped
+        if not d0:
+            return ""
+        return f" ({d0} at start-up, before the first chirp was framed: the source ran ahead while the loop started)"
 
     def summary(self, wall_s: float, cpu_s: float, stream_s: float) -> dict:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.full(1, np.nan)

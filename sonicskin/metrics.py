@@ -7,7 +7,7 @@ from sklearn.metrics import confusion_matrix
 
 from .rig import Layout
 
-__all__ = ["localization_report", "force_report", "error_cdf"]
+__all__ = ["localization_report", "force_report", "error_cdf", "speed_ratio"]
 
 
 def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,3 +54,12 @@ def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
         "xcorr": float(np.sum(p * g) / denom) if denom > 0 else float("nan"),
         "r2": float(1 - np.sum(e ** 2) / np.sum((g - g.mean()) ** 2)) if g.size > 1 and np.ptp(g) > 0 else float("nan"),
     }
+
+
+def speed_ratio(t_s: float, t_ref_s: float) -> str:
+    """How a time ``t_s`` compares with ``t_ref_s`` in words: ``"2.5x faster"``, ``"1.4x slower"``
+    (never a ratio below 1 called faster), or ``"as fast"`` within 5 %."""
+    r = float(t_ref_s) / float(t_s)
+    if abs(r - 1) < 0.05:
+        return "as fast"
+    return f"{r:.1f}x faster" if r > 1 else f"{1 / r:.1f}x slower"

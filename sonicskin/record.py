@@ -140,8 +140,9 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
         out.append(("moving", -1, rig.seconds_to_chirps(moving_s),
                     f"start the robot moving; hands off for {moving_s:g} s"))
     for loc in locations:
+        x, y = layout.coords(np.array([loc]))[0]  # where the marker is: x around / across, y along the link
         out.append(("touch", loc, rig.seconds_to_chirps(touch_s),
-                    f"touch location {loc} with varying force for {touch_s:g} s"))
+                    f"touch location {loc} (marker at x {x:.1f} cm, y {y:.1f} cm) with varying force for {touch_s:g} s"))
         out.append(("gap", -1, rig.seconds_to_chirps(gap_s), "release"))
     return out
 

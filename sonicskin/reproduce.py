@@ -20,7 +20,7 @@ from .calibration import OnlineReference
 from .dataset import Dataset
 from .features import FeatureSpec, load_features_cached, quiet_mask, relative_features, select_bins, touch_mask, training_targets
 from .force import MODELS, PerLocationForce, energy_db, fit_curve
-from .metrics import error_cdf, force_report, localization_report
+from .metrics import force_report, localization_report
 from .rig import Rig
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
@@ -249,13 +249,13 @@ def fig6b(ctx) -> dict:
             "ospa": _evaluate(_fit_predict(k, _inputs(t, ds.rig, bins), t, ds.layout, train, test, epochs=ctx.epochs),
                               t, test, ds.layout)["accuracy"]}
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5, 3.5))
+    fig, ax = plt.subplots(figsize=(6, 3.5))
     x = np.arange(2)
     for i, k in enumerate(res):
-        ax.bar(x + 0.38 * i, [res[k]["all_bins"], res[k]["ospa"]], 0.36, label=k)
+        ax.bar(x + 0.38 * i, [res[k]["all_bins"], res[k]["ospa"]], 0.36, label=_MODEL[k])
     ax.set_xticks(x + 0.19, ["all 6400 bins", "OSPA 300 bins"])
     ax.set(ylim=(0, 1), ylabel="accuracy", title="Fig. 6b: moving robot")
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: bars reach 1
     return _save(ctx, fig, "fig6b.png", res)
 
 
@@ -316,17 +316,37 @@ def fig12(ctx) -> dict:
                 m = (te["session"] == s) & touch_mask(te)
                 acc.append(float(np.mean(pred["location"][m] == te["location"][m])))
             res[f"{k} alpha={name}"] = acc
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 3.8))
-    for key, v in res.items():
-        if key in ("minutes", "temperature_c"):
-            continue
-        ax.plot(res["minutes"], v, marker="o", ms=3, label=key)
-    ax.set(xlabel="minutes since power-on", ylabel="accuracy", title="Fig. 12: warm-up (+ online updating every alpha)")
-    ax.legend(fontsize=7); ax.grid(alpha=0.3)
+    fig = _draw_fig12(res)
     out = _save(ctx, fig, "fig12.png", res)
     out["two_months"] = _two_months(ctx)
     return out
+
+
+_MODEL = {"svm": "SVM", "net": "network"}
+
+
+def _draw_fig12(res: dict):
+    """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves
+    are identical share one line and one legend entry, so no entry names a hidden line."""
+    from .plots import MODEL_STYLE
+
+    groups: dict = {}
+    for key, v in res.items():
+        if " alpha=" in key:
+            k, alpha = key.split(" alpha=")
+            groups.setdefault(tuple(np.round(np.asarray(v, float), 9)), []).append((k, alpha))
+    fig, ax = _plt().subplots(figsize=(10, 3.8))
+    # Shared curves first (underneath), so a single setting that differs only slightly stays visible on top.
+    for i, (v, members) in enumerate(sorted(groups.items(), key=lambda g: -len(g[1]))):
+        kinds = {k for k, _ in members}
+        st = MODEL_STYLE[_MODEL[kinds.pop()]] if len(kinds) == 1 else {"ls": "-", "lw": 2.0, "alpha": 1.0, "marker": "s"}
+        label = " = ".join(f"{_MODEL[k]}, {'no updating' if a == 'never' else 'every ' + a}" for k, a in members)
+        ax.plot(res["minutes"], v, color=f"C{i}", ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"], ms=5,
+                label=label + (" (identical)" if len(members) > 1 else ""))
+    ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)", title="Fig. 12: warm-up and online updating")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), title="model, reference update", title_fontsize=7)
+    ax.grid(alpha=0.3)
+    return fig
 
 
 def _two_months(ctx) -> dict:
@@ -373,7 +393,7 @@ def fig13(ctx) -> dict:
         g = t["force_n"][train][m]
         res["network (training fit)"] = float(1 - np.sum((pred["force"][m] - g) ** 2) / np.sum((g - g.mean()) ** 2))
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.5, 3.5))
+    fig, ax = plt.subplots(figsize=(8.5, 3.5))
     names = list(MODELS)
     for i, feat in enumerate(k for k in res if isinstance(res[k], dict)):
         ax.bar(np.arange(len(names)) + 0.4 * i, [res[feat][n] for n in names], 0.38, label=feat)
@@ -381,7 +401,7 @@ def fig13(ctx) -> dict:
         ax.axhline(res["network (training fit)"], color="k", ls="--", lw=1, label="network force head")
     ax.set_xticks(np.arange(len(names)) + 0.2, names)
     ax.set(ylabel="mean R2 per location", ylim=(0, 1.05), title="Fig. 13: force curve models")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1))  # outside: bars reach 1
     return _save(ctx, fig, "fig13.png", res)
 
 
@@ -407,19 +427,16 @@ def table1_fig14_15(ctx) -> dict:
     for k in _kinds(ctx):
         res["fig15"][k] = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
     plt = _plt()
+    from .plots import cdf_panel, confusion_panel
+
     for fig_name in ("fig14", "fig15") if ctx.plots else ():
         kinds = list(res[fig_name])
         fig, ax = plt.subplots(1, len(kinds) + 1, figsize=(5 * (len(kinds) + 1), 4.3))
         for a, k in zip(ax[:-1], kinds):
-            cm = res[fig_name][k]["confusion"].astype(float)
-            a.imshow(cm / np.maximum(cm.sum(1, keepdims=True), 1), vmin=0, vmax=1)
-            a.set(title=f"{k}: accuracy {res[fig_name][k]['accuracy']:.1%}", xlabel="predicted", ylabel="true")
-        for k in kinds:
-            e, c = error_cdf(res[fig_name][k]["errors_cm"])
-            ax[-1].step(e, c, where="post", label=k)
-        ax[-1].set(xlabel="error (cm)", ylabel="CDF", xlim=(-0.1, 6), ylim=(0, 1.01),
-                   title="moving robot" if fig_name == "fig14" else "unseen people (leave-subjects-out)")
-        ax[-1].legend(); ax[-1].grid(alpha=0.3)
+            cm = res[fig_name][k]["confusion"]
+            confusion_panel(fig, a, cm, [str(i) for i in range(len(cm))], f"{_MODEL[k]}: accuracy {res[fig_name][k]['accuracy']:.1%}")
+        cdf_panel(ax[-1], {_MODEL[k]: res[fig_name][k]["errors_cm"] for k in kinds},
+                  "moving robot" if fig_name == "fig14" else "unseen people (leave-subjects-out)")
         fig.suptitle("Fig. 14" if fig_name == "fig14" else "Fig. 15")
         fig.tight_layout()
         fig.savefig(ctx.out / f"{fig_name}.png", dpi=100)
@@ -441,17 +458,29 @@ def fig16(ctx) -> dict:
     X = _inputs(t, ds.rig, bins)
     res["aluminium plate, 36 markers"] = {k: _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs),
                                                        t, test, ds.layout) for k in _kinds(ctx)}
-    plt = _plt()
-    fig, ax = plt.subplots(1, 2, figsize=(11, 3.6))
-    names = list(res)
-    for i, k in enumerate(_kinds(ctx)):
-        ax[0].bar(np.arange(len(names)) + 0.4 * i, [res[n][k]["accuracy"] for n in names], 0.38, label=k)
-        ax[1].bar(np.arange(len(names)) + 0.4 * i, [res[n][k]["force"]["rmse_n"] for n in names], 0.38, label=k)
-    for a, yl in zip(ax, ("accuracy", "force RMSE (N)")):
-        a.set_xticks(np.arange(len(names)) + 0.2, [n.replace(", 36 markers", "\n36 markers") for n in names], fontsize=7)
-        a.set(ylabel=yl); a.legend()
-    fig.suptitle("Fig. 16: materials")
+    fig = _draw_fig16(res, _kinds(ctx))
     return _save(ctx, fig, "fig16.png", res)
+
+
+def _draw_fig16(res: dict, kinds: list[str]):
+    """Accuracy and force RMSE per material, both models side by side; the legend sits above the bars."""
+    from .plots import MODEL_STYLE
+
+    fig, ax = _plt().subplots(1, 2, figsize=(11, 4.2))
+    names = list(res)
+    x = np.arange(len(names))
+    for i, k in enumerate(kinds):
+        col = MODEL_STYLE[_MODEL[k]]["color"]
+        ax[0].bar(x + 0.4 * i, [res[n][k]["accuracy"] for n in names], 0.38, label=_MODEL[k], color=col)
+        ax[1].bar(x + 0.4 * i, [res[n][k]["force"]["rmse_n"] for n in names], 0.38, label=_MODEL[k], color=col)
+    for a, yl in zip(ax, ("accuracy (touch chirps)", "force RMSE (N)")):
+        a.set_xticks(x + 0.2 * (len(kinds) - 1), [n.replace(", 36 markers", "\n36 markers") for n in names], fontsize=7)
+        a.set(ylabel=yl)
+        a.grid(alpha=0.3, axis="y")
+    ax[0].set_ylim(0, 1)
+    fig.legend(*ax[0].get_legend_handles_labels(), loc="upper right", ncol=len(kinds), fontsize=8)
+    fig.suptitle("Fig. 16: materials", x=0.02, ha="left")
+    return fig
 
 
 def _save(ctx, fig, name: str, res: dict) -> dict:

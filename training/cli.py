@@ -80,7 +80,10 @@ class EpochBar(L.Callback):
     def on_train_epoch_end(self, trainer, pl_module) -> None:
         m = self._metrics(trainer)
         if self._bar is not None:
-            self._bar.set_postfix({k: f"{v:.3g}" for k, v in m.items() if k.startswith("val_")}, refresh=False)
+            prep = getattr(getattr(trainer, "datamodule", None), "prepared", None)  # no force sensor: force RMSE is n/a, not 0
+            no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+            self._bar.set_postfix({k: "n/a" if no_force and "force" in k else f"{v:.3g}" for k, v in m.items()
+                                   if k.startswith("val_")}, refresh=False)
             self._bar.update(1)
 
     def on_train_end(self, trainer, pl_module) -> None:
@@ -276,11 +279,14 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     given = [a.split("=", 1)[0] for a in (args or [])]
     cls = type("SkinCLI", (SkinCLI,), {"follow_root_dir": "--trainer.default_root_dir" in given
                                        and not any(a.startswith("--trainer.logger") for a in given)})
+    parser_kwargs = {"prog": PROG, "exit_on_error": False}
+    if "--help" in given or "-h" in given:  # --help shows the defaults `train` runs with: those of its --config
+        parser_kwargs["default_config_files"] = [v for k, v in zip(args, args[1:]) if k == "--config"]
     bar = EpochBar()
     with quiet_third_party():
         try:
             cli = cls(SkinLitModule, SkinDataModule, args=list(args or []), run=False,
-                          parser_kwargs={"prog": PROG, "exit_on_error": False},
+                          parser_kwargs=parser_kwargs,
                           trainer_defaults={"callbacks": [bar], "enable_progress_bar": False,
                                             "enable_model_summary": False},
                           save_config_kwargs={"overwrite": True}, seed_everything_default=0)

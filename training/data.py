@@ -16,22 +16,34 @@ __all__ = ["SkinDataModule"]
 
 
 class SkinDataModule(L.LightningDataModule):
-    """Chirps of a dataset as (features, class, force) tensors; class N means no touch.
+    """Data options: the chirps of a dataset as (features, class, force) tensors (class N = no touch).
 
     Parameters
     ----------
-    data : dataset folder (``sonicskin simulate`` / ``sonicskin record``).
-    n_bins : OSPA's gamma; bins are selected on the training split only.
-    mode : ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
-    train_sessions, val_sessions : sessions for training / validation (default: first / second).
-    test_subjects : leave-subjects-out instead: sessions of these people are the test set.
-    batch_size : chirps per step.
-    noise_db : std of Gaussian noise added to training features (augmentation), in dB.
+    data : str
+        Dataset folder (``sonicskin simulate`` / ``record`` / ``import-*``); ``sonicskin train --data`` sets it.
+    n_bins : int
+        OSPA's gamma: bins kept, selected on the training split only (clamped to the rig's band).
+    mode : str
+        Model inputs: ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
+    train_sessions : list of str, optional
+        Training sessions (default: the first).
+    val_sessions : list of str, optional
+        Validation sessions (default: the second when there are three or more, else none).
+    test_subjects : list of int, optional
+        Leave-subjects-out instead: sessions of these people are the test set.
+    min_force_n : float
+        Labelled chirps pressed lighter than this (N) are left out of training, neither a clear touch nor
+        no touch (without a force sensor every labelled chirp is a touch).
+    batch_size : int
+        Chirps per optimisation step.
+    noise_db : float
+        Std of Gaussian noise added to training features (augmentation), in dB; passed to ``model.noise_db``.
     """
 
     def __init__(self, data: str, n_bins: int = 300, mode: str = "relative", train_sessions: list[str] | None = None,
                  val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
-                 min_force_n: float = 0.5, batch_size: int = 256, noise_db: float = 0.0):
+                 min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3):
         super().__init__()
         self.save_hyperparameters()
         meta = json.loads((Path(data) / "dataset.json").read_text()) if (Path(data) / "dataset.json").is_file() else None

@@ -30,30 +30,53 @@ def _plain(o):
 
 
 class SkinLitModule(L.LightningModule):
-    """Joint loss ``CE(location + no-touch) + force_weight * MSE(force at the true location)``
+    """Model options: SkinNet trained jointly for location and force.
+
+    The loss is ``CE(location + no-touch) + force_weight * MSE(force at the true location)``
     (the force term over touched chirps only).
 
     Parameters
     ----------
-    n_in, n_locations : linked from the DataModule by the CLI.
-    hidden, dropout : network size.
-    lr, weight_decay : AdamW.
-    force_weight : weight of the force loss (N^2) against the cross-entropy.
-    noise_db : Gaussian noise on training inputs (dB), a cheap augmentation against sensor noise.
-    input_dropout : dropout on the input bins.  label_smoothing : for the cross-entropy.
-    kernel : location layer = the SVM's kernel machine (:class:`models.KernelVotes`), fitted on the
-        training split (scaler + RBF SVC, C = ``svm_c``) when training starts.
-    kernel_lr : learning rate of the kernel layer; 0 keeps it the SVM's (measured best one-shot).
-    tau : softness of the kernel layer's votes.
-    n_centres : RBF units; set when the SVM is fitted (kept so a checkpoint rebuilds the same shapes).
-    svm_c : the SVM's C.
-    rest_mix : augmentation with the rig's own noise: each training touch chirp gets a random no-touch
-        chirp's deviation (from the batch's no-touch mean) times ``rest_mix`` (0 = off; measured no gain
-        over ``noise_db`` 0.3 on the simulated moving/stationary/two-points scenarios).
+    n_in : int
+        Inputs per chirp (OSPA bins); linked from the DataModule (``data.n_bins`` clamped to the band).
+    n_locations : int
+        Touch locations; linked from the DataModule (the dataset's layout).
+    hidden : tuple of int
+        Widths of the hidden layers of the shared trunk.
+    dropout : float
+        Dropout after each hidden layer.
+    lr : float
+        AdamW learning rate (cosine schedule over the epochs).
+    weight_decay : float
+        AdamW weight decay.
+    force_weight : float
+        Weight of the force loss (MSE in N^2, touched chirps only) against the location cross-entropy.
+    noise_db : float
+        Std of Gaussian noise added to the training inputs (dB), an augmentation against sensor noise;
+        set by ``data.noise_db`` (linked).
+    input_dropout : float
+        Dropout on the input bins.
+    label_smoothing : float
+        Label smoothing of the location cross-entropy (training only).
+    kernel : bool
+        Location layer = the SVM's kernel machine (RBF units at its support vectors), fitted on the training
+        split (scaler + RBF SVC, C = ``svm_c``) when training starts.
+    kernel_lr : float
+        Learning rate of the kernel layer; 0 keeps it the SVM's (measured best one-shot).
+    tau : float
+        Softness of the kernel layer's one-vs-one votes.
+    n_centres : int
+        RBF units; set when the SVM is fitted (stored so a checkpoint rebuilds the same shapes); leave at 0.
+    svm_c : float
+        The SVM's C for the kernel layer.
+    rest_mix : float
+        Augmentation with the rig's own noise: each training touch chirp gets a random no-touch chirp's
+        deviation (from the batch's no-touch mean) times ``rest_mix`` (0 = off; measured no gain over
+        ``noise_db`` 0.3 on the simulated moving/stationary/two-points scenarios).
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
-                 dropout: float = 0.1, lr: float = 2e-3, weight_decay: float = 1e-4, force_weight: float = 0.1,
+                 dropout: float = 0.3, lr: float = 2e-3, weight_decay: float = 1e-2, force_weight: float = 0.1,
                  noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
                  kernel: bool = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0,
                  rest_mix: float = 0.0):

@@ -63,10 +63,26 @@ class _LightningHelp(argparse.Action):
 
         print("\nLightningCLI options (model, data, trainer), all accepted by `sonicskin train` and `sonicskin compare`:")
         sys.stdout.flush()
+        import contextlib
+        import io
+        import re
+
+        buf = io.StringIO()
         try:
-            train_main(["--config", train_config("moving"), "--help"])
+            with contextlib.redirect_stdout(buf):
+                train_main(["--config", train_config("moving"), "--help"])
         except SystemExit:
             pass
+        text = re.sub(r"\Ausage:.*?\n\n", "", buf.getvalue(), flags=re.S)  # its usage block repeats the list below
+        # Two meanings of --data: on `sonicskin train` it is the dataset folder (above), LightningCLI's is a YAML.
+        text = text.replace("--data CONFIG         Path to a configuration file.",
+                            "--data CONFIG         LightningCLI's YAML of data.* options; not on `sonicskin train`,\n"
+                            "                        where --data is the dataset folder (put data.* in the --config YAML)")
+        text = text.replace("Base class for all optimizers:", "Optimizer (default: none, the model's own AdamW with model.lr and "
+                            "model.weight_decay; --optimizer replaces it):")
+        text = re.sub(r"^\(<class 'torch\.optim\.lr_scheduler\.LRScheduler'>.*\):$", "Learning-rate scheduler (default: "
+                      "none, the model's own cosine schedule over the epochs; --lr_scheduler replaces it):", text, flags=re.M)
+        print(text, end="")
         parser.exit(0)
 
 

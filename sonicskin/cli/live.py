@@ -42,11 +42,48 @@ def json_safe(obj):
     return obj
 
 
+def _live_links(a: argparse.Namespace) -> int:
+    """``live --links NAME``: several links on one audio interface (configs/links), one model and one loop per link."""
+    from ..acquire import SoundDeviceSource, load_links
+    from ..live import LiveLoop, UdpSink, run_loops
+    from ..rig import Rig
+    from ..runtime import SkinRuntime
+
+    if a.device == "sim":
+        raise UsageError("--links runs several links on one real audio interface; pass --device NAME|INDEX "
+                         "(`sonicskin devices`); the simulated device has one link")
+    rig = Rig.load(a.rig)
+    links = load_links(a.links, rig)
+    arts = a.link_artifact or []
+    if len(arts) != len(links):
+        raise UsageError(f"--links {a.links} has {len(links)} links ({', '.join(lk.name for lk in links)}); pass "
+                         f"--link-artifact DIR once per link, in that order (got {len(arts)})")
+    for art in arts:
+        if not (Path(art) / "skin.json").is_file():
+            raise FileNotFoundError(f"{art} is not a sonicskin artifact (no skin.json there); train one per link on "
+                                    f"that link's own recordings (`sonicskin record`, `sonicskin fit-svm`)")
+    sinks = [lambda line: print(line, flush=True)] + ([UdpSink(f"{a.udp[0]}:{a.udp[1]}")] if a.udp else [])
+    source = SoundDeviceSource(rig, a.device, links=links, blocksize=a.blocksize)
+
+    def emit_for(name: str):  # each event line names its link
+        return lambda line: [s(json.dumps({"link": name, **json.loads(line)})) for s in sinks]
+
+    loops = [LiveLoop(SkinRuntime(Path(art), a.model, rig=lk.rig or rig), source, emit=emit_for(lk.name),
+                      status=not a.no_status, link=lk, channel=i) for i, (lk, art) in enumerate(zip(links, arts))]
+    with source:
+        summaries = run_loops(loops, source, duration_s=a.duration)
+    print(json.dumps({"summary": {lk.name: json_safe(s) for lk, s in zip(links, summaries)}}, allow_nan=False), file=sys.stderr)
+    return 0
+
+
 def cmd_live(a: argparse.Namespace) -> int:
     from ..acquire import Link, SimulatedSource, SoundDeviceSource
     from ..live import DeviceLost, LiveLoop, UdpSink
     from ..rig import Rig
     from ..runtime import SkinRuntime
+
+    if getattr(a, "links", None):
+        return _live_links(a)
 
     if a.artifact is None and a.model == "net":
         raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
@@ -140,7 +177,7 @@ def cmd_info(a: argparse.Namespace) -> int:
     print(f"rig {rig.name}: {rig.fs_hz:g} Hz, chirp {rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz, "
           f"{rig.n_chirp} samples = {rig.period_s * 1e3:.1f} ms ({rig.chirps_per_s:.3f} chirps/s), "
           f"{rig.n_band} band bins, {int(rig.allowed_mask.sum())} after the PWM notches")
-    for kind in ("rigs", "scenarios", "train"):
+    for kind in ("rigs", "scenarios", "train", "links"):
         names = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
         if names:
             print(f"{kind}: {', '.join(names)}")
@@ -175,6 +212,11 @@ def add_parsers(sub) -> None:
     lv.add_argument("--drop-every", type=positive_int, metavar="N",
                     help="simulated device: drop one audio block in N, fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
+    lv.add_argument("--links", metavar="NAME",
+                    help="several links on one interface, a links config (`sonicskin info` lists them, e.g. "
+                         "two-links-time); with --device and one --link-artifact per link (default: one link, --tx/--rx)")
+    lv.add_argument("--link-artifact", action="append", metavar="DIR",
+                    help="with --links: the artifact of each link, once per link in the config's order (default: none)")
     lv.set_defaults(func=cmd_live)
 
     ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
@@ -205,7 +247,7 @@ def add_parsers(sub) -> None:
 
     i = sub.add_parser("info", help="show the version, the rig and the available configs",
                        description="Print the package version, the rig's sample rate, chirp, period and usable bins, "
-                                   "and the names of the shipped rig, scenario and training configs (usable as "
-                                   "--rig/--scenario/--config NAME).")
+                                   "and the names of the shipped rig, scenario, training and links configs (usable as "
+                                   "--rig/--scenario/--config NAME, and `live --links NAME`).")
     i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
     i.set_defaults(func=cmd_info)

@@ -111,8 +111,11 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
 def _report_training(cli) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
-        metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
-        split = (getattr(getattr(cli, "datamodule", None), "prepared", None) or {}).get("split")
+        prep = getattr(cli.datamodule, "prepared", None)  # no finite force anywhere: RMSE 0 would be a made-up number
+        no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+        metrics = ", ".join(f"{k} n/a (no force sensor)" if no_force and "force" in k else f"{k} {v:.3f}"
+                            for k, v in res.items() if k.startswith("val_"))
+        split = (prep or {}).get("split")
         if split is not None:  # say where the val_ metrics come from (no validation session: the training data)
             metrics += (f" (validation {', '.join(split.val)})" if split.val else
                         f" (no validation session: on the training sessions {', '.join(split.train)})")

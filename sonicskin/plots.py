@@ -1,0 +1,111 @@
+"""Figure pieces shared by the reports (``compare``, ``evaluate``): the user's location names,
+labelled confusion matrices, error CDFs over the whole distribution, force predicted vs true.
+
+Every panel names its axes and colourbars; two models drawn in one panel differ in colour, line
+style and width, and a note says when their curves coincide (so one never hides the other).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+
+__all__ = ["location_names", "confusion_panel", "cdf_panel", "force_panel", "MODEL_STYLE"]
+
+# How each model is drawn wherever both appear: colour, line style, width, marker.
+MODEL_STYLE = {
+    "network": {"color": "C0", "ls": "-", "lw": 3.0, "alpha": 0.75, "marker": "o"},
+    "SVM": {"color": "C3", "ls": "--", "lw": 1.5, "alpha": 1.0, "marker": "x"},
+}
+
+
+def location_names(data: str | Path | None, layout) -> list[str]:
+    """The user's names of ``layout``'s locations, in layout order: the labels an imported dataset
+    was recorded with (``dataset.json`` ``source.labels``, e.g. ``A1``...``C2``), else the ids."""
+    labels: dict = {}
+    if data is not None:
+        try:
+            labels = json.loads((Path(data) / "dataset.json").read_text()).get("source", {}).get("labels") or {}
+        except (OSError, ValueError, AttributeError):
+            labels = {}
+    return [str(labels.get(str(i), i)) for i in layout.ids]
+
+
+def confusion_panel(fig, ax, confusion, names: list[str], title: str):
+    """Row-normalised confusion matrix with the location names on both axes and a labelled colourbar."""
+    cm = np.asarray(confusion, float)
+    rows = cm.sum(axis=1, keepdims=True)
+    cm = np.where(rows > 0, cm / np.maximum(rows, 1), np.nan)  # a location never touched in the test: no row, not 0 %
+    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
+    im = ax.imshow(cm, cmap=cmap, vmin=0, vmax=1)
+    if (rows == 0).any():
+        title += f"\n(grey rows: {int((rows == 0).sum())} locations not touched in the test)"
+    n = len(names)
+    step = max(1, int(np.ceil(n / 16)))  # at most ~16 tick labels per axis
+    ticks = np.arange(0, n, step)
+    ax.set_xticks(ticks, [names[i] for i in ticks], fontsize=7, rotation=90 if max(map(len, names)) > 3 else 0)
+    ax.set_yticks(ticks, [names[i] for i in ticks], fontsize=7)
+    ax.set(xlabel="predicted location", ylabel="true location", title=title)
+    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    cb.set_label("share of the true location's touch chirps")
+    return im
+
+
+def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization error CDF") -> None:
+    """Error CDF of each model over its whole range (the axis ends past the largest error), with the
+    2 and 3 cm thresholds in the legend.  Identical curves are said so in the legend."""
+    emax = 0.0
+    first = None
+    # The thicker line first, so a thinner one on the same path stays visible on top of it.
+    for name, err in sorted(errors.items(), key=lambda kv: -MODEL_STYLE.get(kv[0], {}).get("lw", 1.5)):
+        e = np.sort(np.asarray(err, float))
+        c = np.arange(1, e.size + 1) / max(e.size, 1)
+        st = MODEL_STYLE.get(name, {})
+        same = first is not None and np.array_equal(e, first[1])
+        label = name + (f" (identical to {first[0]})" if same else "")
+        ax.step(np.r_[0.0, e], np.r_[0.0, c], where="post", label=label, color=st.get("color"), ls=st.get("ls", "-"),
+                lw=st.get("lw", 1.5), alpha=st.get("alpha", 1.0))
+        emax = max(emax, float(e.max()) if e.size else 0.0)
+        first = first or (name, e)
+    ax.axvline(2, color="gray", lw=0.8, ls=":", label="2 cm")
+    ax.axvline(3, color="gray", lw=0.8, ls="-.", label="3 cm")
+    ax.set(xlabel="localization error (cm)", ylabel="share of touch chirps with error ≤ x", ylim=(0, 1.02),
+           xlim=(-0.05 * max(emax, 4.0), 1.05 * max(emax, 4.0)), title=title)
+    # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
+    ax.grid(alpha=0.3)
+
+
+def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], reason: str = "") -> None:
+    """Predicted vs true force of each model (touch chirps), with the ideal line; without a force
+    sensor (no finite true force) the panel says so instead."""
+    ax.set(xlabel="true force (N)", ylabel="predicted force (N)", title="force: predicted vs true")
+    drawn = False
+    hi = 0.0
+    for name, pt in points.items():
+        if pt is None:
+            continue
+        g, p = (np.asarray(v, float) for v in pt)
+        ok = np.isfinite(g) & np.isfinite(p)
+        if not ok.any():
+            continue
+        st = MODEL_STYLE.get(name, {})
+        ax.scatter(g[ok], p[ok], s=10 if name == "network" else 14, marker=st.get("marker", "o"), color=st.get("color"),
+                   alpha=0.45 if name == "network" else 0.8, linewidths=1, label=f"{name} ({ok.sum()} chirps)")
+        hi = max(hi, float(np.max(g[ok])), float(np.max(p[ok])))
+        drawn = True
+    if not drawn:
+        why = reason.removeprefix("absent: ") if reason else "no force sensor (the data has no measured force)"
+        ax.text(0.5, 0.5, "n/a: " + why.replace(" (", "\n("), ha="center", va="center",
+                transform=ax.transAxes, fontsize=10, wrap=True)
+        ax.set_xticks([]); ax.set_yticks([])
+        return
+    hi = 1.05 * hi or 1.0
+    ax.plot([0, hi], [0, hi], color="gray", lw=0.8, label="predicted = true")
+    ax.set(xlim=(0, hi), ylim=(0, hi))
+    # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
+    ax.grid(alpha=0.3)
