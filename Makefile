@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 DATA ?= data
 REPORTS ?= reports
 
-.PHONY: install demo test deploy-check lint bench clean
+.PHONY: install demo test test-fast deploy-check lint bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -27,8 +27,14 @@ demo: install
 	$(PY) -m sonicskin evaluate --data $(DATA)/moving --out $(REPORTS)/moving
 	$(PY) -m sonicskin compare --data $(DATA)/moving --out $(REPORTS)/compare-moving
 
+# Two workers (pytest-xdist): the whole suite, long runs included (CI runs this target).
+# `make test-fast` leaves out the runs marked slow.
+TEST_WORKERS ?= 2
 test: install
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+
+test-fast: install
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not slow"
 
 # The deployment install: a wheel into a fresh venv without torch, then info, fit-svm and live.
 deploy-check: install

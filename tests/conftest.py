@@ -33,3 +33,17 @@ def cli_files(tmp_path_factory) -> dict[str, Path]:
     build_svm_artifact(root / "tiny", root / "art", n_bins=60, progress=False, log=lambda *_: None)
     return {"root": root, "rig": root / "small.yaml", "scenario": root / "tiny.yaml", "data": root / "tiny",
             "artifact": root / "art"}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Scheduling for pytest-xdist (``make test``: ``-n 2 --dist loadgroup``): the tests of one module
+    run on one worker, so module- and session-scoped fixtures (simulated datasets, trained artifacts)
+    are built once; the long runs marked ``slow`` are not grouped, so they spread over the workers,
+    and they are collected first, so no worker is left with one of them at the end.  Runs before
+    xdist's own hook, which reads the groups.  Tests share no mutable path: everything they write goes
+    under ``tmp_path`` / ``tmp_path_factory``, which are per worker."""
+    for item in items:
+        if item.get_closest_marker("slow") is None and item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(item.module.__name__))
+    items.sort(key=lambda it: it.get_closest_marker("slow") is None)  # stable: slow first, else collection order

@@ -168,18 +168,25 @@ class ChannelModel:
         rng = np.random.default_rng(seed)
         self._modes(mode_fmax_factor * self.f_hz[-1], irregularity, rng)
         w = 2 * np.pi * self.f_hz
-        den = self.wn2[:, None] * (1 + 1j * material.eta) - w[None, :] ** 2
-        M = 1.0 / den
-        # complex64, read as interleaved float32 by _project (one real GEMM); _Mr / _Mi are views of it.
-        self._M = M.astype(np.complex64)
-        self._Mr, self._Mi = self._M.real, self._M.imag
-        # d/d(eta) of 1/den, for the damping rise with temperature (first order in d eta).
-        dM = -1j * self.wn2[:, None] * M * M
         self.phi_tx = self.mode_shapes(self.tx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
         self.phi_rx = self.mode_shapes(self.rx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
         wrs = self.phi_tx * self.phi_rx
-        self.G_rs = (wrs @ M).astype(np.complex64)
-        self.dG_rs_deta = (wrs @ dM).astype(np.complex64)
+        # The modal matrix M = 1 / (w_n^2 (1 + i eta) - w^2), complex128 a block of bins at a time
+        # (no full-size temporaries); kept as complex64, read as interleaved float32 by _project (one
+        # real GEMM); _Mr / _Mi are views of it.  dM: d/d(eta) of M, for the damping rise with
+        # temperature (first order in d eta).
+        self._M = np.empty((self.n_modes, w.size), np.complex64)
+        self.G_rs = np.empty(w.size, np.complex64)
+        self.dG_rs_deta = np.empty(w.size, np.complex64)
+        for a in range(0, w.size, 512):
+            c = slice(a, a + 512)
+            M = 1.0 / (self.wn2[:, None] * (1 + 1j * material.eta) - w[None, c] ** 2)
+            self._M[:, c] = M
+            self.G_rs[c] = wrs @ M
+            M *= M
+            M *= -1j * self.wn2[:, None]
+            self.dG_rs_deta[c] = wrs @ M
+        self._Mr, self._Mi = self._M.real, self._M.imag
         s = 1j * self.f_hz / transducer_fr_hz
         self.transducer = (1.0 / (1 + s / transducer_q + s ** 2)).astype(np.complex64)  # TX and RX alike
 
