@@ -35,15 +35,21 @@ def cli_files(tmp_path_factory) -> dict[str, Path]:
             "artifact": root / "art"}
 
 
+# Long runs defined in modules owned elsewhere, marked slow here (the JACK round trip starts a server).
+_LONG_IN_MODULE = {"test_end_to_end_through_jack"}
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     """Scheduling for pytest-xdist (``make test``: ``-n 2 --dist loadgroup``): the tests of one module
-    run on one worker, so module- and session-scoped fixtures (simulated datasets, trained artifacts)
-    are built once; the long runs marked ``slow`` are not grouped, so they spread over the workers,
-    and they are collected first, so no worker is left with one of them at the end.  Runs before
-    xdist's own hook, which reads the groups.  Tests share no mutable path: everything they write goes
-    under ``tmp_path`` / ``tmp_path_factory``, which are per worker."""
+    run on one worker (an ``xdist_group`` per module unless the module names its own), so module- and
+    session-scoped fixtures (simulated datasets, trained artifacts) are built once per worker that needs
+    them; the modules with long runs (marked ``slow``) are handed out first, so no worker is left with
+    one of them at the end.  Runs before xdist's own hook, which reads the groups.  Tests share no
+    mutable path: what they write goes under ``tmp_path`` / ``tmp_path_factory``, per worker."""
     for item in items:
-        if item.get_closest_marker("slow") is None and item.get_closest_marker("xdist_group") is None:
+        if item.originalname in _LONG_IN_MODULE:
+            item.add_marker(pytest.mark.slow)
+        if item.get_closest_marker("xdist_group") is None:
             item.add_marker(pytest.mark.xdist_group(item.module.__name__))
     items.sort(key=lambda it: it.get_closest_marker("slow") is None)  # stable: slow first, else collection order
