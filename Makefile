@@ -27,14 +27,16 @@ demo: install
 	$(PY) -m sonicskin evaluate --data $(DATA)/moving --out $(REPORTS)/moving
 	$(PY) -m sonicskin compare --data $(DATA)/moving --out $(REPORTS)/compare-moving
 
-# Two workers (pytest-xdist): the whole suite, long runs included (CI runs this target).
-# `make test-fast` leaves out the runs marked slow.
+# The whole suite, long runs included (CI runs this target): two pytest-xdist workers, then the runs
+# that need the machine to themselves (marked serial: JACK in real time, DDP) alone.
+# `make test-fast` leaves out every run marked slow.
 TEST_WORKERS ?= 2
 test: install
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
+	$(PY) -m pytest -q -m serial
 
 test-fast: install
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not slow"
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow"
 
 # The deployment install: a wheel into a fresh venv without torch, then info, fit-svm and live.
 deploy-check: install

@@ -35,21 +35,25 @@ def cli_files(tmp_path_factory) -> dict[str, Path]:
             "artifact": root / "art"}
 
 
-# Long runs defined in modules owned elsewhere, marked slow here (the JACK round trip starts a server).
-_LONG_IN_MODULE = {"test_end_to_end_through_jack"}
+# Runs that need the machine to themselves: the JACK round trip is real time (a starved server drops
+# chirps), DDP starts two training processes.  Marked slow and serial here: `make test` runs them after
+# the parallel part, alone (`-m serial`).
+_SERIAL = {"test_end_to_end_through_jack", "test_train_ddp_two_cpu_processes"}
 
 
-@pytest.hookimpl(tryfirst=True)
+def pytest_itemcollected(item):
+    """Marks as each test is collected."""
+    if getattr(item, "originalname", None) in _SERIAL:
+        item.add_marker(pytest.mark.slow)
+        item.add_marker(pytest.mark.serial)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Scheduling for pytest-xdist (``make test``: ``-n 2 --dist loadgroup``): the tests of one module
-    run on one worker (an ``xdist_group`` per module unless the module names its own), so module- and
-    session-scoped fixtures (simulated datasets, trained artifacts) are built once per worker that needs
-    them; the modules with long runs (marked ``slow``) are handed out first, so no worker is left with
-    one of them at the end.  Runs before xdist's own hook, which reads the groups.  Tests share no
-    mutable path: what they write goes under ``tmp_path`` / ``tmp_path_factory``, per worker."""
-    for item in items:
-        if item.originalname in _LONG_IN_MODULE:
-            item.add_marker(pytest.mark.slow)
-        if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(item.module.__name__))
-    items.sort(key=lambda it: it.get_closest_marker("slow") is None)  # stable: slow first, else collection order
+    """Scheduling for pytest-xdist (``make test``: ``-n 2 --dist loadfile``): the tests of one module run
+    on one worker, in file order, so module-scoped fixtures (simulated datasets, trained artifacts) are
+    built once; the modules with long runs (marked ``slow``) come first, so no worker is left with one
+    of them at the end.  Modules stay whole (a plain run builds each module's fixtures once too).
+    Tests share no mutable path: what they write goes under ``tmp_path`` / ``tmp_path_factory``, which
+    are per worker."""
+    slow = {item.path for item in items if item.get_closest_marker("slow") is not None}
+    items.sort(key=lambda it: it.path not in slow)  # stable: modules with slow runs first, else collection order

@@ -6,8 +6,7 @@ import pytest
 
 from sonicskin.cli import main
 
-# One quick reproduction per test run, shared by the tests below (one xdist worker runs them all).
-pytestmark = pytest.mark.xdist_group("reproduce")
+# One quick reproduction per test run, shared by the tests below (`--dist loadfile`: one worker runs them all).
 
 
 @pytest.fixture(scope="module")
