@@ -238,10 +238,10 @@ class Simulator:
         c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0)
         c = (c * ((self._perturb / np.sqrt(J)) * tl.moving)[:, None]).astype(np.complex64)
         basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz)).astype(np.complex64)  # (J, n_f)
-        for a in range(0, n, self._CHUNK):
-            r = c[a:a + self._CHUNK] @ basis
+        for s in range(0, n, self._CHUNK):  # 1 + ripple, a few chirps at a time
+            r = c[s:s + self._CHUNK] @ basis
             r += 1
-            H[a:a + self._CHUNK] *= r
+            H[s:s + self._CHUNK] *= r
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
