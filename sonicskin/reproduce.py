@@ -55,7 +55,7 @@ class _Ctx:
     def __init__(self, out: Path, quick: bool, log):
         self.out, self.quick, self.log = out, quick, log
         self.rig = Rig.load("jaco")
-        self.epochs = 30 if quick else 60
+        self.epochs = 10 if quick else 60  # quick: the network checked to train, not tuned (full: 60)
         self.net = _net_available()
         self.figs: list[Path] = []
         self.sim_seed = 0      # which simulated rig: seed 0 is the scenarios' own link and sessions
