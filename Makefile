@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 DATA ?= data
 REPORTS ?= reports
 
-.PHONY: install demo test deploy-check lint bench docs clean
+.PHONY: install demo test test-fast deploy-check lint bench docs clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -30,8 +30,16 @@ demo: install
 	$(PY) -m sonicskin evaluate --data $(DATA)/moving --out $(REPORTS)/moving
 	$(PY) -m sonicskin compare --data $(DATA)/moving --out $(REPORTS)/compare-moving $(TRAIN_OPTS)
 
+# The whole suite, long runs included (CI runs this target): two pytest-xdist workers, then the runs
+# that need the machine to themselves (marked serial: JACK in real time, DDP) alone.
+# `make test-fast` leaves out every run marked slow.
+TEST_WORKERS ?= 2
 test: install
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
+	$(PY) -m pytest -q -m serial
+
+test-fast: install
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow"
 
 # The deployment install: a wheel into a fresh venv without torch, then info, fit-svm and live.
 deploy-check: install

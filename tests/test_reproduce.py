@@ -6,11 +6,19 @@ import pytest
 
 from sonicskin.cli import main
 
+# One quick reproduction per test run, shared by the tests below (`--dist loadfile`: one worker runs them all).
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("reproduce") / "rep"
+    assert main(["reproduce", "--quick", "--out", str(out)]) == 0
+    return out
+
 
 @pytest.mark.slow
-def test_quick_reproduction(tmp_path):
-    out = tmp_path / "rep"
-    assert main(["reproduce", "--quick", "--out", str(out)]) == 0
+def test_quick_reproduction(quick_run):
+    out = quick_run
     md = (out / "report.md").read_text()
     for section in ("Fig. 6b", "Fig. 11", "Fig. 12", "Two months", "Fig. 13", "Table I", "Stationary robot, one-shot",
                     "Fig. 14", "Fig. 15", "Fig. 16"):
@@ -29,12 +37,15 @@ def test_quick_reproduction(tmp_path):
     assert "net" in res["table1"]["fig14"] and "svm" in res["table1"]["fig15"] and "svm" in res["table1"]["stationary"]
 
 
-def test_reproduce_runs_only_the_named_experiments(tmp_path):
+@pytest.mark.slow
+def test_reproduce_runs_only_the_named_experiments(tmp_path, quick_run):
     from sonicskin.cli.models import REPRODUCE_EXPERIMENTS
     from sonicskin.reproduce import EXPERIMENTS
 
     assert REPRODUCE_EXPERIMENTS == EXPERIMENTS  # the CLI's choices are the experiments
     out = tmp_path / "rep"
+    out.mkdir()
+    (out / "data").symlink_to(quick_run / "data", target_is_directory=True)  # the quick run's datasets, not simulated again
     assert main(["reproduce", "--quick", "--only", "fig13", "--seeds", "1", "--out", str(out)]) == 0
     md = (out / "report.md").read_text()
     assert "## Fig. 13" in md and "Fig. 6b" not in md and "Table I" not in md

@@ -168,17 +168,25 @@ class ChannelModel:
         rng = np.random.default_rng(seed)
         self._modes(mode_fmax_factor * self.f_hz[-1], irregularity, rng)
         w = 2 * np.pi * self.f_hz
-        den = self.wn2[:, None] * (1 + 1j * material.eta) - w[None, :] ** 2
-        M = 1.0 / den
-        self._Mr = np.ascontiguousarray(M.real, dtype=np.float32)
-        self._Mi = np.ascontiguousarray(M.imag, dtype=np.float32)
-        # d/d(eta) of 1/den, for the damping rise with temperature (first order in d eta).
-        dM = -1j * self.wn2[:, None] * M * M
         self.phi_tx = self.mode_shapes(self.tx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
         self.phi_rx = self.mode_shapes(self.rx_m[None, :])[0] * disc_average(self.k, transducer_radius_m)
         wrs = self.phi_tx * self.phi_rx
-        self.G_rs = (wrs @ M).astype(np.complex64)
-        self.dG_rs_deta = (wrs @ dM).astype(np.complex64)
+        # The modal matrix M = 1 / (w_n^2 (1 + i eta) - w^2), complex128 a block of bins at a time
+        # (no full-size temporaries); kept as complex64, read as interleaved float32 by _project (one
+        # real GEMM); _Mr / _Mi are views of it.  dM: d/d(eta) of M, for the damping rise with
+        # temperature (first order in d eta).
+        self._M = np.empty((self.n_modes, w.size), np.complex64)
+        self.G_rs = np.empty(w.size, np.complex64)
+        self.dG_rs_deta = np.empty(w.size, np.complex64)
+        for a in range(0, w.size, 512):
+            c = slice(a, a + 512)
+            M = 1.0 / (self.wn2[:, None] * (1 + 1j * material.eta) - w[None, c] ** 2)
+            self._M[:, c] = M
+            self.G_rs[c] = wrs @ M
+            M *= M
+            M *= -1j * self.wn2[:, None]
+            self.dG_rs_deta[c] = wrs @ M
+        self._Mr, self._Mi = self._M.real, self._M.imag
         s = 1j * self.f_hz / transducer_fr_hz
         self.transducer = (1.0 / (1 + s / transducer_q + s ** 2)).astype(np.complex64)  # TX and RX alike
 
@@ -226,10 +234,13 @@ class ChannelModel:
         return band.sum() / (self.rig.f_hi_hz - self.rig.f_lo_hz)
 
     # -- Green's functions ------------------------------------------------------------
-    def _project(self, weights: np.ndarray) -> np.ndarray:
-        """(R, n_modes) real weights -> (R, n_f) complex modal sums, two real GEMMs."""
+    def _project(self, weights: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(R, n_modes) real weights -> (R, n_f) complex modal sums, one real GEMM (``out``: (R, 2 n_f) float32)."""
         w = np.asarray(weights, dtype=np.float32)
-        return (w @ self._Mr) + 1j * (w @ self._Mi)
+        # Real weights times the interleaved (re, im) modal matrix: row r of the product is the
+        # complex64 row sum_n w_rn M_n(f), read in place.
+        M = self._M.view(np.float32)
+        return np.matmul(w, M, out=out).view(np.complex64)
 
     def contact_greens(self, pts_m: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
         """Green's functions of disc contacts at ``pts_m`` (P, 2) for each radius in ``radii_m`` (R,).
@@ -299,7 +310,7 @@ class ChannelModel:
             Ix = self.geometry.width_m * (1.0 if (self.kx[idx[0]] == 0 and self.geometry.kind == "tube") else 0.5)
             dK = self.material.mass_per_area * np.outer(self.norm[idx], self.norm[idx]) * Ix * Iy
             dK *= np.outer(wn[idx], wn[idx])
-            M = self._Mr[idx] + 1j * self._Mi[idx]  # (g, n_f) complex64
+            M = self._M[idx]  # (g, n_f) complex64
             a = self.phi_rx[idx, None].astype(np.float32) * M
             b = self.phi_tx[idx, None].astype(np.float32) * M
             out -= np.sum(a * (dK.astype(np.float32) @ b), axis=0)

@@ -41,6 +41,11 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
     bar = tqdm(total=int(np.isin(tl.session, todo).sum()), unit="chirp", desc=f"simulate {scenario.name}",
                disable=not progress)
     pending: list = []
+    # Two frame buffers in turn: block b renders into one while the parts of block b - 1 are still
+    # being encoded from the other (reused memory: no fresh pages per block).
+    bufs: list = [np.empty((0, L), np.float32)] * 2
+    buf_jobs: list[list] = [[], []]
+    n_block = 0
     with ThreadPoolExecutor(max_workers=1) as io_pool:
         for s in todo:
             name = f"s{s:03d}"
@@ -54,8 +59,15 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
             block = per_part * max(1, 1024 // per_part)
             for b in range(0, len(st), block):
                 bidx = np.arange(b, min(b + block, len(st)))
+                j = n_block % 2
+                n_block += 1
+                for f in buf_jobs[j]:
+                    f.result()  # the encoder is done with this buffer
+                buf_jobs[j] = []
+                if bufs[j].shape[0] < bidx.size:
+                    bufs[j] = np.empty((block, L), np.float32)
                 tr = time.perf_counter()
-                frames_b = sim.render(st.select(bidx))
+                frames_b = sim.render(st.select(bidx), out=bufs[j][:bidx.size])
                 render_s += time.perf_counter() - tr
                 for a in range(b, bidx[-1] + 1, per_part):
                     p = a // per_part
@@ -77,6 +89,7 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
                     }
                     # FLAC encoding overlaps the next block's rendering (libsndfile releases the GIL).
                     pending.append(io_pool.submit(writer.write_part, name, p, audio, labels))
+                    buf_jobs[j].append(pending[-1])
                     n_done += idx.size
                     bar.update(idx.size)
             for f in pending:

@@ -116,44 +116,130 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
     mechanical noise (the sum of independent Gaussians is one Gaussian), saving a second draw.
     """
     level = np.asarray(level, float)
-    n = level.size
-    nb = n_fft // 2 + 1
-    if not (level > 0).any():
-        return white_spectrum(rng, n, n_fft, floor_rms)
-    out = np.zeros((n, nb), dtype=np.complex64)
-    idx = np.arange(n)
-    lv = level[idx]
-    m = idx.size
-    f = np.fft.rfftfreq(n_fft, 1 / fs_hz)
-    # Mechanical 1/f^alpha noise with a knee, normalised to mech_rms over the whole band.
-    shape = 1.0 / np.power(1 + f / cfg.mech_knee_hz, cfg.mech_alpha / 2)
-    shape *= np.sqrt(nb / np.sum(shape ** 2))
-    mech = white_spectrum(rng, m, n_fft, 1.0) * np.sqrt(floor_rms ** 2 + (cfg.mech_rms * np.outer(lv, shape)) ** 2).astype(np.float32)
-    # PWM carrier harmonics with sidebands; carrier wanders (random walk), f0 follows speed.
-    fc = cfg.pwm_carrier_hz + np.cumsum(rng.normal(0, cfg.pwm_jitter_hz / 4, m)).clip(-cfg.pwm_jitter_hz * 3, cfg.pwm_jitter_hz * 3)
-    f0 = cfg.pwm_f0_hz * (0.4 + 0.6 * lv)
-    h = np.arange(1, cfg.pwm_harmonics + 1)
-    sb = np.arange(-cfg.pwm_sidebands, cfg.pwm_sidebands + 1)
-    H, SB = np.meshgrid(h, sb, indexing="ij")
-    freqs = H.ravel()[None, :] * fc[:, None] + SB.ravel()[None, :] * f0[:, None]
-    amps = (cfg.pwm_rms * np.sqrt(2) * lv[:, None] / H.ravel()[None, :]
-            * 10 ** (cfg.pwm_sideband_db * np.abs(SB.ravel()) / 20)[None, :])
-    amps = amps * np.exp(0.2 * rng.standard_normal(amps.shape))  # current ripple
-    # Gear-mesh tones with speed.
-    g = np.arange(1, cfg.gear_harmonics + 1)
-    gfreq = (cfg.gear_hz * (0.3 + 0.7 * lv))[:, None] * g[None, :]
-    gamp = cfg.gear_rms * np.sqrt(2) * lv[:, None] / g[None, :] ** 0.5 * np.ones((m, g.size))
-    allf = np.concatenate([freqs, gfreq], axis=1)
-    alla = np.concatenate([amps, gamp], axis=1)
-    allp = rng.uniform(0, 2 * np.pi, allf.shape)
-    ok = allf < fs_hz / 2
-    alla = np.where(ok, alla, 0.0)
-    allf = np.where(ok, allf, 1000.0)
-    tones = tone_spectrum(allf, alla, allp, n_fft=n_fft, fs_hz=fs_hz)
-    # Rare broadband impacts (a click: flat spectrum, random delay).
-    hit = rng.random(m) < cfg.impact_rate_per_chirp * lv
-    imp = np.zeros((m, nb), dtype=np.complex64)
-    if hit.any():
-        imp[hit] = white_spectrum(rng, int(hit.sum()), n_fft, cfg.impact_rms) * np.exp(-f / 40e3).astype(np.float32)
-    out[idx] = mech + tones + imp
+    out = np.empty((level.size, n_fft // 2 + 1), np.complex64)
+    draws = NoiseDraws(rng, level, cfg, n_fft=n_fft, fs_hz=fs_hz, floor_rms=floor_rms)
+    for a in range(0, level.size, 256):
+        draws.fill(out[a:a + 256], a)
     return out
+
+
+class NoiseDraws:
+    """Every random draw of :func:`motion_noise_spectrum` for a batch of frames, made up front in the
+    function's fixed order, then turned into spectra a few rows at a time (:meth:`fill`): the
+    rendering stays in cache instead of streaming several (n, nb) temporaries through memory.
+
+    ``buffers``: optional pair of float32 arrays of at least (n, nb) reused for the two big Gaussian
+    draws (the simulator keeps them between batches: no fresh pages to fault in).
+    """
+
+    def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,
+                 floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None):
+        level = np.asarray(level, float)
+        n = level.size
+        nb = n_fft // 2 + 1
+        self.nb, self.n_fft = nb, n_fft
+        # The white part: real then imaginary parts, (n, nb) each (white_spectrum's draw).
+        if buffers is not None and buffers[0].size >= n * nb:
+            re, im = (b.ravel()[:n * nb].reshape(n, nb) for b in buffers)
+        else:
+            re, im = np.empty((n, nb), np.float32), np.empty((n, nb), np.float32)
+        rng.standard_normal(out=re, dtype=np.float32)
+        rng.standard_normal(out=im, dtype=np.float32)
+        self.re, self.im = re, im
+        self.moving = bool((level > 0).any())
+        if not self.moving:
+            self.scale = np.float32(floor_rms * np.sqrt(n_fft / 2))
+            return
+        self.scale = np.float32(np.sqrt(n_fft / 2))
+        self.level = level
+        f = np.fft.rfftfreq(n_fft, 1 / fs_hz)
+        # Mechanical 1/f^alpha noise with a knee, normalised to mech_rms over the whole band.
+        shape = 1.0 / np.power(1 + f / cfg.mech_knee_hz, cfg.mech_alpha / 2)
+        shape *= np.sqrt(nb / np.sum(shape ** 2))
+        self.shape = (cfg.mech_rms * shape).astype(np.float32)
+        self.floor2 = np.float32(floor_rms ** 2)
+        m = n
+        lv = level
+        # PWM carrier harmonics with sidebands; carrier wanders (random walk), f0 follows speed.
+        fc = cfg.pwm_carrier_hz + np.cumsum(rng.normal(0, cfg.pwm_jitter_hz / 4, m)).clip(-cfg.pwm_jitter_hz * 3, cfg.pwm_jitter_hz * 3)
+        f0 = cfg.pwm_f0_hz * (0.4 + 0.6 * lv)
+        h = np.arange(1, cfg.pwm_harmonics + 1)
+        sb = np.arange(-cfg.pwm_sidebands, cfg.pwm_sidebands + 1)
+        H, SB = np.meshgrid(h, sb, indexing="ij")
+        freqs = H.ravel()[None, :] * fc[:, None] + SB.ravel()[None, :] * f0[:, None]
+        amps = (cfg.pwm_rms * np.sqrt(2) * lv[:, None] / H.ravel()[None, :]
+                * 10 ** (cfg.pwm_sideband_db * np.abs(SB.ravel()) / 20)[None, :])
+        amps = amps * np.exp(0.2 * rng.standard_normal(amps.shape))  # current ripple
+        # Gear-mesh tones with speed.
+        g = np.arange(1, cfg.gear_harmonics + 1)
+        gfreq = (cfg.gear_hz * (0.3 + 0.7 * lv))[:, None] * g[None, :]
+        gamp = cfg.gear_rms * np.sqrt(2) * lv[:, None] / g[None, :] ** 0.5 * np.ones((m, g.size))
+        allf = np.concatenate([freqs, gfreq], axis=1)
+        alla = np.concatenate([amps, gamp], axis=1)
+        allp = rng.uniform(0, 2 * np.pi, allf.shape)
+        ok = allf < fs_hz / 2
+        alla = np.where(ok, alla, 0.0)
+        allf = np.where(ok, allf, 1000.0)
+        self.tones = _ToneKernel(allf, alla, allp, n_fft=n_fft, fs_hz=fs_hz)
+        # Rare broadband impacts (a click: flat spectrum, random delay).
+        hit = rng.random(m) < cfg.impact_rate_per_chirp * lv
+        self.hit_rows = np.flatnonzero(hit)
+        self.impacts = None
+        if hit.any():
+            self.impacts = white_spectrum(rng, int(hit.sum()), n_fft, cfg.impact_rms) * np.exp(-f / 40e3).astype(np.float32)
+
+    def fill(self, out: np.ndarray, start: int) -> np.ndarray:
+        """Write the noise spectra of rows ``start:start + len(out)`` into ``out`` (rows, nb) complex64."""
+        n = out.shape[0]
+        rows = slice(start, start + n)
+        v = out.view(np.float32).reshape(n, self.nb, 2)
+        if not self.moving:
+            np.multiply(self.re[rows], self.scale, out=v[..., 0])
+            np.multiply(self.im[rows], self.scale, out=v[..., 1])
+        else:
+            # rms per bin: sqrt(sensor^2 + (mech_rms * level * shape)^2), in float32.
+            s = np.multiply.outer(self.level[rows].astype(np.float32), self.shape)
+            np.square(s, out=s)
+            s += self.floor2
+            np.sqrt(s, out=s)
+            s *= self.scale
+            np.multiply(self.re[rows], s, out=v[..., 0])
+            np.multiply(self.im[rows], s, out=v[..., 1])
+        out[:, 0] = out[:, 0].real * np.float32(np.sqrt(2))
+        if self.moving:
+            self.tones.add_to(out, start)
+            if self.impacts is not None:
+                k = (self.hit_rows >= start) & (self.hit_rows < start + n)
+                out[self.hit_rows[k] - start] += self.impacts[k]
+        return out
+
+
+class _ToneKernel:
+    """:func:`tone_spectrum`'s per-tone Dirichlet kernels, added into spectra a few frames at a time."""
+
+    def __init__(self, freq_hz, amp, phase, *, n_fft: int, fs_hz: float, half_width_bins: int = 128):
+        freq_hz, amp, phase = (np.atleast_2d(a).astype(np.float64) for a in (freq_hz, amp, phase))
+        nu = freq_hz * n_fft / fs_hz
+        self.k0 = np.floor(nu).astype(np.int64)
+        frac = nu - self.k0
+        self.q = np.minimum(np.round(frac * _NQ).astype(np.int64), _NQ - 1)
+        self.table = _kernel_table(half_width_bins, n_fft)
+        fq = self.q / _NQ
+        c = (0.5 * n_fft * amp * np.exp(1j * phase) * (-np.sin(np.pi * fq) * np.exp(1j * np.pi * fq))).astype(np.complex64)
+        self.c = np.where(self.q == 0, (0.5 * n_fft * amp * np.exp(1j * phase)).astype(np.complex64), c)
+        self.W = half_width_bins
+        self.nb = n_fft // 2 + 1
+
+    def add_to(self, out: np.ndarray, start: int) -> None:
+        n, W = out.shape[0], self.W
+        pad = np.zeros((n, self.nb + 2 * W), np.complex64)  # padded: no bounds checks
+        # windows[r, s] is pad[r, s:s + 2W]: a tone whose kernel starts at bin k0 + 1 - W (padded: k0 + 1)
+        # is one contiguous row slice, so a scatter of a tone over frames copies whole rows.
+        windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W),
+                                                  strides=(pad.strides[0], pad.itemsize, pad.itemsize))
+        rows = slice(start, start + n)
+        k0, q, c = self.k0[rows], self.q[rows], self.c[rows]
+        ar = np.arange(n)
+        for t in range(k0.shape[1]):  # one scatter per tone, vectorised over frames
+            windows[ar, np.clip(k0[:, t], -1, self.nb - 1) + 1] += c[:, t:t + 1] * self.table[q[:, t]]
+        out += pad[:, W:W + self.nb]

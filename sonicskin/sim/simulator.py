@@ -19,7 +19,7 @@ from ..dsp import chirp_spectrum
 from ..rig import Layout, Rig
 from .channel import MATERIALS, ChannelModel, Geometry
 from .finger import make_subjects
-from .noise import NoiseConfig, motion_noise_spectrum
+from .noise import NoiseConfig, NoiseDraws
 from .scenario import Scenario, Timeline
 from .thermal import HotMeltBond, project_field, warmup_field
 
@@ -71,6 +71,13 @@ class Simulator:
         self._f0, self._df = f[0], self.channel.df_hz
         m = scenario.motion
         self._perturb = float(m.get("perturbation", 0.03)) if m.get("enabled", False) else 0.0
+        self._nb = rig.n_chirp // 2 + 1
+        bins = self.channel.bins
+        assert np.array_equal(bins, np.arange(bins[0], bins[-1] + 1))  # one contiguous run of rfft bins
+        self._band = (int(bins[0]), int(bins[-1]) + 1)
+        self._buffers = None  # the noise's Gaussian draws, reused batch after batch
+        self._H = None  # and the channel of a batch
+        self._G = None  # and the contact Green's functions of its presses
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -130,6 +137,11 @@ class Simulator:
         """Untouched channel H_rs at mean temperature offsets ``dT`` (n,) and non-uniform parts
         ``dT_grad`` (n, 2) along the link (K; Legendre coefficients of order 1 and 2, see
         :func:`~sonicskin.sim.thermal.project_field`), shape (n, n_f)."""
+        G, inv = self._untouched_rows(dT, dT_grad)
+        return G[inv]
+
+    def _untouched_rows(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`untouched` of the distinct temperatures (u, n_f) complex64 and each chirp's row (n,)."""
         dT = np.asarray(dT, float)
         grad = np.zeros((dT.size, 2)) if dT_grad is None else np.asarray(dT_grad, float).reshape(dT.size, -1)
         q, inv = np.unique(np.round(np.column_stack([dT, grad]) / self._DT_STEP_K), axis=0, return_inverse=True)
@@ -150,13 +162,15 @@ class Simulator:
             for k, B in enumerate(self._B):
                 de = (2 * self.material.kappa_per_k * gu[:, k]).astype(np.float32)[:, None]
                 G = G + de * self._gather(B, i0, w)
-        return G[inv.ravel()]
+        return G.astype(np.complex64, copy=False), inv.ravel()
 
-    def channel_response(self, tl: Timeline) -> np.ndarray:
-        """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64."""
-        temps = self.temperatures(tl)
+    def channel_response(self, tl: Timeline, temps: dict | None = None, *, out: np.ndarray | None = None) -> np.ndarray:
+        """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64
+        (written into ``out`` when given: the renderer reuses one buffer batch after batch)."""
+        temps = self.temperatures(tl) if temps is None else temps
         dT = temps["dT"]
-        H = self.untouched(dT, temps["dT_grad"]).astype(np.complex64)
+        Gu, inv = self._untouched_rows(dT, temps["dT_grad"])
+        H = np.take(Gu, inv, axis=0, out=out)
         # Every press of the batch: contact radii nodes and sub-contact layouts, then ONE projection.
         presses = []
         for ev in np.unique(tl.event[tl.event >= 0]):
@@ -173,30 +187,41 @@ class Simulator:
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
             presses.append((idx, who, a, g, occl, radii, [self._patch_points(centre, r, theta0) for r in radii]))
         if presses:
-            W = [self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)]
-            rows = W[0].shape[0]
-            G_all = self.channel._project(np.concatenate(W)).astype(np.complex64)
+            W = np.concatenate([self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses
+                                for r, pts in zip(radii, pl)])
+            rows = W.shape[0] // sum(len(p[5]) for p in presses)
+            nf2 = 2 * self.channel.f_hz.size
+            if self._G is None or self._G.size < W.shape[0] * nf2:
+                self._G = np.empty(W.shape[0] * nf2, np.float32)
+            G_all = self.channel._project(W, out=self._G[:W.shape[0] * nf2].reshape(W.shape[0], nf2))
             k = 0
             for idx, who, a, g, occl, radii, _ in presses:
-                dH = []  # (R, 2, n_f): contact radius x real-contact share
-                for r in radii:
-                    parts = self.channel.unpack_patch(G_all[k:k + rows], self._N_SUB)
-                    dH.append([self._contact_delta(who, r, o, *parts) for o in occl])
-                    k += rows
-                dH = np.asarray(dH, np.complex64).reshape(len(radii) * 2, -1)
+                # (R, 2, n_f): contact radius x real-contact share, all in one batched Woodbury solve.
+                R = len(radii)
+                Gp = G_all[k:k + R * rows].reshape(R, rows, -1)
+                k += R * rows
+                K = np.stack([who.dynamic_stiffness(np.full(2, who.force_at_radius(r)), self.channel.f_hz, occl)
+                              for r in radii]) / np.float32(self._N_SUB)  # (R, 2, n_f) per sub-contact
+                dH = _woodbury(Gp, K, self._N_SUB).reshape(R * 2, -1)
                 # Temperature stretch at the press's temperature (constant over 3 s to 1e-3 K),
                 # then bilinear interpolation in contact radius and real-contact share chirp by chirp.
-                i0, w = self._stretch_index(np.full(dH.shape[0], dT[idx].mean()))
-                dH = self._gather(dH, i0, w).reshape(len(radii), 2, -1)
+                i0, w = self._stretch_index(np.full(1, dT[idx].mean()))
+                dH = (dH[:, i0[0]] * (1 - w[0]) + dH[:, i0[0] + 1] * w[0]).reshape(R, 2, -1)
                 r = np.interp(a, radii, np.arange(radii.size))
                 r0 = np.minimum(np.floor(r).astype(int), radii.size - 2)
-                rw = (r - r0).astype(np.float32)[:, None]
-                ow = ((g - occl[0]) / (occl[1] - occl[0])).astype(np.float32)[:, None]
-                d_r0 = dH[r0, 0] * (1 - ow) + dH[r0, 1] * ow
-                d_r1 = dH[r0 + 1, 0] * (1 - ow) + dH[r0 + 1, 1] * ow
-                H[idx] += d_r0 * (1 - rw) + d_r1 * rw
+                rw = (r - r0).astype(np.float32)
+                ow = ((g - occl[0]) / (occl[1] - occl[0])).astype(np.float32)
+                # Bilinear in (rw, ow) on the cell r0: A + ow (B - A) + rw (C - A) + rw ow (D - C - B + A),
+                # one small real GEMM per cell: (chirps, 4) coefficients times (4, n_f) complex corners.
+                coef = np.column_stack([np.ones_like(rw), ow, rw, rw * ow])
+                for j in np.unique(r0):
+                    sel = r0 == j
+                    A, B, C, D = dH[j, 0], dH[j, 1], dH[j + 1, 0], dH[j + 1, 1]
+                    basis = np.stack([A, B - A, C - A, D - C - B + A])
+                    rows_j = idx[sel]
+                    H[rows_j] += (coef[sel] @ basis.view(np.float32)).view(np.complex64)
         if self._perturb > 0 and np.any(tl.moving > 0):
-            H *= 1 + self._motion_ripple(tl)
+            self._motion_ripple(tl, H)
         return H
 
     _RING = 0.6  # sub-contacts: the centre and three on a ring at 0.6 a, each a disc of radius a / 2
@@ -206,46 +231,103 @@ class Simulator:
         ang = theta0 + np.arange(self._N_SUB - 1) * 2 * np.pi / (self._N_SUB - 1)
         return np.vstack([centre_m, centre_m + self._RING * radius_m * np.column_stack([np.cos(ang), np.sin(ang)])])
 
-    def _contact_delta(self, who, radius_m: float, occlusion: float, g_r: np.ndarray, g_s: np.ndarray,
-                       G_pp: np.ndarray) -> np.ndarray:
-        """Change of H (n_f,) by a press of contact radius ``radius_m`` and real-contact share ``occlusion``:
-        Woodbury over the sub-contacts."""
-        P = g_r.shape[0]
-        F = who.force_at_radius(radius_m)  # the force that gives this radius
-        K = who.dynamic_stiffness(np.array([F]), self.channel.f_hz, occlusion)[0] / P  # (n_f,) per sub-contact
-        A = np.eye(P, dtype=np.complex64)[None] + K[:, None, None] * np.moveaxis(G_pp, -1, 0)  # (n_f, P, P)
-        y = np.linalg.solve(A, (K * g_s).T[..., None])[..., 0]  # (n_f, P)
-        return -np.sum(g_r.T * y, axis=1).astype(np.complex64)
-
-    def _motion_ripple(self, tl: Timeline) -> np.ndarray:
-        """Small smooth change of H while the robot moves (joint poses load the link), (n, n_f)."""
+    def _motion_ripple(self, tl: Timeline, H: np.ndarray) -> None:
+        """A small smooth change of H (n, n_f), in place, while the robot moves (joint poses load the link)."""
         rng = np.random.default_rng([self.scenario.seed, 7, int(tl.session[0]), int(tl.chirp[0])])
         n, J = len(tl), 6
         tau = rng.uniform(0.02e-3, 0.4e-3, J)
         a = 0.9  # AR(1) per chirp: the pose changes smoothly
         e = (rng.standard_normal((n, J)) + 1j * rng.standard_normal((n, J))) / np.sqrt(2) * np.sqrt(1 - a * a)
         e[0] /= np.sqrt(1 - a * a)  # start in the stationary distribution
-        c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0).astype(np.complex64)
+        c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0)
+        c = (c * ((self._perturb / np.sqrt(J)) * tl.moving)[:, None]).astype(np.complex64)
         basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz)).astype(np.complex64)  # (J, n_f)
-        return ((self._perturb / np.sqrt(J)) * tl.moving[:, None] * (c @ basis)).astype(np.complex64)
+        for s in range(0, n, self._CHUNK):  # 1 + ripple, a few chirps at a time
+            r = c[s:s + self._CHUNK] @ basis
+            r += 1
+            H[s:s + self._CHUNK] *= r
 
     # -- rendering --------------------------------------------------------------------
-    def render(self, tl: Timeline, *, rng: np.random.Generator | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order)."""
+    def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
+        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), written
+        into ``out`` (n, n_chirp) float32 when given."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
         n = len(tl)
-        nb = rig.n_chirp // 2 + 1
-        H = self.channel_response(tl)
-        # Sensor noise, and the robot's own noise while it moves, in one draw.
-        Y = motion_noise_spectrum(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
-                                  floor_rms=self.noise.sensor_rms)
         temps = self.temperatures(tl)
-        Y[:, self.channel.bins] += self.gain * H * self.transducers(temps["tx_c"], temps["rx_c"]) * self._S
-        assert Y.shape == (n, nb)
-        x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1).astype(np.float32)
-        if self.quantize_bits:
-            q = float(2 ** (self.quantize_bits - 1) - 1)
-            x = np.round(np.clip(x, -1.0, 1.0) * q) / q
-        return x.astype(np.float32)
+        if self._H is None or self._H.size < n * self.channel.f_hz.size:
+            self._H = np.empty(n * self.channel.f_hz.size, np.complex64)
+        H = self.channel_response(tl, temps, out=self._H[:n * self.channel.f_hz.size].reshape(n, -1))
+        # Sensor noise, and the robot's own noise while it moves, in one draw (drawn whole, rendered by rows).
+        if self._buffers is None or self._buffers[0].size < n * self._nb:
+            self._buffers = (np.empty(n * self._nb, np.float32), np.empty(n * self._nb, np.float32))
+        noise = NoiseDraws(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
+                           floor_rms=self.noise.sensor_rms, buffers=self._buffers)
+        # Transducers x chirp x gain, per distinct pair of bond temperatures.
+        T2, inv = self._transducer_rows(temps["tx_c"], temps["rx_c"])
+        out = np.empty((n, rig.n_chirp), np.float32) if out is None else out
+        assert out.shape == (n, rig.n_chirp) and out.dtype == np.float32
+        q = float(2 ** (self.quantize_bits - 1) - 1) if self.quantize_bits else None
+        b0, b1 = self._band
+        for a in range(0, n, self._CHUNK):
+            c = slice(a, min(a + self._CHUNK, n))
+            Y = noise.fill(np.empty((c.stop - a, self._nb), np.complex64), a)
+            Y[:, b0:b1] += H[c] * T2[inv[c]]
+            x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1)
+            if q:
+                np.clip(x, -1.0, 1.0, out=x)
+                x *= q
+                np.round(x, out=x)
+                x /= q
+            out[c] = x
+        return out
+
+    _CHUNK = 64  # frames per inverse FFT: keeps the spectra in cache
+
+    def _transducer_rows(self, tx_c: np.ndarray, rx_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distinct rows of ``gain * T_tx * T_rx * S`` (u, n_f) complex64 and each chirp's row (n,)."""
+        key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
+        u, inv = np.unique(key, axis=0, return_inverse=True)
+        f = self.channel.f_hz
+        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
+        return T2 * (self.gain * self._S), inv.ravel()
+
+
+_WB_DTYPE = np.complex64
+
+
+def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
+    """Change of H by a distributed contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s``.
+
+    Gp : (R, 2P + P(P+1)/2, n_f) projected patch rows (:meth:`ChannelModel.patch_weights`) per contact radius.
+    K : (R, O, n_f) dynamic stiffness per sub-contact for O real-contact shares at each radius.
+    Returns (R, O, n_f) complex64.  The P x P systems of every radius, share and frequency are solved
+    together by Gaussian elimination written over whole arrays (P = 4: a few dozen array operations
+    instead of one LAPACK call per frequency).  ``I + K G_pp`` is complex symmetric with a dominant
+    identity where the finger is light; it is solved without pivoting in complex128 for headroom.
+    """
+    R, _, F = Gp.shape
+    n_o = K.shape[1]
+    iu, ju = np.triu_indices(P)
+    g_r, g_s = Gp[:, :P], Gp[:, P:2 * P]  # (R, P, F)
+    Kd = K.astype(_WB_DTYPE)[:, None]  # (R, 1, O, F)
+    A = np.empty((P, P, R, n_o, F), _WB_DTYPE)
+    for t, (i, j) in enumerate(zip(iu, ju)):
+        A[i, j] = Kd[:, 0] * Gp[:, 2 * P + t, None, :]
+        if i != j:
+            A[j, i] = A[i, j]
+        else:
+            A[i, i] += 1
+    b = np.moveaxis(Kd * g_s[:, :, None, :], 1, 0)  # (P, R, O, F)
+    for k in range(P):
+        piv = 1 / A[k, k]
+        A[k, k + 1:] *= piv
+        b[k] *= piv
+        if k + 1 < P:
+            lk = A[k + 1:, k]  # (P-k-1, R, O, F)
+            A[k + 1:, k + 1:] -= lk[:, None] * A[k, k + 1:][None]
+            b[k + 1:] -= lk * b[k]
+    for k in range(P - 2, -1, -1):
+        b[k] -= np.sum(A[k, k + 1:] * b[k + 1:], axis=0)
+    return (-np.einsum("rpf,prof->rof", g_r, b)).astype(np.complex64)
