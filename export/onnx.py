@@ -65,7 +65,9 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     n_loc = len(layout)
     cls, usable = training_targets(t, layout, meta["min_force_n"])
     p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
-    svm, svm_train_s = svm_entry(p, out, split.mask(t, "train") & usable)
+    svm, svm_train_s, sel = svm_entry(p, out, split.mask(t, "train") & usable, val_mask=split.mask(t, "val") & usable, log=log)
+    if meta.get("net_selection"):
+        sel["net"] = meta["net_selection"]
     rng = np.random.default_rng(0)
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     net_parity = export_net(lit.model, X.shape[1], out / "net.onnx", check)
@@ -74,7 +76,11 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     skin = skin_json(out, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
                      training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
                                "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
-                     models={"net": net, "svm": svm})
+                     models={"net": net, "svm": svm}, selection=sel)
+    from sonicskin.selection import format_selection
+
+    for line in format_selection(sel):
+        log(line)
     log(f"exported {out}: net.onnx ({(out / 'net.onnx').stat().st_size / 1e3:.0f} kB, parity max |d logits| "
         f"{net_parity['max_abs_logits']:.1e}), svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max "
         f"|d scores| {svm['parity']['max_abs_scores']:.1e})")

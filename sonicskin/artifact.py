@@ -64,7 +64,8 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     return parity
 
 
-def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict) -> dict:
+def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
+              selection: dict | None = None) -> dict:
     """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters).
 
     The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
@@ -77,6 +78,8 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training, "models": models}
+    if selection:
+        skin["selection"] = _json_safe(selection)
     skin = validate_skin(json.loads(json.dumps(skin)), source=str(out / "skin.json (being written)"))
     try:
         text = json.dumps(skin, indent=1, allow_nan=False)  # NaN/Infinity are not JSON: refuse rather than write them
@@ -91,40 +94,80 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     return skin
 
 
-def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0) -> tuple[dict, float]:
+def _json_safe(o):
+    """Plain JSON: NaN/inf (an interval from one fold) become null."""
+    if isinstance(o, dict):
+        return {str(k): _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
+
+
+def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0, val_mask: np.ndarray | None = None,
+              selection: dict | None = None, select: bool = True, log=print) -> tuple[dict, float, dict]:
     """Fit the SVM head on the training chirps of a :func:`sonicskin.features.prepare` result, export
-    ``svm.onnx`` with parity, and return its ``skin.json`` entry and the fit time."""
+    ``svm.onnx`` with parity, and return its ``skin.json`` entry, the fit time and the model selection
+    (:mod:`sonicskin.selection`: C, kernel width, force model and threshold validated on the training
+    and ``val_mask`` chirps; ``select=False`` keeps the paper's values)."""
+    from .selection import select_on_inputs
+
     t, X = p["table"], p["X"]
+    sel = dict(selection or {})
+    if select:
+        sel = select_on_inputs(X, t, cls=p["cls"], train_mask=train_mask, val_mask=val_mask, n_locations=p["n_locations"],
+                               location_ids=p["dataset"].layout.ids, selection=sel, log=log)
+    sp = (sel.get("svm") or {}).get("params", {})
+    fsel = sel.get("force") or {}
     t0 = time.perf_counter()
     pipe, params = fit_svm_head(X[train_mask], p["cls"][train_mask], p["force"][train_mask], quiet_mask(t)[train_mask],
-                                n_locations=p["n_locations"], location_ids=p["dataset"].layout.ids, C=C)
+                                n_locations=p["n_locations"], location_ids=p["dataset"].layout.ids, C=sp.get("C", C),
+                                kernel_gamma=sp.get("kernel_width", 1.0) / X.shape[1] if sp else "scale",
+                                force_model=fsel.get("model", "fourier1"), force_alpha=fsel.get("alpha") or 10.0)
     fit_s = time.perf_counter() - t0
+    det = sel.get("detection") or {}
+    if det.get("threshold") is not None and params["detection"]:
+        params["threshold"] = float(det["threshold"])  # chosen on the validation session
     rng = np.random.default_rng(0)
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     parity = export_svm(pipe, p["n_locations"], Path(out) / "svm.onnx", check)
     return {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(X.shape[1]), "n_locations": p["n_locations"],
-            "parity": parity, **params}, fit_s
+            "parity": parity, **params}, fit_s, sel
 
 
-def build_svm_artifact(data, out, *, n_bins: int = 300, mode: str = "relative", train_sessions=None,
+def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
                        min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
     """SVM-only artifact from a dataset, torch-free: OSPA on the training sessions (default: all),
-    scaler + RBF SVM, Alg. 2 reference, detection threshold, per-location force curves."""
+    scaler + RBF SVM, Alg. 2 reference, detection threshold, force model.  ``n_bins=None`` chooses
+    gamma (with C, kernel width, force model) by validation on the training sessions' presses
+    (:mod:`sonicskin.selection`), or keeps the paper's 300 with a warning when it cannot validate."""
     from .dataset import Dataset
+    from .features import load_features_cached
+    from .selection import format_selection, select_gamma_on_table
 
     ds = Dataset(data)
     sessions = ds.sessions
     train = list(train_sessions or sessions)
+    sel: dict = {}
+    if n_bins is None:
+        t = load_features_cached(ds, progress=progress)
+        sel["svm"] = select_gamma_on_table(t, ds.rig, train_sessions=train, mode=mode, min_force_n=min_force_n, log=log)
+        n_bins = sel["svm"]["params"]["n_bins"]
     # Every session may train here (no test split): give Split one dummy test session if needed.
     p = prepare(data, n_bins=n_bins, mode=mode, train_sessions=train, val_sessions=[],
                 min_force_n=min_force_n, progress=progress, allow_no_test=True)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     tr = p["split"].mask(p["table"], "train") & p["usable"]
-    entry, fit_s = svm_entry(p, out, tr)
+    entry, fit_s, sel = svm_entry(p, out, tr, selection=sel, log=log)
     skin = skin_json(out, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=p["spec"], min_force_n=min_force_n,
                      training={"data": str(Path(data).resolve()), "split": p["split"].to_dict(), "svm_train_time_s": fit_s},
-                     models={"svm": entry})
+                     models={"svm": entry}, selection=sel)
+    for line in format_selection(sel):
+        log(line)
     log(f"wrote {out}/svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max |d scores| "
         f"{entry['parity']['max_abs_scores']:.1e}) and skin.json")
     return skin

@@ -15,7 +15,7 @@ from sklearn.svm import SVC
 
 from .baseline import ovr_scores_from_ovo
 from .calibration import TouchDetector
-from .force import PerLocationForce, energy_db
+from .force import PerLocationForce, PooledForce, energy_db
 
 __all__ = ["fit_svm_head", "score_vector", "touch_statistic"]
 
@@ -48,12 +48,14 @@ def touch_statistic(V_cal: np.ndarray, n_locations: int) -> np.ndarray:
 
 
 def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.ndarray, *, n_locations: int,
-                 location_ids, C: float = 10.0, force_model: str = "fourier1") -> tuple[Pipeline, dict]:
+                 location_ids, C: float = 10.0, kernel_gamma="scale", force_model: str = "fourier1",
+                 force_alpha: float = 10.0) -> tuple[Pipeline, dict]:
     """Fit scaler + SVC on touch chirps (``cls < n_locations``), then the Alg. 2 reference scores,
-    the detection threshold and the per-location force curves.  Returns the sklearn pipeline and
-    its JSON-able parameters."""
+    the detection threshold and the force model (per-location curves, or ``"pooled-ridge"`` over the
+    inputs and the location, see :class:`sonicskin.force.PooledForce`).  Returns the sklearn pipeline
+    and its JSON-able parameters."""
     touch = cls < n_locations
-    pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, gamma="scale",
+    pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, gamma=kernel_gamma,
                                                               decision_function_shape="ovo"))])
     pipe.fit(X[touch], cls[touch])
     classes = pipe.classes_
@@ -72,10 +74,14 @@ def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.nd
     E = energy_db(X, all_bins) - e_ref
     ids = np.asarray(location_ids)
     has_f = touch & np.isfinite(force)  # recordings without a force sensor carry NaN forces
-    fm = PerLocationForce(force_model)
+    fm = PooledForce(force_alpha) if force_model == PooledForce.NAME else PerLocationForce(force_model)
     if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations and np.ptp(force[has_f]) > 0:
-        fm.fit(E[has_f], force[has_f], ids[cls[has_f]])
-    else:  # no force sensor (or a constant force): force is absent (NaN), never 0 N
+        if isinstance(fm, PooledForce):
+            fm.fit(X[has_f], force[has_f], ids[cls[has_f]])
+        else:
+            fm.fit(E[has_f], force[has_f], ids[cls[has_f]])
+    else:
+        fm = PerLocationForce("fourier1")  # no force sensor (or a constant force): force is absent (NaN), never 0 N
         fm.curves_ = {}
     params = {"reference_scores": ref.tolist(), "threshold": det.threshold_ if rest else 0.0, "detector": "input-rms",
               "detection": bool(rest), "energy_ref_db": e_ref,

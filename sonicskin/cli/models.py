@@ -77,7 +77,7 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     if a.val or a.test or a.test_subjects:
         raise UsageError("fit-svm trains the deployment model on every session it is given, without validation or "
                          "test split; choose them with --train (test it with `sonicskin compare --artifact`)")
-    n_bins = resolve_n_bins(a, a.data)
+    n_bins = resolve_n_bins(a, a.data) if a.n_bins is not None else None  # None: chosen by validation
     with removed_on_failure(a.out):
         build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train)
     return 0
