@@ -132,7 +132,8 @@ def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0, va
     if det.get("threshold") is not None and params["detection"]:
         params["threshold"] = float(det["threshold"])  # chosen on the validation session
     rng = np.random.default_rng(0)
-    check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
+    Xc = X[train_mask]  # parity on training chirps: nothing of a test session reaches the artifact
+    check = Xc[rng.choice(Xc.shape[0], size=min(512, Xc.shape[0]), replace=False)]
     parity = export_svm(pipe, p["n_locations"], Path(out) / "svm.onnx", check)
     return {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(X.shape[1]), "n_locations": p["n_locations"],
             "parity": parity, **params}, fit_s, sel

@@ -54,3 +54,58 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
 
     predict.model = model
     return predict
+
+
+def touch_logit(logits: np.ndarray) -> np.ndarray:
+    """log p(touch) / p(no touch) of (n, N + 1) logits."""
+    from scipy.special import logsumexp
+
+    return logsumexp(logits[:, :-1], axis=1) - logits[:, -1]
+
+
+def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
+                    reference: np.ndarray, how: str, max_extra_miss: float = 0.005) -> dict:
+    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks):
+    its own head, its head with a threshold recalibrated there (Youden's J), the SVM's input-RMS detector
+    (``threshold``, ``reference``), or either of head and input-RMS.  Among the decisions that miss at most
+    ``max_extra_miss`` more touches than the input-RMS detector, the lowest balanced error wins."""
+    from sonicskin.calibration import TouchDetector
+
+    t = touch_logit(np.asarray(logits, np.float64))
+    rms = np.sqrt(np.mean((np.asarray(X, np.float64) - reference) ** 2, axis=1))
+    bias = -TouchDetector().fit(t[touch][:, None], t[quiet][:, None]).threshold_
+    cands = {"head": t >= 0, "head-recalibrated": t + bias >= 0, "input-rms": rms >= threshold,
+             "either": (t >= 0) | (rms >= threshold)}
+    rates = {k: (float(np.mean(~d[touch])), float(np.mean(d[quiet]))) for k, d in cands.items()}
+    limit = rates["input-rms"][0] + max_extra_miss
+    ok = [k for k in cands if rates[k][0] <= limit]
+    best = min(ok, key=lambda k: (rates[k][0] + rates[k][1]) / 2)
+    mode = {"head-recalibrated": "head"}.get(best, best)
+    det = {"mode": mode, "bias": float(bias) if best == "head-recalibrated" else 0.0, "threshold": float(threshold),
+           "reference": [float(v) for v in np.asarray(reference).ravel()]}
+    return {"detector": best, "how": f"{how}: missed {rates[best][0]:.1%}, false {rates[best][1]:.1%}; "
+            f"input-RMS alone missed {rates['input-rms'][0]:.1%}, the head alone {rates['head'][0]:.1%}",
+            "rates": {k: {"missed": v[0], "false": v[1]} for k, v in rates.items()}, "config": det}
+
+
+#: the network's location layer candidates (issue 15.7): frozen SVM kernel, fine-tuned kernel, plain MLP.
+LAYERS = {"frozen kernel": {"kernel": True, "kernel_lr": 0.0}, "fine-tuned kernel": {"kernel": True, "kernel_lr": 1e-3},
+          "MLP": {"kernel": False}}
+
+
+def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, train: np.ndarray,
+                 val: np.ndarray, how: str, seed: int = 0, **kw) -> dict:
+    """Fit each location layer of :data:`LAYERS` on ``train`` rows and score touch accuracy on ``val`` rows
+    (a held-out pass or the validation session); the best (ties: the first, the frozen kernel) wins."""
+    scores = {}
+    touch = val & (cls < n_locations)
+    for name, hp in LAYERS.items():
+        try:
+            pred = fit_net(X[train], cls[train], force[train], n_locations=n_locations, seed=seed, **{**kw, **hp})
+        except ValueError:  # e.g. a location missing from the training rows
+            continue
+        logits, _ = pred(X[touch])
+        scores[name] = float(np.mean(logits[:, :n_locations].argmax(1) == cls[touch]))
+    best = max(scores, key=lambda k: scores[k]) if scores else "frozen kernel"
+    return {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
+            "layer_scores": scores, "hparams": LAYERS[best]}
