@@ -65,9 +65,13 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     n_loc = len(layout)
     cls, usable = training_targets(t, layout, meta["min_force_n"])
     p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
-    svm, svm_train_s, sel = svm_entry(p, out, split.mask(t, "train") & usable, val_mask=split.mask(t, "val") & usable, log=log)
-    if meta.get("net_selection"):
-        sel["net"] = meta["net_selection"]
+    svm, svm_train_s, sel = svm_entry(p, out, split.mask(t, "train") & usable, val_mask=split.mask(t, "val") & usable,
+                                      selection=meta.get("selection"), log=log)
+    from sonicskin.training.quick import calibrate_net_detector
+
+    sel["net"] = {**(sel.get("net") or {}), **calibrate_net_detector(
+        lit.model, X, t, cls, train=split.mask(t, "train") & usable, val=split.mask(t, "val") & usable,
+        threshold=svm["threshold"] if svm["detection"] else 0.0, mode=spec.mode, n_locations=n_loc)}
     rng = np.random.default_rng(0)
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     net_parity = export_net(lit.model, X.shape[1], out / "net.onnx", check)

@@ -169,6 +169,10 @@ def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "rel
                      models={"svm": entry}, selection=sel)
     for line in format_selection(sel):
         log(line)
+    from .selection import save_learning_curve
+
+    if save_learning_curve(sel, out / "learning_curve.png", title=f"{ds.root.name}: SVM accuracy vs presses per location"):
+        log(f"wrote {out}/learning_curve.png")
     log(f"wrote {out}/svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max |d scores| "
         f"{entry['parity']['max_abs_scores']:.1e}) and skin.json")
     return skin

@@ -109,3 +109,33 @@ def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locatio
     best = max(scores, key=lambda k: scores[k]) if scores else "frozen kernel"
     return {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
             "layer_scores": scores, "hparams": LAYERS[best]}
+
+
+def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: np.ndarray, val: np.ndarray,
+                           threshold: float, mode: str, n_locations: int) -> dict:
+    """Choose and set the exported network's touch decision (:meth:`models.SkinNet.set_detector`).
+
+    With a validation session holding hands-off and touch chirps: :func:`choose_detector` there.  Without
+    one the network's own head cannot be judged on data it did not train on, so it is combined with the
+    SVM's input-RMS detector (``either``: never more misses than the SVM's detector)."""
+    import torch
+
+    from sonicskin.features import quiet_mask
+
+    q = quiet_mask(t)
+    ref = np.zeros(X.shape[1]) if mode == "relative" else X[train & q].mean(axis=0)
+    touch = cls < n_locations
+    model.set_detector(None)
+    if threshold <= 0:  # trained on touches only: nothing to detect against
+        return {"detector": "head", "how": "no hands-off chirps: not calibrated"}
+    if (val & q).sum() >= 2 and (val & touch).any():
+        with torch.no_grad():
+            logits = model(torch.from_numpy(np.ascontiguousarray(X[val], np.float32)))[0].numpy()
+        names = ", ".join(sorted(set(t["session"][val])))
+        d = choose_detector(logits, X[val], touch[val], q[val], threshold=threshold, reference=ref,
+                            how=f"validation on {names}")
+    else:
+        d = {"detector": "either", "how": "no validation session: the head combined with the input-RMS detector",
+             "config": {"mode": "either", "bias": 0.0, "threshold": float(threshold), "reference": [float(v) for v in ref]}}
+    model.set_detector(d["config"])
+    return {"detector": d["detector"], "how": d["how"]}

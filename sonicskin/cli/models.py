@@ -89,7 +89,7 @@ def _train_args(a: argparse.Namespace, data: str | None, extra: list[str]) -> li
         from ..dataset import Dataset
 
         Dataset(data)  # refused here, in one line, before Lightning starts
-    n_bins = resolve_n_bins(a, data) if data else a.n_bins
+    n_bins = resolve_n_bins(a, data) if data and a.n_bins is not None else a.n_bins  # None: chosen by validation
     if data and a.test:
         a.train, a.val = _sessions_for_test(a, data)
     return ["--config", train_config(a.config)] + (["--data.data", data] if data else []) + lightning_overrides(a, n_bins) + extra
@@ -108,11 +108,15 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
-def _report_training(cli) -> None:
+def _report_training(cli, *, selection: bool = True) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         metrics = ", ".join(f"{k} {v:.3f}" for k, v in res.items() if k.startswith("val_"))
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
+    from ..selection import format_selection
+
+    for line in format_selection(getattr(cli.datamodule, "selection", None) if selection else None):
+        print(line)
 
 
 def cmd_export(a: argparse.Namespace) -> int:
@@ -184,7 +188,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         cli = train_main(args)
         if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
             return 0
-        _report_training(cli)
+        _report_training(cli, selection=False)  # the export below prints the whole selection
         artifact = run / "artifact"
         export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
