@@ -14,29 +14,35 @@ from .metrics import error_cdf, force_report, localization_report
 from .runtime import Predictions, SkinRuntime
 from .schema import load_skin
 
-__all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison"]
+__all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
+           "chirps_per_location", "coverage_note", "split_line", "counts_line"]
 
 
-def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20) -> dict:
+def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
+                  boot: bool = True) -> dict:
     """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the
     whole per-chirp path from band features (reference, model, detection, force; :meth:`SkinStream.chirp`).
 
-    ``X_band``/``time_s``: a recorded stream; its first ``beta`` chirps boot the reference.
+    ``X_band``/``time_s``: a recorded stream; its first ``beta`` chirps boot the reference.  ``boot=False``
+    (a stream of touches only, absolute inputs): no reference, the path is inputs -> model -> touch/force.
     """
     st = rt.stream()
     k = 0
-    while st.calibrating and k < len(X_band):
+    while boot and st.calibrating and k < len(X_band):
         st.chirp(X_band[k], time_s[k])
         k += 1
     if k >= len(X_band):
         raise ValueError(f"the stream has {len(X_band)} chirps, not more than the boot calibration's")
     rows = np.arange(k, len(X_band))
-    inputs = st.reference.inputs(X_band[rows][:, st.bins])
+    inputs = st.reference.inputs(X_band[rows][:, st.bins]) if boot else rt.inputs(X_band[rows])
     path, onnx = np.empty(n), np.empty(n)
     for i in range(-warmup, n):
         r = rows[i % rows.size]
         t0 = time.perf_counter()
-        st.chirp(X_band[r], time_s[r])
+        if boot:
+            st.chirp(X_band[r], time_s[r])
+        else:
+            rt.predict_inputs(rt.inputs(X_band[r][None]))
         dt = time.perf_counter() - t0
         one = inputs[i % rows.size][None]
         t0 = time.perf_counter()
@@ -49,12 +55,41 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
 
 
 def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
-    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it."""
+    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it.
+
+    A stream without hands-off chirps (a table of touches only) has no rest to boot Alg. 2's reference
+    on: with absolute inputs every chirp is scored as it is (the training reference, no boot
+    calibration); relative inputs cannot be formed there and are refused in one line.
+    """
     parts = []
     for s in sessions:
         m = t["session"] == s
-        parts.append(rt.replay(t.X[m], t["time_s"][m]))
+        if (t["location"][m] >= 0).all():
+            if rt.spec.mode != "absolute":
+                raise ValueError(f"session {s} has no hands-off chirps to calibrate the no-touch reference on, and the "
+                                 f"artifact's inputs are relative; train with --mode absolute for data of touches only")
+            p = rt.predict_inputs(rt.inputs(t.X[m]))
+            p.calibrating = np.zeros(int(m.sum()), bool)
+            parts.append(p)
+        else:
+            parts.append(rt.replay(t.X[m], t["time_s"][m]))
     return Predictions.concat(parts)
+
+
+def chirps_per_location(t: FeatureTable, scored: np.ndarray, layout) -> dict[str, int]:
+    """How many touch chirps of each layout location were scored (0 for a location never touched)."""
+    loc = t["location"][scored]
+    return {str(i): int(np.sum(loc == i)) for i in layout.ids}
+
+
+def coverage_note(counts: dict[str, int]) -> str | None:
+    """A sentence when the scored chirps cover fewer locations than the layout has, else ``None``."""
+    missing = [k for k, n in counts.items() if n == 0]
+    if not missing:
+        return None
+    shown = ", ".join(missing[:12]) + (", ..." if len(missing) > 12 else "")
+    return (f"the scored chirps touch {len(counts) - len(missing)} of the layout's {len(counts)} locations "
+            f"(never touched: {shown}); accuracy is over the touched ones only")
 
 
 def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
@@ -75,6 +110,9 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
     touch = touch_mask(t, min_force_n)
     run = ~p.calibrating
     no_touch = (t["location"] < 0) & run
+    if not (touch & run).any():
+        raise ValueError(f"no touch chirp left to score ({int(touch.sum())} touch chirps, {int((touch & ~run).sum())} of them "
+                         f"in the boot calibration); test on longer sessions or on more of them")
     L = localization_report(t["location"][touch & run], p.location[touch & run], layout)
     true_xy = np.column_stack([t["x_cm"], t["y_cm"]])
     ok_xy = touch & run & np.isfinite(p.xy_cm).all(axis=1)
@@ -85,6 +123,8 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
         "continuous_error_cm": {"median": float(np.median(cont)) if cont.size else float("nan"),
                                 "mean": float(np.mean(cont)) if cont.size else float("nan")},
         "force": _force(t["force_n"], p.force_n, touch & p.touch),
+        "chirps_per_location": chirps_per_location(t, touch & run, layout),
+        "no_touch_chirps": int(no_touch.sum()),
         "detection": ({"false_touch_rate": float(np.mean(p.touch[no_touch])), "missed_touch_rate": float(np.mean(~p.touch[touch]))}
                       if no_touch.any() and touch.any() and detection else
                       {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}),
@@ -93,31 +133,72 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate both models of ``artifact`` on the test sessions of its split (or ``sessions``).
+    """Evaluate every model of ``artifact`` (the network and/or the SVM) on the test sessions of its
+    split (or ``sessions``).
 
     Each test session is replayed as a stream through :meth:`SkinRuntime.replay`, as the live
     loop runs it: the first ``beta`` seconds boot the reference, refreshes follow each model's own
-    touch detection.  No test label reaches a model or its reference.
+    touch detection.  No test label reaches a model or its reference.  A session of touches only
+    (no rest) is scored on every chirp (:func:`replay_sessions`).
+
+    The result names the artifact's ``train`` and ``val`` sessions and the ``test`` sessions scored
+    here; ``trained_on_test`` lists test sessions the artifact was trained or validated on.
     """
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
+    split = meta["training"]["split"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
-    rts = {k: SkinRuntime(art, k) for k in ("net", "svm")}
+    names = [k for k in ("net", "svm") if k in meta["models"]]
+    rts = {k: SkinRuntime(art, k) for k in names}
     ds = Dataset(data)
     t = load_features_cached(ds, progress=progress)
-    test = sessions or meta["training"]["split"]["test"]
-    res["test_sessions"] = list(test)
+    test = list(sessions or split["test"])
+    if not test:
+        raise ValueError(f"{art} was trained on every session of its data ({', '.join(split['train'])}) and names no test "
+                         f"session; choose the sessions to score with --test SESSION...")
+    unknown = sorted(set(test) - set(ds.sessions))
+    if unknown:
+        raise ValueError(f"test session(s) {', '.join(unknown)} are not in {data} (it has {', '.join(ds.sessions)})")
+    res["split"] = {"train": list(split["train"]), "val": list(split["val"]), "test": test}
+    res["test_sessions"] = test
+    res["trained_on_test"] = sorted(set(test) & (set(split["train"]) | set(split["val"])))
     te = t.select(np.isin(t["session"], test))
+    svm_meta = meta["models"].get("svm", {})
     for k, rt in rts.items():
         p = replay_sessions(rt, te, test)
         r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
-                           detection=meta["models"]["svm"].get("detection", True))
-        r["latency"] = chirp_latency(rt, te.X, te["time_s"]) if latency else None
+                           detection=svm_meta.get("detection", True))
+        if latency:  # on the first test stream, as it was scored (booted, or touches only without a boot)
+            first = te["session"] == test[0]
+            r["latency"] = chirp_latency(rt, te.X[first], te["time_s"][first], boot=bool((te["location"][first] < 0).any()))
+        else:
+            r["latency"] = None
         r["model_bytes"] = int((art / rt.m["file"]).stat().st_size)
         r["train_time_s"] = meta["training"].get(f"{k}_train_time_s")
         res["models"][k] = r
+    first = res["models"][names[0]]
+    res["chirps_per_location"] = first["chirps_per_location"]
+    res["coverage_note"] = coverage_note(first["chirps_per_location"])
     return res
+
+
+def split_line(split: dict) -> str:
+    """``train s000 | validation none | test s002, s003``."""
+    def names(v):
+        return ", ".join(v) if v else "none"
+    return f"train {names(split.get('train'))} | validation {names(split.get('val'))} | test {names(split.get('test'))}"
+
+
+def counts_line(counts: dict[str, int]) -> str:
+    """``scored 160 touch chirps: 40 at each of 4 locations`` or the spread when they differ."""
+    n = np.array(list(counts.values()))
+    touched = n[n > 0]
+    if not touched.size:
+        return "scored no touch chirp"
+    each = (f"{touched[0]} at each of {touched.size} locations" if np.ptp(touched) == 0 else
+            f"{touched.min()}-{touched.max()} per location over {touched.size} locations (median {np.median(touched):g})")
+    return f"scored {int(n.sum())} touch chirps: {each}"
 
 
 def _or_na(d: dict, fmt) -> str:
@@ -125,6 +206,7 @@ def _or_na(d: dict, fmt) -> str:
 
 
 def format_comparison(res: dict, title: str = "") -> str:
+    lat = lambda k, f: (lambda r: "n/a" if r["latency"] is None else f(r["latency"][k]))  # noqa: E731
     rows = [
         ("accuracy", lambda r: f"{r['localization']['accuracy']:.1%}"),
         ("error < 2 cm", lambda r: f"{r['localization']['within_2cm']:.1%}"),
@@ -135,25 +217,36 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("force cross-correlation", lambda r: _or_na(r["force"], lambda d: f"{d['xcorr']:.1%}")),
         ("false touches", lambda r: _or_na(r["detection"], lambda d: f"{d['false_touch_rate']:.2%}")),
         ("missed touches", lambda r: _or_na(r["detection"], lambda d: f"{d['missed_touch_rate']:.2%}")),
-        ("ONNX model per chirp, median", lambda r: f"{r['latency']['onnx_median_ms'] * 1e3:.0f} us"),
-        ("ONNX model per chirp, p99", lambda r: f"{r['latency']['onnx_p99_ms'] * 1e3:.0f} us"),
-        ("inputs -> touch/xy/force, median", lambda r: f"{r['latency']['median_ms'] * 1e3:.0f} us"),
-        ("inputs -> touch/xy/force, p99", lambda r: f"{r['latency']['p99_ms'] * 1e3:.0f} us"),
+        ("ONNX model per chirp, median", lat("onnx_median_ms", lambda v: f"{v * 1e3:.0f} us")),
+        ("ONNX model per chirp, p99", lat("onnx_p99_ms", lambda v: f"{v * 1e3:.0f} us")),
+        ("inputs -> touch/xy/force, median", lat("median_ms", lambda v: f"{v * 1e3:.0f} us")),
+        ("inputs -> touch/xy/force, p99", lat("p99_ms", lambda v: f"{v * 1e3:.0f} us")),
         ("model size", lambda r: f"{r['model_bytes'] / 1e3:.0f} kB"),
         ("training time (to exported epoch)", lambda r: "n/a" if r["train_time_s"] is None else f"{r['train_time_s']:.1f} s"),
     ]
-    net, svm = res["models"]["net"], res["models"]["svm"]
+    models = res["models"]
+    head = {"net": "network", "svm": "SVM"}
     w = max(len(r[0]) for r in rows)
-    out = [title or f"{res['data']} (test sessions {', '.join(res['test_sessions'])})",
-           f"  {'':{w}}  {'network':>12}  {'SVM':>12}"]
-    out += [f"  {name:{w}}  {fmt(net):>12}  {fmt(svm):>12}" for name, fmt in rows]
+    split = res.get("split") or {"test": res["test_sessions"]}
+    out = [title or f"{res['data']}", f"  sessions: {split_line(split)}"]
+    if res.get("chirps_per_location"):
+        out.append(f"  {counts_line(res['chirps_per_location'])}")
+    if res.get("coverage_note"):
+        out.append(f"  note: {res['coverage_note']}")
+    if res.get("trained_on_test"):
+        out.append(f"  note: {', '.join(res['trained_on_test'])} trained or validated this artifact: not a held-out test")
+    out.append(f"  {'':{w}}" + "".join(f"  {head[k]:>12}" for k in models))
+    out += [f"  {name:{w}}" + "".join(f"  {fmt(r):>12}" for r in models.values()) for name, fmt in rows]
+    first = next(iter(models.values()))
     for key, what in (("force", "force"), ("detection", "detection")):
-        if net[key].get("measurable") is False:
-            out.append(f"  {what}: {net[key]['reason']}")
-    speed = svm["latency"]["onnx_median_ms"] / net["latency"]["onnx_median_ms"]
-    speed2 = svm["latency"]["median_ms"] / net["latency"]["median_ms"]
-    out.append(f"  per chirp, the network is {speed:.1f}x faster than the SVM in onnxruntime ({speed2:.1f}x with "
-               f"post-processing; same run)")
+        if first[key].get("measurable") is False:
+            out.append(f"  {what}: {first[key]['reason']}")
+    if "net" in models and "svm" in models and models["net"]["latency"] and models["svm"]["latency"]:
+        net, svm = models["net"], models["svm"]
+        speed = svm["latency"]["onnx_median_ms"] / net["latency"]["onnx_median_ms"]
+        speed2 = svm["latency"]["median_ms"] / net["latency"]["median_ms"]
+        out.append(f"  per chirp, the network is {speed:.1f}x faster than the SVM in onnxruntime ({speed2:.1f}x with "
+                   f"post-processing; same run)")
     return "\n".join(out)
 
 
@@ -165,8 +258,9 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "compare.json").write_text(json.dumps(res, indent=1, default=float))
-    fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
-    for a, k in zip(ax[:2], ("net", "svm")):
+    names = list(res["models"])
+    fig, ax = plt.subplots(1, len(names) + 1, figsize=(5.4 * (len(names) + 1), 4.8))
+    for a, k in zip(ax[:-1], names):
         r = res["models"][k]
         cm = np.asarray(r["localization"]["confusion"], float)
         cm /= np.maximum(cm.sum(axis=1, keepdims=True), 1)
@@ -174,11 +268,13 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
         a.set(title=f"{'network' if k == 'net' else 'SVM'}: accuracy {r['localization']['accuracy']:.1%}",
               xlabel="predicted location", ylabel="true location")
     for k, style in (("net", "-"), ("svm", "--")):
+        if k not in res["models"]:
+            continue
         e, c = error_cdf(np.asarray(res["models"][k]["errors_cm"]))
-        ax[2].step(e, c, style, where="post", label=f"{'network' if k == 'net' else 'SVM'}")
-    ax[2].axvline(2, color="gray", lw=0.8)
-    ax[2].set(xlabel="localization error (cm)", ylabel="CDF", ylim=(0, 1.01), xlim=(-0.1, 6), title="error CDF")
-    ax[2].legend(); ax[2].grid(alpha=0.3)
+        ax[-1].step(e, c, style, where="post", label=f"{'network' if k == 'net' else 'SVM'}")
+    ax[-1].axvline(2, color="gray", lw=0.8)
+    ax[-1].set(xlabel="localization error (cm)", ylabel="CDF", ylim=(0, 1.01), xlim=(-0.1, 6), title="error CDF")
+    ax[-1].legend(); ax[-1].grid(alpha=0.3)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

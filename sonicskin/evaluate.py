@@ -62,7 +62,7 @@ def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
-                 log=print) -> dict:
+                 val_sessions=(), log=print) -> dict:
     """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest.
 
     ``mode="relative"`` calibrates the scores online (Alg. 2), ``"absolute"`` keeps the training
@@ -70,7 +70,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     hands-off chirps (a table of touches only) localization and force are trained and reported,
     detection and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant
     force) force is reported as absent.  Streams whose rest is shorter than Alg. 2's beta use the
-    rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.
+    rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the
+    caller, not in ``table``) are only named in the report.
     """
     from .calibration import OnlineReference
     from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
@@ -119,6 +120,11 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     loc = localization_report(te["location"][touch], P["location"][touch], ds.layout)
     res["localization"] = {k: v for k, v in loc.items() if k != "errors_cm"}
     res["errors_cm"] = loc["errors_cm"].tolist()
+    from .compare import chirps_per_location, coverage_note
+
+    res["val_sessions"] = list(val_sessions)
+    res["chirps_per_location"] = chirps_per_location(te, touch, ds.layout)
+    res["coverage_note"] = coverage_note(res["chirps_per_location"])
     if model.detector_ is not None and quiet_te.any():
         res["detection"] = {"threshold": model.detector_.threshold_,
                             "false_touch_rate": float(np.mean(P["touch"][quiet_te])),
@@ -200,6 +206,8 @@ def _force_line(F: dict, label: str = "force (E^O)") -> str:
 
 
 def format_report(res: dict) -> str:
+    from .compare import counts_line, split_line
+
     L, D, F = res["localization"], res["detection"], res["force"]
     det = (f"  detection     {D['reason']}" if D.get("measurable") is False else
            f"  detection     false touches {D['false_touch_rate']:.1%}   missed touches {D['missed_touch_rate']:.1%}   "
@@ -207,11 +215,16 @@ def format_report(res: dict) -> str:
     lines = [
         f"dataset {res['dataset']}: train {','.join(res['train_sessions'])} ({res['n_train']} chirps), "
         f"test {len(res['test_sessions'])} sessions ({res['n_test']} chirps)",
+        f"  sessions: {split_line({'train': res['train_sessions'], 'val': res.get('val_sessions', []), 'test': res['test_sessions']})}"
+        + (" (validation held out: the SVM has no validation step)" if res.get("val_sessions") else ""),
+        f"  {counts_line(res['chirps_per_location'])}" if "chirps_per_location" in res else "",
+        f"  note: {res['coverage_note']}" if res.get("coverage_note") else "",
         f"  localization  accuracy {L['accuracy']:.1%}   < 2 cm {L['within_2cm']:.1%}   < 3 cm {L['within_3cm']:.1%}   "
         f"mean error {L['mean_error_cm']:.2f} cm   ({L['n']} touch chirps)",
         det,
         _force_line(F),
     ]
+    lines = [ln for ln in lines if ln]
     if "ablations" in res:
         A = res["ablations"]
         lines += ["  paper findings on this data:",

@@ -62,7 +62,7 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
         (path / s / "session.json").is_file() for s in Dataset(path).sessions)
     if not done:
-        sc = Scenario.load(name).replace(seed=int(seed))
+        sc = Scenario.load(name, seed=int(seed))  # a family (random) draws another rig per seed
         simulate_dataset(sc, rig or Rig.load("jaco"), path, mode="overwrite", progress=False, log=log)
     return Dataset(path)
 

@@ -142,14 +142,21 @@ def add_model_options(p: argparse.ArgumentParser, *, train_default: str = "the f
                    help="model inputs: minus the no-touch reference (Alg. 2) or absolute (default: relative)")
     g.add_argument("--train", nargs="+", metavar="SESSION", help=f"training sessions (default: {train_default})")
     g.add_argument("--val", nargs="+", metavar="SESSION",
-                   help="validation sessions (default: the second when there are three or more, else none)")
+                   help="validation sessions, or 'none' for no validation (default: the second when there are three or "
+                        "more and --test is not given, else none)")
     g.add_argument("--test", nargs="+", metavar="SESSION", help="test sessions (default: all the others)")
     g.add_argument("--test-subjects", type=nonneg_int, nargs="+", metavar="ID",
                    help="leave-subjects-out: sessions of these people are the test set (default: off)")
 
 
 def check_split_options(a: argparse.Namespace) -> None:
-    """Options that contradict each other, refused before any work."""
+    """Options that contradict each other, refused before any work.  ``--val none`` becomes an empty list
+    (no validation session), which every verb passes on as such (never the default split's)."""
+    val_opt = getattr(a, "val", None)
+    if val_opt and any(v.lower() == "none" for v in val_opt):
+        if len(val_opt) > 1:
+            raise UsageError(f"--val {' '.join(val_opt)}: 'none' means no validation session; give it alone or drop it")
+        a.val = []
     train, val, test = (set(getattr(a, k, None) or ()) for k in ("train", "val", "test"))
     for x, y, nx, ny in ((train, val, "--train", "--val"), (train, test, "--train", "--test"), (val, test, "--val", "--test")):
         if x & y:
@@ -267,7 +274,7 @@ def lightning_overrides(a: argparse.Namespace, n_bins: int | None) -> list[str]:
         out += ["--data.mode", a.mode]
     if a.train:
         out += ["--data.train_sessions", json.dumps(a.train)]
-    if a.val:
+    if a.val is not None:  # [] (--val none, or --test taking every other session) means no validation: never dropped
         out += ["--data.val_sessions", json.dumps(a.val)]
     if a.test_subjects:
         out += ["--data.test_subjects", json.dumps(a.test_subjects)]

@@ -27,10 +27,8 @@ def cmd_simulate(a: argparse.Namespace) -> int:
     from ..sim.generate import simulate_dataset
     from ..sim.scenario import Scenario
 
-    sc = Scenario.load(a.scenario)
+    sc = Scenario.load(a.scenario, seed=a.seed)  # a scenario family (random) draws the rig of that seed
     over = check_overrides(Scenario, a.set, "scenario")
-    if a.seed is not None:
-        over["seed"] = a.seed
     if a.sessions is not None:
         over["sessions"] = a.sessions
     if over:
@@ -85,7 +83,8 @@ def add_parsers(sub) -> None:
     s.add_argument("--scenario", default="stationary", help="scenario name or YAML path (default: stationary)")
     s.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
     s.add_argument("--out", help="dataset folder (default: data/<scenario>)")
-    s.add_argument("--seed", type=nonneg_int, help="override the scenario's seed (default: the scenario's)")
+    s.add_argument("--seed", type=nonneg_int,
+                   help="override the scenario's seed; a family (random) draws another rig per seed (default: the scenario's)")
     s.add_argument("--sessions", type=positive_int, help="override the number of sessions (default: the scenario's)")
     s.add_argument("--set", action="append", type=key_value, metavar="KEY=VALUE",
                    help="override any scenario key, value in YAML (e.g. motion={enabled: true}; default: none)")

@@ -62,7 +62,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
 
         table = table.select(~np.isin(table["session"], val))
     res = evaluate_svm(ds, train_sessions=train, table=table, ablations=not a.no_ablations, n_bins=n_bins,
-                       mode=a.mode or "relative")
+                       mode=a.mode or "relative", val_sessions=val or ())
     print(format_report(res))
     out = Path(a.out or Path("reports") / ds.root.name)
     paths = save_report(res, out, ds.layout)
@@ -165,6 +165,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         return 0
     if not a.data:
         raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
+    check_split_options(a)  # --val none -> no validation session
     Dataset(a.data)  # a bad dataset is refused before anything trains
     artifact = a.artifact
     sessions = None
@@ -173,7 +174,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         if not (artifact / "skin.json").is_file():
             raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                     f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-        if extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "val", "test_subjects")):
+        if extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None:
             raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
                              "compare on (drop the training options or --artifact)")
         sessions = a.test
@@ -192,7 +193,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         artifact = run / "artifact"
         export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
-    title = f"{Path(a.data).name}: network vs SVM"
+    title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
     print(format_comparison(res, title))
     meta = json.loads((Path(artifact) / "skin.json").read_text())
     out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
@@ -251,8 +252,11 @@ def add_parsers(sub) -> None:
     x.set_defaults(func=cmd_export)
 
     c = sub.add_parser("compare", help="network vs SVM on the same splits: table, JSON and PNG",
-                       description="Train + export both models (or load --artifact) and compare them on the test "
-                                   "sessions: accuracy, < 2 / < 3 cm, Table I force, detection, ONNX latency, size. "
+                       description="Train + export both models (or load --artifact: a network + SVM artifact, or a "
+                                   "`fit-svm` one) and compare them on the test sessions: accuracy, < 2 / < 3 cm, Table I "
+                                   "force, detection, ONNX latency, size. The report names the train, validation and test "
+                                   "sessions and how many chirps of each location it scored. With --test, exactly those "
+                                   "sessions are tested (the rest not in --train validate unless --val says otherwise). "
                                    "Without --artifact, other options go to LightningCLI as in `sonicskin train`.")
     c.add_argument("--data", help="dataset folder (required unless --scenario; default: none)")
     c.add_argument("--artifact", help="use this artifact instead of training (default: train both models first)")

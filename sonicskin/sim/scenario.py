@@ -22,7 +22,7 @@ import numpy as np
 from ..rig import Layout, Rig, _resolve_config, check_keys, load_yaml
 from .finger import make_subjects, press_profile
 
-__all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS"]
+__all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS", "RandomFamily", "family_seeds", "is_family"]
 
 SEGMENTS = ("calibration", "moving", "touch", "gap")
 
@@ -59,6 +59,7 @@ class Scenario:
     part_s: float = 20.0
     seed: int = 0
     link_seed: int = 7
+    loss_factor: float | None = None  # the wall's eta; None: the material's (sonicskin.sim.channel.MATERIALS)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Scenario:
@@ -72,8 +73,16 @@ class Scenario:
         return sc
 
     @classmethod
-    def load(cls, name_or_path: str | Path) -> Scenario:
-        return cls.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
+    def load(cls, name_or_path: str | Path, *, seed: int | None = None) -> Scenario:
+        """A scenario YAML, with ``seed`` (presses, noise) replaced when given.  A scenario *family*
+        (a YAML with ``family:``, e.g. ``random``) draws a whole new rig from ``seed`` (default: its
+        first design seed), see :class:`RandomFamily`."""
+        d = load_yaml(_resolve_config(name_or_path, "scenarios"))
+        if "family" in d:
+            fam = RandomFamily.from_dict(d)
+            return fam.draw(fam.design_seeds[0] if seed is None else int(seed))
+        sc = cls.from_dict(d)
+        return sc if seed is None else sc.replace(seed=int(seed))
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
@@ -98,6 +107,8 @@ class Scenario:
         check_keys(HotMeltBond, self.bond, "bond")
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
+        if self.loss_factor is not None and not 0 < self.loss_factor < 1:
+            raise ValueError(f"loss_factor is the wall's eta, 0 < eta < 1, got {self.loss_factor}")
 
     def make_layout(self) -> Layout:
         lay = dict(self.layout)
@@ -224,3 +235,168 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
     arrays = {name: np.concatenate(v) for name, v in cols.items() if name != "temperature_c"}
     arrays["temperature_c"] = sc.temperature_c(arrays["time_s"])
     return Timeline(**arrays)
+
+
+def is_family(name_or_path: str | Path) -> bool:
+    """Whether ``name_or_path`` is a scenario family (a YAML with ``family:``) rather than one scenario."""
+    return "family" in load_yaml(_resolve_config(name_or_path, "scenarios"))
+
+
+def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
+    """The family's ``design`` seeds (free to develop on) and ``heldout`` seeds (never tuned on)."""
+    fam = RandomFamily.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
+    return {"design": fam.design_seeds, "heldout": fam.heldout_seeds}
+
+
+def _pair(v, what: str) -> tuple[float, float]:
+    lo, hi = (float(x) for x in v)
+    if not lo <= hi:
+        raise ValueError(f"random family: {what} must be [low, high] with low <= high, got {list(v)}")
+    return lo, hi
+
+
+@dataclasses.dataclass(frozen=True)
+class RandomFamily:
+    """Rigs we did not design on: every seed draws another link, people, motion and warm-up.
+
+    Each draw is an ordinary :class:`Scenario` (so the simulator, the dataset writer and every verb
+    see nothing new): a material of :data:`sonicskin.sim.channel.MATERIALS` with its sourced
+    stiffness, density, thickness and thermal coefficients; a tube or a flat plate of random size;
+    transducers near either end at random positions; the material's loss factor times a log-uniform
+    factor (``loss_factor_scale``; the literature ranges in DESIGN.md span about a factor 2 either
+    way); a random modal irregularity (manufacturing, fittings); a grid of ``grid_n`` x ``grid_n``
+    markers between the transducers; one person per session (drawn from the 12 simulated people);
+    motion on or off with a random level; a random ambient temperature, warm-up and start time.
+    Every session presses each marker once (random order): s000 trains, s001 validates, the rest test.
+
+    ``design_seeds`` may be used for development; ``heldout_seeds`` were fixed before anything was
+    tuned on this family and are only ever evaluated (``benchmarks/bench_random_rigs.py``).
+    """
+
+    family: str = "random"
+    sessions: int = 4
+    design_seeds: tuple[int, ...] = tuple(range(10))
+    heldout_seeds: tuple[int, ...] = ()
+    materials: tuple[str, ...] = ("cfrp", "aluminium", "abs", "glass", "wood")
+    kinds: tuple[str, ...] = ("tube", "plate")
+    tube_radius_cm: tuple[float, float] = (3.0, 5.0)
+    plate_width_cm: tuple[float, float] = (15.0, 30.0)
+    length_cm: tuple[float, float] = (18.0, 35.0)
+    loss_factor_scale: tuple[float, float] = (0.5, 2.0)
+    irregularity: tuple[float, float] = (1e-3, 1e-2)
+    grid_n: tuple[int, int] = (2, 4)
+    spacing_cm: tuple[float, float] = (1.2, 3.0)
+    people: tuple[int, int] = (1, 3)
+    motion_probability: float = 0.5
+    motion_level: tuple[float, float] = (0.3, 1.0)
+    moving_s: float = 5.0
+    ambient_c: tuple[float, float] = (15.0, 30.0)
+    warmup_c: tuple[float, float] = (0.0, 8.0)
+    warmup_tau_s: tuple[float, float] = (1800.0, 10800.0)
+    start_s: tuple[float, float] = (0.0, 7200.0)
+    session_interval_s: tuple[float, float] = (300.0, 1800.0)
+    touch_s: tuple[float, float] = (1.5, 3.0)
+    gap_s: float = 0.5
+    calibration_s: float = 3.0
+    peak_force_n: tuple[float, float] = (1.0, 10.0)
+    description: str = ""
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> RandomFamily:
+        d = dict(d)
+        seeds = d.pop("seeds", {}) or {}
+        if set(seeds) - {"design", "heldout"}:
+            raise ValueError(f"random family: seeds has keys design and heldout, got {sorted(seeds)}")
+        check_keys(cls, d, "random family")
+        kw: dict[str, Any] = {}
+        for f in dataclasses.fields(cls):
+            if f.name not in d:
+                continue
+            v = d[f.name]
+            if isinstance(f.default, tuple) and len(f.default) == 2 and not isinstance(f.default[0], str):
+                v = _pair(v, f.name)
+            elif isinstance(f.default, tuple):
+                v = tuple(v)
+            kw[f.name] = v
+        for k in ("design", "heldout"):
+            if k in seeds:
+                kw[f"{k}_seeds"] = tuple(int(s) for s in seeds[k])
+        fam = cls(**kw)
+        fam.validate()
+        return fam
+
+    def validate(self) -> None:
+        from .channel import MATERIALS
+
+        if self.family != "random":
+            raise ValueError(f"unknown scenario family {self.family!r}; the simulator knows 'random'")
+        bad = [m for m in self.materials if m not in MATERIALS]
+        if bad:
+            raise ValueError(f"random family: unknown materials {bad}; choose from {sorted(MATERIALS)}")
+        if set(self.kinds) - {"tube", "plate"} or not self.kinds:
+            raise ValueError(f"random family: kinds are 'tube' and/or 'plate', got {list(self.kinds)}")
+        both = sorted(set(self.design_seeds) & set(self.heldout_seeds))
+        if both:
+            raise ValueError(f"random family: seeds {both} are both design and held-out seeds; the lists must be disjoint")
+        if self.sessions < 2:
+            raise ValueError("random family: sessions must be >= 2 (one to train, one to test)")
+        if not 1 <= self.people[0] <= self.people[1] <= 12 or not 2 <= self.grid_n[0] <= self.grid_n[1]:
+            raise ValueError("random family: people within 1..12 and grid_n >= 2")
+
+    def draw(self, seed: int) -> Scenario:
+        """The rig and protocol of ``seed`` (deterministic)."""
+        from .channel import MATERIALS
+
+        rng = np.random.default_rng([int(seed), 2026, 15])
+
+        def uni(r):
+            return float(rng.uniform(*r))
+
+        def log_uni(r):
+            return float(np.exp(rng.uniform(np.log(r[0]), np.log(r[1]))))
+
+        material = str(rng.choice(self.materials))
+        kind = str(rng.choice(self.kinds))
+        L = uni(self.length_cm)
+        if kind == "tube":
+            radius = uni(self.tube_radius_cm)
+            W = 2 * np.pi * radius
+            geometry = {"kind": "tube", "radius_cm": round(radius, 3), "length_cm": round(L, 3)}
+            x_lo, x_hi = 0.0, W
+        else:
+            W = uni(self.plate_width_cm)
+            geometry = {"kind": "plate", "width_cm": round(W, 3), "length_cm": round(L, 3)}
+            x_lo, x_hi = 2.0, W - 2.0
+        # TX in the first fifth of the link, RX in the last fifth (the paper's arrangement), anywhere around.
+        tx = (uni((x_lo, x_hi)), uni((1.5, 0.2 * L)))
+        rx = (uni((x_lo, x_hi)), uni((0.8 * L, L - 1.5)))
+        # Markers: an nx x ny grid between the transducers (>= 2.5 cm from either along the link).
+        nx, ny = (int(rng.integers(self.grid_n[0], self.grid_n[1] + 1)) for _ in range(2))
+        y_lo, y_hi = tx[1] + 2.5, rx[1] - 2.5
+        x_room = (W / nx) if kind == "tube" else (x_hi - x_lo) / (nx - 1)
+        s = min(uni(self.spacing_cm), (y_hi - y_lo) / (ny - 1), x_room)
+        x0 = uni((x_lo, x_hi - s * (nx - 1)))
+        y0 = uni((y_lo, y_hi - s * (ny - 1)))
+        layout = {"kind": "grid", "nx": nx, "ny": ny, "spacing_cm": round(s, 4), "x0_cm": round(x0, 3), "y0_cm": round(y0, 3)}
+        eta = MATERIALS[material].eta * log_uni(self.loss_factor_scale)
+        k = int(rng.integers(self.people[0], self.people[1] + 1))
+        subjects = tuple(int(v) for v in rng.choice(12, size=k, replace=False))
+        moving = bool(rng.uniform() < self.motion_probability)
+        motion = {"enabled": True, "level": round(uni(self.motion_level), 3)} if moving else {"enabled": False}
+        temperature = {"ambient_c": round(uni(self.ambient_c), 2), "warmup_c": round(uni(self.warmup_c), 2),
+                       "warmup_tau_s": round(uni(self.warmup_tau_s)), "swing_c": 0.0, "swing_period_s": 86400.0,
+                       "gradient": 0.5, "lag": 0.6}
+        sc = Scenario(
+            name=f"random-{int(seed)}", material=material, geometry=geometry,
+            tx_cm=(round(tx[0] % W if kind == "tube" else tx[0], 3), round(tx[1], 3)),
+            rx_cm=(round(rx[0] % W if kind == "tube" else rx[0], 3), round(rx[1], 3)),
+            layout=layout, sessions=self.sessions, repeats=1, train_repeats=None,
+            touch_s=round(uni(self.touch_s), 2), gap_s=self.gap_s, calibration_s=self.calibration_s,
+            moving_s=self.moving_s if moving else 0.0, session_interval_s=round(uni(self.session_interval_s)),
+            start_s=round(uni(self.start_s)), subjects=subjects, subject_per_session=True, order="random",
+            peak_force_n=self.peak_force_n, motion=motion, temperature=temperature,
+            channel={"irregularity": round(log_uni(self.irregularity), 5)},
+            seed=int(seed), link_seed=int(rng.integers(0, 2 ** 31 - 1)), loss_factor=round(eta, 5),
+        )
+        sc.validate()
+        return sc

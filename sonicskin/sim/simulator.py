@@ -9,6 +9,8 @@ linear channel = circular convolution) and 24-bit quantisation.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import scipy.fft
 import scipy.signal
@@ -43,6 +45,8 @@ class Simulator:
             raise ValueError(f"unknown material {scenario.material!r}; choose one of {sorted(MATERIALS)}")
         self.scenario, self.rig = scenario, rig
         self.material = MATERIALS[scenario.material]
+        if scenario.loss_factor is not None:  # a drawn rig's own loss factor (sonicskin.sim.scenario.RandomFamily)
+            self.material = dataclasses.replace(self.material, eta=float(scenario.loss_factor))
         g = scenario.geometry
         kind = g.get("kind", "tube")
         width_m = 2 * np.pi * g["radius_cm"] / 100 if kind == "tube" else g["width_cm"] / 100
@@ -136,7 +140,7 @@ class Simulator:
         G = self._gather(self.channel.G_rs, i0, w) + deta * self._gather(self.channel.dG_rs_deta, i0, w)
         if np.any(gu != 0):
             if self._B is None:
-                key = (self.scenario.material, repr(self.geometry), tuple(self.scenario.tx_cm), tuple(self.scenario.rx_cm),
+                key = (repr(self.material), repr(self.geometry), tuple(self.scenario.tx_cm), tuple(self.scenario.rx_cm),
                        self.scenario.link_seed, repr(sorted(self.scenario.channel.items())), repr(self.rig))
                 if key not in _BORN_CACHE:
                     _BORN_CACHE.clear()  # one link at a time: a few MB

@@ -1,0 +1,259 @@
+"""Both models and plain scikit-learn floors on rigs we did not design on (issue 15.5).
+
+    nice -n 5 .venv/bin/python benchmarks/bench_random_rigs.py            # the 12 held-out seeds
+    nice -n 5 .venv/bin/python benchmarks/bench_random_rigs.py --seeds design   # the design seeds (develop here)
+
+Every seed of the ``random`` scenario family (``configs/scenarios/random.yaml``) is another rig: material,
+tube or plate, size, transducer positions, loss factor, modal irregularity, marker grid, people, motion
+and warm-up.  Each is simulated once (cached under ``--cache``) with four sessions, one press per marker
+each: **s000 trains, s001 validates, s002 and s003 test**.
+
+Per seed, the package itself runs as a user would run it: ``sonicskin compare --data D --train s000 --val
+s001 --test s002 s003`` trains and exports both models (the network with LightningCLI, validated on s001;
+the SVM of the same artifact) and replays the test sessions as the live loop runs them (boot calibration,
+refreshes from each model's own detection, no test label).  Whatever the package chooses by itself
+(bins, model selection) is therefore what is measured.
+
+On the same split, plain scikit-learn floors with default parameters, on every usable bin (the rig's
+matched-filter mask) minus the session's boot reference (the mean of its first 3 s, the same no-touch
+reference the runtime boots on; no label):
+
+- location: ``StandardScaler + SVC()`` trained on the touch chirps of s000;
+- force: ``StandardScaler + SVR()`` pooled over all locations, and "predict the training mean".
+
+Floors are scored on every touch chirp of the test sessions (they are given the touch decision); the
+models' force RMSE is on the touch chirps their own detector found (as ``compare`` reports it).
+
+Reported: mean and spread (std over seeds) per model and floor, and the paired differences
+(net - SVM, SVM - floor, net - floor) with a 95 % Student t interval over seeds (the unit is the rig).
+Writes ``OUT/random.json`` and ``OUT/random.md``; per-seed results under ``OUT/seeds/`` (``--resume``
+keeps them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+METRICS = {  # name -> (unit, larger is better)
+    "accuracy": ("pct", True),
+    "within_2cm": ("pct", True),
+    "force_rmse_n": ("N", False),
+    "missed_touch": ("pct", False),
+    "false_touch": ("pct", False),
+}
+LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "force_rmse_n": "force RMSE",
+          "missed_touch": "missed touches", "false_touch": "false touches"}
+SPLIT = {"train": ["s000"], "val": ["s001"], "test": ["s002", "s003"]}
+
+
+def _model_metrics(r: dict) -> dict:
+    return {"accuracy": r["localization"]["accuracy"], "within_2cm": r["localization"]["within_2cm"],
+            "force_rmse_n": r["force"].get("rmse_n", float("nan")),
+            "missed_touch": r["detection"].get("missed_touch_rate", float("nan")),
+            "false_touch": r["detection"].get("false_touch_rate", float("nan"))}
+
+
+def floors(ds, *, min_force_n: float = 0.5) -> dict:
+    """Plain scikit-learn on every usable bin minus each session's boot reference (first 3 s, no label)."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC, SVR
+
+    from sonicskin.features import FeatureSpec, load_features_cached, touch_mask
+
+    t = load_features_cached(ds, progress=False)
+    beta = FeatureSpec((0,), "relative").reference(ds.rig.chirps_per_s).beta
+    X = t.X[:, ds.rig.allowed_mask].astype(np.float64)
+    for s in np.unique(t["session"]):
+        idx = np.flatnonzero(t["session"] == s)
+        X[idx] -= X[idx[:beta]].mean(axis=0)
+    touch = touch_mask(t, min_force_n)
+    tr = touch & np.isin(t["session"], SPLIT["train"])
+    te = touch & np.isin(t["session"], SPLIT["test"])
+    loc, f = t["location"], t["force_n"]
+    t0 = time.perf_counter()
+    svc = make_pipeline(StandardScaler(), SVC()).fit(X[tr], loc[tr])
+    acc = float(np.mean(svc.predict(X[te]) == loc[te]))
+    svr = make_pipeline(StandardScaler(), SVR()).fit(X[tr], f[tr])
+    rmse_svr = float(np.sqrt(np.mean((svr.predict(X[te]) - f[te]) ** 2)))
+    rmse_mean = float(np.sqrt(np.mean((f[tr].mean() - f[te]) ** 2)))
+    return {"svc_accuracy": acc, "svr_force_rmse_n": rmse_svr, "mean_force_rmse_n": rmse_mean,
+            "n_bins": int(X.shape[1]), "n_train_touch": int(tr.sum()), "n_test_touch": int(te.sum()),
+            "fit_s": time.perf_counter() - t0}
+
+
+def describe(sc) -> dict:
+    g = sc.geometry
+    size = (f"tube r {g['radius_cm']:.1f} x {g['length_cm']:.0f} cm" if g["kind"] == "tube"
+            else f"plate {g['width_cm']:.0f} x {g['length_cm']:.0f} cm")
+    return {"material": sc.material, "surface": size, "locations": len(sc.make_layout()), "people": list(sc.subjects),
+            "motion": sc.motion.get("level", 0.0) if sc.motion.get("enabled") else 0.0, "loss_factor": sc.loss_factor,
+            "warmup_c": sc.temperature["warmup_c"]}
+
+
+def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | None, log) -> dict:
+    from sonicskin.cli import main
+    from sonicskin.rig import Rig
+    from sonicskin.seeds import scenario_dataset
+    from sonicskin.sim.scenario import Scenario
+
+    t0 = time.perf_counter()
+    ds = scenario_dataset("random", seed, cache, rig=Rig.load(rig_name), log=lambda *_: None)
+    sim_s = time.perf_counter() - t0
+    rep = out / "compare" / f"random-{seed}"
+    argv = ["compare", "--data", str(ds.root), "--train", *SPLIT["train"], "--val", *SPLIT["val"], "--test", *SPLIT["test"],
+            "--runs", str(out / "runs"), "--out", str(rep), "--trainer.enable_progress_bar", "false",
+            "--trainer.enable_model_summary", "false"]
+    if epochs:
+        argv += ["--trainer.max_epochs", str(epochs)]
+    t1 = time.perf_counter()
+    buf_out, buf_err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buf_out), contextlib.redirect_stderr(buf_err):
+        code = main(argv)
+    (rep.parent / f"random-{seed}.log").write_text(buf_out.getvalue() + "\n--- stderr ---\n" + buf_err.getvalue())
+    if code != 0:
+        raise RuntimeError(f"seed {seed}: sonicskin compare exited {code}: {buf_err.getvalue().strip().splitlines()[-1:]}")
+    res = json.loads((rep / "compare.json").read_text())
+    models_s = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    fl = floors(ds)
+    row = {"seed": int(seed), "rig": describe(Scenario.load("random", seed=seed)), "split": res["split"],
+           "chirps_per_location": res["chirps_per_location"],
+           "net": _model_metrics(res["models"]["net"]), "svm": _model_metrics(res["models"]["svm"]), "floor": fl,
+           "seconds": {"simulate": sim_s, "models": models_s, "floors": time.perf_counter() - t2}}
+    log(f"seed {seed} ({row['rig']['material']} {row['rig']['surface']}, {row['rig']['locations']} locations): accuracy "
+        f"net {row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} SVC floor {fl['svc_accuracy']:.1%}; force RMSE net "
+        f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR {fl['svr_force_rmse_n']:.2f} mean "
+        f"{fl['mean_force_rmse_n']:.2f} N; missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} "
+        f"({time.perf_counter() - t0:.0f} s)")
+    return row
+
+
+def _t_interval(d: np.ndarray) -> tuple[float, float]:
+    from scipy import stats
+
+    d = d[np.isfinite(d)]
+    if d.size < 2:
+        return float("nan"), float("nan")
+    half = stats.t.ppf(0.975, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size)
+    return float(d.mean() - half), float(d.mean() + half)
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Per quantity: mean and std over seeds; per pair: mean difference and 95 % t interval over seeds."""
+    def col(get):
+        return np.array([get(r) for r in rows], float)
+
+    q = {f"{m}/{k}": col(lambda r, m=m, k=k: r[k][m]) for m in METRICS for k in ("net", "svm")}
+    q["accuracy/svc_floor"] = col(lambda r: r["floor"]["svc_accuracy"])
+    q["force_rmse_n/svr_floor"] = col(lambda r: r["floor"]["svr_force_rmse_n"])
+    q["force_rmse_n/mean_floor"] = col(lambda r: r["floor"]["mean_force_rmse_n"])
+    out = {"values": {k: {"mean": float(np.nanmean(v)), "std": float(np.nanstd(v, ddof=1)) if np.isfinite(v).sum() > 1 else 0.0,
+                          "n": int(np.isfinite(v).sum())} for k, v in q.items()}, "pairs": {}}
+    pairs = [(f"{m}/net", f"{m}/svm") for m in METRICS] + [
+        ("accuracy/svm", "accuracy/svc_floor"), ("accuracy/net", "accuracy/svc_floor"),
+        ("force_rmse_n/svm", "force_rmse_n/svr_floor"), ("force_rmse_n/net", "force_rmse_n/svr_floor"),
+        ("force_rmse_n/svm", "force_rmse_n/mean_floor"), ("force_rmse_n/net", "force_rmse_n/mean_floor")]
+    for a, b in pairs:
+        d = q[a] - q[b]
+        lo, hi = _t_interval(d)
+        out["pairs"][f"{a} - {b}"] = {"mean": float(np.nanmean(d)), "ci95": [lo, hi], "n": int(np.isfinite(d).sum())}
+    return out
+
+
+def _f(v: float, unit: str, signed: bool = False) -> str:
+    s = "+" if signed else ""
+    return f"{v * 100:{s}.1f}" if unit == "pct" else f"{v:{s}.2f}"
+
+
+NAMES = {"net": "network", "svm": "package SVM", "svc_floor": "SVC floor (all bins)", "svr_floor": "pooled SVR floor",
+         "mean_floor": "training-mean floor"}
+
+
+def format_markdown(res: dict) -> str:
+    S = res["summary"]
+    u = {"pct": " %", "N": " N"}
+    lines = [f"Random rigs, seeds {res['seeds']} ({res['seed_list']}); sessions: train {', '.join(SPLIT['train'])}, "
+             f"validation {', '.join(SPLIT['val'])}, test {', '.join(SPLIT['test'])} (one press per marker per session). "
+             f"Mean ± std over {len(res['rows'])} rigs; intervals: 95 % Student t over rigs of the paired difference. "
+             f"Wall time {res['wall_s'] / 60:.0f} min.", "",
+             "| metric | model / floor | mean ± std |", "|---|---|---|"]
+    for key, v in S["values"].items():
+        m, who = key.split("/")
+        unit = METRICS[m][0]
+        lines.append(f"| {LABELS[m]} | {NAMES[who]} | {_f(v['mean'], unit)} ± {_f(v['std'], unit)}{u[unit]} |")
+    lines += ["", "| paired difference | mean [95 % CI] |", "|---|---|"]
+    for key, v in S["pairs"].items():
+        a, b = key.split(" - ")
+        m = a.split("/")[0]
+        unit = METRICS[m][0]
+        lo, hi = v["ci95"]
+        lines.append(f"| {LABELS[m]}: {NAMES[a.split('/')[1]]} − {NAMES[b.split('/')[1]]} | {_f(v['mean'], unit, True)} "
+                     f"[{_f(lo, unit, True)}, {_f(hi, unit, True)}]{u[unit]} |")
+    lines += ["", "| seed | rig | locations | motion | net acc | SVM acc | SVC floor | net F | SVM F | SVR F | mean F | "
+                  "net missed | SVM missed |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in res["rows"]:
+        g, n, s, fl = r["rig"], r["net"], r["svm"], r["floor"]
+        counts = np.array(list(r["chirps_per_location"].values()))
+        lines.append(f"| {r['seed']} | {g['material']} {g['surface']} | {g['locations']} ({counts.min()}-{counts.max()} chirps each) | "
+                     f"{g['motion']:.2f} | {n['accuracy']:.1%} | {s['accuracy']:.1%} | {fl['svc_accuracy']:.1%} | "
+                     f"{n['force_rmse_n']:.2f} | {s['force_rmse_n']:.2f} | {fl['svr_force_rmse_n']:.2f} | {fl['mean_force_rmse_n']:.2f} | "
+                     f"{n['missed_touch']:.1%} | {s['missed_touch']:.1%} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from sonicskin.sim.scenario import family_seeds
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", nargs="+", default=["heldout"],
+                   help="'heldout' (default: the family's held-out seeds), 'design', or seed numbers")
+    p.add_argument("--cache", default="data/random", help="simulated datasets (default: data/random)")
+    p.add_argument("--out", default="reports/random-rigs", help="report folder (default: reports/random-rigs)")
+    p.add_argument("--rig", default="jaco", help="acquisition rig (default: jaco, the paper's)")
+    p.add_argument("--epochs", type=int, help="network epochs (default: the training config's)")
+    p.add_argument("--resume", action="store_true", help="keep per-seed results already in OUT/seeds (default: recompute)")
+    a = p.parse_args(argv)
+    fam = family_seeds("random")
+    if a.seeds in (["heldout"], ["design"]):
+        seed_list, seeds = a.seeds[0], list(fam[a.seeds[0]])
+    else:
+        seeds = [int(s) for s in a.seeds]
+        seed_list = "held-out" if set(seeds) <= set(fam["heldout"]) else "design" if set(seeds) <= set(fam["design"]) else "mixed"
+    out = Path(a.out)
+    (out / "seeds").mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    rows = []
+    for s in seeds:
+        f = out / "seeds" / f"{s}.json"
+        if a.resume and f.is_file():
+            rows.append(json.loads(f.read_text()))
+            continue
+        row = run_seed(s, cache=Path(a.cache), out=out, rig_name=a.rig, epochs=a.epochs, log=print)
+        f.write_text(json.dumps(row, indent=1))
+        rows.append(row)
+        sys.stdout.flush()
+    res = {"seeds": seeds, "seed_list": seed_list, "split": SPLIT, "rows": rows, "summary": summarize(rows),
+           "wall_s": time.perf_counter() - t0}
+    (out / "random.json").write_text(json.dumps(res, indent=1))
+    md = format_markdown(res)
+    (out / "random.md").write_text(md + "\n")
+    print(md)
+    print(f"wrote {out}/random.json, {out}/random.md")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
