@@ -59,7 +59,10 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     parity = {"max_abs_scores": float(np.abs(S - S_ref)[~tie].max(initial=0.0)),
               "max_abs_decision": float(np.abs(d - d_ref).max()), "near_ties": int(tie.sum()),
               "labels_equal": bool(np.array_equal(label, pipe.predict(X_check.astype(np.float32))))}
-    if not (parity["labels_equal"] and parity["max_abs_scores"] < PARITY_TOL and parity["max_abs_decision"] < PARITY_TOL):
+    # float32 rounding grows with the decision values (a large C gives values of tens): relative beyond 1
+    tol_d = PARITY_TOL * max(1.0, float(np.abs(d_ref).max(initial=0.0)))
+    parity["decision_tol"] = tol_d
+    if not (parity["labels_equal"] and parity["max_abs_scores"] < PARITY_TOL and parity["max_abs_decision"] < tol_d):
         raise RuntimeError(f"ONNX export of the SVM does not match scikit-learn: {parity}")
     return parity
 
