@@ -72,6 +72,13 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     sel["net"] = {**(sel.get("net") or {}), **calibrate_net_detector(
         lit.model, X, t, cls, train=split.mask(t, "train") & usable, val=split.mask(t, "val") & usable,
         threshold=svm["threshold"] if svm["detection"] else 0.0, mode=spec.mode, n_locations=n_loc)}
+    if split.val:  # the network's force head against the pooled model on the validation session's presses
+        from sonicskin.training.quick import choose_net_force
+
+        sel["net"].update(choose_net_force(lit.model, X, cls, t["force_n"], fit_rows=split.mask(t, "train") & usable,
+                                           val_rows=split.mask(t, "val") & usable, location_ids=layout.ids,
+                                           alpha=(sel.get("force") or {}).get("alpha") or 10.0,
+                                           how=f"validation on {', '.join(split.val)}"))
     rng = np.random.default_rng(0)
     check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
     net_parity = export_net(lit.model, X.shape[1], out / "net.onnx", check)

@@ -57,6 +57,8 @@ class SkinNet(nn.Module):
         # The touch decision chosen on validation data (:meth:`set_detector`); None: the trained head's own.
         # A plain attribute (a constant of the exported graph), kept in the checkpoint's metadata.
         self.detector: dict | None = None
+        # A validated pooled force model replacing the head (:meth:`set_force`); None: the trained head.
+        self.force_linear: dict | None = None
 
     DETECTORS = ("head", "input-rms", "either")
 
@@ -68,6 +70,14 @@ class SkinNet(nn.Module):
         if detector is not None and detector.get("mode") not in self.DETECTORS:
             raise ValueError(f"detector mode must be one of {self.DETECTORS}, got {detector.get('mode')!r}")
         self.detector = None if detector is None or (detector["mode"] == "head" and not detector.get("bias")) else dict(detector)
+
+    def set_force(self, pooled: dict | None) -> None:
+        """Replace the force head by a pooled linear model ``F_k = x . coef + loc[k]`` (the SVM's validated
+        :class:`sonicskin.force.PooledForce`, folded: ``loc[k] = loc_coef[k] + intercept``); ``None``: the head."""
+        if pooled is not None and (len(pooled["coef"]) != self.n_in or len(pooled["loc"]) != self.n_locations):
+            raise ValueError(f"pooled force needs {self.n_in} coefficients and {self.n_locations} location terms")
+        self.force_linear = None if pooled is None else {"coef": [float(v) for v in pooled["coef"]],
+                                                         "loc": [float(v) for v in pooled["loc"]]}
 
     @staticmethod
     def _logsig(x: torch.Tensor) -> torch.Tensor:
@@ -110,6 +120,9 @@ class SkinNet(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (n, n_in) features -> (logits (n, N + 1), force (n, N) in newtons)."""
         logits, force = self._forward(x)
+        if self.force_linear is not None:
+            w = torch.as_tensor(self.force_linear["coef"], dtype=x.dtype)
+            force = (x @ w)[:, None] + torch.as_tensor(self.force_linear["loc"], dtype=x.dtype)[None, :]
         if self.detector is not None:
             logits = self._detect(x, logits)
         return logits, force

@@ -164,7 +164,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         last = passes == passes.max()
         if passes.max() >= 1:
             sel["net"] = choose_layer(X, cls, force, n_locations=n, train=usable & ~last, val=usable & last,
-                                      how="held-out last pass", **kw)
+                                      how="held-out last pass", location_ids=ids, alpha=fs.get("alpha") or 10.0, **kw)
         else:
             sel["net"] = {"location_layer": "frozen kernel", "layer_how": "one press per location: not validated",
                           "hparams": {}}
@@ -186,6 +186,12 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
             d["config"]["mode"], d["detector"] = "either", "either (head or input-RMS; no validation session)"
             model.set_detector(d["config"])
             sel["net"] = {**sel.get("net", {}), "detector": d["detector"], "how": d["how"]}
+            if sel["net"].get("force") == "pooled-ridge":  # validated on the held-out pass: the SVM's pooled model
+                from .force import PooledForce
+
+                fr = usable & (cls < n) & np.isfinite(force)
+                pf = PooledForce(fs.get("alpha") or 10.0).fit(X[fr], force[fr], ids[cls[fr]])
+                model.set_force({"coef": pf.coef_, "loc": [pf.loc_coef_[int(k)] + pf.intercept_ for k in ids]})
         net_s = time.perf_counter() - t0
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # torch.onnx's progress lines
             warnings.simplefilter("ignore")
@@ -197,7 +203,8 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
                             "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm},
                   selection=sel or None)
         row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s, "floor": floor,
-               "selection": _json_safe({k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector") if kk in v}
+               "selection": _json_safe({k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector", "force")
+                                            if kk in v}
                                         for k, v in sel.items()})}
         for k in ("net", "svm"):
             if k == "svm" and svm_metrics is not None:

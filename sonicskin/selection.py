@@ -408,6 +408,8 @@ def format_selection(sel: dict | None) -> list[str]:
         out.append(f"network touch decision: {n['detector']} ({n.get('how', '')})")
     if n.get("location_layer"):
         out.append(f"network location layer: {n['location_layer']} ({n.get('layer_how', '')})")
+    if n.get("force"):
+        out.append(f"network force: {'its own head' if n['force'] == 'head' else 'the pooled ridge'} ({n.get('force_how', '')})")
     return out
 
 

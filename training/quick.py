@@ -94,10 +94,10 @@ LAYERS = {"frozen kernel": {"kernel": True, "kernel_lr": 0.0}, "fine-tuned kerne
 
 
 def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, train: np.ndarray,
-                 val: np.ndarray, how: str, seed: int = 0, **kw) -> dict:
+                 val: np.ndarray, how: str, seed: int = 0, location_ids=None, alpha: float = 10.0, **kw) -> dict:
     """Fit each location layer of :data:`LAYERS` on ``train`` rows and score touch accuracy on ``val`` rows
     (a held-out pass or the validation session); the best (ties: the first, the frozen kernel) wins."""
-    scores = {}
+    scores, models = {}, {}
     touch = val & (cls < n_locations)
     for name, hp in LAYERS.items():
         try:
@@ -106,9 +106,14 @@ def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locatio
             continue
         logits, _ = pred(X[touch])
         scores[name] = float(np.mean(logits[:, :n_locations].argmax(1) == cls[touch]))
+        models[name] = pred.model
     best = max(scores, key=lambda k: scores[k]) if scores else "frozen kernel"
-    return {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
-            "layer_scores": scores, "hparams": LAYERS[best]}
+    out = {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
+           "layer_scores": scores, "hparams": LAYERS[best]}
+    if best in models and location_ids is not None:  # the chosen net's force head on the held-out presses
+        out.update(choose_net_force(models[best], X, cls, force, fit_rows=train, val_rows=val, location_ids=location_ids,
+                                    alpha=alpha, how=how))
+    return out
 
 
 def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: np.ndarray, val: np.ndarray,
@@ -139,3 +144,33 @@ def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: n
              "config": {"mode": "either", "bias": 0.0, "threshold": float(threshold), "reference": [float(v) for v in ref]}}
     model.set_detector(d["config"])
     return {"detector": d["detector"], "how": d["how"]}
+
+
+def choose_net_force(model, X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, fit_rows: np.ndarray, val_rows: np.ndarray,
+                     location_ids, alpha: float, how: str) -> dict:
+    """The network's force: its own head or the pooled ridge (fitted on ``fit_rows``), whichever has the lower RMSE
+    on the touch chirps of ``val_rows`` (presses neither was trained on), at the true location.  Sets the
+    model's force accordingly, the pooled model refitted on ``fit_rows``."""
+    import torch
+
+    from sonicskin.force import PooledForce
+
+    n_loc = len(location_ids)
+    ids = np.asarray(location_ids)
+    f = np.asarray(force, np.float64)
+    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
+    vr = val_rows & (cls < n_loc) & np.isfinite(f)
+    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
+        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
+    pooled = PooledForce(alpha).fit(X[fr], f[fr], ids[cls[fr]])
+    model.set_force(None)
+    with torch.no_grad():
+        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
+    head_f = np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None)
+    pool_f = np.clip(pooled.predict(None, ids[cls[vr]], inputs=X[vr]), 0, None)
+    rmse = {"head": float(np.sqrt(np.mean((head_f - f[vr]) ** 2))), "pooled-ridge": float(np.sqrt(np.mean((pool_f - f[vr]) ** 2)))}
+    best = min(rmse, key=rmse.get)
+    if best == "pooled-ridge":
+        model.set_force({"coef": pooled.coef_, "loc": [pooled.loc_coef_[int(k)] + pooled.intercept_ for k in ids]})
+    return {"force": best, "force_how": f"{how}: RMSE head {rmse['head']:.2f} N, pooled ridge {rmse['pooled-ridge']:.2f} N",
+            "force_rmse": rmse}
