@@ -157,19 +157,21 @@ class PooledRidge(RegressorMixin, BaseEstimator):
 
 
 # -- cross-validation ----------------------------------------------------------------------------------
-def make_cv(passes: np.ndarray, val: np.ndarray | None = None) -> tuple[PredefinedSplit | None, str]:
-    """The splitter and a description (or ``None`` and why not).  ``passes``: pass per row (>= 0),
-    ``val``: rows of the validation session(s), scored but never trained on."""
+def make_cv(passes: np.ndarray, val: np.ndarray | None = None, location: np.ndarray | None = None
+            ) -> tuple[PredefinedSplit | None, str]:
+    """The splitter and a description (or ``None`` and why not).  ``passes``: pass per row (>= 0), ``val``: rows
+    of the validation session(s), scored but never trained on; ``location``: label per row (the folds are as many
+    as the fewest passes any location has, so every location is trained in every fold)."""
     if val is not None and np.any(val):
         if np.all(val):
             return None, "every chirp is in the validation session"
         return PredefinedSplit(np.where(val, 0, -1)), "validation session"
-    per_loc = np.bincount(passes[passes >= 0]) if passes.size else np.zeros(0, int)
-    n_pass = int(passes.max()) + 1 if passes.size else 0
+    if location is None:
+        location = np.zeros(passes.shape, int)
+    n_pass = min((int(passes[location == k].max()) + 1 for k in np.unique(location)), default=0)
     if n_pass < 2:
         return None, "one press per location and no validation session"
     n_splits = min(n_pass, MAX_FOLDS)
-    del per_loc
     return PredefinedSplit(passes % n_splits), f"{n_splits}-fold cross-validation over passes"
 
 
@@ -237,7 +239,7 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
     n_feat = X.shape[1]
     gammas = list(dict.fromkeys(min(int(g), n_feat) for g in (gammas or gamma_grid(n_feat))))
     fallback_bins = min(n_bins_fallback or PAPER["n_bins"], n_feat)
-    cv, how = make_cv(passes if val is None else passes[~val], val)
+    cv, how = make_cv(passes, val, y)
     if val is not None and np.any(val):
         how = f"validation on {val_name or 'the validation session'}"
     base = {"grid": {"n_bins": gammas, "C": list(C_GRID), "kernel_width": list(WIDTH_GRID)}}
@@ -322,7 +324,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     press-grouped validation (RMSE on presses not trained on)."""
     Z = force_design(E, location, inputs)
     F = np.asarray(force, float)
-    cv, how = make_cv(passes if val is None else passes[~val], val)
+    cv, how = make_cv(passes, val, np.asarray(location))
     if cv is None:
         msg = f"force model not validated ({how}); keeping the paper's per-location Fourier-1"
         (log or (lambda m: warnings.warn(m, stacklevel=2)))(f"warning: {msg}")

@@ -31,18 +31,22 @@ def test_press_ids_are_runs_of_one_location_within_a_session():
 
 
 def test_folds_never_split_a_press_and_train_every_location():
-    rng = np.random.default_rng(0)
     loc = np.repeat(np.tile(np.arange(4), 3), 5)  # 3 passes over 4 locations, 5 chirps per press
     ses = np.repeat(["s0"], loc.size)
-    loc = np.where(rng.random(loc.size) < 0.0, -1, loc)
     press = press_ids(loc, ses)
     passes = press_passes(press, loc)
-    cv, how = make_cv(passes)
+    cv, how = make_cv(passes, location=loc)
     assert how == "3-fold cross-validation over passes"
     for tr, te in cv.split(np.zeros((loc.size, 1)), loc):
         assert not set(press[tr]) & set(press[te])
         assert set(loc[tr]) == set(range(4))
     assert make_cv(np.zeros(8, int))[0] is None
+    # one location pressed once: it could not be trained in the fold that holds its press -> no cross-validation
+    once = np.r_[passes, 0, 0]
+    assert make_cv(once, location=np.r_[loc, 4, 4]) == (None, "one press per location and no validation session")
+    # a validation session: train on the rest, score on it
+    cv, how = make_cv(passes, val=np.arange(loc.size) >= 40, location=loc)
+    assert how == "validation session" and cv.get_n_splits() == 1
 
 
 def _rig_data(n_informative: int, *, n_feat: int = 600, n_loc: int = 5, n_pass: int = 3, per_press: int = 8,
