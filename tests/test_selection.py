@@ -167,3 +167,14 @@ def test_network_touch_decision_follows_the_chosen_detector():
     d = choose_detector(logits, X, touch, ~touch, threshold=1.0, reference=np.zeros(6), how="test")
     assert d["rates"]["head"]["missed"] > 0.05
     assert d["rates"][d["detector"]]["missed"] <= d["rates"]["input-rms"]["missed"] + 0.005
+
+
+def test_threshold_sits_in_the_middle_of_a_clean_gap_and_prefers_fewer_misses():
+    from sonicskin.selection import select_threshold
+
+    d = select_threshold(np.array([2.0, 3.0, 5.0]), np.array([0.2, 0.5, 1.0]), how="val")
+    assert d["threshold"] == pytest.approx(1.5) and d["missed_touch_rate"] == d["false_touch_rate"] == 0.0
+    # overlap: J = 2/3 both at 0.65 (no miss, one false touch) and at 1.5 (one miss, none false): the lower wins
+    d = select_threshold(np.array([0.8, 2.0, 3.0]), np.array([0.2, 0.5, 1.0]), how="val")
+    assert d["threshold"] == pytest.approx(0.65) and d["missed_touch_rate"] == 0.0
+    assert d["false_touch_rate"] == pytest.approx(1 / 3)
