@@ -69,11 +69,11 @@ def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet:
     its own head, its head with a threshold recalibrated there (Youden's J), the SVM's input-RMS detector
     (``threshold``, ``reference``), or either of head and input-RMS.  Among the decisions that miss at most
     ``max_extra_miss`` more touches than the input-RMS detector, the lowest balanced error wins."""
-    from sonicskin.calibration import TouchDetector
+    from sonicskin.selection import select_threshold
 
     t = touch_logit(np.asarray(logits, np.float64))
     rms = np.sqrt(np.mean((np.asarray(X, np.float64) - reference) ** 2, axis=1))
-    bias = -TouchDetector().fit(t[touch][:, None], t[quiet][:, None]).threshold_
+    bias = -select_threshold(t[touch], t[quiet], how="")["threshold"]
     cands = {"head": t >= 0, "head-recalibrated": t + bias >= 0, "input-rms": rms >= threshold,
              "either": (t >= 0) | (rms >= threshold)}
     rates = {k: (float(np.mean(~d[touch])), float(np.mean(d[quiet]))) for k, d in cands.items()}
