@@ -196,6 +196,10 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
     title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
     print(format_comparison(res, title))
     meta = json.loads((Path(artifact) / "skin.json").read_text())
+    if a.artifact and meta.get("selection"):  # what the validation expected, next to what the test sessions gave
+        from ..selection import format_selection
+
+        print("\n".join(f"  expected at training: {line}" for line in format_selection(meta["selection"])))
     out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
     paths = save_comparison(res, out, Layout.from_dict(meta["layout"]), title)
     print("wrote " + ", ".join(str(p) for p in paths))
