@@ -494,12 +494,14 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
                                     val=val_mask[fr] if val_mask.any() else None, val_name=val_name, log=log)
     else:
         sel["force"] = {"status": "absent", "reason": "absent: no force sensor (or a constant force)", "model": "fourier1"}
-    # detection: the input-RMS statistic against each stream's own rest (the inputs are relative in relative mode)
+    # detection: the input-RMS statistic against the stream's rest (the inputs are relative in relative mode); the
+    # negatives are every no-touch chirp (at rest and while the robot moves), as the runtime's false touches count them
     q = quiet_mask(t)
+    no_touch = (t["location"] < 0) & val_mask
     if val_mask.any() and (q & val_mask).sum() >= 2 and (touch & val_mask).any():
         ref = X[q & val_mask].mean(axis=0)
         stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - ref]), n_locations)
-        sel["detection"] = select_threshold(stat[touch & val_mask], stat[q & val_mask], how=f"validation on {val_name}")
+        sel["detection"] = select_threshold(stat[touch & val_mask], stat[no_touch], how=f"validation on {val_name}")
     else:
         sel["detection"] = {"how": "training chirps (the input-RMS statistic does not depend on the fitted SVM)",
                             "threshold": None}

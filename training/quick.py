@@ -137,8 +137,8 @@ def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: n
         with torch.no_grad():
             logits = model(torch.from_numpy(np.ascontiguousarray(X[val], np.float32)))[0].numpy()
         names = ", ".join(sorted(set(t["session"][val])))
-        d = choose_detector(logits, X[val], touch[val], q[val], threshold=threshold, reference=ref,
-                            how=f"validation on {names}")
+        d = choose_detector(logits, X[val], touch[val], (t["location"] < 0)[val], threshold=threshold, reference=ref,
+                            how=f"validation on {names}")  # negatives: every no-touch chirp, moving ones too
     else:
         d = {"detector": "either", "how": "no validation session: the head combined with the input-RMS detector",
              "config": {"mode": "either", "bias": 0.0, "threshold": float(threshold), "reference": [float(v) for v in ref]}}
