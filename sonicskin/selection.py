@@ -266,7 +266,8 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
     pr = (press[rows] if val is None else np.where(val[rows], press[rows], -1))[tested]
     ok = (pred[tested] == ys[tested])
     per_press = np.array([ok[pr == p].mean() for p in np.unique(pr)])
-    est = {"accuracy": float(ok.mean()), "press_accuracy_mean": float(per_press.mean()), "ci95": _t_interval(per_press),
+    ci = [float(np.clip(v, 0.0, 1.0)) for v in _t_interval(per_press)]  # an accuracy stays in [0, 1]
+    est = {"accuracy": float(ok.mean()), "press_accuracy_mean": float(per_press.mean()), "ci95": ci,
            "n_presses": int(per_press.size), "n_chirps": int(ok.size)}
     # the paper's point of the grid, for comparison
     paper_i = [i for i, p in enumerate(search.cv_results_["params"])
