@@ -131,9 +131,13 @@ def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0, va
                                 kernel_gamma=sp.get("kernel_width", 1.0) / X.shape[1] if sp else "scale",
                                 force_model=fsel.get("model", "fourier1"), force_alpha=fsel.get("alpha") or 10.0)
     fit_s = time.perf_counter() - t0
-    det = sel.get("detection") or {}
-    if det.get("threshold") is not None and params["detection"]:
-        params["threshold"] = float(det["threshold"])  # chosen on the validation session
+    if params["detection"] and val_mask is not None and np.any(val_mask):  # what the threshold does on validation
+        from .selection import detection_on_validation
+
+        det = detection_on_validation(X, t, cls=p["cls"], val_mask=val_mask, n_locations=p["n_locations"],
+                                      threshold=params["threshold"])
+        if det is not None:
+            sel["detection"] = det
     rng = np.random.default_rng(0)
     Xc = X[train_mask]  # parity on training chirps: nothing of a test session reaches the artifact
     check = Xc[rng.choice(Xc.shape[0], size=min(512, Xc.shape[0]), replace=False)]

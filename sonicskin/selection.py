@@ -379,6 +379,23 @@ def _finite(*v) -> bool:
     return all(x is not None and np.isfinite(x) for x in v)
 
 
+def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.ndarray, n_locations: int,
+                            threshold: float) -> dict | None:
+    """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every
+    no-touch chirp a negative, the session's own rest the reference); ``None`` without rest and touches there."""
+    from .features import quiet_mask
+    from .svm_head import touch_statistic
+
+    q, touch = quiet_mask(t) & val_mask, (cls < n_locations) & val_mask
+    no_touch = (t["location"] < 0) & val_mask
+    if q.sum() < 2 or not touch.any():
+        return None
+    stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations)
+    names = ", ".join(sorted(set(t["session"][val_mask])))
+    return {"how": f"Youden's J on the training chirps; on {names}", "threshold": float(threshold),
+            "missed_touch_rate": float(np.mean(stat[touch] < threshold)), "false_touch_rate": float(np.mean(stat[no_touch] >= threshold))}
+
+
 # -- printing ---------------------------------------------------------------------------------------------
 def format_selection(sel: dict | None) -> list[str]:
     """The lines every training verb prints: what was chosen, on what, and what to expect."""
@@ -411,7 +428,7 @@ def format_selection(sel: dict | None) -> list[str]:
     elif f.get("reason"):
         out.append(f"force: {f['reason']}")
     d = sel.get("detection") or {}
-    if d.get("threshold") is not None:
+    if d.get("threshold") is not None and d.get("missed_touch_rate") is not None:
         out.append(f"detection threshold {d['threshold']:.3f} dB RMS ({d['how']}: missed {d['missed_touch_rate']:.1%}, "
                    f"false {d['false_touch_rate']:.1%})")
     n = sel.get("net") or {}
@@ -469,14 +486,12 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
     (when ``selection`` has no ``svm`` part yet, gamma fixed to the inputs' width), the force model and the
     detection threshold.  ``train_mask``/``val_mask``: rows of the training / validation sessions (usable
     chirps); nothing else of ``t`` is read."""
-    from .features import quiet_mask
     from .force import energy_db
-    from .svm_head import touch_statistic
 
     sel = dict(selection or {})
     val_mask = np.zeros(len(X), bool) if val_mask is None else np.asarray(val_mask, bool)
     seg = t["segment"] if "segment" in t.labels else None
-    press = press_ids(t["location"], t["session"], seg)
+    press = press_ids(np.where(train_mask | val_mask, t["location"], -1), t["session"], seg)  # other rows: no press
     touch = cls < n_locations
     passes = press_passes(np.where(train_mask, press, -1), t["location"])
     val_name = ", ".join(sorted(set(t["session"][val_mask]))) if val_mask.any() else ""
@@ -495,17 +510,10 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
                                     val=val_mask[fr] if val_mask.any() else None, val_name=val_name, log=log)
     else:
         sel["force"] = {"status": "absent", "reason": "absent: no force sensor (or a constant force)", "model": "fourier1"}
-    # detection: the input-RMS statistic against the stream's rest (the inputs are relative in relative mode); the
-    # negatives are every no-touch chirp (at rest and while the robot moves), as the runtime's false touches count them
-    q = quiet_mask(t)
-    no_touch = (t["location"] < 0) & val_mask
-    if val_mask.any() and (q & val_mask).sum() >= 2 and (touch & val_mask).any():
-        ref = X[q & val_mask].mean(axis=0)
-        stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - ref]), n_locations)
-        sel["detection"] = select_threshold(stat[touch & val_mask], stat[no_touch], how=f"validation on {val_name}")
-    else:
-        sel["detection"] = {"how": "training chirps (the input-RMS statistic does not depend on the fitted SVM)",
-                            "threshold": None}
+    # detection: the threshold stays the training chirps' (Youden's J, the paper's rule); a threshold chosen on one
+    # validation session missed 35 % of a moving random rig's test touches (design seed 1), so the validation
+    # session only estimates what the deployed threshold does (:func:`detection_on_validation`)
+    sel["detection"] = {"how": "Youden's J on the training chirps", "threshold": None}
     return sel
 
 
