@@ -64,9 +64,10 @@ class SkinNet(nn.Module):
 
     def set_detector(self, detector: dict | None) -> None:
         """Fix the network's touch decision: ``{"mode": "head"|"input-rms"|"either", "bias": b, "threshold": t,
-        "reference": [B numbers]}``.  ``head``: the trained touch logit plus ``bias``; ``input-rms``: the SVM's
-        detector (RMS dB change of the inputs from ``reference`` at least ``threshold``); ``either``: a touch
-        when either says so.  The location and force outputs are unchanged."""
+        "reference": [b <= B numbers]}`` (the detector reads the first b inputs).  ``head``: the trained touch
+        logit plus ``bias``; ``input-rms``: the SVM's detector (RMS dB change of the inputs from ``reference`` at
+        least ``threshold``); ``either``: a touch when either says so.  The location and force outputs are unchanged.
+        """
         if detector is not None and detector.get("mode") not in self.DETECTORS:
             raise ValueError(f"detector mode must be one of {self.DETECTORS}, got {detector.get('mode')!r}")
         self.detector = None if detector is None or (detector["mode"] == "head" and not detector.get("bias")) else dict(detector)
@@ -93,7 +94,8 @@ class SkinNet(nn.Module):
         t = self.touch_logit(logits) + float(d.get("bias", 0.0))
         if d["mode"] != "head":
             ref = torch.as_tensor(d["reference"], dtype=x.dtype)
-            rms = torch.sqrt(torch.mean((x - ref) ** 2, 1))
+            n = len(d["reference"])  # the first (best) inputs, as the SVM's detector reads them
+            rms = torch.sqrt(torch.mean((x[:, :n] - ref) ** 2, 1))
             r = 50.0 * (rms - float(d["threshold"]))  # steep: p(touch) crosses 0.5 at the threshold
             t = r if d["mode"] == "input-rms" else torch.maximum(t, r)
         place = torch.log_softmax(logits[:, :-1], 1)

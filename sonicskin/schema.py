@@ -31,7 +31,7 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
         reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
         threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
         detection         optional bool (default true); false: trained on touches only, no detector
-        detector          "input-rms"
+        detector          "input-rms";  detector_bins: optional int 1..B (the statistic reads the first ones; default all)
         energy_ref_db     finite, |e| <= 1e4
         train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
         force             model (a force curve model); curves: {} or one per layout id, each
@@ -75,7 +75,8 @@ _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwi
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity"}
 _MODEL_KEYS = {"net": _COMMON | {"hparams"},
-               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detection", "energy_ref_db", "train_false_touch_rate",
+               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detector_bins", "detection", "energy_ref_db",
+                                 "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
@@ -334,6 +335,8 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
     doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
               "the touch detector is from an older sonicskin; " + REEXPORT)
+    if "detector_bins" in m:  # the detector reads the first detector_bins inputs (default: all)
+        doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=n_in)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     for k in ("train_false_touch_rate", "train_missed_touch_rate"):
         if k in m and not (m[k] is None and not detection):

@@ -179,7 +179,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
             # No validation session here: the network's own touch head cannot be validated on data it did not
             # train on, so its decision is combined with the SVM's input-RMS detector ("either"), which never
             # misses more touches than the SVM.
-            ref = np.zeros(X.shape[1])
+            ref = np.zeros(params.get("detector_bins", X.shape[1]))
             logits, _ = predict(X[usable])
             d = choose_detector(logits, X[usable], (cls < n)[usable], quiet_mask(tr)[usable], threshold=params["threshold"],
                                 reference=ref, how="training chirps")

@@ -390,7 +390,10 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
     no_touch = (t["location"] < 0) & val_mask
     if q.sum() < 2 or not touch.any():
         return None
-    stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations)
+    from .svm_head import DETECTOR_BINS
+
+    stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations,
+                           min(DETECTOR_BINS, X.shape[1]))
     names = ", ".join(sorted(set(t["session"][val_mask])))
     return {"how": f"Youden's J on the training chirps; on {names}", "threshold": float(threshold),
             "missed_touch_rate": float(np.mean(stat[touch] < threshold)), "false_touch_rate": float(np.mean(stat[no_touch] >= threshold))}

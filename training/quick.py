@@ -72,7 +72,8 @@ def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet:
     from sonicskin.selection import select_threshold
 
     t = touch_logit(np.asarray(logits, np.float64))
-    rms = np.sqrt(np.mean((np.asarray(X, np.float64) - reference) ** 2, axis=1))
+    reference = np.asarray(reference, np.float64)
+    rms = np.sqrt(np.mean((np.asarray(X, np.float64)[:, :reference.size] - reference) ** 2, axis=1))  # the first inputs
     bias = -select_threshold(t[touch], t[quiet], how="")["threshold"]
     cands = {"head": t >= 0, "head-recalibrated": t + bias >= 0, "input-rms": rms >= threshold,
              "either": (t >= 0) | (rms >= threshold)}
@@ -126,9 +127,11 @@ def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: n
     import torch
 
     from sonicskin.features import quiet_mask
+    from sonicskin.svm_head import DETECTOR_BINS
 
     q = quiet_mask(t)
-    ref = np.zeros(X.shape[1]) if mode == "relative" else X[train & q].mean(axis=0)
+    n_det = min(DETECTOR_BINS, X.shape[1])  # the SVM's detector reads the first (best) inputs only
+    ref = np.zeros(n_det) if mode == "relative" else X[train & q][:, :n_det].mean(axis=0)
     touch = cls < n_locations
     model.set_detector(None)
     if threshold <= 0:  # trained on touches only: nothing to detect against
