@@ -67,8 +67,21 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     cls, usable = training_targets(t, layout, meta["min_force_n"])
     p = {"table": t, "X": X, "cls": cls, "force": t["force_n"].astype(np.float32), "n_locations": n_loc, "dataset": ds}
     with atomic_artifact(out) as tmp:  # an interrupted export keeps the old artifact
-        svm, svm_train_s = svm_entry(p, tmp, split.mask(t, "train") & usable)
+        svm, svm_train_s, sel = svm_entry(p, tmp, split.mask(t, "train") & usable, val_mask=split.mask(t, "val") & usable,
+                                          selection=meta.get("selection"), log=log)
         probe = svm.pop("_probe")
+        from sonicskin.training.quick import calibrate_net_detector
+
+        sel["net"] = {**(sel.get("net") or {}), **calibrate_net_detector(
+            lit.model, X, t, cls, train=split.mask(t, "train") & usable, val=split.mask(t, "val") & usable,
+            threshold=svm["threshold"] if svm["detection"] else 0.0, mode=spec.mode, n_locations=n_loc)}
+        if split.val:  # the network's force head against the pooled model on the validation session's presses
+            from sonicskin.training.quick import choose_net_force
+
+            sel["net"].update(choose_net_force(lit.model, X, cls, t["force_n"], fit_rows=split.mask(t, "train") & usable,
+                                               val_rows=split.mask(t, "val") & usable, location_ids=layout.ids,
+                                               alpha=(sel.get("force") or {}).get("alpha") or 10.0,
+                                               how=f"validation on {', '.join(split.val)}"))
         rng = np.random.default_rng(0)
         check = X[rng.choice(X.shape[0], size=min(512, X.shape[0]), replace=False)]
         net_parity = export_net(lit.model, X.shape[1], tmp / "net.onnx", check)
@@ -77,7 +90,11 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
         skin = skin_json(tmp, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
                          training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
                                    "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
-                         models={"net": net, "svm": svm}, probe_inputs=probe)
+                         models={"net": net, "svm": svm}, probe_inputs=probe, selection=sel)
+    from sonicskin.selection import format_selection
+
+    for line in format_selection(sel):
+        log(line)
     log(f"exported {out}: net.onnx ({(out / 'net.onnx').stat().st_size / 1e3:.0f} kB, parity max |d logits| "
         f"{net_parity['max_abs_logits']:.1e}), svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max "
         f"|d scores| {svm['parity']['max_abs_scores']:.1e})")

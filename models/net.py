@@ -54,6 +54,52 @@ class SkinNet(nn.Module):
         self.register_buffer("mean", torch.zeros(n_in))
         self.register_buffer("std", torch.ones(n_in))
         self.n_in, self.n_locations = n_in, n_locations
+        # The touch decision chosen on validation data (:meth:`set_detector`); None: the trained head's own.
+        # A plain attribute (a constant of the exported graph), kept in the checkpoint's metadata.
+        self.detector: dict | None = None
+        # A validated pooled force model replacing the head (:meth:`set_force`); None: the trained head.
+        self.force_linear: dict | None = None
+
+    DETECTORS = ("head", "input-rms", "either")
+
+    def set_detector(self, detector: dict | None) -> None:
+        """Fix the network's touch decision: ``{"mode": "head"|"input-rms"|"either", "bias": b, "threshold": t,
+        "reference": [b <= B numbers]}`` (the detector reads the first b inputs).  ``head``: the trained touch
+        logit plus ``bias``; ``input-rms``: the SVM's detector (RMS dB change of the inputs from ``reference`` at
+        least ``threshold``); ``either``: a touch when either says so.  The location and force outputs are unchanged.
+        """
+        if detector is not None and detector.get("mode") not in self.DETECTORS:
+            raise ValueError(f"detector mode must be one of {self.DETECTORS}, got {detector.get('mode')!r}")
+        self.detector = None if detector is None or (detector["mode"] == "head" and not detector.get("bias")) else dict(detector)
+
+    def set_force(self, pooled: dict | None) -> None:
+        """Replace the force head by a pooled linear model ``F_k = x . coef + loc[k]`` (the SVM's validated
+        :class:`sonicskin.force.PooledForce`, folded: ``loc[k] = loc_coef[k] + intercept``); ``None``: the head."""
+        if pooled is not None and (len(pooled["coef"]) != self.n_in or len(pooled["loc"]) != self.n_locations):
+            raise ValueError(f"pooled force needs {self.n_in} coefficients and {self.n_locations} location terms")
+        self.force_linear = None if pooled is None else {"coef": [float(v) for v in pooled["coef"]],
+                                                         "loc": [float(v) for v in pooled["loc"]]}
+
+    @staticmethod
+    def _logsig(x: torch.Tensor) -> torch.Tensor:
+        # log sigmoid, written out: the exported Log(Sigmoid) loses the tails in onnxruntime (-inf below x ~ -17)
+        return torch.clamp(x, max=0.0) - torch.log(1.0 + torch.exp(-x.abs()))
+
+    def touch_logit(self, logits: torch.Tensor) -> torch.Tensor:
+        """log p(touch) / p(no touch) of (n, N + 1) logits."""
+        return torch.logsumexp(logits[:, :-1], 1) - logits[:, -1]
+
+    def _detect(self, x: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
+        d = self.detector
+        t = self.touch_logit(logits) + float(d.get("bias", 0.0))
+        if d["mode"] != "head":
+            ref = torch.as_tensor(d["reference"], dtype=x.dtype)
+            n = len(d["reference"])  # the first (best) inputs, as the SVM's detector reads them
+            rms = torch.sqrt(torch.mean((x[:, :n] - ref) ** 2, 1))
+            r = 50.0 * (rms - float(d["threshold"]))  # steep: p(touch) crosses 0.5 at the threshold
+            t = r if d["mode"] == "input-rms" else torch.maximum(t, r)
+        place = torch.log_softmax(logits[:, :-1], 1)
+        return torch.cat([place + self._logsig(t)[:, None], self._logsig(-t)[:, None]], 1)
 
     def set_normalization(self, mean, std) -> None:
         self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
@@ -75,6 +121,15 @@ class SkinNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (n, n_in) features -> (logits (n, N + 1), force (n, N) in newtons)."""
+        logits, force = self._forward(x)
+        if self.force_linear is not None:
+            w = torch.as_tensor(self.force_linear["coef"], dtype=x.dtype)
+            force = (x @ w)[:, None] + torch.as_tensor(self.force_linear["loc"], dtype=x.dtype)[None, :]
+        if self.detector is not None:
+            logits = self._detect(x, logits)
+        return logits, force
+
+    def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         z = self.standardize(x)
         h = self.trunk(z)
         if self.kernel is None:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce", "r2_score"]
+__all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce", "PooledForce", "force_from_dict", "r2_score"]
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
@@ -179,7 +179,8 @@ class PerLocationForce:
                         for k in np.unique(location)}
         return self
 
-    def predict(self, E: np.ndarray, location: np.ndarray) -> np.ndarray:
+    def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:
+        """Force at energy ``E`` for each chirp's ``location`` (``inputs`` unused: the pooled model's)."""
         E, location = np.asarray(E, float), np.asarray(location)
         out = np.full(E.shape, np.nan)
         for k, curve in self.curves_.items():
@@ -192,7 +193,69 @@ class PerLocationForce:
         return {"model": self.model, "curves": {str(k): c.to_dict() for k, c in self.curves_.items()}}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PerLocationForce:
+    def from_dict(cls, d: dict[str, Any]) -> PerLocationForce | PooledForce:
+        if d.get("model") == PooledForce.NAME:
+            return PooledForce.from_dict(d)
         obj = cls(d["model"])
         obj.curves_ = {int(k): FittedCurve.from_dict(c) for k, c in d["curves"].items()}
         return obj
+
+
+class PooledForce:
+    """One linear model for every location: ``F = inputs . coef + loc_coef[location] + intercept``.
+
+    Fitted as ``StandardScaler -> Ridge(alpha)`` over the touch's model inputs (relative dB of the selected
+    bins) and the location one-hot, then folded into plain coefficients over the raw inputs, so it is
+    JSON in ``skin.json`` (no pickle, no extra ONNX graph).  Unlike one curve per location it shares
+    what one press teaches across locations (issue 15: it holds on presses not trained on).
+    """
+
+    NAME = "pooled-ridge"
+
+    def __init__(self, alpha: float = 10.0):
+        self.alpha = float(alpha)
+        self.model = self.NAME
+
+    def fit(self, inputs: np.ndarray, F: np.ndarray, location: np.ndarray) -> PooledForce:
+        from sklearn.linear_model import Ridge
+        from sklearn.preprocessing import StandardScaler
+
+        X, F, location = np.asarray(inputs, float), np.asarray(F, float), np.asarray(location)
+        if X.ndim != 2 or not (X.shape[0] == F.size == location.size):
+            raise ValueError(f"inputs (n, B), F and location must have n rows, got {X.shape}, {F.size}, {location.size}")
+        ids = np.unique(location)
+        D = np.column_stack([X, (location[:, None] == ids[None]).astype(float)])
+        sc = StandardScaler().fit(D)
+        r = Ridge(alpha=self.alpha).fit(sc.transform(D), F)
+        w = r.coef_ / sc.scale_
+        b = float(r.intercept_ - np.sum(w * sc.mean_))
+        B = X.shape[1]
+        self.coef_ = w[:B]
+        self.loc_coef_ = {int(k): float(v) for k, v in zip(ids, w[B:])}
+        self.intercept_ = b
+        return self
+
+    def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:
+        if inputs is None:
+            raise ValueError("the pooled force model reads the model inputs; pass inputs=")
+        location = np.asarray(location)
+        loc = np.array([self.loc_coef_.get(int(k), 0.0) for k in location.ravel()]).reshape(location.shape)
+        return np.asarray(inputs, float) @ self.coef_ + loc + self.intercept_
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.NAME, "curves": {}, "pooled": {"alpha": self.alpha, "coef": [float(c) for c in self.coef_],
+                "loc_coef": {str(k): v for k, v in self.loc_coef_.items()}, "intercept": self.intercept_}}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PooledForce:
+        p = d["pooled"]
+        obj = cls(p["alpha"])
+        obj.coef_ = np.asarray(p["coef"], float)
+        obj.loc_coef_ = {int(k): float(v) for k, v in p["loc_coef"].items()}
+        obj.intercept_ = float(p["intercept"])
+        return obj
+
+
+def force_from_dict(d: dict[str, Any]) -> PerLocationForce | PooledForce:
+    """The force model a ``skin.json`` force section describes (per-location curves or pooled)."""
+    return PerLocationForce.from_dict(d)

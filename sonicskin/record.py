@@ -133,17 +133,20 @@ class TimelineForce(ForceSource):
 
 
 def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration_s: float = 3.0, moving_s: float = 10.0,
-                  touch_s: float = 3.0, gap_s: float = 1.0) -> list[tuple[str, int, int, str]]:
-    """Prompts as ``(segment, location, n_chirps, text)``, in recording order."""
+                  touch_s: float = 3.0, gap_s: float = 1.0, passes: int = 1) -> list[tuple[str, int, int, str]]:
+    """Prompts as ``(segment, location, n_chirps, text)``, in recording order; ``passes`` times over the locations
+    (two or more let model selection validate on presses not trained on, see :mod:`sonicskin.selection`)."""
     out = [("calibration", -1, rig.seconds_to_chirps(calibration_s), f"hands off the robot for {calibration_s:g} s")]
     if moving_s > 0:
         out.append(("moving", -1, rig.seconds_to_chirps(moving_s),
                     f"start the robot moving; hands off for {moving_s:g} s"))
-    for loc in locations:
-        x, y = layout.coords(np.array([loc]))[0]  # where the marker is: x around / across, y along the link
-        out.append(("touch", loc, rig.seconds_to_chirps(touch_s),
-                    f"touch location {loc} (marker at x {x:.1f} cm, y {y:.1f} cm) with varying force for {touch_s:g} s"))
-        out.append(("gap", -1, rig.seconds_to_chirps(gap_s), "release"))
+    for k in range(int(passes)):
+        for loc in locations:
+            x, y = layout.coords(np.array([loc]))[0]  # where the marker is: x around / across, y along the link
+            what = f" (pass {k + 1} of {passes})" if passes > 1 else ""
+            out.append(("touch", loc, rig.seconds_to_chirps(touch_s),
+                        f"touch location {loc} (marker at x {x:.1f} cm, y {y:.1f} cm) with varying force for {touch_s:g} s{what}"))
+            out.append(("gap", -1, rig.seconds_to_chirps(gap_s), "release"))
     return out
 
 
@@ -402,7 +405,7 @@ def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, movin
 def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device="sim", resume: bool = False,
                    overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
-                   min_force_n: float = 0.5, prompt=None, log=None) -> dict:
+                   min_force_n: float = 0.5, passes: int = 1, expectations: bool = True, prompt=None, log=None) -> dict:
     """``sonicskin record``: one guided session into the dataset ``out`` (see the module docstring).
 
     With ``resume`` only the requested locations without touch chirps yet are prompted (a
@@ -420,6 +423,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     if bad:
         raise ValueError(f"--locations {' '.join(map(str, bad))}: not a marker of the {scenario.name} layout "
                          f"(ids {layout.ids[0]}..{layout.ids[-1]})")
+    if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
+        raise ValueError(f"--passes must be a whole number >= 1, got {passes!r}")
     for name, v in (("calibration-s", calibration_s), ("touch-s", touch_s)):
         if not v > 0:
             raise ValueError(f"--{name} must be > 0 s, got {v:g}")
@@ -451,7 +456,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
         log(f"{out}: resuming: recording {len(todo)} missing location(s): " + ", ".join(f"{v} ({why(v)})" for v in todo))
     session = next_session(out)
-    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s)
+    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s,
+                             passes=passes)
     if device == "sim":
         src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
     log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
@@ -477,5 +483,10 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
             log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
         raise
     log(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
+    if expectations:  # what a skin trained on everything recorded so far can be expected to do
+        from .selection import expectations as expect
+
+        for line in expect(out, min_force_n=min_force_n):
+            log(line)
     return {**res, "session": session, "locations": todo}
 

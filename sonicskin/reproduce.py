@@ -168,7 +168,8 @@ def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np
         def svm(x, score_ref):
             V = scores(x)
             V_cal = V - (ref0 if score_ref is None else score_ref)
-            return SimpleNamespace(touch=touch_statistic(V_cal, n) >= params["threshold"], cls=np.argmax(V[:, :n], axis=1),
+            return SimpleNamespace(touch=touch_statistic(V_cal, n, params.get("detector_bins"))
+                                   >= params["threshold"], cls=np.argmax(V[:, :n], axis=1),
                                    E=energy_db(x, np.arange(x.shape[1])) - params["energy_ref_db"])
 
         r = _replay(inp, test, svm, scores)

@@ -181,9 +181,9 @@ class SkinRuntime:
             idx = np.argmax(S, axis=1)
             V_cal = V - (self.reference_scores if score_reference is None else score_reference)
             S_final = V_cal[:, :K]
-            touch = touch_statistic(V_cal, K) >= self.m["threshold"]
+            touch = touch_statistic(V_cal, K, self.m.get("detector_bins")) >= self.m["threshold"]
             E = energy_db(inputs, np.arange(inputs.shape[1])) - self.m["energy_ref_db"]
-            f = self.force_model.predict(E, self.ids[idx])
+            f = self.force_model.predict(E, self.ids[idx], inputs=inputs)
             conf = np.clip(np.max(S, axis=1) / max(self.n_locations - 1, 1), 0, 1)  # share of pairwise votes won
             w = _softmax(4.0 * S)  # S counts votes: sharpen so the centroid stays among neighbours
             scores = S_final

@@ -21,6 +21,8 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
     training            provenance: data (string), split {train, val, test: [session names]}, other keys free
     digest              64 lowercase hex digits: sha256 of the canonical JSON of this document without
                         ``digest`` (which holds every model file's sha256): one digest binds the artifact
+    selection           optional: what model selection chose on the training/validation presses and its
+                        validation estimate (svm, force, detection, net; see sonicskin.selection), reported only
     models              {"net": ..., "svm": ...}, at least one:
       file              a plain file name inside the artifact folder (no directories, no symlink out of it),
                         at most 256 MB
@@ -34,11 +36,13 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
         reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
         threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
         detection         optional bool (default true); false: trained on touches only, no detector
-        detector          "input-rms"
+        detector          "input-rms";  detector_bins: optional int 1..B (the statistic reads the first ones; default all)
         energy_ref_db     finite, |e| <= 1e4
         train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
         force             model (a force curve model); curves: {} or one per layout id, each
-                          {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi}
+                          {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi};
+                          or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
+                          per layout id, intercept}
 
 and the ONNX graphs (:func:`check_session`): one float input ``(batch, B)``; the net outputs logits
 ``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
@@ -82,13 +86,15 @@ MAX_THRESHOLD_DB = 1e3
 MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned but stay finite
 
 _TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "calibration", "training",
-        "models", "digest"}
+        "models", "digest", "selection"}
+_SELECTION_KEYS = {"svm", "force", "detection", "net"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
 _UNBOUND = {"file", "sha256", "parity", "probe"}  # entry keys written after the model file (not in its binding)
 _MODEL_KEYS = {"net": _COMMON | {"hparams"},
-               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detection", "energy_ref_db", "train_false_touch_rate",
+               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detector_bins", "detection", "energy_ref_db",
+                                 "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
@@ -254,10 +260,30 @@ def _check_features(doc: _Doc, feats: Any, n_band: int, rig=None):
     return FeatureSpec.from_dict(feats)
 
 
-def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int]) -> None:
-    from .force import MODELS
+def _check_pooled(doc: _Doc, pooled: Any, field: str, layout_ids: list[int], n_in: int) -> None:
+    pooled = doc.obj(pooled, field)
+    doc.keys(pooled, {"alpha", "coef", "loc_coef", "intercept"}, field)
+    doc.num(doc.get(pooled, "alpha", field), f"{field}.alpha", lo=0, hi=1e12)
+    for i, v in enumerate(doc.list(doc.get(pooled, "coef", field), f"{field}.coef", n=n_in)):
+        doc.num(v, f"{field}.coef[{i}]", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+    lc = doc.obj(doc.get(pooled, "loc_coef", field), f"{field}.loc_coef")
+    if set(lc) != {str(i) for i in layout_ids}:
+        doc.fail(f"{field}.loc_coef", "must have one value per layout id")
+    for k, v in lc.items():
+        doc.num(v, f"{field}.loc_coef.{k}", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+    doc.num(doc.get(pooled, "intercept", field), f"{field}.intercept", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+
+
+def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int], n_in: int | None = None) -> None:
+    from .force import MODELS, PooledForce
 
     force = doc.obj(force, field)
+    if force.get("model") == PooledForce.NAME:  # one linear model over the inputs and the location
+        doc.keys(force, {"model", "curves", "pooled"}, field)
+        if doc.obj(doc.get(force, "curves", field), f"{field}.curves"):
+            doc.fail(f"{field}.curves", "must be empty for the pooled force model")
+        _check_pooled(doc, doc.get(force, "pooled", field), f"{field}.pooled", layout_ids, n_in)
+        return
     doc.keys(force, {"model", "curves"}, field)
     model = doc.choice(doc.get(force, "model", field), f"{field}.model", MODELS)
     n_coef = MODELS[model].design([0.0], 1.0).shape[1]
@@ -337,11 +363,13 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
     doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
               "the touch detector is from an older sonicskin; " + REEXPORT)
+    if "detector_bins" in m:  # the detector reads the first detector_bins inputs (default: all)
+        doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=n_in)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     for k in ("train_false_touch_rate", "train_missed_touch_rate"):
         if k in m and not (m[k] is None and not detection):
             doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
-    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids)
+    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids, n_in)
 
 
 def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int | None]) -> None:
@@ -400,6 +428,8 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
             if k in cal and cal[k] != getattr(spec, k):
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
     _check_training(doc, doc.get(meta, "training", ""))
+    if "selection" in meta:  # what model selection chose and its validation estimate (sonicskin.selection); reported only
+        doc.keys(doc.obj(meta["selection"], "selection"), _SELECTION_KEYS, "selection")
     models = doc.obj(doc.get(meta, "models", ""), "models")
     if not models:
         doc.fail("models", "is empty")

@@ -92,20 +92,57 @@ def _net_model(predict):
     return model.eval()
 
 
-def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, train_stride: int = 1) -> list[dict]:
-    """Both models on one simulated dataset: SVM once, the network per training seed.  ``train_stride`` k
-    trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
-    from sonicskin.export.onnx import export_net
-    from sonicskin.training.quick import fit_net
+def _floors(ds: Dataset, tr, te, split) -> dict:
+    """The plain scikit-learn floors on the same split: SVC (scaler + default RBF SVC) on every usable bin for
+    location, and SVR (scaler + default RBF SVR) on the touch's relative usable bins for force, chirp by chirp
+    (test inputs relative to each test session's labelled rest: the floor gets that much help)."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC, SVR
 
-    from .artifact import export_svm, skin_json
+    from .features import touch_mask
+
+    allowed = np.flatnonzero(ds.rig.allowed_mask)
+    ttr, tte = touch_mask(tr), touch_mask(te)
+    out = {"accuracy": float(np.mean(make_pipeline(StandardScaler(), SVC()).fit(tr.X[ttr][:, allowed], tr["location"][ttr])
+                                     .predict(te.X[tte][:, allowed]) == te["location"][tte]))}
+    f_tr, f_te = tr["force_n"], te["force_n"]
+    if np.isfinite(f_tr[ttr]).any() and np.ptp(f_tr[ttr][np.isfinite(f_tr[ttr])]) > 0:
+        spec = FeatureSpec(tuple(int(b) for b in allowed), "relative")
+        try:
+            Rtr, Rte = spec.transform(tr, ds.rig.chirps_per_s), spec.transform(te, ds.rig.chirps_per_s)
+        except ValueError:
+            Rtr, Rte = tr.X[:, allowed], te.X[:, allowed]
+        a, b = ttr & np.isfinite(f_tr), tte & np.isfinite(f_te)
+        svr = make_pipeline(StandardScaler(), SVR()).fit(Rtr[a], f_tr[a])
+        out["force_rmse_n"] = float(np.sqrt(np.mean((np.clip(svr.predict(Rte[b]), 0, None) - f_te[b]) ** 2)))
+        out["force_rmse_constant_n"] = float(np.sqrt(np.mean((np.mean(f_tr[a]) - f_te[b]) ** 2)))
+    return out
+
+
+def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
+              train_stride: int = 1) -> list[dict]:
+    """Both models on one simulated dataset: SVM once, the network per training seed.  ``select``: gamma, C, kernel
+    width, force model and detection, and the network's location layer and touch decision, are chosen by
+    validation on the training session's presses (:mod:`sonicskin.selection`); otherwise the paper's values.
+    ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
+    from sonicskin.export.onnx import export_net
+    from sonicskin.training.quick import choose_detector, choose_layer, fit_net
+
+    from .artifact import _json_safe, export_svm, skin_json
+    from .selection import press_ids, press_passes, select_gamma_on_table, select_on_inputs
     from .svm_head import fit_svm_head
 
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
     tr = t.select(split.mask(t, "train"))
     te = t.select(split.mask(t, "test"))
-    bins = select_bins(tr, ds.rig, 300)
+    quiet_log = lambda m: None  # noqa: E731
+    sel: dict = {}
+    if select:  # on the training sessions only: tr holds nothing of the test sessions
+        sel["svm"] = select_gamma_on_table(tr, ds.rig, train_sessions=list(split.train), log=quiet_log)
+    gamma = sel["svm"]["params"]["n_bins"] if sel else 300
+    bins = select_bins(tr, ds.rig, gamma)
     spec = FeatureSpec(tuple(int(b) for b in bins), "relative")
     # Training inputs: the training sessions' own labelled hands-off reference (the protocol's calibration).
     X = spec.transform(tr, ds.rig.chirps_per_s)
@@ -114,18 +151,55 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         usable = usable & (np.arange(len(usable)) % int(train_stride) == 0)
     force = tr["force_n"].astype(np.float32)
     n, ids = len(ds.layout), np.asarray(ds.layout.ids)
+    if select:
+        sel = select_on_inputs(X, tr, cls=cls, train_mask=usable, val_mask=None, n_locations=n, location_ids=ids,
+                               selection=sel, log=quiet_log)
+    sp, fs = (sel.get("svm") or {}).get("params", {}), sel.get("force") or {}
     work.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    pipe, params = fit_svm_head(X[usable], cls[usable], force[usable], quiet_mask(tr)[usable], n_locations=n, location_ids=ids)
+    pipe, params = fit_svm_head(X[usable], cls[usable], force[usable], quiet_mask(tr)[usable], n_locations=n, location_ids=ids,
+                                C=sp.get("C", 10.0), kernel_gamma=sp["kernel_width"] / X.shape[1] if sp else "scale",
+                                force_model=fs.get("model", "fourier1"), force_alpha=fs.get("alpha") or 10.0)
     svm_s = time.perf_counter() - t0
     check = X[np.random.default_rng(0).choice(len(X), size=min(256, len(X)), replace=False)]
     svm = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": len(bins), "n_locations": n,
            "parity": export_svm(pipe, n, work / "svm.onnx", check), **params}
+    kw = {} if epochs is None else {"epochs": epochs}
+    if select:
+        # The network's location layer on a held-out pass (train on the other passes and every no-touch chirp).
+        press = press_ids(tr["location"], tr["session"], tr["segment"])
+        passes = press_passes(press, tr["location"])
+        last = passes == passes.max()
+        if passes.max() >= 1:
+            sel["net"] = choose_layer(X, cls, force, n_locations=n, train=usable & ~last, val=usable & last,
+                                      how="held-out last pass", location_ids=ids, alpha=fs.get("alpha") or 10.0, **kw)
+        else:
+            sel["net"] = {"location_layer": "frozen kernel", "layer_how": "one press per location: not validated",
+                          "hparams": {}}
+    floor = _floors(ds, tr, te, split)
     out, svm_metrics = [], None
     for seed in train_seeds:
         t0 = time.perf_counter()
-        kw = {} if epochs is None else {"epochs": epochs}
-        model = _net_model(fit_net(X[usable], cls[usable], force[usable], n_locations=n, seed=int(seed), **kw))
+        predict = fit_net(X[usable], cls[usable], force[usable], n_locations=n, seed=int(seed),
+                          **{**kw, **((sel.get("net") or {}).get("hparams") or {})})
+        model = _net_model(predict)
+        if select:
+            # No validation session here: the network's own touch head cannot be validated on data it did not
+            # train on, so its decision is combined with the SVM's input-RMS detector ("either"), which never
+            # misses more touches than the SVM.
+            ref = np.zeros(params.get("detector_bins", X.shape[1]))
+            logits, _ = predict(X[usable])
+            d = choose_detector(logits, X[usable], (cls < n)[usable], quiet_mask(tr)[usable], threshold=params["threshold"],
+                                reference=ref, how="training chirps")
+            d["config"]["mode"], d["detector"] = "either", "either (head or input-RMS; no validation session)"
+            model.set_detector(d["config"])
+            sel["net"] = {**sel.get("net", {}), "detector": d["detector"], "how": d["how"]}
+            if sel["net"].get("force") == "pooled-ridge":  # validated on the held-out pass: the SVM's pooled model
+                from .force import PooledForce
+
+                fr = usable & (cls < n) & np.isfinite(force)
+                pf = PooledForce(fs.get("alpha") or 10.0).fit(X[fr], force[fr], ids[cls[fr]])
+                model.set_force({"coef": pf.coef_, "loc": [pf.loc_coef_[int(k)] + pf.intercept_ for k in ids]})
         net_s = time.perf_counter() - t0
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # torch.onnx's progress lines
             warnings.simplefilter("ignore")
@@ -134,8 +208,12 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         net = {"file": "net.onnx", "kind": "skinnet", "n_in": len(bins), "n_locations": n, "parity": parity}
         skin_json(work, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=spec, min_force_n=0.5,
                   training={"data": str(ds.root), "split": split.to_dict(), "svm_train_time_s": svm_s,
-                            "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm})
-        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s, "split": split.to_dict()}
+                            "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm},
+                  selection=sel or None)
+        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s, "floor": floor, "split": split.to_dict(),
+               "selection": _json_safe({k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector", "force")
+                                            if kk in v}
+                                        for k, v in sel.items()})}
         for k in ("net", "svm"):
             if k == "svm" and svm_metrics is not None:
                 row[k] = svm_metrics
@@ -144,7 +222,10 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
             row[k] = {m: float(f(stream_metrics(p, te, ds.layout))) for m, (f, _, _) in METRICS.items()}
         svm_metrics = row["svm"]
         log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net "
-            f"{row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} (net trained in {net_s:.0f} s)")
+            f"{row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} floor {floor['accuracy']:.1%}; force net "
+            f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR floor {floor.get('force_rmse_n', np.nan):.2f} N; "
+            f"missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} (net trained in {net_s:.0f} s; "
+            f"{row['selection']})")
         out.append(row)
     return out
 
@@ -174,7 +255,8 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
 
 
 def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
-                  out: str | Path = "reports/compare-seeds", epochs: int | None = None, rig: Rig | None = None, log=print) -> dict:
+                  out: str | Path = "reports/compare-seeds", epochs: int | None = None, select: bool = True,
+                  rig: Rig | None = None, log=print) -> dict:
     """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries."""
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
@@ -191,12 +273,13 @@ def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 
         for s in sim_seeds:
             # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
             done = out / "runs" / f"{name}-seed{s}.json"
-            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "rig": rig.to_dict()}
+            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "select": bool(select), "rig": rig.to_dict()}
             if done.is_file() and json.loads(done.read_text())["key"] == key:
                 runs[int(s)] = json.loads(done.read_text())["rows"]
                 continue
             ds = scenario_dataset(name, s, cache, rig=rig, log=log)
-            runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log)
+            runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log,
+                                     select=select)
             done.parent.mkdir(parents=True, exist_ok=True)
             done.write_text(json.dumps({"key": key, "rows": runs[int(s)]}))
         res["scenarios"][name] = {"runs": {str(k): v for k, v in runs.items()}, "summary": summarize(runs),

@@ -219,12 +219,14 @@ def test_every_option_has_help_with_its_default():
     assert not missing, missing
 
 
-def test_default_gamma_is_clamped_with_a_warning_but_an_explicit_one_is_not(capsys, tmp_path, cli_files):
-    code, _, err = run(capsys, ["fit-svm", "--data", cli_files["data"], "--out", tmp_path / "a", "--mode", "absolute"])
+def test_default_gamma_is_chosen_within_the_usable_bins_but_an_explicit_one_is_checked(capsys, tmp_path, cli_files):
+    # three sessions of one press per marker: gamma is chosen by cross-validation over the passes (issue 15)
+    code, out, err = run(capsys, ["fit-svm", "--data", cli_files["data"], "--out", tmp_path / "a", "--mode", "absolute"])
     assert code == 0, err
-    assert "warning: the dataset's band has 250 usable bins; using gamma = 250" in err
     skin = json.loads((tmp_path / "a" / "skin.json").read_text())
-    assert len(skin["features"]["bins"]) == 250
+    chosen = skin["selection"]["svm"]["params"]["n_bins"]
+    assert skin["selection"]["svm"]["status"] == "validated" and 100 <= chosen <= 250
+    assert len(skin["features"]["bins"]) == chosen and f"chose gamma {chosen}," in out
     line = assert_one_line_error(*run(capsys, ["fit-svm", "--data", cli_files["data"], "--out", tmp_path / "b",
                                                "--n-bins", "300"])[::2], "fit-svm")
     assert "--n-bins 300 is more than the 250 usable bins" in line

@@ -69,14 +69,18 @@ def test_touch_only_fit_svm_and_compare(lab_c, tmp_path, monkeypatch, capsys):
     art = tmp_path / "art"
     assert _cli("fit-svm", "--data", lab_c, "--out", art) == 0
     skin = json.loads((art / "skin.json").read_text())
-    assert skin["features"]["mode"] == "absolute" and len(skin["features"]["bins"]) == 165
+    # gamma chosen by cross-validation over the three folds' presses (issue 15), at most the table's 165 bins
+    chosen = skin["selection"]["svm"]["params"]["n_bins"]
+    assert skin["selection"]["svm"]["status"] == "validated" and 100 <= chosen <= 165
+    assert skin["features"]["mode"] == "absolute" and len(skin["features"]["bins"]) == chosen
     assert skin["models"]["svm"]["detection"] is False and skin["models"]["svm"]["force"]["curves"] == {}
     monkeypatch.chdir(tmp_path)
-    # The config's gamma (300) is clamped to the table's 165 bins for the network too.
+    # The network's gamma is chosen the same way (validation session s001 here), within the table's 165 bins.
     assert _cli("compare", "--data", lab_c, "--runs", tmp_path / "runs", "--out", tmp_path / "cmp",
                 "--trainer.max_epochs", "2", "--trainer.enable_progress_bar", "false") == 0
     res = json.loads((tmp_path / "cmp/compare.json").read_text())
-    assert len(json.loads((tmp_path / "runs/compare-lab-c/artifact/skin.json").read_text())["features"]["bins"]) == 165
+    cmp_skin = json.loads((tmp_path / "runs/compare-lab-c/artifact/skin.json").read_text())
+    assert len(cmp_skin["features"]["bins"]) == cmp_skin["selection"]["svm"]["params"]["n_bins"] <= 165
     for m in ("net", "svm"):
         r = res["models"][m]
         assert r["localization"]["accuracy"] > 0.5, m

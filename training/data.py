@@ -22,8 +22,10 @@ class SkinDataModule(L.LightningDataModule):
     ----------
     data : str
         Dataset folder (``sonicskin simulate`` / ``record`` / ``import-*``); ``sonicskin train --data`` sets it.
-    n_bins : int
-        OSPA's gamma: bins kept, selected on the training split only (clamped to the rig's band).
+    n_bins : int, optional
+        OSPA's gamma: bins kept, selected on the training split only (clamped to the rig's band).  ``None``: chosen
+        (with the SVM's C and kernel width) by validation on the validation session or the training session's
+        presses (:mod:`sonicskin.selection`); the paper's 300 when neither can validate.
     mode : str
         Model inputs: ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
     train_sessions : list of str, optional
@@ -41,7 +43,7 @@ class SkinDataModule(L.LightningDataModule):
         Std of Gaussian noise added to training features (augmentation), in dB; passed to ``model.noise_db``.
     """
 
-    def __init__(self, data: str, n_bins: int = 300, mode: str = "relative", train_sessions: list[str] | None = None,
+    def __init__(self, data: str, n_bins: int | None = None, mode: str = "relative", train_sessions: list[str] | None = None,
                  val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
                  min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3):
         super().__init__()
@@ -53,9 +55,27 @@ class SkinDataModule(L.LightningDataModule):
         from sonicskin.features import usable_bins
         from sonicskin.rig import Rig
 
+        self.selection: dict | None = None
+        if n_bins is None:  # chosen by validation on the training/validation sessions (never the test sessions)
+            n_bins = self._select(data)
         # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning).
         self._n_in = usable_bins(Rig.from_dict(meta["rig"]), n_bins)
         self.prepared: dict | None = None
+
+    def _select(self, data: str) -> int:
+        from sonicskin.dataset import Dataset
+        from sonicskin.features import Split, load_features_cached
+        from sonicskin.selection import select_gamma_on_table
+
+        h = self.hparams
+        ds = Dataset(data)
+        t = load_features_cached(ds, progress=False)
+        split = Split.make(t, train_sessions=h.train_sessions, val_sessions=h.val_sessions, test_subjects=h.test_subjects,
+                           allow_no_test=True)
+        sel = select_gamma_on_table(t, ds.rig, train_sessions=list(split.train), val_sessions=list(split.val), mode=h.mode,
+                                    min_force_n=h.min_force_n, log=lambda m: print(f"sonicskin: {m}"))
+        self.selection = {"svm": sel}
+        return int(sel["params"]["n_bins"])
 
     @property
     def n_locations(self) -> int:
@@ -87,6 +107,8 @@ class SkinDataModule(L.LightningDataModule):
         ds = p["dataset"]
         self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
                      "spec": p["spec"].to_dict(), "split": p["split"].to_dict(), "min_force_n": h.min_force_n}
+        if self.selection:
+            self.meta["selection"] = self.selection
 
     def _loader(self, part: str, shuffle: bool) -> DataLoader:
         p = self.prepared

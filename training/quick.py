@@ -57,3 +57,126 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
 
     predict.model = model
     return predict
+
+
+def touch_logit(logits: np.ndarray) -> np.ndarray:
+    """log p(touch) / p(no touch) of (n, N + 1) logits."""
+    from scipy.special import logsumexp
+
+    return logsumexp(logits[:, :-1], axis=1) - logits[:, -1]
+
+
+def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
+                    reference: np.ndarray, how: str, max_extra_miss: float = 0.005) -> dict:
+    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks):
+    its own head, its head with a threshold recalibrated there (Youden's J), the SVM's input-RMS detector
+    (``threshold``, ``reference``), or either of head and input-RMS.  Among the decisions that miss at most
+    ``max_extra_miss`` more touches than the input-RMS detector, the lowest balanced error wins."""
+    from sonicskin.selection import select_threshold
+
+    t = touch_logit(np.asarray(logits, np.float64))
+    reference = np.asarray(reference, np.float64)
+    rms = np.sqrt(np.mean((np.asarray(X, np.float64)[:, :reference.size] - reference) ** 2, axis=1))  # the first inputs
+    bias = -select_threshold(t[touch], t[quiet], how="")["threshold"]
+    cands = {"head": t >= 0, "head-recalibrated": t + bias >= 0, "input-rms": rms >= threshold,
+             "either": (t >= 0) | (rms >= threshold)}
+    rates = {k: (float(np.mean(~d[touch])), float(np.mean(d[quiet]))) for k, d in cands.items()}
+    limit = rates["input-rms"][0] + max_extra_miss
+    ok = [k for k in cands if rates[k][0] <= limit]
+    best = min(ok, key=lambda k: (rates[k][0] + rates[k][1]) / 2)
+    mode = {"head-recalibrated": "head"}.get(best, best)
+    det = {"mode": mode, "bias": float(bias) if best == "head-recalibrated" else 0.0, "threshold": float(threshold),
+           "reference": [float(v) for v in np.asarray(reference).ravel()]}
+    return {"detector": best, "how": f"{how}: missed {rates[best][0]:.1%}, false {rates[best][1]:.1%}; "
+            f"input-RMS alone missed {rates['input-rms'][0]:.1%}, the head alone {rates['head'][0]:.1%}",
+            "rates": {k: {"missed": v[0], "false": v[1]} for k, v in rates.items()}, "config": det}
+
+
+#: the network's location layer candidates (issue 15.7): frozen SVM kernel, fine-tuned kernel, plain MLP.
+LAYERS = {"frozen kernel": {"kernel": True, "kernel_lr": 0.0}, "fine-tuned kernel": {"kernel": True, "kernel_lr": 1e-3},
+          "MLP": {"kernel": False}}
+
+
+def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, train: np.ndarray,
+                 val: np.ndarray, how: str, seed: int = 0, location_ids=None, alpha: float = 10.0, **kw) -> dict:
+    """Fit each location layer of :data:`LAYERS` on ``train`` rows and score touch accuracy on ``val`` rows
+    (a held-out pass or the validation session); the best (ties: the first, the frozen kernel) wins."""
+    scores, models = {}, {}
+    touch = val & (cls < n_locations)
+    for name, hp in LAYERS.items():
+        try:
+            pred = fit_net(X[train], cls[train], force[train], n_locations=n_locations, seed=seed, **{**kw, **hp})
+        except ValueError:  # e.g. a location missing from the training rows
+            continue
+        logits, _ = pred(X[touch])
+        scores[name] = float(np.mean(logits[:, :n_locations].argmax(1) == cls[touch]))
+        models[name] = pred.model
+    best = max(scores, key=lambda k: scores[k]) if scores else "frozen kernel"
+    out = {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
+           "layer_scores": scores, "hparams": LAYERS[best]}
+    if best in models and location_ids is not None:  # the chosen net's force head on the held-out presses
+        out.update(choose_net_force(models[best], X, cls, force, fit_rows=train, val_rows=val, location_ids=location_ids,
+                                    alpha=alpha, how=how))
+    return out
+
+
+def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: np.ndarray, val: np.ndarray,
+                           threshold: float, mode: str, n_locations: int) -> dict:
+    """Choose and set the exported network's touch decision (:meth:`models.SkinNet.set_detector`).
+
+    With a validation session holding hands-off and touch chirps: :func:`choose_detector` there.  Without
+    one the network's own head cannot be judged on data it did not train on, so it is combined with the
+    SVM's input-RMS detector (``either``: never more misses than the SVM's detector)."""
+    import torch
+
+    from sonicskin.features import quiet_mask
+    from sonicskin.svm_head import DETECTOR_BINS
+
+    q = quiet_mask(t)
+    n_det = min(DETECTOR_BINS, X.shape[1])  # the SVM's detector reads the first (best) inputs only
+    ref = np.zeros(n_det) if mode == "relative" else X[train & q][:, :n_det].mean(axis=0)
+    touch = cls < n_locations
+    model.set_detector(None)
+    if threshold <= 0:  # trained on touches only: nothing to detect against
+        return {"detector": "head", "how": "no hands-off chirps: not calibrated"}
+    if (val & q).sum() >= 2 and (val & touch).any():
+        with torch.no_grad():
+            logits = model(torch.from_numpy(np.ascontiguousarray(X[val], np.float32)))[0].numpy()
+        names = ", ".join(sorted(set(t["session"][val])))
+        d = choose_detector(logits, X[val], touch[val], (t["location"] < 0)[val], threshold=threshold, reference=ref,
+                            how=f"validation on {names}")  # negatives: every no-touch chirp, moving ones too
+    else:
+        d = {"detector": "either", "how": "no validation session: the head combined with the input-RMS detector",
+             "config": {"mode": "either", "bias": 0.0, "threshold": float(threshold), "reference": [float(v) for v in ref]}}
+    model.set_detector(d["config"])
+    return {"detector": d["detector"], "how": d["how"]}
+
+
+def choose_net_force(model, X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, fit_rows: np.ndarray, val_rows: np.ndarray,
+                     location_ids, alpha: float, how: str) -> dict:
+    """The network's force: its own head or the pooled ridge (fitted on ``fit_rows``), whichever has the lower RMSE
+    on the touch chirps of ``val_rows`` (presses neither was trained on), at the true location.  Sets the
+    model's force accordingly, the pooled model refitted on ``fit_rows``."""
+    import torch
+
+    from sonicskin.force import PooledForce
+
+    n_loc = len(location_ids)
+    ids = np.asarray(location_ids)
+    f = np.asarray(force, np.float64)
+    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
+    vr = val_rows & (cls < n_loc) & np.isfinite(f)
+    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
+        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
+    pooled = PooledForce(alpha).fit(X[fr], f[fr], ids[cls[fr]])
+    model.set_force(None)
+    with torch.no_grad():
+        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
+    head_f = np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None)
+    pool_f = np.clip(pooled.predict(None, ids[cls[vr]], inputs=X[vr]), 0, None)
+    rmse = {"head": float(np.sqrt(np.mean((head_f - f[vr]) ** 2))), "pooled-ridge": float(np.sqrt(np.mean((pool_f - f[vr]) ** 2)))}
+    best = min(rmse, key=rmse.get)
+    if best == "pooled-ridge":
+        model.set_force({"coef": pooled.coef_, "loc": [pooled.loc_coef_[int(k)] + pooled.intercept_ for k in ids]})
+    return {"force": best, "force_how": f"{how}: RMSE head {rmse['head']:.2f} N, pooled ridge {rmse['pooled-ridge']:.2f} N",
+            "force_rmse": rmse}

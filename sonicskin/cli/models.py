@@ -77,7 +77,7 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     if a.val or a.test or a.test_subjects:
         raise UsageError("fit-svm trains the deployment model on every session it is given, without validation or "
                          "test split; choose them with --train (test it with `sonicskin compare --artifact`)")
-    n_bins = resolve_n_bins(a, a.data)
+    n_bins = resolve_n_bins(a, a.data) if a.n_bins is not None else None  # None: chosen by validation
     with removed_on_failure(a.out):
         build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train)
     return 0
@@ -89,7 +89,7 @@ def _train_args(a: argparse.Namespace, data: str | None, extra: list[str]) -> li
         from ..dataset import Dataset
 
         Dataset(data)  # refused here, in one line, before Lightning starts
-    n_bins = resolve_n_bins(a, data) if data else a.n_bins
+    n_bins = resolve_n_bins(a, data) if data and a.n_bins is not None else a.n_bins  # None: chosen by validation
     if data and a.test:
         a.train, a.val = _sessions_for_test(a, data)
     return ["--config", train_config(a.config)] + (["--data.data", data] if data else []) + lightning_overrides(a, n_bins) + extra
@@ -108,7 +108,7 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
     return 0
 
 
-def _report_training(cli) -> None:
+def _report_training(cli, *, selection: bool = True) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         prep = getattr(cli.datamodule, "prepared", None)  # no finite force anywhere: RMSE 0 would be a made-up number
@@ -120,6 +120,10 @@ def _report_training(cli) -> None:
             metrics += (f" (validation {', '.join(split.val)})" if split.val else
                         f" (no validation session: on the training sessions {', '.join(split.train)})")
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
+    from ..selection import format_selection
+
+    for line in format_selection(getattr(cli.datamodule, "selection", None) if selection else None):
+        print(line)
 
 
 def cmd_export(a: argparse.Namespace) -> int:
@@ -196,13 +200,17 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         cli = train_main(args)
         if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
             return 0
-        _report_training(cli)
+        _report_training(cli, selection=False)  # the export below prints the whole selection
         artifact = run / "artifact"
         export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
     res = compare_artifact(artifact, a.data, sessions=sessions)
     title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
     print(format_comparison(res, title))
     meta = json.loads((Path(artifact) / "skin.json").read_text())
+    if a.artifact and meta.get("selection"):  # what the validation expected, next to what the test sessions gave
+        from ..selection import format_selection
+
+        print("\n".join(f"  expected at training: {line}" for line in format_selection(meta["selection"])))
     out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
     paths = save_comparison(res, out, Layout.from_dict(meta["layout"]), title)
     print("wrote " + ", ".join(str(p) for p in paths))
