@@ -188,6 +188,16 @@ def _set(path, value):
     return edit
 
 
+def _force_coef_edit(meta, _rig):
+    """One coefficient of the SVM's force model, whichever model selection chose (per-location curves or pooled)."""
+    f = meta["models"]["svm"]["force"]
+    if f.get("curves"):
+        c = f["curves"]["1"]["coef"]
+    else:
+        c = f["pooled"]["coef"]
+    c[0] = c[0] * 1.5 + 0.1
+
+
 def _both(*edits):
     def edit(meta, rig):
         for e in edits:
@@ -215,7 +225,8 @@ DOC_EDITS = [
     ("min-force-changed", _set("min_force_n", 2.0), ("net", "svm"), "min_force_n is 2.0 but {f}"),
     *[(f"layout-ids-permuted-{''.join(map(str, o))}", _layout_edit(_permute(o)), ("net", "svm"),
        r"layout.ids are not the location ids {f} was trained with \(the model's ids") for o in ((1, 0, 2), (2, 1, 0), (1, 2, 0))],
-    ("layout-ids-renumbered", _set("layout.ids", [5, 6, 7]), ("net", "svm"), "force.curves must have one curve per layout id"),
+    ("layout-ids-renumbered", _set("layout.ids", [5, 6, 7]), ("net", "svm"),
+     "force.curves must have one curve per layout id|force.pooled.loc_coef must have one value per layout id"),
     ("layout-spacing-1.5cm", _layout_edit(_scale_xy(1.5 / 1.2)), ("net", "svm"), r"layout.xy_cm differs from the marker positions"),
     ("layout-one-marker-moved", _set("layout.xy_cm.1.1", lambda v: v + 0.5), ("net", "svm"), "layout.xy_cm differs"),
     ("layout-tube", _set("layout.circumference_cm", 23.5), ("net", "svm"), r"layout differs from the layout {f} was trained with"),
@@ -226,7 +237,7 @@ DOC_EDITS = [
     ("svm-threshold-doubled", _set("models.svm.threshold", lambda v: 2 * v), ("svm",), SVM_PARAMS),
     ("svm-reference-shifted", _set("models.svm.reference_scores.0", lambda v: v + 1.0), ("svm",), SVM_PARAMS),
     ("svm-energy-ref", _set("models.svm.energy_ref_db", lambda v: v + 3.0), ("svm",), SVM_PARAMS),
-    ("svm-force-curve", _set("models.svm.force.curves.1.coef.0", lambda v: v * 1.5 + 0.1), ("svm",), SVM_PARAMS),
+    ("svm-force-curve", _force_coef_edit, ("svm",), SVM_PARAMS),
     ("svm-no-detection", _both(_set("models.svm.detection", False), _set("models.svm.threshold", 0.0)), ("svm",), SVM_PARAMS),
     ("net-hparams", _set("models.net.hparams", {"hidden": [16]}), ("net",), "models.net holds other parameters"),
     ("training-data", _set("training.data", "/elsewhere"), ("net", "svm"), DIGEST),

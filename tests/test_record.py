@@ -15,6 +15,7 @@ import time
 import numpy as np
 import pytest
 import yaml
+from cli_helpers import reseal
 
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
@@ -165,6 +166,7 @@ def test_resume_records_a_location_that_was_labelled_but_not_pressed(tmp_path, s
             if r[head.index("location")] == "2":
                 r[head.index("force_n")] = "0.01"
         csv.write_text("\n".join([text[0], *(",".join(r) for r in rows)]) + "\n")
+    reseal(out / "s000")  # a recording in which location 2 was not pressed, not a damaged one
     assert location_chirps(out)[2][1] == 0 and recorded_locations(out) == {1}
     capsys.readouterr()
     assert main([*args, "--resume"]) == 0
