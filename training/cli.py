@@ -105,6 +105,8 @@ ALLOWED_CLASSES = frozenset(
         "EarlyStopping": ("lightning.pytorch.callbacks.", "lightning.pytorch.callbacks.early_stopping."),
         "LearningRateMonitor": ("lightning.pytorch.callbacks.", "lightning.pytorch.callbacks.lr_monitor."),
     }.items() for prefix in ("", *mods))
+# A user's own callbacks/loggers: opted in by name, outside any file a config could smuggle in.
+ALLOW_ENV = "SONICSKIN_ALLOW_CLASSES"
 # Options whose string value jsonargparse resolves to a class (and imports when it is a dotted path).
 CLASS_OPTIONS = ("trainer.logger", "trainer.callbacks", "trainer.strategy", "trainer.plugins", "trainer.profiler",
                  "trainer.accelerator", "optimizer", "lr_scheduler")
@@ -112,10 +114,12 @@ _DOTTED = re.compile(r"[A-Za-z_]\w*(\.[A-Za-z_]\w*)+")
 
 
 def _refuse_class(name: object, where: str) -> None:
-    if not isinstance(name, str) or name not in ALLOWED_CLASSES:
+    extra = {n.strip() for n in os.environ.get(ALLOW_ENV, "").split(",") if n.strip()}
+    if not isinstance(name, str) or (name not in ALLOWED_CLASSES and name not in extra):
         allowed = sorted(n for n in ALLOWED_CLASSES if "." not in n)
         raise UsageError(f"{where} names the class {str(name)[:80]!r}, which sonicskin train does not load (it would be "
-                         f"imported to check it); allowed: {', '.join(allowed)} from lightning.pytorch")
+                         f"imported to check it); allowed: {', '.join(allowed)} from lightning.pytorch, or a class you "
+                         f"name yourself in ${ALLOW_ENV} (comma-separated dotted paths)")
 
 
 def _walk_classes(node: object, path: tuple[str, ...], where: str) -> None:
