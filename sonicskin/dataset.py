@@ -665,7 +665,7 @@ class Dataset:
             raise DatasetError(f"{self.root}: no session with a complete part")
         Xs, labs = [], []
         for _, frames, lab in tqdm(self.iter_sessions(names), total=len(names), desc="features", unit="session",
-                                   disable=not progress):
+                                   disable=None if progress else True):
             Xs.append(log_magnitude_db(frames, self.rig))
             labs.append(lab)
         return FeatureTable(np.concatenate(Xs), {k: np.concatenate([d[k] for d in labs]) for k in labs[0]})

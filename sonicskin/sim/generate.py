@@ -39,7 +39,7 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
     render_s = 0.0
     todo = [s for s in range(scenario.sessions) if not writer.session_done(f"s{s:03d}")]
     bar = tqdm(total=int(np.isin(tl.session, todo).sum()), unit="chirp", desc=f"simulate {scenario.name}",
-               disable=not progress)
+               disable=None if progress else True)
     pending: list = []
     # Two frame buffers in turn: block b renders into one while the parts of block b - 1 are still
     # being encoded from the other (reused memory: no fresh pages per block).
