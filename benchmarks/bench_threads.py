@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     from sonicskin.threads import default_threads
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--epochs", type=int, default=8)
+    ap.add_argument("--epochs", type=int, default=30)
     ap.add_argument("--load", type=int, default=os.cpu_count() or 2, help="busy processes beside training (default: one per core)")
     a = ap.parse_args(argv)
     cores = os.cpu_count() or 1
