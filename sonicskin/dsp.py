@@ -12,6 +12,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
+from . import threads
 from .rig import Rig
 
 __all__ = [
@@ -216,7 +217,7 @@ def band_response(frames: np.ndarray, rig: Rig, *, chunk: int = 512) -> np.ndarr
     out = np.empty((x.shape[0], rig.n_band), dtype=np.complex64)
     lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
     for i in range(0, x.shape[0], chunk):  # bounded memory; each chunk is one batched FFT
-        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=-1)[:, lo:hi]
+        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=threads.fft_workers())[:, lo:hi]
         out[i : i + chunk] = R / S
     return out
 
@@ -246,7 +247,7 @@ def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.
     out = np.empty((x.shape[0], rig.n_band), dtype=np.float32)
     chunk = 64  # a chunk's spectra stay in cache
     for i in range(0, x.shape[0], chunk):
-        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=-1)[:, lo:hi]
+        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=threads.fft_workers())[:, lo:hi]
         p = out[i : i + chunk]
         np.multiply(R.real, R.real, out=p)
         p += np.square(R.imag)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["ENV", "default_threads", "get", "configure", "fft_workers"]
+__all__ = ["ENV", "default_threads", "get", "configure", "fft_workers", "apply_torch"]
 
 ENV = "SONICSKIN_THREADS"
 _configured: int | None = None

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.fft
 import scipy.signal
 
+from .. import threads
 from ..dsp import chirp_spectrum
 from ..rig import Layout, Rig
 from .channel import MATERIALS, ChannelModel, Geometry
@@ -274,7 +275,7 @@ class Simulator:
             c = slice(a, min(a + self._CHUNK, n))
             Y = noise.fill(np.empty((c.stop - a, self._nb), np.complex64), a)
             Y[:, b0:b1] += H[c] * T2[inv[c]]
-            x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=-1)
+            x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=threads.fft_workers())
             if q:
                 np.clip(x, -1.0, 1.0, out=x)
                 x *= q
