@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 DATA ?= data
 REPORTS ?= reports
 
-.PHONY: install demo test test-fast deploy-check lint bench docs clean
+.PHONY: install demo test test-fast deploy-check lint bench docs results clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -55,6 +55,13 @@ bench: install
 # print into README.md and docs/*.png (tools/readme.py; tests/test_readme.py checks them).
 docs: install
 	$(PY) tools/readme.py
+	$(PY) tools/results.py render
+
+# The README's measured results (tables, benchmark figures, the probe plot): every registered command of
+# docs/results/index.yaml run again and stored (tools/results.py; hours on 2 cores). RESULTS="probe seeds" for some.
+RESULTS ?= --all
+results: install
+	$(PY) tools/results.py run $(RESULTS)
 
 clean:
 	rm -rf $(DATA) $(REPORTS) .pytest_cache

@@ -192,9 +192,7 @@ def render(text: str) -> str:
         if name not in reg:
             raise ResultError(f"README.md:{start + 1}: result {name!r} is not registered in docs/results/index.yaml")
         rec = stored(name)
-        if rec is None:
-            raise ResultError(f"README.md:{start + 1}: result {name!r} was never measured: python tools/results.py run {name}")
-        lines[start + 1:end] = block(rec)
+        lines[start + 1:end] = block(rec) if rec else [f"*(not measured yet: `python tools/results.py run {name}`)*"]
     return "\n".join(lines)
 
 
@@ -205,6 +203,8 @@ def problems(text: str) -> list[str]:
     spans = regions(lines)
     for name, start, _ in spans:
         rec = stored(name) if name in reg else None
+        if name in reg and rec is None:
+            out.append(f"README.md:{start + 1}: result {name!r} was never measured: python tools/results.py run {name}")
         if name in reg and rec is not None and rec["run"] != reg[name]["run"]:
             out.append(f"README.md:{start + 1}: result {name!r} was measured by another command than the registered one: "
                        f"python tools/results.py run {name}")
@@ -221,13 +221,13 @@ def problems(text: str) -> list[str]:
     i, prev = 0, ""
     while i < len(lines):
         ln = lines[i]
-        f = re.match(r"^(```+|~~~+)\s*([\w+-]*)", ln)
+        f = re.match(r"^\s*(```+|~~~+)\s*([\w+-]*)", ln)
         if f:
             j = i + 1
-            while j < len(lines) and not lines[j].startswith(f.group(1)):
+            while j < len(lines) and not lines[j].lstrip().startswith(f.group(1)):
                 j += 1
-            if f.group(2) == "text" and i not in inside and not _covered(lines, i, ("output", "spec")):
-                out.append(f"README.md:{i + 1}: a text block that is neither a result (<!-- result: NAME -->), a make docs "
+            if f.group(2) in ("", "text") and i not in inside and not _covered(lines, i, ("output", "spec")):
+                out.append(f"README.md:{i + 1}: a text or plain block that is neither a result (<!-- result: NAME -->), a make docs "
                            f"output (<!-- output: NAME -->) nor marked <!-- spec: WHY -->")
             i, prev = j + 1, ""
             continue
