@@ -3,8 +3,8 @@
 For every scenario (stationary, moving), simulator seed and probe — chirp period 106.7 / 53.3 / 26.7 /
 13.3 / 6.7 ms, band either the full 20-80 kHz or the OSPA region — this simulates the scenario on that
 rig, trains both models on its one-shot session exactly as ``sonicskin compare --scenario`` does
-(:func:`sonicskin.seeds._one_seed`: OSPA gamma 300, the SVM, the network; replayed through the live
-loop's online reference on the later sessions), and measures the press-to-event latency of the SVM
+(:func:`sonicskin.seeds._one_seed`: gamma, C, kernel width, force model and the network's layers chosen
+on the one-shot session's passes; replayed through the live loop's online reference on the later sessions), and measures the press-to-event latency of the SVM
 artifact with ``benchmarks/bench_latency.py``'s scripted presses (seed 0 only).
 
 The OSPA region of a (scenario, seed, period) is measured, not chosen: the 5th-95th percentile of the
@@ -15,7 +15,7 @@ training-set size, every k-th training chirp is used, with k = n_chirp(paper) / 
 sessions are scored on every chirp).  Presses last 1.5 s here (3 s in the scenarios) to keep the sweep
 affordable on 2 cores.
 
-    python benchmarks/sweep_probe.py --out reports/probe            # ~1 h on 2 cores
+    python benchmarks/sweep_probe.py --out reports/probe            # both bands: ~1.5 h on 2 cores
     python benchmarks/sweep_probe.py --periods 106.7 13.3 --bands full --seeds 0 1 2
 Results are cached per configuration under OUT/runs (an interrupted sweep resumes); OUT/probe.md and
 OUT/probe.png summarise them.
