@@ -42,7 +42,7 @@ def row(fault: str, code: int, doc: dict) -> str:
     what = f"{WHAT.get(fault, fault)} (`{fault}`)"
     if not fail:
         return f"| {what} | none: all {len(doc['lines'])} lines pass ({len(warn)} warn), exit {code} | - |"
-    measured = "; ".join(f"{x['name']}: {x['value']}" for x in fail)
+    measured = ("" if len(fail) == 1 else f"{len(fail)} lines fail: ") + "; ".join(f"{x['name']}: {x['value']}" for x in fail)
     if warn:
         measured += " (warns: " + "; ".join(f"{x['name']} {x['value']}" for x in warn) + ")"
     skipped = sum(x["status"] == "skip" for x in doc["lines"])
