@@ -4,7 +4,8 @@ For a scenario's link (default: ``stationary``, the CFRP Kinova link) at 15 / 30
 after power-on, the simulator's own temperature model (:meth:`sonicskin.sim.Simulator.temperatures`:
 the warm-up field along the link, split into its mean, its non-uniform Legendre parts and the two
 bond temperatures) is switched on one part at a time, and the noise-free received spectrum
-``|H(f) T_tx(f) T_rx(f)|`` over the rig's band is compared with the one at power-on:
+``|H(f) T_tx(f) T_rx(f)|`` over the rig's band (the bins the features use: 20-80 kHz without the
+PWM notches) is compared with the one at power-on:
 
 - total: everything (what the simulator renders);
 - bonds: only the TX and RX hot-melt bonds at their temperatures (wall at ambient);
@@ -43,11 +44,12 @@ def budget(sim: Simulator, minutes: list[float]) -> list[dict]:
     T = sim.temperatures(tl)
     zero = np.zeros_like(T["dT"])
     amb = np.full_like(T["tx_c"], T["tx_c"][0])
-    wall_full = sim.untouched(T["dT"], T["dT_grad"])
-    wall_stretch = sim.untouched(T["dT"])
-    wall_0 = sim.untouched(zero)
-    bonds = sim.transducers(T["tx_c"], T["rx_c"])
-    bonds_0 = sim.transducers(amb, amb)
+    keep = np.isin(sim.channel.bins, sim.rig.band_bins)  # the bins the features use (the channel grid has guard bins)
+    wall_full = sim.untouched(T["dT"], T["dT_grad"])[:, keep]
+    wall_stretch = sim.untouched(T["dT"])[:, keep]
+    wall_0 = sim.untouched(zero)[:, keep]
+    bonds = sim.transducers(T["tx_c"], T["rx_c"])[:, keep]
+    bonds_0 = sim.transducers(amb, amb)[:, keep]
     total = _db(wall_full * bonds)
 
     def med(x: np.ndarray, ref: np.ndarray) -> np.ndarray:  # median over the band of |dB change|, per time
