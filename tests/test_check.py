@@ -114,3 +114,10 @@ def test_cli_check_usage_errors(capsys):
     assert "--sim-fault is for the simulated device" in capsys.readouterr().err
     with pytest.raises(SonicskinError, match="--rx 5: the device has 2 inputs"):
         simulated_capture(SimulatedDevice(Rig.load("jaco"), SC), rx=5)
+
+
+def test_clipping_is_not_also_counted_as_dropouts_with_a_short_rest(device):
+    """Clipped rest chirps deviate from the median too; that is the level line's finding, not the delay line's."""
+    rep = _run(device, "clipping", rest_s=2.0, press_s=1.5)
+    assert [x.name for x in rep.lines if x.status == "fail"] == ["input level"], rep.table()
+    assert rep.measurements["dropout_chirps"] == 0
