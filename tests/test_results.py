@@ -71,8 +71,8 @@ def test_a_run_stores_stdout_with_its_provenance_and_renders(store):
     assert json.loads((store / "docs/results/hello.json").read_text()) == rec
     results.run("plain", reg["plain"], log=lambda s: None)
     text = results.render(README)
-    assert "| 1 | 2 |\n" + results.STAMP_PREFIX + " hello` (commit " in text
-    assert "```text\nx 1.5 ms\n```\n" + results.STAMP_PREFIX in text and "\nold\n" not in text
+    assert "| 1 | 2 |\n\n" + results.STAMP_PREFIX + " hello` (commit " in text  # a blank line ends the table
+    assert "```text\nx 1.5 ms\n```\n\n" + results.STAMP_PREFIX in text and "\nold\n" not in text
     assert results.render(text) == text  # idempotent
     assert results.problems(text) == []
     # a stale block, a changed command, an unmarked table or text block each fail the check

@@ -161,7 +161,7 @@ def block(rec: dict) -> list[str]:
         body = ["```text", *body, "```"]
     day = rec["started"][:10]
     where = f"commit {rec['commit'][:7]}" + (" plus uncommitted changes" if rec["dirty"] else "")
-    return [*body, f"{STAMP_PREFIX} {rec['name']}` ({where}) on {rec['machine']}, load {rec['load']:.1f} at the start "
+    return [*body, "", f"{STAMP_PREFIX} {rec['name']}` ({where}) on {rec['machine']}, load {rec['load']:.1f} at the start "
                    f"(1-min average), {day}; it ran {_duration(rec['wall_s'])} ({_duration(rec['cpu_s'])} of CPU).</sub>"]
 
 
