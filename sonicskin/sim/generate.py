@@ -72,7 +72,7 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
                 for a in range(b, bidx[-1] + 1, per_part):
                     p = a // per_part
                     idx = np.arange(a, min(a + per_part, len(st)))
-                    frames = frames_b[idx - b]
+                    frames = frames_b[a - b:a - b + idx.size]  # a view: the encoder reads the render buffer itself
                     if p == 0:
                         lead = frames[0, L - offset:]  # tail of the chirp before the first whole one
                         audio = np.concatenate([lead, frames.ravel()])
