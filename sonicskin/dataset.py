@@ -217,7 +217,11 @@ class DatasetWriter:
         return (self.root / check_name(session) / "session.json").exists()
 
     def write_part(self, session: str, part: int, audio: np.ndarray, labels: dict[str, np.ndarray]) -> Path:
-        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1] and its chirps' labels."""
+        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1] and its chirps' labels.
+
+        ``audio`` may also be int32 PCM, 24-bit codes in the upper 24 bits (soundfile's int convention;
+        the low 8 bits are dropped), as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them.
+        """
         import soundfile as sf
 
         d = self.root / check_name(session)
@@ -229,8 +233,10 @@ class DatasetWriter:
         n = {len(np.atleast_1d(v)) for v in labels.values()}
         if len(n) != 1:
             raise ValueError(f"label columns have different lengths {sorted(n)}")
-        audio = np.asarray(audio, dtype=np.float32)
-        if audio.ndim != 1 or not np.isfinite(audio).all():
+        audio = np.asarray(audio)
+        if audio.dtype != np.int32:
+            audio = audio.astype(np.float32, copy=False)
+        if audio.ndim != 1 or (audio.dtype == np.float32 and not np.isfinite(audio).all()):
             raise DatasetError(f"{d}/part-{part:05d}: the audio must be one finite channel (NaN, inf or several "
                                f"channels are not recordings)")
         check_label_values({c: np.atleast_1d(labels[c]) for c in COLUMNS}, self.layout, f"{d}/part-{part:05d}.csv")

@@ -254,7 +254,12 @@ class Simulator:
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), written
-        into ``out`` (n, n_chirp) float32 when given."""
+        into ``out`` (n, n_chirp) float32 when given.
+
+        An int32 ``out`` receives the same frames as a 24-bit file holds them, left-aligned in 32 bits
+        (soundfile's int convention): ``min(round(x 2^23), 2^23 - 1) << 8`` of each float sample ``x``,
+        libsndfile's own float -> PCM_24 conversion.  :func:`~sonicskin.sim.generate.simulate_dataset`
+        writes those to FLAC directly (the same file samples, without libsndfile's slower conversion)."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
@@ -271,7 +276,8 @@ class Simulator:
         # Transducers x chirp x gain, per distinct pair of bond temperatures.
         T2, inv = self._transducer_rows(temps["tx_c"], temps["rx_c"])
         out = np.empty((n, rig.n_chirp), np.float32) if out is None else out
-        assert out.shape == (n, rig.n_chirp) and out.dtype == np.float32
+        assert out.shape == (n, rig.n_chirp) and out.dtype in (np.float32, np.int32)
+        pcm = out.dtype == np.int32
         q = float(2 ** (self.quantize_bits - 1) - 1) if self.quantize_bits else None
         b0, b1 = self._band
         if self._Ybuf is None:
@@ -281,14 +287,19 @@ class Simulator:
             Y = noise.fill(self._Ybuf[:c.stop - a], a)
             Y[:, b0:b1] += H[c] * T2[inv[c]]
             x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=threads.fft_workers())
-            if q:  # quantised straight into the output rows (the same operations as on x)
-                o = out[c]
+            o = x if pcm else out[c]  # float frames: quantised straight into the output rows
+            if q:
                 np.clip(x, -1.0, 1.0, out=o)
                 o *= q
                 np.round(o, out=o)
                 o /= q
-            else:
-                out[c] = x
+            elif not pcm:
+                o[...] = x
+            if pcm:  # x * 2^23 is exact in float32; rounded and clipped as libsndfile does, then << 8 (exact)
+                x *= np.float32(2 ** 23)
+                np.clip(x, -2.0 ** 23, 2.0 ** 23 - 1, out=x)
+                np.rint(x, out=x)
+                np.multiply(x, np.float32(256), out=out[c], casting="unsafe")
         return out
 
     _CHUNK = 64  # frames per inverse FFT: keeps the spectra in cache
