@@ -43,7 +43,9 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
     pending: list = []
     # Two frame buffers in turn: block b renders into one while the parts of block b - 1 are still
     # being encoded from the other (reused memory: no fresh pages per block).
-    bufs: list = [np.empty((0, L), np.float32)] * 2
+    # The frames are rendered as 24-bit PCM codes (int32, see Simulator.render): the FLAC holds the same samples
+    # as from float frames, without libsndfile's float conversion.
+    bufs: list = [np.empty((0, L), np.int32)] * 2
     buf_jobs: list[list] = [[], []]
     n_block = 0
     with ThreadPoolExecutor(max_workers=1) as io_pool:
@@ -65,14 +67,14 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
                     f.result()  # the encoder is done with this buffer
                 buf_jobs[j] = []
                 if bufs[j].shape[0] < bidx.size:
-                    bufs[j] = np.empty((block, L), np.float32)
+                    bufs[j] = np.empty((block, L), np.int32)
                 tr = time.perf_counter()
                 frames_b = sim.render(st.select(bidx), out=bufs[j][:bidx.size])
                 render_s += time.perf_counter() - tr
                 for a in range(b, bidx[-1] + 1, per_part):
                     p = a // per_part
                     idx = np.arange(a, min(a + per_part, len(st)))
-                    frames = frames_b[idx - b]
+                    frames = frames_b[a - b:a - b + idx.size]  # a view: the encoder reads the render buffer itself
                     if p == 0:
                         lead = frames[0, L - offset:]  # tail of the chirp before the first whole one
                         audio = np.concatenate([lead, frames.ravel()])

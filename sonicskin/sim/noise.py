@@ -129,12 +129,14 @@ class NoiseDraws:
     rendering stays in cache instead of streaming several (n, nb) temporaries through memory.
 
     ``buffers``: optional pair of float32 arrays of at least (n, nb) reused for the two big Gaussian
-    draws (the simulator keeps them between batches: no fresh pages to fault in).
+    draws (the simulator keeps them between batches: no fresh pages to fault in).  ``work``: optional
+    dict in which :meth:`fill` keeps its scratch arrays (the simulator passes the same one every batch).
     """
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,
-                 floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None):
+                 floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None, work: dict | None = None):
         level = np.asarray(level, float)
+        self.work = {} if work is None else work  # scratch arrays of :meth:`fill`, reused call after call (and batch after batch)
         n = level.size
         nb = n_fft // 2 + 1
         self.nb, self.n_fft = nb, n_fft
@@ -198,7 +200,8 @@ class NoiseDraws:
             np.multiply(self.im[rows], self.scale, out=v[..., 1])
         else:
             # rms per bin: sqrt(sensor^2 + (mech_rms * level * shape)^2), in float32.
-            s = np.multiply.outer(self.level[rows].astype(np.float32), self.shape)
+            s = _scratch(self.work, "rms", (n, self.nb), np.float32)
+            np.multiply.outer(self.level[rows].astype(np.float32), self.shape, out=s)
             np.square(s, out=s)
             s += self.floor2
             np.sqrt(s, out=s)
@@ -207,11 +210,20 @@ class NoiseDraws:
             np.multiply(self.im[rows], s, out=v[..., 1])
         out[:, 0] = out[:, 0].real * np.float32(np.sqrt(2))
         if self.moving:
-            self.tones.add_to(out, start)
+            self.tones.add_to(out, start, pad=_scratch(self.work, "pad", (n, self.nb + 2 * self.tones.W), np.complex64))
             if self.impacts is not None:
                 k = (self.hit_rows >= start) & (self.hit_rows < start + n)
                 out[self.hit_rows[k] - start] += self.impacts[k]
         return out
+
+
+def _scratch(work: dict, name: str, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """A C-contiguous scratch array of ``shape`` from ``work[name]``, grown when too small (contents undefined)."""
+    size = int(np.prod(shape))
+    buf = work.get(name)
+    if buf is None or buf.size < size or buf.dtype != dtype:
+        buf = work[name] = np.empty(size, dtype)
+    return buf[:size].reshape(shape)
 
 
 class _ToneKernel:
@@ -230,9 +242,13 @@ class _ToneKernel:
         self.W = half_width_bins
         self.nb = n_fft // 2 + 1
 
-    def add_to(self, out: np.ndarray, start: int) -> None:
+    def add_to(self, out: np.ndarray, start: int, pad: np.ndarray | None = None) -> None:
+        """Add the tones of frames ``start:start + len(out)`` to ``out``; ``pad``: optional scratch (n, nb + 2W) complex64."""
         n, W = out.shape[0], self.W
-        pad = np.zeros((n, self.nb + 2 * W), np.complex64)  # padded: no bounds checks
+        if pad is None:
+            pad = np.zeros((n, self.nb + 2 * W), np.complex64)  # padded: no bounds checks
+        else:
+            pad[...] = 0
         # windows[r, s] is pad[r, s:s + 2W]: a tone whose kernel starts at bin k0 + 1 - W (padded: k0 + 1)
         # is one contiguous row slice, so a scatter of a tone over frames copies whole rows.
         windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W),

@@ -13,7 +13,6 @@ import dataclasses
 
 import numpy as np
 import scipy.fft
-import scipy.signal
 
 from .. import threads
 from ..dsp import chirp_spectrum
@@ -79,6 +78,8 @@ class Simulator:
         self._buffers = None  # the noise's Gaussian draws, reused batch after batch
         self._H = None  # and the channel of a batch
         self._G = None  # and the contact Green's functions of its presses
+        self._Ybuf = None  # and the spectra of one chunk of frames
+        self._work: dict = {}  # and the noise's scratch arrays
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,7 +172,9 @@ class Simulator:
         temps = self.temperatures(tl) if temps is None else temps
         dT = temps["dT"]
         Gu, inv = self._untouched_rows(dT, temps["dT_grad"])
-        H = np.take(Gu, inv, axis=0, out=out)
+        # mode="clip" (every index is valid): with the default "raise" numpy buffers ``out``, a fresh
+        # (n, n_f) temporary per batch.
+        H = np.take(Gu, inv, axis=0, out=out, mode="clip")
         # Every press of the batch: contact radii nodes and sub-contact layouts, then ONE projection.
         presses = []
         for ev in np.unique(tl.event[tl.event >= 0]):
@@ -240,7 +243,7 @@ class Simulator:
         a = 0.9  # AR(1) per chirp: the pose changes smoothly
         e = (rng.standard_normal((n, J)) + 1j * rng.standard_normal((n, J))) / np.sqrt(2) * np.sqrt(1 - a * a)
         e[0] /= np.sqrt(1 - a * a)  # start in the stationary distribution
-        c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0)
+        c = _ar1(e, a)
         c = (c * ((self._perturb / np.sqrt(J)) * tl.moving)[:, None]).astype(np.complex64)
         basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz)).astype(np.complex64)  # (J, n_f)
         for s in range(0, n, self._CHUNK):  # 1 + ripple, a few chirps at a time
@@ -251,7 +254,12 @@ class Simulator:
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), written
-        into ``out`` (n, n_chirp) float32 when given."""
+        into ``out`` (n, n_chirp) float32 when given.
+
+        An int32 ``out`` receives the same frames as a 24-bit file holds them, left-aligned in 32 bits
+        (soundfile's int convention): ``min(round(x 2^23), 2^23 - 1) << 8`` of each float sample ``x``,
+        libsndfile's own float -> PCM_24 conversion.  :func:`~sonicskin.sim.generate.simulate_dataset`
+        writes those to FLAC directly (the same file samples, without libsndfile's slower conversion)."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
@@ -264,24 +272,34 @@ class Simulator:
         if self._buffers is None or self._buffers[0].size < n * self._nb:
             self._buffers = (np.empty(n * self._nb, np.float32), np.empty(n * self._nb, np.float32))
         noise = NoiseDraws(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
-                           floor_rms=self.noise.sensor_rms, buffers=self._buffers)
+                           floor_rms=self.noise.sensor_rms, buffers=self._buffers, work=self._work)
         # Transducers x chirp x gain, per distinct pair of bond temperatures.
         T2, inv = self._transducer_rows(temps["tx_c"], temps["rx_c"])
         out = np.empty((n, rig.n_chirp), np.float32) if out is None else out
-        assert out.shape == (n, rig.n_chirp) and out.dtype == np.float32
+        assert out.shape == (n, rig.n_chirp) and out.dtype in (np.float32, np.int32)
+        pcm = out.dtype == np.int32
         q = float(2 ** (self.quantize_bits - 1) - 1) if self.quantize_bits else None
         b0, b1 = self._band
+        if self._Ybuf is None:
+            self._Ybuf = np.empty((self._CHUNK, self._nb), np.complex64)  # one chunk's spectra, reused
         for a in range(0, n, self._CHUNK):
             c = slice(a, min(a + self._CHUNK, n))
-            Y = noise.fill(np.empty((c.stop - a, self._nb), np.complex64), a)
+            Y = noise.fill(self._Ybuf[:c.stop - a], a)
             Y[:, b0:b1] += H[c] * T2[inv[c]]
             x = scipy.fft.irfft(Y, n=rig.n_chirp, axis=-1, workers=threads.fft_workers())
+            o = x if pcm else out[c]  # float frames: quantised straight into the output rows
             if q:
-                np.clip(x, -1.0, 1.0, out=x)
-                x *= q
-                np.round(x, out=x)
-                x /= q
-            out[c] = x
+                np.clip(x, -1.0, 1.0, out=o)
+                o *= q
+                np.round(o, out=o)
+                o /= q
+            elif not pcm:
+                o[...] = x
+            if pcm:  # x * 2^23 is exact in float32; rounded and clipped as libsndfile does, then << 8 (exact)
+                x *= np.float32(2 ** 23)
+                np.clip(x, -2.0 ** 23, 2.0 ** 23 - 1, out=x)
+                np.rint(x, out=x)
+                np.multiply(x, np.float32(256), out=out[c], casting="unsafe")
         return out
 
     _CHUNK = 64  # frames per inverse FFT: keeps the spectra in cache
@@ -293,6 +311,18 @@ class Simulator:
         f = self.channel.f_hz
         T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
         return T2 * (self.gain * self._S), inv.ravel()
+
+
+def _ar1(e: np.ndarray, a: float) -> np.ndarray:
+    """``scipy.signal.lfilter([1], [1, -a], e, axis=0)`` for complex ``e`` (n, J), the same numbers bit for bit
+    (``y[t] = e[t] + a y[t - 1]``, complex128): a first-order recursion over a few hundred rows does not
+    need scipy.signal, whose import alone costs 0.4 CPU-s per ``simulate`` run (tests/test_simspeed.py)."""
+    y = np.empty(e.shape, np.complex128)
+    prev = np.zeros(e.shape[1:], np.complex128)
+    for t in range(e.shape[0]):
+        prev = e[t] + a * prev
+        y[t] = prev
+    return y
 
 
 _WB_DTYPE = np.complex64
