@@ -10,6 +10,7 @@ import functools
 
 import numpy as np
 import scipy.fft
+import scipy.signal
 
 from . import threads
 from .rig import Rig
@@ -48,13 +49,9 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
     """
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
-    # scipy.signal.chirp(t, f0, t1, f1, method="linear", phi) written out with the same operations (the same
-    # numbers bit for bit, tests/test_simspeed.py): importing scipy.signal costs 0.4 CPU-s per `simulate` run.
-    # It is a cosine; sin(x + phi) = cos(x + phi - pi/2).
-    f0, t1, f1 = float(f_lo_hz), float(duration_s), float(f_hi_hz)
-    beta = (f1 - f0) / t1
-    phase = 2 * np.pi * (f0 * t + 0.5 * beta * t * t) + np.deg2rad(np.degrees(phase_rad) - 90.0)
-    return amplitude * np.cos(phase)
+    # scipy's chirp is a cosine; sin(x + phi) = cos(x + phi - pi/2).
+    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear",
+                                          phi=np.degrees(phase_rad) - 90.0)
 
 
 @functools.lru_cache(maxsize=8)

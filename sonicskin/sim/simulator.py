@@ -13,6 +13,7 @@ import dataclasses
 
 import numpy as np
 import scipy.fft
+import scipy.signal
 
 from .. import threads
 from ..dsp import chirp_spectrum
@@ -243,7 +244,7 @@ class Simulator:
         a = 0.9  # AR(1) per chirp: the pose changes smoothly
         e = (rng.standard_normal((n, J)) + 1j * rng.standard_normal((n, J))) / np.sqrt(2) * np.sqrt(1 - a * a)
         e[0] /= np.sqrt(1 - a * a)  # start in the stationary distribution
-        c = _ar1(e, a)
+        c = scipy.signal.lfilter([1.0], [1.0, -a], e, axis=0)
         c = (c * ((self._perturb / np.sqrt(J)) * tl.moving)[:, None]).astype(np.complex64)
         basis = np.exp(-2j * np.pi * np.outer(tau, self.channel.f_hz)).astype(np.complex64)  # (J, n_f)
         for s in range(0, n, self._CHUNK):  # 1 + ripple, a few chirps at a time
@@ -311,18 +312,6 @@ class Simulator:
         f = self.channel.f_hz
         T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
         return T2 * (self.gain * self._S), inv.ravel()
-
-
-def _ar1(e: np.ndarray, a: float) -> np.ndarray:
-    """``scipy.signal.lfilter([1], [1, -a], e, axis=0)`` for complex ``e`` (n, J), the same numbers bit for bit
-    (``y[t] = e[t] + a y[t - 1]``, complex128): a first-order recursion over a few hundred rows does not
-    need scipy.signal, whose import alone costs 0.4 CPU-s per ``simulate`` run (tests/test_simspeed.py)."""
-    y = np.empty(e.shape, np.complex128)
-    prev = np.zeros(e.shape[1:], np.complex128)
-    for t in range(e.shape[0]):
-        prev = e[t] + a * prev
-        y[t] = prev
-    return y
 
 
 _WB_DTYPE = np.complex64
