@@ -89,9 +89,15 @@ def test_check_faults():
     assert 5 < num(re.search(r"([\d.]+)% of samples clipped", clip).group(1)) < 50
 
 
+@pytest.fixture(scope="module")
+def bench_work(tmp_path_factory):
+    """One small artifact for bench_models.py and bench_live.py (the second run reuses what the first built)."""
+    return str(tmp_path_factory.mktemp("bench-models"))
+
+
 @pytest.mark.slow
-def test_bench_models():
-    out = run_script("bench_models.py", "--small")
+def test_bench_models(bench_work):
+    out = run_script("bench_models.py", "--small", "--work", bench_work)
     head, rows = table(out)
     assert head[:3] == ["model", "ONNX call median", "p99"] and [r[0] for r in rows] == ["SVM", "network"]
     for r in rows:
@@ -104,8 +110,8 @@ def test_bench_models():
 
 
 @pytest.mark.slow
-def test_bench_live():
-    out = run_script("bench_live.py", "--small")
+def test_bench_live(bench_work):
+    out = run_script("bench_live.py", "--small", "--work", bench_work)
     head, rows = table(out)
     assert head[0] == "model" and head[4] == "links one core sustains" and [r[0] for r in rows] == ["SVM", "network"]
     period = num(re.search(r"share of the ([\d.]+) ms period", head[3]).group(1))
