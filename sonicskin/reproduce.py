@@ -25,7 +25,7 @@ from .metrics import force_report, localization_report
 from .rig import Rig
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
-from .svm_head import fit_svm_head, score_vector, touch_statistic
+from .svm_head import fit_svm_head, ovo_decision, score_vector, touch_statistic
 
 __all__ = ["reproduce", "Spread", "SEEDS"]
 
@@ -246,7 +246,7 @@ def _fit_predict(ctx, kind: str, inp: _Inputs, t, layout, train: np.ndarray, tes
         ref0 = np.asarray(params["reference_scores"])
 
         def scores(x):
-            return score_vector(pipe.decision_function(x), n, x)
+            return score_vector(ovo_decision(pipe, x), n, x)
 
         def svm(x, score_ref):
             V = scores(x)
