@@ -617,11 +617,12 @@ def _sizes(ctx, seeds) -> list[str]:
               if ctx.quick else ""),
            f"- Network: {ctx.epochs} epochs; its kernel layer starts from the SVM fitted on the same training chirps. "
            "A model with the same inputs and training chirps is fitted once per seed and shared by the experiments "
-           "that use it (Fig. 6b's OSPA column is Table I's moving model).",
-           f"- Fig. 11: gamma {', '.join(map(str, f11['gammas']))}; SVM {len(f11['svm_seeds'])} training resamples "
-           f"(the first on every training chirp, the others on 80 %), network {len(f11['net_seeds'])} training seed(s) "
-           f"{list(f11['net_seeds'])}, per simulator seed.",
-           f"- {getattr(ctx, 'jobs', 1)} worker process(es)."]
+           "that use it (the moving robot's OSPA model serves the OSPA comparison, the gamma sweep and the force table)."]
+    if "fig11" in getattr(ctx, "names", EXPERIMENTS):
+        out.append(f"- Accuracy vs gamma: gamma {', '.join(map(str, f11['gammas']))}; SVM {len(f11['svm_seeds'])} training "
+                   f"resamples (the first on every training chirp, the others on 80 %), network {len(f11['net_seeds'])} "
+                   f"training seed(s) {list(f11['net_seeds'])}, per simulator seed.")
+    out.append(f"- {getattr(ctx, 'jobs', 1)} worker process(es).")
     timing = getattr(ctx, "timing", {})
     if timing:
         names = list(dict.fromkeys(n for _, n in timing))
@@ -832,7 +833,7 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
                 shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
     runs = [{n: results[s][n] for n in names} for s in seeds]
     ctx.timing = timing
-    ctx.jobs = jobs
+    ctx.jobs, ctx.names = jobs, names
     log(f"models fitted {shared_all.get('fits', 0)}, fits reused {shared_all.get('fits_reused', 0)}, "
         f"predictions reused {shared_all.get('replays_reused', 0)}")
     res = _aggregate(runs)
