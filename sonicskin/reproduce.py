@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -24,7 +25,7 @@ from .metrics import force_report, localization_report
 from .rig import Rig
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
-from .svm_head import fit_svm_head, score_vector, touch_statistic
+from .svm_head import fit_svm_head, ovo_decision, score_vector, touch_statistic
 
 __all__ = ["reproduce", "Spread", "SEEDS"]
 
@@ -60,19 +61,67 @@ class _Ctx:
         self.figs: list[Path] = []
         self.sim_seed = 0      # which simulated rig: seed 0 is the scenarios' own link and sessions
         self.plots = True      # figures are drawn for the first simulator seed only
+        self.progress = True   # progress bars of simulation (off in worker processes)
+        # Work shared between experiments of one simulator seed (same inputs, same result): feature tables,
+        # OSPA orders, fitted models and their replayed predictions, keyed by what they are computed from.
+        self._tables: dict = {}
+        self._orders: dict = {}
+        self._fits: dict = {}
+        self._preds: dict = {}
+        self.shared = {"fits": 0, "fits_reused": 0, "replays_reused": 0}
 
-    def dataset(self, name: str, scenario: str, **over) -> Dataset:
+    def table(self, ds: Dataset):
+        """The dataset's feature table, loaded once per process (``load_features_cached`` keeps it on disk)."""
+        key = str(ds.root)
+        if key not in self._tables:
+            self._tables[key] = load_features_cached(ds, progress=False)
+        return self._tables[key]
+
+    def bins(self, ds: Dataset, t, train: np.ndarray, n: int) -> np.ndarray:
+        """OSPA's first ``n`` bins on the training rows: one stable order per (dataset, training rows),
+        every gamma a prefix of it (:class:`~sonicskin.ospa.OSPA` keeps the smallest-VC bins, stable sort)."""
+        key = (str(ds.root), _mask_key(train))
+        have = self._orders.get(key)
+        if have is None or len(have) < n:
+            self._orders[key] = have = select_bins(t.select(train), ds.rig, max(n, min(1000, int(ds.rig.allowed_mask.sum()))))
+        return have[:n]
+
+    def dataset(self, name: str) -> Dataset:
         """The simulated dataset ``name`` of the current simulator seed: seed ``k`` is another link
         (``link_seed + k``: its irregularities) and other presses, noise and aims (``seed + 1000 k``)."""
         path = self.out / "data" / ("" if self.rig.name == "jaco-link" else self.rig.name) / (
             name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
         if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists()
                                                              for s in Dataset(path).sessions):
+            scenario, over = _datasets(self.quick)[name]
             d = {**Scenario.load(scenario).to_dict(), **(QUICK_SIZE if self.quick else {}), **over, "name": name}
             d["seed"] = int(d["seed"]) + 1000 * self.sim_seed
             d["link_seed"] = int(d["link_seed"]) + self.sim_seed
-            simulate_dataset(Scenario.from_dict(d), self.rig, path, mode="overwrite", progress=True, log=self.log)
+            simulate_dataset(Scenario.from_dict(d), self.rig, path, mode="overwrite", progress=self.progress, log=self.log)
         return Dataset(path)
+
+
+def _datasets(quick: bool) -> dict[str, tuple[str, dict]]:
+    """Every simulated dataset of the experiments: name -> (scenario, what the experiments change in it)."""
+    n_people = 6 if quick else 12
+    d = {"moving": ("moving", {"sessions": 3}), "stationary": ("stationary", {"sessions": 3}),
+         "multi-person": ("multi-person", {"sessions": n_people, "subjects": list(range(n_people))}),
+         # quick: power-on training, then 30 / 60 / 90 / 120 min (two simulator seeds must stay CI-sized)
+         "drift-2h": ("drift-2h", {"sessions": 5, "session_interval_s": 1800} if quick else {}),
+         "drift-2months": ("drift-2h", {"sessions": 5 if quick else 10, "session_interval_s": 6.37 * 86400, "start_s": 3600,
+                                        "temperature": {"ambient_c": 23.0, "warmup_c": 0.0, "warmup_tau_s": 5400.0,
+                                                        "swing_c": 3.0, "swing_period_s": 86400.0}, "seed": 31})}
+    for mat in MATERIALS:
+        d[f"two-points-{mat}"] = ("two-points", {"material": mat, "sessions": 2 if quick else 3, "repeats": 3 if quick else 6})
+    d["plate-aluminium"] = ("plate-aluminium", {"sessions": 2 if quick else 3})
+    return d
+
+
+MATERIALS = ("cfrp", "aluminium", "abs", "glass", "wood")
+#: the datasets each experiment reads (``--only`` simulates these only)
+USES = {"fig6b": ("moving",), "fig11": ("moving",), "fig12": ("drift-2h", "drift-2months"), "fig13": ("stationary",),
+        "table1": ("stationary", "moving", "multi-person"),
+        "fig16": tuple(f"two-points-{m}" for m in MATERIALS) + ("plate-aluminium",)}
 
 
 class Spread(float):
@@ -128,6 +177,7 @@ class _Inputs:
     alpha: int | None
     cps: float
     relative: bool
+    key: tuple = ()          # what the inputs are computed from (table, bins, mode, alpha, streams): the memo key
 
 
 def _replay(inp: _Inputs, test: np.ndarray, model, score_fn=None) -> dict:
@@ -147,9 +197,38 @@ def _replay(inp: _Inputs, test: np.ndarray, model, score_fn=None) -> dict:
     return {k: v[idx] for k, v in cols.items()}
 
 
-def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
+def _bytes_key(b: bytes) -> str:
+    import hashlib
+
+    return hashlib.blake2b(b, digest_size=12).hexdigest()
+
+
+def _mask_key(m: np.ndarray) -> str:
+    return _bytes_key(np.packbits(np.asarray(m, bool)).tobytes() + str(len(m)).encode())
+
+
+def _svm_fit(ctx, inp: _Inputs, t, layout, tr: np.ndarray):
+    """The SVM head on training rows ``tr`` of ``inp`` (scaler + SVC, reference scores, detector, force),
+    fitted once per (inputs, rows): the network's kernel layer starts from this same SVM."""
+    key = ("svm", inp.key, _mask_key(tr))
+    if key not in ctx._fits:
+        n = len(layout)
+        cls, _ = training_targets(t, layout)
+        force = t["force_n"].astype(np.float32)
+        ctx._fits[key] = fit_svm_head(inp.X[tr], cls[tr], force[tr], quiet_mask(t)[tr], n_locations=n,
+                                      location_ids=np.asarray(layout.ids))
+        ctx.shared["fits"] += 1
+    else:
+        ctx.shared["fits_reused"] += 1
+    return ctx._fits[key]
+
+
+def _fit_predict(ctx, kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np.ndarray, *, epochs: int = 30,
                  seed: int = 0) -> dict:
-    """Train ``kind`` on the usable chirps of ``train``, predict every chirp of ``test`` by replaying its stream."""
+    """Train ``kind`` on the usable chirps of ``train``, predict every chirp of ``test`` by replaying its stream.
+
+    Deterministic work is done once per simulator seed: the same model on the same inputs and rows (Fig. 6b's
+    OSPA column is Table I's moving model and Fig. 11's gamma = 300) is fitted and replayed once."""
     n = len(layout)
     cls, usable = training_targets(t, layout)
     force = t["force_n"].astype(np.float32)
@@ -157,13 +236,17 @@ def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np
     tr = train & usable
     ids = np.asarray(layout.ids)
     true_cls = cls[test].clip(max=n - 1)
+    pkey = (kind, inp.key, _mask_key(tr), _mask_key(test), epochs if kind == "net" else 0, seed if kind == "net" else 0)
+    if pkey in ctx._preds:
+        ctx.shared["replays_reused"] += 1
+        return ctx._preds[pkey]
     if kind == "svm":
-        pipe, params = fit_svm_head(X[tr], cls[tr], force[tr], quiet_mask(t)[tr], n_locations=n, location_ids=ids)
+        pipe, params = _svm_fit(ctx, inp, t, layout, tr)
         fm = PerLocationForce.from_dict(params["force"])
         ref0 = np.asarray(params["reference_scores"])
 
         def scores(x):
-            return score_vector(pipe.decision_function(x), n, x)
+            return score_vector(ovo_decision(pipe, x), n, x)
 
         def svm(x, score_ref):
             V = scores(x)
@@ -174,19 +257,30 @@ def _fit_predict(kind: str, inp: _Inputs, t, layout, train: np.ndarray, test: np
 
         r = _replay(inp, test, svm, scores)
         f = np.clip(fm.predict(r["E"], ids[true_cls]), 0, None)  # force at the true location
-        return {"location": ids[r["cls"]], "touch": r["touch"], "force": f, "force_model": fm}
-    from sonicskin.training.quick import fit_net
+        out = {"location": ids[r["cls"]], "touch": r["touch"], "force": f, "force_model": fm}
+    else:
+        from sonicskin.training.quick import DEFAULTS, fit_net
 
-    predict = fit_net(X[tr], cls[tr], force[tr], n_locations=n, epochs=epochs, seed=seed)
+        fkey = ("net", inp.key, _mask_key(tr), epochs, seed)
+        if fkey not in ctx._fits:
+            # The kernel layer starts from the SVM baseline fitted on the same rows: the head's own fit, not a second one.
+            pipe = _svm_fit(ctx, inp, t, layout, tr)[0] if DEFAULTS["kernel"] else None
+            ctx._fits[fkey] = fit_net(X[tr], cls[tr], force[tr], n_locations=n, epochs=epochs, seed=seed, kernel_svm=pipe)
+            ctx.shared["fits"] += 1
+        else:
+            ctx.shared["fits_reused"] += 1
+        predict = ctx._fits[fkey]
 
-    def net(x, _):
-        logits, f_all = predict(x)
-        return SimpleNamespace(touch=_p_touch(logits, n) >= 0.5,
-                               cls=np.argmax(logits[:, :n], axis=1), f_all=f_all)
+        def net(x, _):
+            logits, f_all = predict(x)
+            return SimpleNamespace(touch=_p_touch(logits, n) >= 0.5,
+                                   cls=np.argmax(logits[:, :n], axis=1), f_all=f_all)
 
-    r = _replay(inp, test, net)
-    f = np.take_along_axis(r["f_all"], true_cls[:, None], axis=1)[:, 0]
-    return {"location": ids[r["cls"]], "touch": r["touch"], "force": np.clip(f, 0, None), "predict": predict}
+        r = _replay(inp, test, net)
+        f = np.take_along_axis(r["f_all"], true_cls[:, None], axis=1)[:, 0]
+        out = {"location": ids[r["cls"]], "touch": r["touch"], "force": np.clip(f, 0, None), "predict": predict}
+    ctx._preds[pkey] = out
+    return out
 
 
 def _p_touch(logits: np.ndarray, n: int) -> np.ndarray:
@@ -214,12 +308,12 @@ def _split_first(t) -> tuple[np.ndarray, np.ndarray]:
     return t["session"] == s[0], t["session"] != s[0]
 
 
-def _first_session_split(ctx, name: str, scenario: str, **over):
+def _first_session_split(ctx, name: str):
     """A simulated dataset, its features, the one-shot split (first session trains) and OSPA's bins."""
-    ds = ctx.dataset(name, scenario, **over)
-    t = load_features_cached(ds, progress=False)
+    ds = ctx.dataset(name)
+    t = ctx.table(ds)
     train, test = _split_first(t)
-    return ds, t, train, test, select_bins(t.select(train), ds.rig, 300)
+    return ds, t, train, test, ctx.bins(ds, t, train, 300)
 
 
 def _inputs(t, rig, bins, mode="relative", *, alpha_s: float | None = 1200.0, one_stream: bool = False) -> _Inputs:
@@ -231,7 +325,9 @@ def _inputs(t, rig, bins, mode="relative", *, alpha_s: float | None = 1200.0, on
     Xa = t.X[:, list(spec.bins)].astype(np.float32)
     ref = spec.reference(cps)
     X = Xa if mode == "absolute" else relative_features(Xa, quiet_mask(t), streams, t["time_s"], ref)
-    return _Inputs(X, Xa, streams, t["time_s"], ref.beta, ref.alpha, cps, mode == "relative")
+    # id(t): tables live as long as the run (_Ctx.table keeps them), so the id names one table
+    key = (id(t), _bytes_key(np.asarray(spec.bins, np.int64).tobytes()), mode, alpha_s, one_stream)
+    return _Inputs(X, Xa, streams, t["time_s"], ref.beta, ref.alpha, cps, mode == "relative", key)
 
 
 def _plt():
@@ -244,13 +340,13 @@ def _plt():
 # -- experiments ----------------------------------------------------------------------------------
 
 def fig6b(ctx) -> dict:
-    ds, t, train, test, bins = _first_session_split(ctx, "moving", "moving", sessions=3)
+    ds, t, train, test, bins = _first_session_split(ctx, "moving")
     res = {}
     for k in _kinds(ctx):
         res[k] = {
-            "all_bins": _evaluate(_fit_predict(k, _inputs(t, ds.rig, np.arange(ds.rig.n_band)), t, ds.layout, train, test,
+            "all_bins": _evaluate(_fit_predict(ctx, k, _inputs(t, ds.rig, np.arange(ds.rig.n_band)), t, ds.layout, train, test,
                                                epochs=ctx.epochs), t, test, ds.layout)["accuracy"],
-            "ospa": _evaluate(_fit_predict(k, _inputs(t, ds.rig, bins), t, ds.layout, train, test, epochs=ctx.epochs),
+            "ospa": _evaluate(_fit_predict(ctx, k, _inputs(t, ds.rig, bins), t, ds.layout, train, test, epochs=ctx.epochs),
                               t, test, ds.layout)["accuracy"]}
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 3.5))
@@ -263,25 +359,32 @@ def fig6b(ctx) -> dict:
     return _save(ctx, fig, "fig6b.png", res)
 
 
+def _fig11_sizes(quick: bool) -> dict:
+    """Fig. 11's sweep: gammas, the SVM's training resamples and the network's training seeds (per simulator seed)."""
+    if quick:
+        return {"gammas": [100, 300, 1000], "svm_seeds": [0, 1], "net_seeds": [0, 1]}
+    return {"gammas": list(range(100, 1001, 100)), "svm_seeds": [0, 1, 2], "net_seeds": [0, 1, 2]}
+
+
 def fig11(ctx) -> dict:
-    ds = ctx.dataset("moving", "moving", sessions=3)
-    t = load_features_cached(ds, progress=False)
+    ds = ctx.dataset("moving")
+    t = ctx.table(ds)
     train, test = _split_first(t)
-    gammas = [100, 300, 1000] if ctx.quick else list(range(100, 1001, 100))
-    seeds = [0, 1] if ctx.quick else [0, 1, 2]
-    order = select_bins(t.select(train), ds.rig, max(gammas))
+    sz = _fig11_sizes(ctx.quick)
+    gammas = sz["gammas"]
+    order = ctx.bins(ds, t, train, max(gammas))
     res = {k: {} for k in _kinds(ctx)}
     for g in gammas:
         X = _inputs(t, ds.rig, order[:g])
         for k in res:
             # The SVM is deterministic; its spread over seeds comes from resampling the training presses.
             accs = []
-            for s in seeds:
+            for s in sz[f"{k}_seeds"]:
                 tr = train.copy()
                 if k == "svm" and s > 0:
                     rng = np.random.default_rng(s)
                     tr &= rng.random(len(t)) < 0.8
-                accs.append(_evaluate(_fit_predict(k, X, t, ds.layout, tr, test, epochs=ctx.epochs, seed=s), t, test,
+                accs.append(_evaluate(_fit_predict(ctx, k, X, t, ds.layout, tr, test, epochs=ctx.epochs, seed=s), t, test,
                                       ds.layout)["accuracy"])
             res[k][g] = accs
     plt = _plt()
@@ -295,12 +398,10 @@ def fig11(ctx) -> dict:
 
 
 def fig12(ctx) -> dict:
-    # quick: power-on training, then 30 / 60 / 90 / 120 min (two simulator seeds must stay CI-sized)
-    over = {"sessions": 5, "session_interval_s": 1800} if ctx.quick else {}
-    ds = ctx.dataset("drift-2h", "drift-2h", **over)
-    t = load_features_cached(ds, progress=False)
+    ds = ctx.dataset("drift-2h")
+    t = ctx.table(ds)
     train, _ = _split_first(t)
-    bins = select_bins(t.select(train), ds.rig, 300)
+    bins = ctx.bins(ds, t, train, 300)
     alphas = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
     res: dict = {"minutes": [], "temperature_c": []}
     sessions = sorted(set(t["session"]))[1:]
@@ -313,7 +414,7 @@ def fig12(ctx) -> dict:
         for k in _kinds(ctx):
             if name not in ("20 min", "never") and k == "net":
                 continue
-            pred = _fit_predict(k, Xr, t, ds.layout, train, ~train, epochs=ctx.epochs)
+            pred = _fit_predict(ctx, k, Xr, t, ds.layout, train, ~train, epochs=ctx.epochs)
             te = t.select(~train)
             acc = []
             for s in sessions:
@@ -354,13 +455,10 @@ def _draw_fig12(res: dict):
 
 
 def _two_months(ctx) -> dict:
-    n = 5 if ctx.quick else 10
-    ds = ctx.dataset("drift-2months", "drift-2h", sessions=n, session_interval_s=6.37 * 86400, start_s=3600,
-                     temperature={"ambient_c": 23.0, "warmup_c": 0.0, "warmup_tau_s": 5400.0, "swing_c": 3.0,
-                                  "swing_period_s": 86400.0}, seed=31)
-    t = load_features_cached(ds, progress=False)
+    ds = ctx.dataset("drift-2months")
+    t = ctx.table(ds)
     train, _ = _split_first(t)
-    bins = select_bins(t.select(train), ds.rig, 300)
+    bins = ctx.bins(ds, t, train, 300)
     out = {"days": [], "temperature_c": []}
     sessions = sorted(set(t["session"]))[1:]
     for s in sessions:
@@ -370,7 +468,7 @@ def _two_months(ctx) -> dict:
     for name, alpha in (("with updating", 1200.0), ("without", None)):
         Xr = _inputs(t, ds.rig, bins, alpha_s=alpha, one_stream=True)
         for k in _kinds(ctx):
-            pred = _fit_predict(k, Xr, t, ds.layout, train, ~train, epochs=ctx.epochs)
+            pred = _fit_predict(ctx, k, Xr, t, ds.layout, train, ~train, epochs=ctx.epochs)
             te = t.select(~train)
             out[f"{k} {name}"] = [float(np.mean(pred["location"][(te["session"] == s) & touch_mask(te)]
                                                 == te["location"][(te["session"] == s) & touch_mask(te)])) for s in sessions]
@@ -378,7 +476,7 @@ def _two_months(ctx) -> dict:
 
 
 def fig13(ctx) -> dict:
-    ds, t, train, test, bins = _first_session_split(ctx, "stationary", "stationary", sessions=3)
+    ds, t, train, test, bins = _first_session_split(ctx, "stationary")
     tr = t.select(train)
     touch = touch_mask(tr)
     ref = tr.X[quiet_mask(tr)].mean(axis=0)
@@ -392,7 +490,7 @@ def fig13(ctx) -> dict:
             res[feat][model] = float(np.mean(r2))
     if ctx.net:
         X = _inputs(t, ds.rig, bins)
-        pred = _fit_predict("net", X, t, ds.layout, train, train, epochs=ctx.epochs)
+        pred = _fit_predict(ctx, "net", X, t, ds.layout, train, train, epochs=ctx.epochs)
         m = touch_mask(t.select(train))
         g = t["force_n"][train][m]
         res["network (training fit)"] = float(1 - np.sum((pred["force"][m] - g) ** 2) / np.sum((g - g.mean()) ** 2))
@@ -412,24 +510,24 @@ def fig13(ctx) -> dict:
 def table1_fig14_15(ctx) -> dict:
     res: dict = {"table1": {}, "stationary": {}, "fig14": {}, "fig15": {}}
     for name in ("stationary", "moving"):
-        ds, t, train, test, bins = _first_session_split(ctx, name, name, sessions=3)
+        ds, t, train, test, bins = _first_session_split(ctx, name)
         X = _inputs(t, ds.rig, bins)
         for k in _kinds(ctx):
-            ev = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
+            ev = _evaluate(_fit_predict(ctx, k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
             res["table1"][f"{name} {k}"] = ev["force"]
             res["fig14" if name == "moving" else "stationary"][k] = ev
     n_people = 6 if ctx.quick else 12
-    ds = ctx.dataset("multi-person", "multi-person", sessions=n_people, subjects=list(range(n_people)))
-    t = load_features_cached(ds, progress=False)
+    ds = ctx.dataset("multi-person")
+    t = ctx.table(ds)
     test_subjects = list(range(n_people - (2 if ctx.quick else 4), n_people))
     test = np.isin(t["subject"], test_subjects) & np.isin(t["session"], sorted({s for s, subj in zip(t["session"], t["subject"])
                                                                                   if subj in test_subjects}))
     sess_test = sorted(set(t["session"][np.isin(t["subject"], test_subjects) & (t["location"] >= 0)]))
     test = np.isin(t["session"], sess_test)
     train = ~test
-    X = _inputs(t, ds.rig, select_bins(t.select(train), ds.rig, 300))
+    X = _inputs(t, ds.rig, ctx.bins(ds, t, train, 300))
     for k in _kinds(ctx):
-        res["fig15"][k] = _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
+        res["fig15"][k] = _evaluate(_fit_predict(ctx, k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
     plt = _plt()
     from .plots import cdf_panel, confusion_panel
 
@@ -451,16 +549,14 @@ def table1_fig14_15(ctx) -> dict:
 
 def fig16(ctx) -> dict:
     res: dict = {}
-    for mat in ("cfrp", "aluminium", "abs", "glass", "wood"):
-        ds, t, train, test, bins = _first_session_split(ctx, f"two-points-{mat}", "two-points", material=mat,
-                                                        sessions=2 if ctx.quick else 3, repeats=3 if ctx.quick else 6)
+    for mat in MATERIALS:
+        ds, t, train, test, bins = _first_session_split(ctx, f"two-points-{mat}")
         X = _inputs(t, ds.rig, bins)
-        res[mat] = {k: _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
+        res[mat] = {k: _evaluate(_fit_predict(ctx, k, X, t, ds.layout, train, test, epochs=ctx.epochs), t, test, ds.layout)
                     for k in _kinds(ctx)}
-    ds, t, train, test, bins = _first_session_split(ctx, "plate-aluminium", "plate-aluminium",
-                                                    sessions=2 if ctx.quick else 3)
+    ds, t, train, test, bins = _first_session_split(ctx, "plate-aluminium")
     X = _inputs(t, ds.rig, bins)
-    res["aluminium plate, 36 markers"] = {k: _evaluate(_fit_predict(k, X, t, ds.layout, train, test, epochs=ctx.epochs),
+    res["aluminium plate, 36 markers"] = {k: _evaluate(_fit_predict(ctx, k, X, t, ds.layout, train, test, epochs=ctx.epochs),
                                                        t, test, ds.layout) for k in _kinds(ctx)}
     fig = _draw_fig16(res, _kinds(ctx))
     return _save(ctx, fig, "fig16.png", res)
@@ -509,6 +605,36 @@ def _pool(v) -> list[float]:
     return [x for s in v for x in (s.values if isinstance(s, Spread) else [float(s)])]
 
 
+def _sizes(ctx, seeds) -> list[str]:
+    """What this run ran: dataset sizes, training, Fig. 11's sweep, and where the time went."""
+    f11 = _fig11_sizes(ctx.quick)
+    ds = ", ".join(f"{n} ({sc}" + (", " + ", ".join(f"{k} {v}" for k, v in o.items() if k in ("sessions", "repeats")) if
+                                     any(k in o for k in ("sessions", "repeats")) else "") + ")"
+                   for n, (sc, o) in _datasets(ctx.quick).items())
+    out = ["## What ran\n",
+           f"- Datasets per simulator seed (scenario, what the experiments set): {ds}."
+           + (f" Quick: every press {QUICK_SIZE['touch_s']} s and {QUICK_SIZE['moving_s']} s of moving no-touch per session."
+              if ctx.quick else ""),
+           f"- Network: {ctx.epochs} epochs; its kernel layer starts from the SVM fitted on the same training chirps. "
+           "A model with the same inputs and training chirps is fitted once per seed and shared by the experiments "
+           "that use it (the moving robot's OSPA model serves the OSPA comparison, the gamma sweep and the force table)."]
+    if "fig11" in getattr(ctx, "names", EXPERIMENTS):
+        out.append(f"- Accuracy vs gamma: gamma {', '.join(map(str, f11['gammas']))}; SVM {len(f11['svm_seeds'])} training "
+                   f"resamples (the first on every training chirp, the others on 80 %), network {len(f11['net_seeds'])} "
+                   f"training seed(s) {list(f11['net_seeds'])}, per simulator seed.")
+    out.append(f"- {getattr(ctx, 'jobs', 1)} worker process(es).")
+    timing = getattr(ctx, "timing", {})
+    if timing:
+        names = list(dict.fromkeys(n for _, n in timing))
+        ss = sorted({s for s, _ in timing})
+        out += ["", "Wall seconds per experiment and seed (CPU seconds of its process in brackets; with several workers "
+                "the experiments run side by side):\n", "| experiment | " + " | ".join(f"seed {s}" for s in ss) + " |",
+                "|---|" + "---|" * len(ss)]
+        out += [f"| {n} | " + " | ".join(f"{timing[(s, n)][0]:.0f} ({timing[(s, n)][1]:.0f})" if (s, n) in timing else ""
+                                         for s in ss) + " |" for n in names]
+    return out + [""]
+
+
 def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
     ks = _kinds(ctx)
     col = " | ".join("SVM" if k == "svm" else "network" for k in ks)
@@ -517,6 +643,7 @@ def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
              f"Every number below is measured in this run as mean +- standard deviation over {len(seeds)} simulator "
              f"seeds {list(seeds)} (each seed is another simulated link and other presses, noise and aims); "
              "the paper's are quoted for comparison. Figures show the first seed.\n"]
+    lines += _sizes(ctx, seeds)
     if "fig6b" in res:
         r = res["fig6b"]
         lines += ["## Fig. 6b: OSPA on the moving robot (paper: " + PAPER["fig6b"] + ")\n", f"| | {col} |", "|---|" + "---|" * len(ks),
@@ -586,12 +713,72 @@ def _report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
 EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
 
 
+_STEPS = {"fig6b": fig6b, "fig11": fig11, "fig12": fig12, "fig13": fig13, "table1": table1_fig14_15, "fig16": fig16}
+# Experiments that run in one worker process when seeds run in parallel: those sharing datasets and fits stay
+# together (Fig. 6b's OSPA model is Table I's moving model; Fig. 13 and Table I share the stationary dataset).
+_GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
+
+
+def default_jobs() -> int:
+    """Worker processes for ``reproduce``: the cores this process may use divided by the thread setting
+    (:mod:`sonicskin.threads`), at most 4 (each worker holds its datasets' features in memory)."""
+    from . import threads
+
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(1, min(4, cores // threads.get()))
+
+
+def _simulate_task(out, quick, rig, seed, name, n_threads):
+    """Worker: simulate (if not there yet) and featurise one dataset of one simulator seed."""
+    from . import threads
+
+    threads.configure(n_threads)
+    lines: list[str] = []
+    ctx = _Ctx(Path(out), quick, lines.append, rig)
+    ctx.sim_seed, ctx.progress = int(seed), False
+    t0, c0 = time.perf_counter(), time.process_time()
+    load_features_cached(ctx.dataset(name), progress=False)
+    lines.append(f"seed {seed} dataset {name}: {time.perf_counter() - t0:.0f} s ({time.process_time() - c0:.0f} CPU-s)")
+    return lines
+
+
+def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
+    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`_Ctx`).
+    Returns (seed, results, log lines, figures written, per-experiment (wall, CPU) seconds, sharing counts)."""
+    from . import threads
+
+    if n_threads is not None:
+        threads.configure(n_threads)
+    lines: list[str] = []
+    say = log or lines.append
+    ctx = _Ctx(Path(out), quick, say, rig)
+    ctx.sim_seed, ctx.plots = int(seed), plots
+    if log is None:
+        ctx.progress = False
+    res, times = {}, {}
+    for name in names:
+        t0, c0 = time.perf_counter(), time.process_time()
+        res[name] = _STEPS[name](ctx)
+        times[name] = (time.perf_counter() - t0, time.process_time() - c0)
+        say(f"seed {seed} {name}: {times[name][0]:.0f} s ({times[name][1]:.0f} CPU-s in its process)")
+    return int(seed), res, lines, ctx.figs, times, dict(ctx.shared)
+
+
 def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
-              log=print) -> dict:
+              log=print, jobs: int | None = None) -> dict:
     """Run every experiment (or those in ``only``, names from :data:`EXPERIMENTS`) once per simulator
     seed (default: 2 seeds quick, 3 full) on ``rig`` (default: the paper's, jaco) and report the mean
-    and spread of each number."""
+    and spread of each number.
+
+    ``jobs`` worker processes (default :func:`default_jobs`) share the work: first every dataset is simulated
+    and featurised (one task per dataset and seed), then the experiments run (one task per seed and group of
+    experiments that share data).  Each number is the same whatever ``jobs`` is: tasks only read what they share."""
     from tqdm.auto import tqdm
+
+    from . import threads
 
     t0 = time.perf_counter()
     out = Path(out)
@@ -602,22 +789,53 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
         raise ValueError("reproduce needs at least one simulator seed")
     if not ctx.net:
         log("torch/lightning not installed: network columns are skipped (pip install 'sonicskin[train]')")
-    steps = [("fig6b", fig6b), ("fig11", fig11), ("fig12", fig12), ("fig13", fig13), ("table1", table1_fig14_15),
-             ("fig16", fig16)]
+    names = list(_STEPS)
     if only:
         unknown = sorted(set(only) - set(EXPERIMENTS))
         if unknown:
             raise ValueError(f"unknown experiment(s) {unknown}; choose from {list(EXPERIMENTS)}")
-        steps = [(n, f) for n, f in steps if n in set(only)]
-    runs = []
-    for seed in seeds:
-        ctx.sim_seed, ctx.plots = int(seed), seed == seeds[0]
-        res = {}
-        for name, fn in tqdm(steps, desc=f"experiments, simulator seed {seed}", unit="exp"):
-            ts = time.perf_counter()
-            res[name] = fn(ctx)
-            log(f"seed {seed} {name}: {time.perf_counter() - ts:.0f} s")
-        runs.append(res)
+        names = [n for n in names if n in set(only)]
+    jobs = default_jobs() if jobs is None else int(jobs)
+    if jobs < 1:
+        raise ValueError(f"jobs must be at least 1, got {jobs}")
+    results: dict[int, dict] = {s: {} for s in seeds}
+    timing: dict = {}
+    shared_all: dict = {}
+    if jobs == 1:
+        for seed in tqdm(seeds, desc="simulator seeds", unit="seed"):
+            _, res, _, figs, times, shared = _experiment_task(out, quick, ctx.rig, seed, seed == seeds[0], names, None, log)
+            results[seed].update(res)
+            ctx.figs += figs
+            timing.update({(seed, k): v for k, v in times.items()})
+            shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+    else:
+        from joblib import Parallel, delayed
+
+        n_threads = max(1, threads.get() // jobs) if threads.get() >= jobs else 1
+        wanted = [d for d in _datasets(quick) if any(d in USES[n] for n in names)]
+        log(f"{len(wanted) * len(seeds)} datasets, then {len(names)} experiments x {len(seeds)} seeds, in {jobs} worker "
+            f"processes of {n_threads} thread(s)")
+        ts = time.perf_counter()
+        with Parallel(n_jobs=jobs, batch_size=1, return_as="generator_unordered") as par:
+            for lines in par(delayed(_simulate_task)(str(out), quick, ctx.rig, s, d, n_threads) for d in wanted for s in seeds):
+                for line in lines:
+                    log(line)
+            log(f"datasets ready: {time.perf_counter() - ts:.0f} s")
+            tasks = [(s, [n for n in g if n in names]) for g in _GROUPS for s in seeds]
+            tasks = [(s, g) for s, g in tasks if g]
+            for seed, res, lines, figs, times, shared in par(
+                    delayed(_experiment_task)(str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads) for s, g in tasks):
+                for line in lines:
+                    log(line)
+                results[seed].update(res)
+                ctx.figs += figs
+                timing.update({(seed, k): v for k, v in times.items()})
+                shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+    runs = [{n: results[s][n] for n in names} for s in seeds]
+    ctx.timing = timing
+    ctx.jobs, ctx.names = jobs, names
+    log(f"models fitted {shared_all.get('fits', 0)}, fits reused {shared_all.get('fits_reused', 0)}, "
+        f"predictions reused {shared_all.get('replays_reused', 0)}")
     res = _aggregate(runs)
     runtime = time.perf_counter() - t0
     (out / "report.md").write_text(_report(res, ctx, runtime, seeds))
@@ -636,7 +854,9 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
         return o
 
     (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds),
-                                                       "experiments": [n for n, _ in steps]}),
+                                                       "experiments": names, "jobs": jobs,
+                                                       "experiment_seconds": {f"{n} seed {s}": {"wall": w, "cpu": c}
+                                                                              for (s, n), (w, c) in timing.items()}}),
                                                 indent=1))
     log(f"wrote {out / 'report.md'}, report.json and {len(ctx.figs)} figures in {runtime / 60:.1f} min")
     return res

@@ -74,3 +74,23 @@ def test_seed_results_aggregate_to_mean_and_spread():
     np.testing.assert_array_equal(agg["confusion"], [[3, 1], [1, 3]])  # counts add up over seeds
     np.testing.assert_array_equal(agg["errors_cm"], [0.0, 1.2, 2.4])  # per-press errors pooled
     assert agg["model"] == "first"
+
+
+@pytest.mark.parametrize("k", [2, 3, 5])
+def test_blas_decision_values_equal_scikit_learns(k):
+    """reproduce and fit_svm_head score chirps with one BLAS product (ovo_decision); it must be libsvm's decision_function."""
+    import numpy as np
+    from sonicskin.models.kernel import svm_pipeline
+
+    from sonicskin.svm_head import ovo_decision
+
+    rng = np.random.default_rng(k)
+    X = rng.normal(size=(300, 50)).astype(np.float32)
+    y = rng.integers(0, k, 300)
+    X[np.arange(300), y] += 2.0  # separable enough to have few support vectors, not all
+    pipe = svm_pipeline(10.0).fit(X, y)
+    Xq = rng.normal(size=(2100, 50)).astype(np.float32)  # more than one block of 2,048
+    ref = pipe.decision_function(Xq)
+    got = ovo_decision(pipe, Xq)
+    assert got.shape == ref.shape
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-9)

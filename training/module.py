@@ -87,9 +87,11 @@ class SkinLitModule(L.LightningModule):
         self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout, n_centres=n_centres, tau=tau)
         self.meta: dict | None = None
 
-    def init_kernel(self, X: np.ndarray, cls: np.ndarray) -> None:
-        """Fit the SVM on (X, cls) of the training split and start the kernel layer (and normalisation) from it."""
-        pipe = fit_kernel_svm(X, cls, self.hparams.n_locations, C=self.hparams.svm_c)
+    def init_kernel(self, X: np.ndarray, cls: np.ndarray, pipe=None) -> None:
+        """Fit the SVM on (X, cls) of the training split and start the kernel layer (and normalisation) from it
+        (``pipe``: that SVM, already fitted)."""
+        if pipe is None:
+            pipe = fit_kernel_svm(X, cls, self.hparams.n_locations, C=self.hparams.svm_c)
         h = self.hparams
         h.n_centres = int(pipe[-1].support_vectors_.shape[0])
         self.model = SkinNet(h.n_in, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=h.n_centres, tau=h.tau)

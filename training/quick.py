@@ -19,12 +19,13 @@ DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_d
 
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
-            batch_size: int = 128, **hparams):
+            batch_size: int = 128, kernel_svm=None, **hparams):
     """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy.
 
     ``hparams`` override :data:`DEFAULTS` and :class:`~training.module.SkinLitModule`'s arguments.  With
     ``kernel=True`` the SVM baseline is fitted on the touch chirps of (X, cls) first and starts the
-    network's location layer.  ``predict.model`` is the trained :class:`models.SkinNet`.
+    network's location layer; ``kernel_svm``: that SVM already fitted (scaler + SVC on the touch chirps of the
+    same X, cls), not fitted again.  ``predict.model`` is the trained :class:`models.SkinNet`.
     """
     from sonicskin import threads
 
@@ -35,7 +36,7 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
     X = np.ascontiguousarray(X, np.float32)
     m.model.set_normalization(X.mean(0), X.std(0) + 1e-3)
     if m.hparams.kernel:
-        m.init_kernel(X, cls)
+        m.init_kernel(X, cls, pipe=kernel_svm)
     Xt, yt, ft = torch.from_numpy(X), torch.from_numpy(cls.astype(np.int64)), torch.from_numpy(force.astype(np.float32))
     opt, sched = m.make_optimizer(epochs)
     m.train()

@@ -17,6 +17,7 @@ from ._common import (
     lightning_overrides,
     need_train_extra,
     nonneg_int,
+    positive_int,
     removed_on_failure,
     resolve_n_bins,
     train_config,
@@ -221,7 +222,7 @@ def cmd_reproduce(a: argparse.Namespace) -> int:
     from ..reproduce import reproduce
     from ..rig import Rig
 
-    reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only, rig=Rig.load(a.rig))
+    reproduce(a.out, quick=a.quick, seeds=a.seeds, only=a.only, rig=Rig.load(a.rig), jobs=a.jobs)
     return 0
 
 
@@ -301,4 +302,7 @@ def add_parsers(sub) -> None:
     rp.add_argument("--rig", default="jaco", help="the simulated rig, a name (jaco, fast) or a YAML path (default: jaco)")
     rp.add_argument("--only", nargs="+", choices=REPRODUCE_EXPERIMENTS, metavar="EXP",
                     help=f"run these experiments only, one of {', '.join(REPRODUCE_EXPERIMENTS)} (default: all)")
+    rp.add_argument("--jobs", type=positive_int, metavar="N",
+                    help="worker processes: datasets, then seeds and experiments, side by side (default: the cores divided "
+                         "by --threads, at most 4)")
     rp.set_defaults(func=cmd_reproduce)
