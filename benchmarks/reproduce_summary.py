@@ -64,7 +64,9 @@ def rows(r: dict) -> list[tuple[str, str, str, str]]:
             if key == "stationary":
                 out.append((label, paper, *both(lambda k, t=t, key=key: pct(t[key][k]["accuracy"]))))
             else:
-                out.append((label, paper, *both(lambda k, t=t, key=key: f"{pct(t[key][k]['accuracy'])} / {_mean(t[key][k]['within_3cm']):.1%}")))
+                def acc3(k, t=t, key=key):
+                    return f"{pct(t[key][k]['accuracy'])} / {_mean(t[key][k]['within_3cm']):.1%}"
+                out.append((label, paper, *both(acc3)))
         if "fig14" in t:
             out.append(("moving robot: false / missed touches", "not reported",
                         *both(lambda k: f"{_mean(t['fig14'][k]['false_touch']):.1%} / {_mean(t['fig14'][k]['missed_touch']):.1%}")))
