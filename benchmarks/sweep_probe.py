@@ -4,7 +4,8 @@ For every scenario (stationary, moving), simulator seed and probe — chirp peri
 13.3 / 6.7 ms, band either the full 20-80 kHz or the OSPA region — this simulates the scenario on that
 rig, trains both models on its one-shot session exactly as ``sonicskin compare --scenario`` does
 (:func:`sonicskin.seeds._one_seed`: gamma, C, kernel width, force model and the network's layers chosen
-on the one-shot session's passes; replayed through the live loop's online reference on the later sessions), and measures the press-to-event latency of the SVM
+on the one-shot session's passes; replayed through the live loop's online reference on the later sessions),
+and measures the press-to-event latency of the SVM
 artifact with ``benchmarks/bench_latency.py``'s scripted presses (seed 0 only).
 
 The OSPA region of a (scenario, seed, period) is measured, not chosen: the 5th-95th percentile of the
