@@ -79,7 +79,7 @@ def rows(r: dict) -> list[tuple[str, str, str, str]]:
             out.append((f"Table I: force RMSE, {scen}", paper, *cells))
     if "fig12" in r:
         f = r["fig12"]
-        mins = " / ".join(f"{m:.0f}" for m in f["minutes"])
+        mins = " / ".join(f"{_mean(m):.0f}" for m in f["minutes"])
 
         def series(k, a):
             key = f"{k} alpha={a}"
