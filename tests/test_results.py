@@ -103,7 +103,8 @@ def test_unmeasured_and_unregistered_results_are_named(store):
     with pytest.raises(results.ResultError, match="is not closed"):
         results.regions(["<!-- result: hello -->", "x"])
     # CI's own time can only be measured once its commit exists: such a result may be unmeasured
-    (store / "docs/results/index.yaml").write_text(INDEX.replace("hello:\n  cost: a second", "hello:\n  of_the_commit: true\n  cost: a second"))
+    marked = INDEX.replace("hello:\n  cost: a second", "hello:\n  of_the_commit: true\n  cost: a second")
+    (store / "docs/results/index.yaml").write_text(marked)
     assert not any("'hello' was never measured" in p for p in results.problems(README))
     (store / "docs/results/index.yaml").write_text("x:\n  run: echo\n")
     with pytest.raises(results.ResultError, match="needs `run`.*and `cost`"):
