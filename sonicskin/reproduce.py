@@ -809,22 +809,29 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
             timing.update({(seed, k): v for k, v in times.items()})
             shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
     else:
-        from joblib import Parallel, delayed
+        import concurrent.futures
+        import multiprocessing
 
         n_threads = max(1, threads.get() // jobs) if threads.get() >= jobs else 1
         wanted = [d for d in _datasets(quick) if any(d in USES[n] for n in names)]
         log(f"{len(wanted) * len(seeds)} datasets, then {len(names)} experiments x {len(seeds)} seeds, in {jobs} worker "
             f"processes of {n_threads} thread(s)")
         ts = time.perf_counter()
-        with Parallel(n_jobs=jobs, batch_size=1, return_as="generator_unordered") as par:
-            for lines in par(delayed(_simulate_task)(str(out), quick, ctx.rig, s, d, n_threads) for d in wanted for s in seeds):
+        # Fresh worker processes (spawn: no forked BLAS/OpenMP or torch state); results come back as they finish.
+        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            def par(calls):
+                futs = [pool.submit(fn, *args) for fn, args in calls]
+                for f in concurrent.futures.as_completed(futs):
+                    yield f.result()
+
+            for lines in par((_simulate_task, (str(out), quick, ctx.rig, s, d, n_threads)) for d in wanted for s in seeds):
                 for line in lines:
                     log(line)
             log(f"datasets ready: {time.perf_counter() - ts:.0f} s")
             tasks = [(s, [n for n in g if n in names]) for g in _GROUPS for s in seeds]
             tasks = [(s, g) for s, g in tasks if g]
             for seed, res, lines, figs, times, shared in par(
-                    delayed(_experiment_task)(str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads) for s, g in tasks):
+                    (_experiment_task, (str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads)) for s, g in tasks):
                 for line in lines:
                     log(line)
                 results[seed].update(res)
