@@ -67,3 +67,16 @@ def reseal(session_dir) -> None:
         for ext in ("flac", "csv"):
             e[f"{ext}_sha256"] = hashlib.sha256((d / f"{e['part']}.{ext}").read_bytes()).hexdigest()
     (d / "session.json").write_text(json.dumps(info))
+
+
+def load_tool(name: str):
+    """A script of the repository's tools/ folder (not a package) as a module, e.g. ``load_tool("readme")``."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(f"sonicskin_{name}_tool", Path(__file__).resolve().parents[1] / "tools" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod

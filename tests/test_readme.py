@@ -5,25 +5,16 @@ The blocks and their markers are described in tools/readme.py (`make docs` write
 
 from __future__ import annotations
 
-import importlib.util
 import re
-import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import load_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _tool():
-    spec = importlib.util.spec_from_file_location("sonicskin_readme_tool", ROOT / "tools/readme.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-readme = _tool()
+readme = load_tool("readme")
 
 GOOD = """\
 Intro.

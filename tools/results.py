@@ -32,7 +32,6 @@ import datetime
 import hashlib
 import json
 import os
-import platform
 import re
 import resource
 import shutil
@@ -42,6 +41,9 @@ import time
 from pathlib import Path
 
 import yaml
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme import _machine as machine  # noqa: E402  (one description of the machine for both generators)
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -92,15 +94,6 @@ def code_digest() -> str:
         if p.is_file():
             h.update(path.encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()
-
-
-def machine() -> str:
-    try:
-        cpu = next(ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                   if ln.startswith("model name"))
-    except (OSError, StopIteration):
-        cpu = platform.processor() or platform.machine()
-    return f"{cpu}, {os.cpu_count()} cores"
 
 
 def _duration(s: float) -> str:
