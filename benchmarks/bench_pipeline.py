@@ -48,7 +48,7 @@ def met(value: float, target: float) -> str:
     return f"target >= {target:,}: {'met' if value >= target else 'NOT met'}"
 
 
-def simulate_moving() -> None:
+def simulate_moving() -> int:
     """``sonicskin simulate --scenario moving`` as a child process, FLAC included; chirps per CPU-second."""
     with tempfile.TemporaryDirectory() as d:
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -64,6 +64,54 @@ def simulate_moving() -> None:
     rate = chirps / (user + sys_)
     print(f"simulator: {chirps} chirps of the moving scenario in {user + sys_:.1f} CPU-s ({user:.1f} user + {sys_:.1f} sys, "
           f"{wall:.1f} s wall): {rate:.0f} chirps per CPU-second, FLAC writing and imports included; {met(rate, SIM_TARGET)}")
+    return chirps
+
+
+# The same command, instrumented: CPU time (of the calling thread) of the parts the issue cannot shrink
+# without another file writer, fewer modes or another random stream.  Printed as JSON by the child.
+_BUDGET_CHILD = r"""
+import json, resource, sys, time
+t_imp = time.process_time()
+import soundfile
+import sonicskin.cli
+from sonicskin.sim import channel, noise
+imports = time.process_time() - t_imp
+cpu = {"FLAC encoding (libsndfile, level 0, its MD5 included)": 0.0,
+       "the contact Green's functions' GEMM": 0.0, "the noise's Gaussian draws": 0.0}
+def timed(obj, name, key):
+    f = getattr(obj, name)
+    def w(*a, **k):
+        t = time.thread_time()
+        try:
+            return f(*a, **k)
+        finally:
+            cpu[key] += time.thread_time() - t
+    setattr(obj, name, w)
+timed(soundfile, "write", "FLAC encoding (libsndfile, level 0, its MD5 included)")
+timed(channel.ChannelModel, "_project", "the contact Green's functions' GEMM")
+timed(noise.NoiseDraws, "__init__", "the noise's Gaussian draws")
+sonicskin.cli.main(["simulate", "--scenario", "moving", "--out", sys.argv[1]])
+r = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"total": r.ru_utime + r.ru_stime, "parts": {"imports (interpreter start excluded)": imports, **cpu}}))
+"""
+
+
+def simulator_budget(chirps: int) -> None:
+    """Where the CPU of ``simulate --scenario moving`` goes, against the target's budget (one instrumented run)."""
+    with tempfile.TemporaryDirectory() as d:
+        r = subprocess.run([sys.executable, "-c", _BUDGET_CHILD, os.path.join(d, "moving")], capture_output=True,
+                           text=True)
+        if r.returncode:
+            raise SystemExit(f"simulate (instrumented) failed: {r.stderr.strip()[-500:]}")
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    parts, total = out["parts"], out["total"]
+    fixed = sum(parts.values())
+    print(f"simulator budget: the target allows {chirps / SIM_TARGET:.2f} CPU-s for these {chirps} chirps; "
+          f"an instrumented run took {total:.1f} CPU-s, of which " +
+          ", ".join(f"{k} {v:.2f}" for k, v in parts.items()) +
+          f" (together {fixed:.2f} CPU-s, {fixed / (chirps / SIM_TARGET):.0%} of the budget) and "
+          f"{total - fixed:.2f} CPU-s all the rest (Woodbury solves, noise spectra, inverse FFTs, quantisation, "
+          f"hashing, file writes, the kernel)")
 
 
 def featurise(rig: Rig, frames: np.ndarray) -> None:
@@ -80,7 +128,7 @@ def featurise(rig: Rig, frames: np.ndarray) -> None:
 
 def main() -> None:
     rig = Rig.load("jaco")
-    simulate_moving()
+    simulator_budget(simulate_moving())
     sc = Scenario(sessions=2, motion={"enabled": True})
     t0 = time.perf_counter()
     sim = Simulator(sc, rig)

@@ -1,8 +1,9 @@
 """The scripts whose stdout is a README result (benchmarks/bringup.py, check_faults.py, bench_live.py,
-bench_models.py, thermal_budget.py), run as the results runner runs them (from the repository root,
-stdout captured) with ``--small``: stdout is exactly the markdown block, with the rows and physically
-sane numbers; progress goes to stderr."""
+bench_models.py, thermal_budget.py, reproduce_summary.py), run as the results runner runs them (from the
+repository root, stdout captured), with ``--small`` where they measure: stdout is exactly the markdown
+block, with the rows and physically sane numbers; progress goes to stderr."""
 
+import json
 import re
 import subprocess
 import sys
@@ -150,3 +151,27 @@ def test_bringup():
     assert block.splitlines()[0].split() == ["check", "measured", "status", "fix"]
     assert block.strip().endswith("rig check: PASS (0 fail, 0 warn)")
     assert sum(x.split()[-1] == "pass" for x in block.splitlines()[2:-1]) == 8
+
+
+def test_reproduce_summary_shows_figure_12_at_the_papers_checkpoints(tmp_path):
+    """A full run has a warm-up session every 5 min: the table keeps the ones nearest 30/60/90/120 min
+    (their own values, not neighbours'); a quick run's four sessions are all shown."""
+    minutes = [6 + 5 * i for i in range(24)]  # 6, 11, ..., 121
+    never = [0.95 - 0.001 * i for i in range(24)]
+    every = [0.90 - 0.002 * i for i in range(24)]
+    report = {"seeds": [0], "quick": False, "experiments": ["fig12"], "runtime_s": 60.0,
+              "fig12": {"minutes": minutes, "svm alpha=never": never, "svm alpha=20 min": every}}
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    out = run_script("reproduce_summary.py", str(tmp_path / "report.json"))
+    _, body = table(out)
+    rows = {r[0]: r for r in body}
+    picks = [minutes.index(m) for m in (31, 61, 91, 121)]
+    assert rows["Fig. 12: warm-up, no updating, at 31 / 61 / 91 / 121 min"][2] == " / ".join(f"{never[i]:.1%}" for i in picks)
+    assert rows["Fig. 12: warm-up, Alg. 2 every 20 min, at 31 / 61 / 91 / 121 min"][2] == \
+        " / ".join(f"{every[i]:.1%}" for i in picks)
+    assert rows["Fig. 12: warm-up, no updating, at 31 / 61 / 91 / 121 min"][3] == "not run"  # no network in it
+    report["fig12"] = {"minutes": minutes[5::6], "svm alpha=never": never[5::6]}
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    _, body = table(run_script("reproduce_summary.py", str(tmp_path / "report.json")))
+    assert body[0][0] == "Fig. 12: warm-up, no updating, at 31 / 61 / 91 / 121 min"
+    assert body[0][2] == " / ".join(f"{v:.1%}" for v in never[5::6])
