@@ -77,7 +77,7 @@ import sonicskin.cli
 from sonicskin.sim import channel, noise
 imports = time.process_time() - t_imp
 cpu = {"FLAC encoding (libsndfile, level 0, its MD5 included)": 0.0,
-       "the contact Green's functions' GEMM": 0.0, "the noise's Gaussian draws": 0.0}
+       "the contact Green's functions' GEMM": 0.0, "the noise's random draws (two Gaussian fields, PWM and gear tones)": 0.0}
 def timed(obj, name, key):
     f = getattr(obj, name)
     def w(*a, **k):
@@ -89,7 +89,7 @@ def timed(obj, name, key):
     setattr(obj, name, w)
 timed(soundfile, "write", "FLAC encoding (libsndfile, level 0, its MD5 included)")
 timed(channel.ChannelModel, "_project", "the contact Green's functions' GEMM")
-timed(noise.NoiseDraws, "__init__", "the noise's Gaussian draws")
+timed(noise.NoiseDraws, "__init__", "the noise's random draws (two Gaussian fields, PWM and gear tones)")
 sonicskin.cli.main(["simulate", "--scenario", "moving", "--out", sys.argv[1]])
 r = resource.getrusage(resource.RUSAGE_SELF)
 print(json.dumps({"total": r.ru_utime + r.ru_stime, "parts": {"imports (interpreter start excluded)": imports, **cpu}}))
