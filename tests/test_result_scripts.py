@@ -119,7 +119,10 @@ def test_bench_live(bench_work):
     for r in rows:
         med, p99 = num(r[1], "ms"), num(r[2], "ms")
         assert 0 < med <= p99 < period
-        assert num(r[3], "%") == pytest.approx(100 * p99 / period, abs=0.1)
+        # The share is computed from the unrounded p99 and period; the table prints p99 to 0.01 ms, the period
+        # to 0.1 ms (10.7 for the fast rig's 10.667) and the share to 0.1 %: the bounds those roundings allow.
+        lo, hi = 100 * (p99 - 0.005) / (period + 0.05), 100 * (p99 + 0.005) / (period - 0.05)
+        assert lo - 0.05 <= num(r[3], "%") <= hi + 0.05, (r, period)
         assert abs(num(r[4]) - period / med) <= 1 + 0.01 * period / med
     m = re.search(r"(\d+) overflows, (\d+) re-locks, (\d+) chirps processed \((\d+) without drops\), (\d+) touch events \((\d+)\), "
                   r"no crash\.$", out.strip())
