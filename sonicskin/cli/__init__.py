@@ -12,9 +12,12 @@ its traceback.
 
 from __future__ import annotations
 
+import _thread
 import argparse
+import contextlib
 import os
 import sys
+import threading
 import warnings
 
 from .. import __version__, threads
@@ -122,6 +125,43 @@ def _user_error(exc: BaseException) -> bool:
     return False
 
 
+class _CtrlCInCallbacks:
+    """Ctrl-C that lands inside a C library's Python callback is not lost and prints no traceback.
+
+    soundfile reads and writes in-memory FLAC through cffi callbacks.  A ``KeyboardInterrupt`` raised
+    while one of them runs cannot unwind through C: cffi prints it as an "Exception ignored" traceback,
+    the callback returns a failure, and the run goes on (or fails with a misleading libsndfile error).
+    While installed, such an interrupt is remembered (:attr:`swallowed`) and delivered again a moment
+    later (:func:`_thread.interrupt_main`), once control is back in Python; :func:`main` reports an
+    error that follows it as the interruption it is.
+    """
+
+    def __init__(self) -> None:
+        self.swallowed = False
+        self._timer: threading.Timer | None = None
+
+    def _hook(self, unraisable) -> None:
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            self.swallowed = True
+            if self._timer is None or not self._timer.is_alive():
+                self._timer = threading.Timer(0.05, _thread.interrupt_main)
+                self._timer.daemon = True
+                self._timer.start()
+        else:
+            self._previous(unraisable)
+
+    @contextlib.contextmanager
+    def installed(self):
+        self._previous = sys.unraisablehook
+        sys.unraisablehook = self._hook
+        try:
+            yield self
+        finally:
+            sys.unraisablehook = self._previous
+            if self._timer is not None:
+                self._timer.cancel()
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``sonicskin`` with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
     if not sys.stderr.isatty():  # piped or logged: no progress bars (tqdm and Lightning's read TQDM_DISABLE)
@@ -141,9 +181,10 @@ def main(argv: list[str] | None = None) -> int:
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
         print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
+    ctrl_c = _CtrlCInCallbacks()
     try:
         threads.configure(getattr(a, "threads", None))
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), ctrl_c.installed():
             warnings.showwarning = one_line_warning  # the package's warnings as one line each, like errors
             return a.func(a, extra) if getattr(a, "passthrough", False) else a.func(a)
     except BrokenPipeError:  # `sonicskin live | head`: the reader went away
@@ -153,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
         return 130
     except Exception as exc:
+        if ctrl_c.swallowed:  # the error is the failed callback's: the user pressed Ctrl-C
+            print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
+            return 130
         if not _user_error(exc) or os.environ.get("SONICSKIN_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__

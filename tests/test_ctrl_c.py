@@ -1,0 +1,72 @@
+"""Ctrl-C that lands inside soundfile's cffi I/O callbacks (in-memory FLAC) is an interruption: exit 130
+with the one "interrupted" line, not an "Exception ignored" traceback, not a bogus "unreadable audio" error."""
+
+import io
+import shutil
+import sys
+import time
+import types
+
+import pytest
+
+import sonicskin.dataset as dataset
+from sonicskin.cli import _CtrlCInCallbacks, main
+
+
+class _CtrlCInTell(io.BytesIO):
+    """In-memory bytes whose first ``tell()`` (called by libsndfile through cffi) is hit by Ctrl-C."""
+
+    hits = 0
+
+    def tell(self):
+        if _CtrlCInTell.hits == 0:
+            _CtrlCInTell.hits += 1
+            raise KeyboardInterrupt
+        return super().tell()
+
+
+def test_ctrl_c_inside_a_soundfile_callback_interrupts_the_run(cli_files, tmp_path, monkeypatch, capsys):
+    data = tmp_path / "tiny"
+    shutil.copytree(cli_files["data"], data)
+    monkeypatch.setattr(dataset, "io", types.SimpleNamespace(BytesIO=_CtrlCInTell, StringIO=io.StringIO))
+    _CtrlCInTell.hits = 0
+    rc = main(["evaluate", "--data", str(data)])
+    err = capsys.readouterr().err
+    assert _CtrlCInTell.hits == 1  # the interrupt did land inside the callback
+    assert rc == 130, err
+    assert "sonicskin evaluate: interrupted; everything written so far is kept" in err
+    assert "Traceback" not in err and "Exception ignored" not in err and "unreadable" not in err, err
+
+
+def test_other_callback_errors_still_reach_the_previous_hook(cli_files, tmp_path, monkeypatch, capsys):
+    """Only Ctrl-C is taken over: any other exception in a callback goes to the hook installed before (Python's
+    report), the reader's own one-line error follows, and the previous hook is back afterwards."""
+
+    class _Broken(io.BytesIO):
+        def tell(self):
+            raise OSError("disk gone")
+
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
+    before = sys.unraisablehook
+    data = tmp_path / "tiny"
+    shutil.copytree(cli_files["data"], data)
+    monkeypatch.setattr(dataset, "io", types.SimpleNamespace(BytesIO=_Broken, StringIO=io.StringIO))
+    rc = main(["evaluate", "--data", str(data)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "unreadable audio" in err and "interrupted" not in err, err
+    assert seen and all(isinstance(e, OSError) and str(e) == "disk gone" for e in seen)
+    assert sys.unraisablehook is before
+
+
+def test_a_swallowed_ctrl_c_is_delivered_again_once_back_in_python():
+    """When the library carries on after the failed callback, the interrupt still comes, a moment later."""
+    ctrl_c = _CtrlCInCallbacks()
+    with pytest.raises(KeyboardInterrupt), ctrl_c.installed():
+        sys.unraisablehook(types.SimpleNamespace(exc_value=KeyboardInterrupt(), exc_type=KeyboardInterrupt,
+                                                 exc_traceback=None, err_msg=None, object=None))
+        assert ctrl_c.swallowed
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline:  # plain Python work: the re-delivered Ctrl-C lands here
+            sum(range(1000))
+    assert time.monotonic() < deadline
