@@ -80,10 +80,11 @@ def rows(r: dict) -> list[tuple[str, str, str, str]]:
             out.append((f"Table I: force RMSE, {scen}", paper, *cells))
     if "fig12" in r:
         f = r["fig12"]
-        at = [_mean(m) for m in f["minutes"]]
+        at = np.array([_mean(m) for m in f["minutes"]])
         # The paper's checkpoints: the session nearest each half hour (the full run has one every 5 min;
         # report.md lists them all).
-        keep = sorted({int(np.argmin(np.abs(np.array(at) - t))) for t in CHECKPOINTS_MIN}) if len(at) > 4 else range(len(at))
+        keep = (sorted({int(np.argmin(np.abs(at - t))) for t in CHECKPOINTS_MIN}) if len(at) > len(CHECKPOINTS_MIN)
+                else range(len(at)))
         mins = " / ".join(f"{at[i]:.0f}" for i in keep)
 
         def series(k, a):

@@ -25,13 +25,18 @@ class _CtrlCInTell(io.BytesIO):
         return super().tell()
 
 
-def test_ctrl_c_inside_a_soundfile_callback_interrupts_the_run(cli_files, tmp_path, monkeypatch, capsys):
+def _evaluate_reading_through(bytes_io, cli_files, tmp_path, monkeypatch, capsys) -> tuple[int, str]:
+    """``sonicskin evaluate`` on a copy of the tiny dataset, its parts decoded from ``bytes_io`` objects."""
     data = tmp_path / "tiny"
     shutil.copytree(cli_files["data"], data)
-    monkeypatch.setattr(dataset, "io", types.SimpleNamespace(BytesIO=_CtrlCInTell, StringIO=io.StringIO))
-    _CtrlCInTell.hits = 0
+    monkeypatch.setattr(dataset, "io", types.SimpleNamespace(BytesIO=bytes_io, StringIO=io.StringIO))
     rc = main(["evaluate", "--data", str(data)])
-    err = capsys.readouterr().err
+    return rc, capsys.readouterr().err
+
+
+def test_ctrl_c_inside_a_soundfile_callback_interrupts_the_run(cli_files, tmp_path, monkeypatch, capsys):
+    _CtrlCInTell.hits = 0
+    rc, err = _evaluate_reading_through(_CtrlCInTell, cli_files, tmp_path, monkeypatch, capsys)
     assert _CtrlCInTell.hits == 1  # the interrupt did land inside the callback
     assert rc == 130, err
     assert "sonicskin evaluate: interrupted; everything written so far is kept" in err
@@ -49,11 +54,7 @@ def test_other_callback_errors_still_reach_the_previous_hook(cli_files, tmp_path
     seen = []
     monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
     before = sys.unraisablehook
-    data = tmp_path / "tiny"
-    shutil.copytree(cli_files["data"], data)
-    monkeypatch.setattr(dataset, "io", types.SimpleNamespace(BytesIO=_Broken, StringIO=io.StringIO))
-    rc = main(["evaluate", "--data", str(data)])
-    err = capsys.readouterr().err
+    rc, err = _evaluate_reading_through(_Broken, cli_files, tmp_path, monkeypatch, capsys)
     assert rc == 2 and "unreadable audio" in err and "interrupted" not in err, err
     assert seen and all(isinstance(e, OSError) and str(e) == "disk gone" for e in seen)
     assert sys.unraisablehook is before

@@ -181,6 +181,10 @@ def main(argv: list[str] | None = None) -> int:
     def one_line_warning(message, category, filename, lineno, file=None, line=None):
         print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
+    def interrupted() -> int:
+        print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
+        return 130
+
     ctrl_c = _CtrlCInCallbacks()
     try:
         threads.configure(getattr(a, "threads", None))
@@ -191,12 +195,10 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout = None
         return 0
     except KeyboardInterrupt:
-        print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
-        return 130
+        return interrupted()
     except Exception as exc:
         if ctrl_c.swallowed:  # the error is the failed callback's: the user pressed Ctrl-C
-            print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
-            return 130
+            return interrupted()
         if not _user_error(exc) or os.environ.get("SONICSKIN_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__
