@@ -78,13 +78,16 @@ def simulate_moving(runs: int = 3) -> int:
     return chirps
 
 
-# The same command, instrumented: CPU time (of the calling thread) of the parts the issue cannot shrink
-# without another file writer, fewer modes or another random stream.  Printed as JSON by the child.
+# The same command, instrumented: CPU time (of the calling thread, user + system) of the parts the issue cannot
+# shrink without another file writer, fewer modes or another random stream, and of the work any simulator that
+# writes this dataset does (inverse FFTs, the files' bytes to disk, their hashes).  Printed as JSON by the child.
 _BUDGET_CHILD = r"""
 import json, resource, sys, time
 t_imp = time.process_time()
+import scipy.fft
 import soundfile
 import sonicskin.cli
+from sonicskin import dataset
 from sonicskin.sim import channel, noise
 imports = time.process_time() - t_imp
 cpu = {}  # label -> CPU-s, in the order timed
@@ -101,6 +104,9 @@ def timed(obj, name, key):
 timed(soundfile, "write", "FLAC encoding (libsndfile, level 0, its MD5 included)")
 timed(channel.ChannelModel, "_project", "the contact Green's functions' GEMM")
 timed(noise.NoiseDraws, "__init__", "the noise's random draws (two Gaussian fields, PWM and gear tones)")
+timed(scipy.fft, "irfft", "the inverse FFTs (float32)")
+timed(dataset, "_atomic_write_bytes", "writing the parts' bytes (page cache, fsync)")
+timed(dataset, "_sha", "their SHA-256")
 sonicskin.cli.main(["simulate", "--scenario", "moving", "--out", sys.argv[1]])
 r = resource.getrusage(resource.RUSAGE_SELF)
 print(json.dumps({"total": r.ru_utime + r.ru_stime, "parts": {"imports (interpreter start excluded)": imports, **cpu}}))
@@ -121,8 +127,8 @@ def simulator_budget(chirps: int) -> None:
           f"an instrumented run took {total:.1f} CPU-s, of which " +
           ", ".join(f"{k} {v:.2f}" for k, v in parts.items()) +
           f" (together {fixed:.2f} CPU-s, {fixed / (chirps / SIM_TARGET):.0%} of the budget) and "
-          f"{total - fixed:.2f} CPU-s all the rest (Woodbury solves, noise spectra, inverse FFTs, quantisation, "
-          f"hashing, file writes, the kernel)")
+          f"{total - fixed:.2f} CPU-s all the rest (Woodbury solves, noise spectra, the channel per chirp, "
+          f"quantisation, labels, the kernel's page faults)")
 
 
 def featurise(rig: Rig, frames: np.ndarray) -> None:
