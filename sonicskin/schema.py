@@ -393,6 +393,23 @@ def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int 
                 doc.num(v, f"{field}.outputs[{k}][{i}][{j}]", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
 
 
+def _check_selection(doc: _Doc, sel: Any) -> None:
+    """Model selection's report (reported only, never run): an object of objects that
+    :func:`sonicskin.selection.format_selection` (what ``compare --artifact`` prints) can read."""
+    from .selection import format_selection
+
+    sel = doc.obj(sel, "selection")
+    doc.keys(sel, _SELECTION_KEYS, "selection")
+    for k, v in sel.items():
+        if v is not None:
+            doc.obj(v, f"selection.{k}")
+    try:
+        format_selection(sel)
+    except (KeyError, TypeError, AttributeError, ValueError, IndexError) as e:
+        what = f"{type(e).__name__} {e}" if isinstance(e, KeyError) else f"{type(e).__name__}: {' '.join(str(e).split())[:80]}"
+        doc.fail("selection", f"is not the report model selection writes (reading it fails with {what})")
+
+
 def _check_training(doc: _Doc, tr: Any) -> None:
     tr = doc.obj(tr, "training")
     doc.str(doc.get(tr, "data", "training"), "training.data")
@@ -429,7 +446,7 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
     _check_training(doc, doc.get(meta, "training", ""))
     if "selection" in meta:  # what model selection chose and its validation estimate (sonicskin.selection); reported only
-        doc.keys(doc.obj(meta["selection"], "selection"), _SELECTION_KEYS, "selection")
+        _check_selection(doc, meta["selection"])
     models = doc.obj(doc.get(meta, "models", ""), "models")
     if not models:
         doc.fail("models", "is empty")
