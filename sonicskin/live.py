@@ -37,11 +37,16 @@ from .errors import SonicskinError
 from .events import TouchEvent
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "dropout_frames"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
 
 
 class DeviceLost(AudioError):
     """No audio arrived for the watchdog's time: the audio server or the interface stopped."""
+
+
+class InputUnusable(DeviceLost):
+    """Audio arrives but for the watchdog's time not one chirp of it could be used (all NaN, silent,
+    clipped or cut by lost blocks): the model would be blind while the loop looked healthy."""
 
 
 def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
@@ -196,6 +201,10 @@ class LiveLoop:
         self.latencies_ms: list[float] = []
         self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0}
         self.n_chirps = 0
+        # Since the last usable chirp: seconds of audio fed to this loop and what became of their frames.
+        self.blind_s = 0.0
+        self.blind_skipped = dict(self.skipped)
+        self.blind_relocks = 0
 
     @property
     def refreshes(self) -> int:
@@ -208,10 +217,13 @@ class LiveLoop:
         if not fault and dropout_frames(frame[None])[0]:
             fault = 4
         if fault:  # never reaches the features or the model
-            self.skipped[{1: "nan", 2: "silent", 3: "clipped", 4: "dropout"}[fault]] += 1
+            kind = {1: "nan", 2: "silent", 3: "clipped", 4: "dropout"}[fault]
+            self.skipped[kind] += 1
+            self.blind_skipped[kind] += 1
             self.boot_faults += self.stream.calibrating
             return None
         self.n_chirps += 1
+        self.blind_s, self.blind_skipped, self.blind_relocks = 0.0, dict.fromkeys(self.skipped, 0), self.framer.relocks
         t_s = start / self.rig.fs_hz
         was_calibrating = self.stream.calibrating
         p = self.stream.frame(frame, t_s)  # features, Alg. 2 reference, model, detection, force
@@ -238,6 +250,7 @@ class LiveLoop:
     def feed(self, block) -> None:
         """Process one block from the source (frames, features, model, events)."""
         samples = block.samples if block.samples.ndim == 1 else block.samples[:, self.channel]
+        self.blind_s += len(samples) / self.source.rig.fs_hz  # reset by the next usable chirp
         for start, frame in self.framer.push(samples, block.start, block.discontinuity):
             if self.startup_dropped is None:  # blocks lost before the first chirp was framed (loading, first lock)
                 self.startup_dropped = self.source.counters()["dropped_blocks"]
@@ -257,6 +270,26 @@ class LiveLoop:
         Ctrl-C, ``stop`` (a :class:`threading.Event`) is set, or the source ends; see :func:`run_loops`."""
         return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
                          idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s, stop=stop)[0]
+
+    def unusable_input(self) -> str:
+        """Why the audio since the last usable chirp gave none, with the fix (for :class:`InputUnusable`)."""
+        sk = {k: v for k, v in self.blind_skipped.items() if v}
+        relocks = self.framer.relocks - self.blind_relocks
+        c = self.source.counters()
+        lost = c.get("overflows", 0) + c.get("dropped_blocks", 0)
+        where = (", ".join(f"{v} {k}" for k, v in sk.items()) + " frame(s)" if sk else "no whole chirp framed") + \
+            (f", {relocks} re-locks after lost audio" if relocks else "")
+        worst = max(sk, key=sk.get) if sk else None
+        fix = {"nan": "the driver delivers NaN/inf samples: restart the audio interface or its driver",
+               "silent": f"the input is silent: is the transmitter playing and the receiver on input channel {self.channel} "
+                         f"(--rx)? check the cable and the levels with `sonicskin check`",
+               "dropout": "the input drops out (runs of exact zeros from the driver): check the cable and the interface "
+                          "with `sonicskin check`",
+               "clipped": "the input is clipped at full scale: lower the transmit amplitude or the input gain "
+                          "(`sonicskin check` measures the level)",
+               None: f"audio blocks are lost ({lost} overflows or dropped blocks): close other programs or raise --blocksize"}
+        return (f"the device delivers audio but none of the last {self.blind_s:.1f} s gave a usable chirp ({where}); "
+                f"{fix[worst]}")
 
     def status_line(self) -> str:
         lat = np.asarray(self.latencies_ms[-200:]) if self.latencies_ms else np.zeros(1)
@@ -293,7 +326,9 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
     first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
     after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  When no
     block arrives for ``watchdog_s`` seconds from an audio device (a source without a ``finished``
-    event), raises :class:`DeviceLost` (``None``: wait for ever); ``idle_timeout_s``
+    event), raises :class:`DeviceLost` (``None``: wait for ever); when audio arrives but ``watchdog_s`` seconds of it
+    give a loop no usable chirp (all NaN, silent, clipped, or cut by lost blocks), raises :class:`InputUnusable`,
+    whatever the source: the model would be blind while the loop looked healthy.  ``idle_timeout_s``
     is kept for callers that set it, the wait for a block is never longer than 0.1 s.
     """
     t_last_status = time.perf_counter()
@@ -330,6 +365,10 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
             t_last_block = time.perf_counter()
             for lp in loops:
                 lp.feed(block)
+                if watchdog_s is not None and lp.blind_s > max(watchdog_s, 2 * lp.framer.L / source.rig.fs_hz):
+                    if status:
+                        print(file=sys.stderr)
+                    raise InputUnusable(lp.unusable_input())
             stream_s = (block.start + len(block.samples)) / source.rig.fs_hz
             if status and time.perf_counter() - t_last_status > 1.0:
                 t_last_status = time.perf_counter()
@@ -338,6 +377,9 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
                 break
     except KeyboardInterrupt:
         pass
+    for lp in loops:  # a finite source that ended before the watchdog's time, without one usable chirp in it
+        if lp.n_chirps == 0 and lp.blind_s > 2 * lp.framer.L / source.rig.fs_hz:
+            lp.warn(lp.unusable_input())
     if status:
         print("\r" + " | ".join(lp.status_line() for lp in loops), file=sys.stderr, flush=True)
     wall = time.perf_counter() - started

@@ -50,3 +50,72 @@ def test_a_broken_selection_report_is_one_line(cli_files, tmp_path, capsys, name
     line = assert_one_line_error(code, err, "compare")
     assert re.search(rf"{re.escape(str(art / 'skin.json'))}: {pattern}", line), line
     assert line.endswith("; export the artifact again (`sonicskin export --run DIR` or `sonicskin fit-svm`)"), line
+
+
+# -- live: a device that delivers audio the model cannot use ----------------------------------------------------
+def _device(fault: str, good_s: float):
+    """A fake audio interface: ``good_s`` seconds of the rig's chirp train with a little noise, then 6 s of
+    ``fault`` (zeros, NaN, full-scale clipping); every block is queued at start (a device that keeps delivering)."""
+    import numpy as np
+
+    from sonicskin import acquire
+    from sonicskin.dsp import rig_chirp
+
+    class Device(acquire._QueueSource):
+        def __init__(self, rig, device=None, **kw):
+            super().__init__(rig, 1024, max_queued_s=30)
+
+        def start(self):
+            fs = int(self.rig.fs_hz)
+            n = int((good_s + 6.0) * fs) // 1024 * 1024
+            x = np.resize(rig_chirp(self.rig).astype(np.float32) * 0.1, n)
+            x += np.random.default_rng(0).normal(0, 1e-3, n).astype(np.float32)
+            bad = slice(int(good_s * fs), None)
+            x[bad] = {"zeros": 0.0, "nan": np.nan, "clip": 1.0}[fault]
+            for k in range(0, n, 1024):
+                self._deliver(x[k:k + 1024])
+
+        def stop(self):
+            pass
+
+    return Device
+
+
+LIVE_FAULTS = [
+    ("zeros", 0.0, r"\d+ silent frame\(s\)\); the input is silent: is the transmitter playing and the receiver on input "
+                   r"channel 0 \(--rx\)\? check the cable and the levels with `sonicskin check`"),
+    ("nan", 1.0, r"\d+ nan frame\(s\)\); the driver delivers NaN/inf samples: restart the audio interface or its driver"),
+    ("clip", 1.0, r"\d+ clipped frame\(s\)\); the input is clipped at full scale: lower the transmit amplitude or the input "
+                  r"gain \(`sonicskin check` measures the level\)"),
+]
+
+
+@pytest.mark.parametrize("fault, good_s, pattern", LIVE_FAULTS, ids=[c[0] for c in LIVE_FAULTS])
+def test_live_on_a_device_delivering_unusable_audio_stops_with_one_line(cli_files, monkeypatch, capsys, fault, good_s,
+                                                                        pattern):
+    """A device that delivers only zeros (or dies into NaN / clipping after 1 s) kept the loop running: every frame
+    skipped, no event, exit 0 at the end: a robot would read 'no touch' from a blind sensor."""
+    import re
+
+    from sonicskin import acquire
+
+    monkeypatch.setattr(acquire, "SoundDeviceSource", _device(fault, good_s))
+    code, out, err = run(capsys, ["live", "--device", "0", "--artifact", cli_files["artifact"], "--rig", cli_files["rig"],
+                                  "--duration", "20", "--no-status"])
+    lines = err.strip().splitlines()
+    assert code == 2 and out == "" and "Traceback" not in err, err
+    assert lines[-2].startswith('{"summary"'), err  # the run's counters are still printed
+    assert re.fullmatch(r"sonicskin live: error: the device delivers audio but none of the last 3\.0 s gave a usable chirp "
+                        rf"\({pattern}", lines[-1]), lines[-1]
+
+
+def test_api_listener_raises_on_unusable_audio(cli_files, monkeypatch):
+    """The Python API hands the same error to the caller's thread (iteration ends with it)."""
+    from sonicskin import acquire
+    from sonicskin.api import Listener
+    from sonicskin.live import InputUnusable
+
+    monkeypatch.setattr(acquire, "SoundDeviceSource", _device("zeros", 1.0))
+    lst = Listener(cli_files["artifact"], device=0, rig=cli_files["rig"], duration_s=20)
+    with pytest.raises(InputUnusable, match=r"none of the last 3\.0 s gave a usable chirp \(\d+ silent(, 1 dropout)? frame\(s\)\)"):
+        list(lst)
