@@ -242,6 +242,27 @@ def check_ranges(cfg) -> None:
     v = get("trainer.fast_dev_run")
     if v is not None and not isinstance(v, bool) and (not isinstance(v, int) or v < 0):
         bad("trainer.fast_dev_run", "true, false or a batch count >= 0", v)
+    devices = get("trainer.devices")  # Lightning: an int >= 1, -1 (all), "auto", or a list / comma string of indices
+    ok = (devices is None or devices == "auto" or (isinstance(devices, int) and not isinstance(devices, bool) and
+                                                    (devices >= 1 or devices == -1)))
+    if not ok and isinstance(devices, str):
+        parts = [x.strip() for x in devices.split(",") if x.strip()]
+        ok = bool(parts) and all(x.lstrip("-").isdigit() for x in parts) and (
+            int(parts[0]) >= 1 or int(parts[0]) == -1 if len(parts) == 1 else all(int(x) >= 0 for x in parts))
+    if not ok and isinstance(devices, (list, tuple)):
+        ok = bool(devices) and all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in devices)
+    if ok and get("trainer.accelerator") == "cpu" and not (devices is None or devices == "auto" or isinstance(devices, int)
+                                                            or (isinstance(devices, str) and "," not in devices)):
+        bad("trainer.devices", "a number of processes (an integer >= 1) on the CPU; device index lists are for GPUs", devices)
+    if not ok:
+        bad("trainer.devices", "an integer >= 1, -1 (every device), auto, or a list of device indices", devices)
+    strategy = get("trainer.strategy")  # spawned workers rebuild the location layer the parent never sees
+    if isinstance(strategy, str) and re.search(r"(spawn|fork|notebook)", strategy):
+        bad("trainer.strategy", "auto or ddp (the network's location layer is built when training starts, which a "
+                                "spawned or forked worker cannot hand back)", strategy)
+    kernel = get("model.kernel")  # typed bool | str: any other word would have meant True (a kernel layer) silently
+    if kernel is not None and not isinstance(kernel, bool) and kernel != "auto":
+        bad("model.kernel", "true, false or auto", kernel)
     seed = get("seed_everything")
     if seed is not None and not isinstance(seed, bool) and (not isinstance(seed, int) or not 0 <= seed < 2**32):
         bad("seed_everything", "true, false or an integer from 0 to 2**32 - 1", seed)
@@ -275,6 +296,7 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     printing jsonargparse's usage.
     """
     from jsonargparse import ArgumentError
+    from lightning.fabric.utilities.exceptions import MisconfigurationException
 
     from sonicskin import threads
 
@@ -294,10 +316,13 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
                           trainer_defaults={"callbacks": [bar], "enable_progress_bar": False,
                                             "enable_model_summary": False},
                           save_config_kwargs={"overwrite": True}, seed_everything_default=0)
-        except ArgumentError as e:
-            msg = " ".join(str(e).split())
+        except (ArgumentError, MisconfigurationException) as e:  # MisconfigurationException: Lightning's Trainer
+            msg = " ".join(str(e).split())                       # refusing e.g. --trainer.devices=0 or a missing GPU
             raise UsageError(f"{msg} (`{PROG} --help` lists the model/data/trainer options)") from None
         cli.epoch_bar = bar
         if run:
-            cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+            try:
+                cli.trainer.fit(cli.model, datamodule=cli.datamodule)
+            except MisconfigurationException as e:
+                raise UsageError(f"{' '.join(str(e).split())} (`{PROG} --help` lists the model/data/trainer options)") from None
     return cli
