@@ -280,12 +280,17 @@ class Split:
         train = list(train_sessions or sessions[:1])
         unknown = set(train) - set(sessions)
         if unknown:
-            raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({sessions})")
+            raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({', '.join(sessions)})")
         rest = [s for s in sessions if s not in train]
         if val_sessions is None:
             val = rest[:1] if len(rest) >= 2 else []
-        else:
+        else:  # never a session that trains (validation would score training data) or one the data lacks
             val = list(val_sessions)
+            for bad, why in ((sorted(set(val) - set(sessions)), "are not in the dataset"),
+                             (sorted(set(val) & set(train)), "are training sessions too")):
+                if bad:
+                    raise ValueError(f"validation sessions {', '.join(map(str, bad))} {why} (train {', '.join(train)}); "
+                                     f"validate on sessions that do not train: {', '.join(rest) or 'none left'}")
         test = [s for s in rest if s not in val]
         if not test and not allow_no_test:
             raise ValueError(f"no session left to test on (sessions {sessions}, train {train}, val {val})")

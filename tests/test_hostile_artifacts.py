@@ -119,3 +119,52 @@ def test_api_listener_raises_on_unusable_audio(cli_files, monkeypatch):
     lst = Listener(cli_files["artifact"], device=0, rig=cli_files["rig"], duration_s=20)
     with pytest.raises(InputUnusable, match=r"none of the last 3\.0 s gave a usable chirp \(\d+ silent(, 1 dropout)? frame\(s\)\)"):
         list(lst)
+
+
+# -- training options that reached Lightning (tracebacks) or were taken silently ---------------------------------
+TRAIN_REFUSALS = [
+    (["--trainer.devices", "0"], "--trainer.devices must be an integer >= 1, -1 (every device), auto, or a list of device "
+                                 "indices, got '0'"),
+    (["--trainer.devices", "-3"], "--trainer.devices must be an integer >= 1, -1 (every device), auto, or a list of device "
+                                  "indices, got '-3'"),
+    (["--trainer.devices", "[0]"], "--trainer.devices must be a number of processes (an integer >= 1) on the CPU; device "
+                                   "index lists are for GPUs, got [0]"),
+    (["--trainer.accelerator", "gpu"], "No supported gpu backend found! (`sonicskin train --help` lists the "
+                                       "model/data/trainer options)"),
+    (["--trainer.strategy", "ddp_spawn"], "--trainer.strategy must be auto or ddp (the network's location layer is built "
+                                          "when training starts, which a spawned or forked worker cannot hand back), got "
+                                          "'ddp_spawn'"),
+    (["--model.kernel", "maybe"], "--model.kernel must be true, false or auto, got 'maybe'"),
+]
+
+
+@pytest.mark.parametrize("argv, message", TRAIN_REFUSALS, ids=[" ".join(c[0]) for c in TRAIN_REFUSALS])
+def test_training_options_lightning_refuses_are_one_line(cli_files, capsys, argv, message):
+    """Lightning's own refusals (MisconfigurationException, TypeError from its device parser) were tracebacks,
+    ``ddp_spawn`` one after training (the spawned worker's kernel layer does not fit the parent's module), and a
+    misspelt ``--model.kernel`` meant ``true`` without a word."""
+    pytest.importorskip("lightning")
+    code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--n-bins", "60", "--trainer.max_epochs", "1",
+                                "--trainer.default_root_dir", str(cli_files["root"] / "never"), *argv])
+    assert assert_one_line_error(code, err, "train") == f"sonicskin train: error: {message}"
+    assert not (cli_files["root"] / "never").exists()
+
+
+SPLIT_REFUSALS = [
+    ("s000", "validation sessions s000 are training sessions too (train s000); validate on sessions that do not train: "
+             "s001, s002"),
+    ("s099", "validation sessions s099 are not in the dataset (train s000); validate on sessions that do not train: "
+             "s001, s002"),
+]
+
+
+@pytest.mark.parametrize("val, message", SPLIT_REFUSALS, ids=[c[0] for c in SPLIT_REFUSALS])
+@pytest.mark.parametrize("how", ["--val", "--data.val_sessions"])
+def test_validation_on_a_training_or_missing_session_is_refused(cli_files, tmp_path, capsys, val, message, how):
+    """``train --val s000`` (the default training session) validated on the training data and reported it as
+    'validation on s000'; ``--val s099`` (no such session) trained with no validation metrics at all, exit 0."""
+    pytest.importorskip("lightning")
+    argv = ["--val", val] if how == "--val" else [f"--data.val_sessions=[{val}]"]
+    code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--n-bins", "60", "--trainer.max_epochs", "1",
+                                "--model.hidden", "[8]", "--trainer.default_root_dir", str(tmp_path / "run"), *argv])
+    assert assert_one_line_error(code, err, "train") == f"sonicskin train: error: {message}"
