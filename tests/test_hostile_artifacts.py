@@ -135,6 +135,11 @@ TRAIN_REFUSALS = [
                                           "when training starts, which a spawned or forked worker cannot hand back), got "
                                           "'ddp_spawn'"),
     (["--model.kernel", "maybe"], "--model.kernel must be true, false or auto, got 'maybe'"),
+    # allocated before anything runs: 24 GB and 17 GB, the OOM killer's (seen: a SIGKILL after 3 minutes)
+    (["--model.n_centres", "100000000"], "--model.n_centres must be an integer from 0 to 100000 (the SVM's support vectors; "
+                                         "0: chosen when training starts), got 100000000"),
+    (["--model.hidden", "[65536, 65536]"], "--model.hidden must be layers of at most 50 million weights together (these "
+                                           "have 4,315 million), got [65536, 65536]"),
 ]
 
 

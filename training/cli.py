@@ -199,6 +199,9 @@ _FLOAT_RANGES = {  # (lo, lo_open, hi)
 }
 MAX_EPOCHS = 1_000_000
 MAX_BATCH = 1_000_000
+MAX_WEIGHTS = 50_000_000  # 200 MB of float32 weights (SkinNet at the shipped config: under 0.1 million)
+MAX_INPUTS_GUESS = 300    # the inputs (OSPA's gamma) are known only once the data is read: the default gamma
+MAX_CENTRES = 100_000     # RBF units of the kernel layer, one per SVM support vector
 
 
 def check_ranges(cfg) -> None:
@@ -232,6 +235,19 @@ def check_ranges(cfg) -> None:
     hidden = get("model.hidden")
     if hidden is not None and (not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 65536 for h in hidden)):
         bad("model.hidden", "a list of layer widths from 1 to 65536", list(hidden))
+    # Sizes that would be allocated before anything runs: [65536, 65536] is 17 GB of weights, n_centres 1e8 x 60 inputs
+    # 24 GB (the machine's memory; the OOM killer ends the run, or another process).
+    n_in = max(get("model.n_in") or 0, get("data.n_bins") or 0, MAX_INPUTS_GUESS)
+    if hidden:
+        widths = [n_in, *hidden]
+        weights = sum(a * b for a, b in zip(widths, widths[1:]))
+        if weights > MAX_WEIGHTS:
+            bad("model.hidden", f"layers of at most {MAX_WEIGHTS / 1e6:.0f} million weights together (these have "
+                                f"{weights / 1e6:,.0f} million)", list(hidden))
+    n_centres = get("model.n_centres")
+    if isinstance(n_centres, int) and n_centres > MAX_CENTRES:
+        bad("model.n_centres", f"an integer from 0 to {MAX_CENTRES} (the SVM's support vectors; 0: chosen when training "
+                               f"starts)", n_centres)
     for key in ("trainer.limit_train_batches", "trainer.limit_val_batches", "trainer.val_check_interval"):
         v, lo = get(key), (0 if key == "trainer.limit_val_batches" else 1)  # 0 validation batches: no validation
         if v is None:
