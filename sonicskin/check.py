@@ -44,6 +44,23 @@ __all__ = ["Capture", "CheckLine", "CheckReport", "SimulatedDevice", "simulated_
            "FAULTS", "THRESHOLDS"]
 
 FAULTS = ("none", "disconnected", "clipping", "weak", "wrong-channel", "rate")
+MIN_REST_CHIRPS = 9   # the lock offset takes up to one period; the delay, SNR and repeatability lines need 8 whole chirps
+MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on every input
+
+
+def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
+    """The rest and press windows the check records, before anything is played: long enough for its measurements,
+    short enough to hold in memory (``--rest 0.001`` failed the chirp lock as 'no chirp on any input', blaming the
+    cables; ``--rest 1e9`` asked numpy for 1.4 TiB)."""
+    import math
+
+    need = MIN_REST_CHIRPS * rig.period_s
+    for name, v, lo in (("--rest", rest_s, need), ("--press", press_s, 0.0)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
+            raise SonicskinError(f"{name} {v:g}: give seconds in (0, {MAX_WINDOW_S:g}]")
+        if v < lo:
+            raise SonicskinError(f"{name} {v:g} s holds fewer than the {MIN_REST_CHIRPS} chirp periods the check needs at rest "
+                                 f"({rig.period_s * 1e3:.1f} ms each): give --rest {math.ceil(need * 10) / 10:g} or more")
 
 # pass at or above the first value, warn at or above the second, fail below (lower-is-better rows say so)
 THRESHOLDS = {
@@ -182,6 +199,8 @@ class SimulatedDevice:
 
         if fault not in FAULTS:
             raise SonicskinError(f"unknown simulated fault {fault!r}; choose one of {', '.join(FAULTS)}")
+        if isinstance(motors, bool) or not isinstance(motors, (int, float)) or not 0.0 <= motors <= 1.0:  # NaN too
+            raise SonicskinError(f"--sim-motors {motors}: motor activity is a number from 0 (robot still) to 1 (full)")
         self.rig, self.fault = rig, fault
         sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
         self.scenario = sc.replace(seed=sc.seed + 2000 + seed, sessions=1)
@@ -228,6 +247,7 @@ class SimulatedDevice:
 def simulated_capture(device: SimulatedDevice, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
                       press_s: float = 3.0) -> Capture:
     """Run the check's recording on the simulated device (the press is scripted)."""
+    check_windows(device.rig, rest_s, press_s)
     fs = device.rig.fs_hz
     rest = (int(settle_s * fs), int((settle_s + rest_s) * fs))
     press = (rest[1], int((settle_s + rest_s + press_s) * fs))
@@ -262,6 +282,7 @@ def device_capture(rig: Rig, device, *, tx: int = 0, rx: int = 0, settle_s: floa
     from .live import DeviceLost
 
     prompt = prompt or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    check_windows(rig, rest_s, press_s)
     fs = rig.fs_hz
     idx = resolve_device(device)
     d = list_devices()[idx]

@@ -173,3 +173,25 @@ def test_validation_on_a_training_or_missing_session_is_refused(cli_files, tmp_p
     code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--n-bins", "60", "--trainer.max_epochs", "1",
                                 "--model.hidden", "[8]", "--trainer.default_root_dir", str(tmp_path / "run"), *argv])
     assert assert_one_line_error(code, err, "train") == f"sonicskin train: error: {message}"
+
+
+# -- check: windows and simulated motors outside what the check can measure ---------------------------------------
+CHECK_REFUSALS = [
+    (["--rest", "0.001"], "--rest 0.001 s holds fewer than the 9 chirp periods the check needs at rest (5.3 ms each): "
+                          "give --rest 0.1 or more"),
+    (["--rest", "1e9"], "--rest 1e+09: give seconds in (0, 600]"),
+    (["--press", "1e9"], "--press 1e+09: give seconds in (0, 600]"),
+    (["--sim-motors", "nan"], "--sim-motors nan: motor activity is a number from 0 (robot still) to 1 (full)"),
+    (["--sim-motors", "inf"], "--sim-motors inf: motor activity is a number from 0 (robot still) to 1 (full)"),
+    (["--sim-motors", "-1"], "--sim-motors -1.0: motor activity is a number from 0 (robot still) to 1 (full)"),
+]
+
+
+@pytest.mark.parametrize("argv, message", CHECK_REFUSALS, ids=[" ".join(c[0]) for c in CHECK_REFUSALS])
+def test_check_windows_and_motors_out_of_range_are_one_line(cli_files, tmp_path, capsys, argv, message):
+    """``--rest 0.001`` failed the chirp lock and blamed the cables ('no chirp on any input'), ``--rest 1e9`` was a
+    numpy MemoryError traceback, ``--sim-motors inf`` an IndexError traceback, ``nan`` and ``-1`` ran silently."""
+    code, _, err = run(capsys, ["check", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--rest", "1",
+                                "--press", "1", "--out", tmp_path / "o", *argv])
+    assert assert_one_line_error(code, err, "check") == f"sonicskin check: error: {message}"
+    assert not (tmp_path / "o").exists()
