@@ -37,6 +37,35 @@ __all__ = ["listen", "Listener"]
 _END = object()
 
 
+MAX_BLOCKSIZE = 2**20  # frames per audio block (5 s at 192 kHz)
+
+
+def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocksize) -> None:
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (a negative blocksize hung the
+    simulated device, 0 divided by zero, strings compared with numbers in the loop's thread)."""
+    import math
+
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    def count(v):
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    if not isinstance(artifact, (str, Path)):
+        raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
+    if not (device is None or isinstance(device, str) or (count(device) and device >= 0)):
+        raise SonicskinError(f"device must be None or 'sim', an audio device index >= 0 or a name, got {device!r}")
+    if duration_s is not None and not (number(duration_s) and math.isfinite(duration_s) and duration_s > 0):
+        raise SonicskinError(f"duration_s must be > 0 (a finite number of seconds) or None (until stop()), got {duration_s!r}")
+    if not (number(watchdog_s) and math.isfinite(watchdog_s) and watchdog_s > 0):
+        raise SonicskinError(f"watchdog_s must be a finite number of seconds > 0, got {watchdog_s!r}")
+    for name, v in (("tx", tx), ("rx", rx)):
+        if not (count(v) and v >= 0):
+            raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
+    if not (count(blocksize) and 1 <= blocksize <= MAX_BLOCKSIZE):
+        raise SonicskinError(f"blocksize must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {blocksize!r}")
+
+
 class Listener:
     """Run a skin in a background thread; events go to ``on_event`` and to :meth:`poll` / iteration.
 
@@ -65,12 +94,12 @@ class Listener:
         from .rig import Rig
         from .runtime import SkinRuntime
 
+        _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
+                         blocksize=blocksize)
         art = Path(artifact)
         if not (art / "skin.json").is_file():
             raise SonicskinError(f"{art} is not a sonicskin artifact (no skin.json there); create one with "
                                  f"`sonicskin fit-svm` or `sonicskin export`")
-        if duration_s is not None and not duration_s > 0:
-            raise SonicskinError(f"duration_s must be > 0 or None, got {duration_s}")
         the_rig = Rig.load(rig) if rig is not None else None
         self.runtime = SkinRuntime(art, model, rig=the_rig)
         if device is None or device == "sim":

@@ -195,3 +195,27 @@ def test_check_windows_and_motors_out_of_range_are_one_line(cli_files, tmp_path,
                                 "--press", "1", "--out", tmp_path / "o", *argv])
     assert assert_one_line_error(code, err, "check") == f"sonicskin check: error: {message}"
     assert not (tmp_path / "o").exists()
+
+
+# -- the Python API's keywords -------------------------------------------------------------------------------------
+API_REFUSALS = [
+    ({"blocksize": -5}, "blocksize must be an integer from 1 to 1048576 (audio frames per block), got -5"),  # hung
+    ({"blocksize": 0}, "blocksize must be an integer from 1 to 1048576 (audio frames per block), got 0"),  # ZeroDivision
+    ({"duration_s": "5"}, "duration_s must be > 0 (a finite number of seconds) or None (until stop()), got '5'"),  # TypeError
+    ({"watchdog_s": float("nan")}, "watchdog_s must be a finite number of seconds > 0, got nan"),  # no watchdog, silently
+    ({"tx": -1, "device": 0}, "tx must be a 0-based channel number (an integer >= 0), got -1"),
+    ({"artifact": None}, "artifact must be the path of an artifact folder, got None"),  # TypeError
+]
+
+
+@pytest.mark.parametrize("kw, message", API_REFUSALS, ids=["blocksize-negative", "blocksize-zero", "duration-string",
+                                                          "watchdog-nan", "tx-negative", "artifact-none"])
+def test_listener_keywords_are_checked_in_one_line(cli_files, kw, message):
+    from sonicskin.api import listen
+    from sonicskin.errors import SonicskinError
+
+    kw = {"artifact": cli_files["artifact"], "rig": cli_files["rig"], "scenario": cli_files["scenario"], "fast": True,
+          "duration_s": 2.0, **kw}
+    with pytest.raises(SonicskinError) as e:
+        next(iter(listen(kw.pop("artifact"), **kw)))
+    assert str(e.value) == message
