@@ -53,6 +53,23 @@ class Predictions:
         return cls(*(None if any(v is None for v in c) else np.concatenate(c) for c in cols))
 
 
+def _finite_rows(X: np.ndarray, what: str, fix: str) -> None:
+    """Refuse rows with NaN/inf in one line (they gave silently wrong predictions, or a NaN reference)."""
+    bad = ~np.isfinite(X).all(axis=tuple(range(1, X.ndim)))
+    if bad.any():
+        raise ArtifactError(f"{what} hold NaN or infinite values in {int(bad.sum())} of {len(X)} chirps (the first at row "
+                            f"{int(np.argmax(bad))}); {fix}")
+
+
+def _band_rows(X, n_band: int) -> np.ndarray:
+    """Band features (n, n_band) as float32, checked: shape and finite values."""
+    X = np.asarray(X, np.float32)
+    if X.ndim != 2 or X.shape[1] != n_band:
+        raise ArtifactError(f"expected band features (n, {n_band}), got {X.shape}")
+    _finite_rows(X, "the band features", "drop those chirps (the live loop skips them) or compute the features again")
+    return X
+
+
 def _softmax(z: np.ndarray) -> np.ndarray:
     z = z - z.max(axis=1, keepdims=True)
     e = np.exp(z)
@@ -119,10 +136,7 @@ class SkinRuntime:
     def inputs(self, X_band: np.ndarray, *, reference: np.ndarray | None = None) -> np.ndarray:
         """Model inputs from band features: the artifact's bins, minus ``reference`` (over the band
         or over the bins) in ``relative`` mode.  Streams get their reference from :meth:`stream`."""
-        X = np.asarray(X_band, np.float32)
-        if X.ndim != 2 or X.shape[1] != self.rig.n_band:
-            raise ArtifactError(f"expected band features (n, {self.rig.n_band}), got {X.shape}")
-        X = X[:, list(self.spec.bins)]
+        X = _band_rows(X_band, self.rig.n_band)[:, list(self.spec.bins)]
         if self.spec.mode == "absolute":
             return X
         if reference is None:
@@ -140,7 +154,12 @@ class SkinRuntime:
 
     # -- models ------------------------------------------------------------------------
     def run(self, inputs: np.ndarray) -> list[np.ndarray]:
-        return self.session.run(None, {self.input_name: np.ascontiguousarray(inputs, dtype=np.float32)})
+        x = np.ascontiguousarray(inputs, dtype=np.float32)
+        if x.ndim != 2 or x.shape[1] != len(self.spec.bins):
+            raise ArtifactError(f"expected model inputs (n, {len(self.spec.bins)}) (the artifact's bins; "
+                                f"SkinRuntime.inputs makes them from band features), got {x.shape}")
+        _finite_rows(x, "the model inputs", "drop those chirps (the live loop skips them)")
+        return self.session.run(None, {self.input_name: x})
 
     def _centroid(self, w: np.ndarray, k: int = 3) -> np.ndarray:
         """Probability-weighted centroid of the ``k`` most likely markers (wrapping around the tube)."""
@@ -222,11 +241,21 @@ class SkinStream:
 
     def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
         """One chirp-aligned frame (n_chirp,) at stream time ``t_s``; ``None`` during the boot calibration."""
-        return self.chirp(log_magnitude_db(np.asarray(frame)[None], self.rt.rig, check=False)[0], t_s)
+        frame = np.asarray(frame)
+        if frame.shape != (self.rt.rig.n_chirp,):
+            raise ArtifactError(f"expected one chirp-aligned frame of {self.rt.rig.n_chirp} samples (the artifact's rig), "
+                                f"got shape {frame.shape}")
+        return self.chirp(log_magnitude_db(frame[None], self.rt.rig, check=False)[0], t_s)
 
     def chirp(self, x_band: np.ndarray, t_s: float) -> Predictions | None:
         """One chirp's band features (n_band,); ``None`` during the boot calibration."""
-        x = np.asarray(x_band, np.float32)[self.bins]
+        x = np.asarray(x_band, np.float32)
+        if x.shape != (self.rt.rig.n_band,):
+            raise ArtifactError(f"expected one chirp's band features ({self.rt.rig.n_band},), got shape {x.shape}")
+        if not np.isfinite(x).all():  # it would become the reference (boot) or a prediction from NaN
+            raise ArtifactError("the chirp's band features hold NaN or infinite values (a NaN, silent or clipped frame); "
+                                "skip that chirp, as the live loop does")
+        x = x[self.bins]
         if not self.reference.ready:
             self.reference.step(x, t_s, None)
             return None
@@ -238,10 +267,13 @@ class SkinStream:
         """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference
         refreshes; the same output as :meth:`chirp` one at a time.  Boot chirps have
         ``calibrating`` set, no touch, location -1 and NaN position."""
-        X = np.asarray(X_band, np.float32)
-        if X.ndim != 2 or X.shape[1] != self.rt.rig.n_band:
-            raise ArtifactError(f"expected band features (n, {self.rt.rig.n_band}), got {X.shape}")
-        X = X[:, self.bins]
+        X = _band_rows(X_band, self.rt.rig.n_band)[:, self.bins]
+        time_s = np.asarray(time_s, np.float64)
+        if time_s.shape != (len(X),):
+            raise ArtifactError(f"time_s must hold one time per chirp ({len(X)},), got shape {time_s.shape}")
+        if not np.isfinite(time_s).all() or np.any(np.diff(time_s) < 0):
+            raise ArtifactError("time_s must be finite and non-decreasing (the stream clock of each chirp, in order): "
+                                "replay one stream at a time, in recording order")
         parts, lo = [], None
         for i, j, out in self.reference.replay(X, time_s, self._predict):
             lo = i if lo is None else lo

@@ -219,3 +219,59 @@ def test_listener_keywords_are_checked_in_one_line(cli_files, kw, message):
     with pytest.raises(SonicskinError) as e:
         next(iter(listen(kw.pop("artifact"), **kw)))
     assert str(e.value) == message
+
+
+# -- SkinRuntime / SkinStream on arrays (the documented runtime API) --------------------------------------------------
+def _stream(cli_files):
+    import numpy as np
+
+    from sonicskin.dataset import Dataset
+    from sonicskin.features import load_features_cached
+    from sonicskin.runtime import SkinRuntime
+
+    t = load_features_cached(Dataset(cli_files["data"]), progress=False)
+    m = t["session"] == "s002"
+    return SkinRuntime(cli_files["artifact"], "svm"), np.array(t.X[m], np.float32), np.array(t["time_s"][m])
+
+
+def _nan_rows(X):
+    X = X.copy()
+    X[700:710] = float("nan")
+    return X
+
+
+RUNTIME_REFUSALS = [
+    ("nan-rows", lambda rt, X, ts: rt.replay(_nan_rows(X), ts),  # predicted silently (no touch, NaN position)
+     "the band features hold NaN or infinite values in 10 of {n} chirps (the first at row 700); drop those chirps (the "
+     "live loop skips them) or compute the features again"),
+    ("time-too-short", lambda rt, X, ts: rt.replay(X, ts[:-5]),  # IndexError
+     "time_s must hold one time per chirp ({n},), got shape ({m},)"),
+    ("time-backwards", lambda rt, X, ts: rt.replay(X, ts[::-1].copy()),  # accepted: refreshes scheduled on a wrong clock
+     "time_s must be finite and non-decreasing (the stream clock of each chirp, in order): replay one stream at a time, "
+     "in recording order"),
+    ("inputs-wrong-width", lambda rt, X, ts: rt.predict_inputs(X[:3, :5]),  # onnxruntime's InvalidArgument
+     "expected model inputs (n, {b}) (the artifact's bins; SkinRuntime.inputs makes them from band features), got (3, 5)"),
+    ("chirp-wrong-width", lambda rt, X, ts: rt.stream().chirp(X[0, :5], 0.0),  # IndexError
+     "expected one chirp's band features ({band},), got shape (5,)"),
+    ("frame-wrong-length", lambda rt, X, ts: rt.stream().frame(X[0, :100], 0.0),  # numpy broadcast ValueError
+     "expected one chirp-aligned frame of {L} samples (the artifact's rig), got shape (100,)"),
+    ("chirp-nan", lambda rt, X, ts: rt.stream().chirp(_nan_rows(X)[705], 0.0),  # became the boot reference
+     "the chirp's band features hold NaN or infinite values (a NaN, silent or clipped frame); skip that chirp, as the live "
+     "loop does"),
+]
+
+
+@pytest.mark.parametrize("name, act, message", RUNTIME_REFUSALS, ids=[c[0] for c in RUNTIME_REFUSALS])
+def test_runtime_arrays_are_checked_in_one_line(cli_files, name, act, message):
+    from sonicskin.runtime import ArtifactError
+
+    rt, X, ts = _stream(cli_files)
+    with pytest.raises(ArtifactError) as e:
+        act(rt, X, ts)
+    assert str(e.value) == message.format(n=len(X), m=len(X) - 5, b=len(rt.spec.bins), band=rt.rig.n_band, L=rt.rig.n_chirp)
+
+
+def test_runtime_replay_of_a_clean_stream_still_runs(cli_files):
+    rt, X, ts = _stream(cli_files)
+    p = rt.replay(X, ts)
+    assert len(p.touch) == len(X) and p.touch.any() and p.calibrating.any() and not p.calibrating.all()
