@@ -275,3 +275,18 @@ def test_runtime_replay_of_a_clean_stream_still_runs(cli_files):
     rt, X, ts = _stream(cli_files)
     p = rt.replay(X, ts)
     assert len(p.touch) == len(X) and p.touch.any() and p.calibrating.any() and not p.calibrating.all()
+
+
+# -- an output path where a file is in the way -------------------------------------------------------------------
+def test_an_output_folder_that_is_a_file_names_the_problem(cli_files, tmp_path, capsys):
+    """``--out`` naming a file (or a path below one) printed only ``[Errno 17] File exists: '...'``."""
+    f = tmp_path / "f"
+    f.write_text("x")
+    code, _, err = run(capsys, ["check", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--rest", "1",
+                                "--press", "1", "--out", f])
+    assert assert_one_line_error(code, err, "check") == (f"sonicskin check: error: cannot use {f} as a folder: it, or a "
+                                                         f"folder above it, is a file (File exists); choose another output "
+                                                         f"path or move the file")
+    code, _, err = run(capsys, ["fit-svm", "--data", cli_files["data"], "--n-bins", "60", "--out", f / "art"])
+    assert assert_one_line_error(code, err, "fit-svm").startswith(f"sonicskin fit-svm: error: cannot use {f} as a folder")
+    assert f.read_text() == "x"

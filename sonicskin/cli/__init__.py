@@ -202,7 +202,10 @@ def main(argv: list[str] | None = None) -> int:
         if not _user_error(exc) or os.environ.get("SONICSKIN_DEBUG"):
             raise
         msg = " ".join(str(exc).split()) or type(exc).__name__
-        if isinstance(exc, OSError) and exc.filename is not None and str(exc.filename) not in msg:
+        if isinstance(exc, (FileExistsError, NotADirectoryError)) and exc.filename is not None:  # an output folder's path
+            msg = (f"cannot use {exc.filename} as a folder: it, or a folder above it, is a file ({exc.strerror}); choose "
+                   f"another output path or move the file")
+        elif isinstance(exc, OSError) and exc.filename is not None and str(exc.filename) not in msg:
             msg = f"{msg}: {exc.filename}"
         print(f"{verb}: error: {msg}", file=sys.stderr)
         return 2
