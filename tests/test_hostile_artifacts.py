@@ -290,3 +290,33 @@ def test_an_output_folder_that_is_a_file_names_the_problem(cli_files, tmp_path, 
     code, _, err = run(capsys, ["fit-svm", "--data", cli_files["data"], "--n-bins", "60", "--out", f / "art"])
     assert assert_one_line_error(code, err, "fit-svm").startswith(f"sonicskin fit-svm: error: cannot use {f} as a folder")
     assert f.read_text() == "x"
+
+
+# -- live: where the events go ----------------------------------------------------------------------------------------
+def _live_cmd(cli_files) -> str:
+    import shlex
+    import sys
+
+    return " ".join(shlex.quote(str(a)) for a in [sys.executable, "-m", "sonicskin", "live", "--artifact", cli_files["artifact"],
+                                                  "--scenario", cli_files["scenario"], "--rig", cli_files["rig"], "--fast",
+                                                  "--no-status"])
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full")
+@pytest.mark.parametrize("redirect, message", [
+    ("> /dev/full", "sonicskin live: error: cannot write the touch events to stdout (No space left on device): the file or "
+                    "device it goes to is full or gone; write them where there is room (`sonicskin live ... > events.jsonl`)"),
+    (">&-", "sonicskin live: error: stdout is closed, so the touch events would go nowhere; send them to a file or a pipe "
+            "(`sonicskin live ... > events.jsonl`), or add --udp/--lsl"),
+], ids=["stdout-full", "stdout-closed"])
+def test_live_events_that_cannot_be_written_are_one_line(cli_files, redirect, message):
+    """A full stdout was a bare '[Errno 28] No space left on device'; a closed one (``>&-``) dropped every event and
+    exited 0."""
+    import os
+    import subprocess
+
+    p = subprocess.run(["sh", "-c", f"{_live_cmd(cli_files)} {redirect}"], capture_output=True, text=True, timeout=120,
+                       env=dict(os.environ, OMP_NUM_THREADS="1"))
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert lines == [message], p.stderr

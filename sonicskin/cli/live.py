@@ -76,6 +76,17 @@ def _live_links(a: argparse.Namespace) -> int:
     return 0
 
 
+def _stdout_sink(line: str) -> None:
+    """One event line to stdout; a write that fails (a full disk, /dev/full) is one line naming where events went."""
+    try:
+        print(line, flush=True)
+    except BrokenPipeError:  # `sonicskin live | head`: the reader went away (main() ends quietly)
+        raise
+    except OSError as e:
+        raise UsageError(f"cannot write the touch events to stdout ({e.strerror or e}): the file or device it goes to "
+                         f"is full or gone; write them where there is room (`sonicskin live ... > events.jsonl`)") from None
+
+
 def cmd_live(a: argparse.Namespace) -> int:
     from ..acquire import Link, SimulatedSource, SoundDeviceSource
     from ..live import DeviceLost, LiveLoop, UdpSink
@@ -94,7 +105,10 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
         raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin fit-svm` or `sonicskin export`")
-    sinks = [lambda line: print(line, flush=True)]
+    if sys.stdout is None and not (a.udp or a.lsl):  # started with stdout closed (`>&-`): print() drops every event
+        raise UsageError("stdout is closed, so the touch events would go nowhere; send them to a file or a pipe "
+                         "(`sonicskin live ... > events.jsonl`), or add --udp/--lsl")
+    sinks = [_stdout_sink]
     if a.udp:
         sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))  # resolved here: a bad host is one line before the run
     if a.lsl:
