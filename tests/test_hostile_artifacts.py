@@ -320,3 +320,17 @@ def test_live_events_that_cannot_be_written_are_one_line(cli_files, redirect, me
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
     assert lines == [message], p.stderr
+
+
+@pytest.mark.parametrize("cb", ["EarlyStopping", "ModelCheckpoint"])
+def test_a_callback_monitoring_a_metric_never_logged_is_refused_before_training(cli_files, capsys, cb):
+    """EarlyStopping on a misspelt metric was a RuntimeError traceback after the first epoch (ModelCheckpoint ended with
+    Lightning's message after it)."""
+    pytest.importorskip("lightning")
+    code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--n-bins", "60", "--trainer.max_epochs", "1",
+                                "--trainer.default_root_dir", str(cli_files["root"] / "never"), f"--trainer.callbacks+={cb}",
+                                "--trainer.callbacks.monitor=val_accuracy"])
+    assert assert_one_line_error(code, err, "train") == (
+        f"sonicskin train: error: {cb} monitors 'val_accuracy', which sonicskin train does not log; monitor one of val_loss, "
+        f"val_acc, val_force_rmse, val_detect, train_loss, train_acc, train_force_rmse, train_detect")
+    assert not (cli_files["root"] / "never").exists()

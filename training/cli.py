@@ -284,6 +284,21 @@ def check_ranges(cfg) -> None:
         bad("seed_everything", "true, false or an integer from 0 to 2**32 - 1", seed)
 
 
+LOGGED = tuple(f"{stage}_{k}" for stage in ("val", "train") for k in ("loss", "acc", "force_rmse", "detect"))
+
+
+def check_monitors(callbacks) -> None:
+    """A checkpoint or early-stopping callback must watch a metric the module logs: a misspelt one ended the run
+    after its first epoch (EarlyStopping with a RuntimeError traceback)."""
+    from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
+
+    for cb in callbacks:
+        mon = getattr(cb, "monitor", None)
+        if isinstance(cb, (EarlyStopping, ModelCheckpoint)) and mon is not None and mon not in LOGGED:
+            raise UsageError(f"{type(cb).__name__} monitors {mon!r}, which sonicskin train does not log; monitor one of "
+                             f"{', '.join(LOGGED)}")
+
+
 class SkinCLI(LightningCLI):
     follow_root_dir = False  # --trainer.default_root_dir given without a logger: the logger writes there too
 
@@ -336,6 +351,7 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
             msg = " ".join(str(e).split())                       # refusing e.g. --trainer.devices=0 or a missing GPU
             raise UsageError(f"{msg} (`{PROG} --help` lists the model/data/trainer options)") from None
         cli.epoch_bar = bar
+        check_monitors(cli.trainer.callbacks)
         if run:
             try:
                 cli.trainer.fit(cli.model, datamodule=cli.datamodule)

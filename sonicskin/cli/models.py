@@ -105,7 +105,8 @@ def cmd_train(a: argparse.Namespace, extra: list[str]) -> int:
         return 0
     _report_training(cli)
     ckpt = cli.trainer.checkpoint_callback
-    print(f"checkpoints: {ckpt.dirpath} (best {ckpt.best_model_path}); config saved beside them")
+    best = ckpt.best_model_path or "none: no validation ran, export takes last.ckpt"
+    print(f"checkpoints: {ckpt.dirpath} (best {best}); config saved beside them")
     return 0
 
 
