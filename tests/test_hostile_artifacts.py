@@ -334,3 +334,17 @@ def test_a_callback_monitoring_a_metric_never_logged_is_refused_before_training(
         f"sonicskin train: error: {cb} monitors 'val_accuracy', which sonicskin train does not log; monitor one of val_loss, "
         f"val_acc, val_force_rmse, val_detect, train_loss, train_acc, train_force_rmse, train_detect")
     assert not (cli_files["root"] / "never").exists()
+
+
+def test_live_runs_an_artifact_on_its_own_rig_without_rig(cli_files, capsys):
+    """``live --artifact`` of a non-jaco rig was refused under the default --rig jaco ('... or run with the artifact's
+    rig', with no word of --rig); the Python API already defaulted to the artifact's rig."""
+    code, out, err = run(capsys, ["live", "--artifact", cli_files["artifact"], "--scenario", cli_files["scenario"], "--fast",
+                                  "--no-status"])
+    assert code == 0, err
+    events = [json.loads(ln) for ln in out.splitlines()]
+    assert events and all(e["kind"] in ("touch", "release") and e["location"] in (0, 1, 2) for e in events)
+    code, _, err = run(capsys, ["live", "--artifact", cli_files["artifact"], "--scenario", cli_files["scenario"], "--fast",
+                                "--no-status", "--rig", "jaco"])
+    assert assert_one_line_error(code, err, "live").startswith("sonicskin live: error: the artifact was trained for another "
+                                                                "rig (n_chirp: 1024 vs 20480")

@@ -52,7 +52,7 @@ def _live_links(a: argparse.Namespace) -> int:
     if a.device == "sim":
         raise UsageError("--links runs several links on one real audio interface; pass --device NAME|INDEX "
                          "(`sonicskin devices`); the simulated device has one link")
-    rig = Rig.load(a.rig)
+    rig = Rig.load(a.rig or "jaco")
     links = load_links(a.links, rig)
     arts = a.link_artifact or []
     if len(arts) != len(links):
@@ -87,10 +87,22 @@ def _stdout_sink(line: str) -> None:
                          f"is full or gone; write them where there is room (`sonicskin live ... > events.jsonl`)") from None
 
 
+def _live_rig(a: argparse.Namespace):
+    """``--rig``, else the artifact's own rig (as the Python API does), else the shipped jaco rig: an artifact of another
+    rig was refused under the default jaco with no word of --rig."""
+    from ..rig import Rig
+    from ..schema import load_skin
+
+    if a.rig:
+        return Rig.load(a.rig)
+    if a.artifact is not None:
+        return Rig.from_dict(load_skin(a.artifact)["rig"])
+    return Rig.load("jaco")
+
+
 def cmd_live(a: argparse.Namespace) -> int:
     from ..acquire import Link, SimulatedSource, SoundDeviceSource
     from ..live import DeviceLost, LiveLoop, UdpSink
-    from ..rig import Rig
     from ..runtime import SkinRuntime
 
     if getattr(a, "links", None):
@@ -115,7 +127,7 @@ def cmd_live(a: argparse.Namespace) -> int:
         from ..lsl import LslSink
 
         sinks.append(LslSink(a.lsl))
-    rig = Rig.load(a.rig)
+    rig = _live_rig(a)
     if a.device == "sim":
         from ..sim import Scenario, Simulator, build_timeline
 
@@ -209,7 +221,7 @@ def add_parsers(sub) -> None:
     lv.add_argument("--model", choices=("svm", "net"), default="svm", help="which model of the artifact (default: svm)")
     lv.add_argument("--scenario", default="stationary",
                     help="simulated device: scenario of the link and the touches (default: stationary)")
-    lv.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    lv.add_argument("--rig", help="rig name or YAML path (default: the --artifact's own rig, else jaco)")
     lv.add_argument("--duration", type=positive_float, default=30.0,
                     help="seconds to run, by the clock (--fast: seconds of simulated stream) (default: 30)")
     lv.add_argument("--udp", type=udp_target, metavar="[HOST:]PORT",
