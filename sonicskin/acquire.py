@@ -78,19 +78,29 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
     """
     from .rig import _resolve_config, load_yaml
 
-    cfg = load_yaml(_resolve_config(name_or_path, "links"))
+    where = _resolve_config(name_or_path, "links")
+    cfg = load_yaml(where)
     items = cfg.get("links") or []
     duplex = cfg.get("duplex", "time")
     if duplex not in ("time", "frequency"):
         raise ValueError(f"duplex must be 'time' or 'frequency', got {duplex!r}")
-    if not items:
-        raise ValueError("a links config needs a non-empty 'links' list of {name, tx, rx}")
+    if not items or not isinstance(items, list):
+        raise ValueError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
     n = len(items)
     out = []
-    for i, d in enumerate(items):
+    for i, d in enumerate(items):  # each link a mapping with 0-based integer channels (0.7 was channel 0, silently)
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
         bad = set(d) - {"name", "tx", "rx"}
         if bad:
-            raise ValueError(f"link {i}: unknown keys {sorted(bad)}; a link has name, tx, rx")
+            raise ValueError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has name, tx, rx")
+        for k in ("tx", "rx"):
+            v = d.get(k)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
+                                 f"{'nothing' if k not in d else repr(v)}")
+        if "name" in d and not isinstance(d["name"], str):
+            raise ValueError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
         if duplex == "time":
             out.append(Link(int(d["tx"]), int(d["rx"]), i, n, d.get("name", f"link{i}")))
         else:

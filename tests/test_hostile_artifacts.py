@@ -348,3 +348,25 @@ def test_live_runs_an_artifact_on_its_own_rig_without_rig(cli_files, capsys):
                                 "--no-status", "--rig", "jaco"])
     assert assert_one_line_error(code, err, "live").startswith("sonicskin live: error: the artifact was trained for another "
                                                                 "rig (n_chirp: 1024 vs 20480")
+
+
+# -- live --links: the links config ----------------------------------------------------------------------------------
+LINK_CONFIGS = [
+    ("ints", "links:\n  - 5\n  - 6\n", "link 0: expected a mapping {name, tx, rx}, got 5"),  # TypeError
+    ("tx-missing", "links:\n  - {name: a, rx: 0}\n", "link 0: tx must be a 0-based channel number (an integer >= 0), "
+                                                      "got nothing"),  # KeyError
+    ("tx-fraction", "links:\n  - {name: a, tx: 0.7, rx: 0}\n", "link 0: tx must be a 0-based channel number (an integer "
+                                                                ">= 0), got 0.7"),  # channel 0 silently
+    ("rx-negative", "links:\n  - {name: a, tx: 0, rx: -3}\n", "link 0: rx must be a 0-based channel number (an integer "
+                                                               ">= 0), got -3"),  # accepted
+    ("links-a-mapping", "links: {name: a}\n", "a links config needs a non-empty 'links' list of {name, tx, rx}"),
+]
+
+
+@pytest.mark.parametrize("name, text, message", LINK_CONFIGS, ids=[c[0] for c in LINK_CONFIGS])
+def test_a_broken_links_config_is_one_line(cli_files, tmp_path, capsys, name, text, message):
+    cfg = tmp_path / "links.yaml"
+    cfg.write_text("duplex: time\n" + text)
+    code, _, err = run(capsys, ["live", "--links", cfg, "--device", "0", "--link-artifact", cli_files["artifact"],
+                                "--rig", cli_files["rig"], "--no-status"])
+    assert assert_one_line_error(code, err, "live") == f"sonicskin live: error: {cfg}: {message}"
