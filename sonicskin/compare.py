@@ -167,7 +167,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     check_layout(meta, ds.layout, here=f"dataset {ds.root}")
     rts = {k: SkinRuntime(art, k, rig=ds.rig, layout=ds.layout) for k in names}
     t = load_features_cached(ds, progress=progress)
-    test = list(sessions or split["test"])
+    test = list(dict.fromkeys(sessions or split["test"]))  # a session named twice is scored once
     if not test:
         raise ValueError(f"{art} was trained on every session of its data ({', '.join(split['train'])}) and names no test "
                          f"session; choose the sessions to score with --test SESSION...")

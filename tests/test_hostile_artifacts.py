@@ -370,3 +370,26 @@ def test_a_broken_links_config_is_one_line(cli_files, tmp_path, capsys, name, te
     code, _, err = run(capsys, ["live", "--links", cfg, "--device", "0", "--link-artifact", cli_files["artifact"],
                                 "--rig", cli_files["rig"], "--no-status"])
     assert assert_one_line_error(code, err, "live") == f"sonicskin live: error: {cfg}: {message}"
+
+
+# -- compare: options that were ignored, a session named twice --------------------------------------------------------
+def test_compare_options_it_would_ignore_are_refused(cli_files, capsys, tmp_path):
+    """``compare --data D --epochs 5`` trained for the config's epochs (60 with moving) without a word; with --artifact
+    a --config was ignored too."""
+    code, _, err = run(capsys, ["compare", "--data", cli_files["data"], "--epochs", "5", "--out", tmp_path / "r"])
+    assert assert_one_line_error(code, err, "compare") == (
+        "sonicskin compare: error: --epochs sets the network epochs of --scenario runs; with --data pass "
+        "--trainer.max_epochs N (or drop it with --artifact)")
+    code, _, err = run(capsys, ["compare", "--data", cli_files["data"], "--artifact", cli_files["artifact"], "--test", "s002",
+                                "--config", "other.yaml", "--out", tmp_path / "r"])
+    assert assert_one_line_error(code, err, "compare").startswith("sonicskin compare: error: with --artifact the models are "
+                                                                   "already trained")
+
+
+def test_compare_a_test_session_named_twice_is_scored_once(cli_files, capsys, tmp_path):
+    """``--test s002 s002`` was 'operands could not be broadcast together with shapes (n,) (2n,)'."""
+    code, out, err = run(capsys, ["compare", "--data", cli_files["data"], "--artifact", cli_files["artifact"], "--test",
+                                  "s002", "s002", "--out", tmp_path / "r"])
+    assert code == 0, err
+    assert "  sessions: train s000, s001, s002 | validation none | test s002" in out.splitlines()
+    assert json.loads((tmp_path / "r" / "compare.json").read_text())["test_sessions"] == ["s002"]

@@ -176,6 +176,9 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         return 0
     if a.rig:
         raise UsageError("--rig chooses the simulated rig of --scenario; a dataset (--data) carries its own rig")
+    if a.epochs is not None:  # was ignored: the network trained for the config's epochs
+        raise UsageError("--epochs sets the network epochs of --scenario runs; with --data pass --trainer.max_epochs N "
+                         "(or drop it with --artifact)")
     if not a.data:
         raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
     check_split_options(a)  # --val none -> no validation session
@@ -187,7 +190,8 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         if not (artifact / "skin.json").is_file():
             raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                     f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-        if extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None:
+        if (extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None
+                or a.config != "moving"):
             raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
                              "compare on (drop the training options or --artifact)")
         sessions = a.test
