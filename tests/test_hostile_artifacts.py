@@ -373,9 +373,10 @@ def test_a_broken_links_config_is_one_line(cli_files, tmp_path, capsys, name, te
 
 
 # -- compare: options that were ignored, a session named twice --------------------------------------------------------
-def test_compare_options_it_would_ignore_are_refused(cli_files, capsys, tmp_path):
+def test_compare_options_it_would_ignore_are_refused(cli_files, capsys, tmp_path, monkeypatch):
     """``compare --data D --epochs 5`` trained for the config's epochs (60 with moving) without a word; with --artifact
     a --config was ignored too."""
+    monkeypatch.chdir(tmp_path)  # were it to train again, its runs/ go here
     code, _, err = run(capsys, ["compare", "--data", cli_files["data"], "--epochs", "5", "--out", tmp_path / "r"])
     assert assert_one_line_error(code, err, "compare") == (
         "sonicskin compare: error: --epochs sets the network epochs of --scenario runs; with --data pass "
