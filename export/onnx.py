@@ -46,6 +46,29 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
     return parity
 
 
+def check_same_sessions(meta: dict, ds, ckpt) -> None:
+    """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
+    the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
+    layout and session names gave an artifact whose two models were trained on different recordings."""
+    from sonicskin.training.data import session_fingerprints
+
+    from sonicskin.schema import ArtifactError
+
+    split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
+    missing = [s for s in split if s not in set(ds.sessions)]
+    if missing:
+        raise ArtifactError(f"dataset {ds.root} lacks session(s) {', '.join(missing)} of checkpoint {Path(ckpt).name}'s split "
+                            f"(train {', '.join(meta['split']['train'])}); pass the dataset it was trained on (--data)")
+    want = meta.get("sessions_sha256")
+    if isinstance(want, dict):
+        have = session_fingerprints(ds.root, list(want))
+        other = [s for s in want if have[s] != want[s]]
+        if other:
+            raise ArtifactError(f"dataset {ds.root}'s session(s) {', '.join(other)} are other recordings than checkpoint "
+                                f"{Path(ckpt).name} was trained on (their session.json differs); pass the dataset it was "
+                                f"trained on (a copy of it is fine) with --data")
+
+
 def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, log=print) -> dict:
     """Write ``out/{net.onnx, svm.onnx, skin.json}`` from a training checkpoint.
 
@@ -61,6 +84,7 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
     # The data must be the checkpoint's rig and marker layout: the SVM is fitted on its positions here.
     check_rig({"rig": meta["rig"]}, ds.rig, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
+    check_same_sessions(meta, ds, ckpt)
     layout = Layout.from_dict(meta["layout"])
     split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
     n_loc = len(layout)
@@ -88,7 +112,7 @@ def export_artifact(ckpt: str | Path, out: str | Path, *, data: str | Path | Non
         net = {"file": "net.onnx", "kind": "skinnet", "n_in": int(X.shape[1]), "n_locations": n_loc, "parity": net_parity,
                "hparams": {k: (list(v) if isinstance(v, tuple) else v) for k, v in lit.hparams.items()}}
         skin = skin_json(tmp, rig=meta["rig"], layout=meta["layout"], spec=spec, min_force_n=meta["min_force_n"],
-                         training={"data": meta["data"], "split": meta["split"], "checkpoint": str(ckpt),
+                         training={"data": str(Path(ds.root).resolve()), "split": meta["split"], "checkpoint": str(ckpt),
                                    "svm_train_time_s": svm_train_s, "net_train_time_s": meta.get("train_time_s")},
                          models={"net": net, "svm": svm}, probe_inputs=probe, selection=sel)
     from sonicskin.selection import format_selection

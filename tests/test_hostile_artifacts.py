@@ -5,6 +5,7 @@ each case failed (a traceback or a silently wrong result) before its fix and mus
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -394,3 +395,48 @@ def test_compare_a_test_session_named_twice_is_scored_once(cli_files, capsys, tm
     assert code == 0, err
     assert "  sessions: train s000, s001, s002 | validation none | test s002" in out.splitlines()
     assert json.loads((tmp_path / "r" / "compare.json").read_text())["test_sessions"] == ["s002"]
+
+
+# -- export --data: the checkpoint's recordings, not others under the same names --------------------------------------
+@pytest.fixture(scope="module")
+def trained(cli_files, tmp_path_factory):
+    """A 1-epoch network on the cli_files dataset, and a dataset of the same rig, layout and session names but other
+    recordings (another simulator seed)."""
+    pytest.importorskip("lightning")
+    from sonicskin.cli import main
+    from sonicskin.rig import Rig
+    from sonicskin.sim.generate import simulate_dataset
+    from sonicskin.sim.scenario import Scenario
+
+    root = tmp_path_factory.mktemp("trained")
+    assert main(["train", "--data", str(cli_files["data"]), "--n-bins", "60", "--trainer.max_epochs", "1",
+                 "--model.hidden", "[8]", "--trainer.default_root_dir", str(root / "run")]) == 0
+    simulate_dataset(Scenario.load(cli_files["scenario"]).replace(seed=99), Rig.load(cli_files["rig"]), root / "other",
+                     progress=False, log=lambda *_: None)
+    return root
+
+
+@pytest.mark.slow
+def test_export_refuses_other_recordings_under_the_same_names(cli_files, trained, capsys, tmp_path):
+    """``export --data`` of another recording with the checkpoint's rig, layout and session names trained the SVM on
+    it, next to a network trained on the checkpoint's data, and skin.json named the checkpoint's data."""
+    code, _, err = run(capsys, ["export", "--run", trained / "run", "--data", trained / "other", "--out", tmp_path / "a"])
+    line = assert_one_line_error(code, err, "export")
+    assert re.fullmatch(rf"sonicskin export: error: dataset {re.escape(str(trained / 'other'))}'s session\(s\) s000, s001, "
+                        r"s002 are other recordings than checkpoint \S+\.ckpt was trained on \(their session\.json differs\); "
+                        r"pass the dataset it was trained on \(a copy of it is fine\) with --data", line), line
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.slow
+def test_export_of_a_copy_of_the_data_names_the_copy(cli_files, trained, capsys, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(cli_files["data"], copy)
+    code, _, err = run(capsys, ["export", "--run", trained / "run", "--data", copy, "--out", tmp_path / "a"])
+    assert code == 0, err
+    assert json.loads((tmp_path / "a" / "skin.json").read_text())["training"]["data"] == str(copy.resolve())
+    shutil.rmtree(copy / "s002")  # a session of the checkpoint's split missing (its test session)
+    code, _, err = run(capsys, ["export", "--run", trained / "run", "--data", copy, "--out", tmp_path / "b"])
+    assert re.fullmatch(rf"sonicskin export: error: dataset {re.escape(str(copy))} lacks session\(s\) s002 of checkpoint "
+                        r"\S+\.ckpt's split \(train s000\); pass the dataset it was trained on \(--data\)",
+                        assert_one_line_error(code, err, "export"))

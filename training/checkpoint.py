@@ -124,6 +124,11 @@ def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
     for k in ("train", "val", "test"):
         for i, s in enumerate(doc.list(doc.get(split, k, "split"), f"split.{k}")):
             doc.str(s, f"split.{k}[{i}]")
+    if "sessions_sha256" in meta:  # optional: checkpoints written before it have none
+        fp = doc.obj(meta["sessions_sha256"], "sessions_sha256")
+        for k, v in fp.items():
+            if not (isinstance(v, str) and len(v) == 64 and all(c in "0123456789abcdef" for c in v)):
+                doc.fail(f"sessions_sha256.{k}", f"must be 64 lowercase hex digits, got {str(v)[:70]!r}")
     hp = lit.hparams
     if hp.n_in != len(spec.bins):
         doc.fail("spec.bins", f"lists {len(spec.bins)} bins but the network takes {hp.n_in} inputs")

@@ -15,6 +15,14 @@ from sonicskin.features import prepare
 __all__ = ["SkinDataModule"]
 
 
+def session_fingerprints(root: str | Path, sessions) -> dict[str, str]:
+    """sha256 of each session's ``session.json`` (the manifest binding its parts by their sha256): which recording a
+    checkpoint was trained on, so ``export --data`` can tell a copy of it from other data under the same names."""
+    import hashlib
+
+    return {str(s): hashlib.sha256((Path(root) / str(s) / "session.json").read_bytes()).hexdigest() for s in sessions}
+
+
 class SkinDataModule(L.LightningDataModule):
     """Data options: the chirps of a dataset as (features, class, force) tensors (class N = no touch).
 
@@ -106,7 +114,8 @@ class SkinDataModule(L.LightningDataModule):
         self.std = p["X"][tr].std(axis=0) + 1e-3
         ds = p["dataset"]
         self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
-                     "spec": p["spec"].to_dict(), "split": p["split"].to_dict(), "min_force_n": h.min_force_n}
+                     "spec": p["spec"].to_dict(), "split": p["split"].to_dict(), "min_force_n": h.min_force_n,
+                     "sessions_sha256": session_fingerprints(ds.root, [*p["split"].train, *p["split"].val, *p["split"].test])}
         if self.selection:
             self.meta["selection"] = self.selection
 
