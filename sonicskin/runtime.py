@@ -83,8 +83,8 @@ class SkinRuntime:
     ----------
     folder : the artifact folder.
     model : ``"net"`` or ``"svm"``.
-    rig : the rig it will run on; defaults to the artifact's own.  A different sample rate,
-        chirp or band raises :class:`ArtifactError`.
+    rig : the rig it will run on (a :class:`Rig`, a rig name or a YAML path); defaults to the artifact's own.  A
+        different sample rate, chirp or band raises :class:`ArtifactError`.
     layout : the marker layout of the surface it will run on (e.g. a scenario's ``make_layout()``);
         other ids or positions than the artifact's raise :class:`ArtifactError`.  ``None``: not checked.
     threads : onnxruntime intra-op threads (1: predictable latency next to the audio thread).
@@ -94,6 +94,17 @@ class SkinRuntime:
                  threads: int = 1):
         import onnxruntime as ort
 
+        if not isinstance(folder, (str, Path)):
+            raise ArtifactError(f"folder must be the path of an artifact folder, got {folder!r}")
+        if isinstance(rig, (str, Path)):  # a rig name or YAML, as everywhere else
+            rig = Rig.load(rig)
+        if not (rig is None or isinstance(rig, Rig)):
+            raise ArtifactError(f"rig must be a sonicskin.rig.Rig, a rig name or a YAML path, got {type(rig).__name__}")
+        if not (layout is None or isinstance(layout, Layout)):
+            raise ArtifactError(f"layout must be a sonicskin.rig.Layout (e.g. a scenario's make_layout()), got "
+                                f"{type(layout).__name__}")
+        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 1024:
+            raise ArtifactError(f"threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got {threads!r}")
         self.folder = Path(folder)
         self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.schema)
         self.rig = Rig.from_dict(self.meta["rig"])

@@ -440,3 +440,32 @@ def test_export_of_a_copy_of_the_data_names_the_copy(cli_files, trained, capsys,
     assert re.fullmatch(rf"sonicskin export: error: dataset {re.escape(str(copy))} lacks session\(s\) s002 of checkpoint "
                         r"\S+\.ckpt's split \(train s000\); pass the dataset it was trained on \(--data\)",
                         assert_one_line_error(code, err, "export"))
+
+
+RUNTIME_ARGS = [
+    ({"rig": {"fs_hz": 1}}, "rig must be a sonicskin.rig.Rig, a rig name or a YAML path, got dict"),  # AttributeError
+    ({"layout": "x"}, "layout must be a sonicskin.rig.Layout (e.g. a scenario's make_layout()), got str"),  # AttributeError
+    ({"threads": -2}, "threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got -2"),  # accepted
+    ({"threads": "2"}, "threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got '2'"),  # TypeError
+    ({"folder": 5}, "folder must be the path of an artifact folder, got 5"),  # TypeError
+]
+
+
+@pytest.mark.parametrize("kw, message", RUNTIME_ARGS, ids=["rig-dict", "layout-str", "threads-negative", "threads-str",
+                                                           "folder-int"])
+def test_runtime_arguments_are_checked_in_one_line(cli_files, kw, message):
+    from sonicskin.runtime import ArtifactError, SkinRuntime
+
+    kw = {"folder": cli_files["artifact"], "model": "svm", **kw}
+    with pytest.raises(ArtifactError) as e:
+        SkinRuntime(kw.pop("folder"), **kw)
+    assert str(e.value) == message
+
+
+def test_runtime_takes_a_rig_name_or_yaml(cli_files):
+    """``rig="jaco"`` was an AttributeError; now the rig is loaded and compared like any other."""
+    from sonicskin.runtime import ArtifactError, SkinRuntime
+
+    assert SkinRuntime(cli_files["artifact"], "svm", rig=cli_files["rig"]).rig.n_chirp == 1024
+    with pytest.raises(ArtifactError, match=r"^the artifact was trained for another rig \(n_chirp: 1024 vs 20480"):
+        SkinRuntime(cli_files["artifact"], "svm", rig="jaco")
