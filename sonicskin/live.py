@@ -32,7 +32,7 @@ from collections.abc import Callable
 import numpy as np
 
 from .acquire import AudioError
-from .dsp import find_chirp_offset, frame_faults, rig_chirp
+from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
 from .errors import SonicskinError
 from .events import TouchEvent
 from .runtime import Predictions, SkinRuntime
@@ -42,6 +42,12 @@ __all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLo
 
 class DeviceLost(AudioError):
     """No audio arrived for the watchdog's time: the audio server or the interface stopped."""
+
+
+# Chirp-to-chirp spread (std, dB) of the band features over the boot window, median over the usable bins: a repeating
+# chirp gives ~0.1 dB on every shipped rig and scenario (moving robot, aluminium plate, several people), noise without a
+# chirp (the transmitter off) the Rayleigh figure, 5.6 dB.
+NO_CHIRP_SPREAD_DB = 4.0
 
 
 class InputUnusable(DeviceLost):
@@ -205,6 +211,10 @@ class LiveLoop:
         self.blind_s = 0.0
         self.blind_skipped = dict(self.skipped)
         self.blind_relocks = 0
+        self._boot_sum: np.ndarray | None = None  # sums of the boot chirps' band features and their squares
+        self._boot_sq: np.ndarray | None = None
+        self._boot_n = 0
+        self.boot_spread_db: float | None = None
 
     @property
     def refreshes(self) -> int:
@@ -226,8 +236,12 @@ class LiveLoop:
         self.blind_s, self.blind_skipped, self.blind_relocks = 0.0, dict.fromkeys(self.skipped, 0), self.framer.relocks
         t_s = start / self.rig.fs_hz
         was_calibrating = self.stream.calibrating
+        if was_calibrating and self.boot_spread_db is None:
+            self._boot_add(frame)
         p = self.stream.frame(frame, t_s)  # features, Alg. 2 reference, model, detection, force
         ref = self.stream.reference
+        if was_calibrating and not self.stream.calibrating and self.boot_spread_db is None:
+            self._boot_check()
         if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
             self.warn(f"boot calibration disturbed: {self.boot_faults} faulty chirp(s) (NaN, dropout, silence or clipping) "
                       f"in the first {ref.beta / ref.cps:.1f} s; reference from the {ref.boot_chirps} clean chirps of "
@@ -270,6 +284,29 @@ class LiveLoop:
         Ctrl-C, ``stop`` (a :class:`threading.Event`) is set, or the source ends; see :func:`run_loops`."""
         return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
                          idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s, stop=stop)[0]
+
+    def _boot_add(self, frame: np.ndarray) -> None:
+        x = log_magnitude_db(frame[None], self.rig, check=False)[0][self.rig.allowed_mask].astype(np.float64)
+        if self._boot_sum is None:
+            self._boot_sum, self._boot_sq = np.zeros_like(x), np.zeros_like(x)
+        self._boot_sum += x
+        self._boot_sq += x * x
+        self._boot_n += 1
+
+    def _boot_check(self) -> None:
+        """The hands-off boot window must hold a repeating chirp: noise alone (the transmitter off or not reaching the
+        receiver) would be taken as the reference and give touch events at random."""
+        if self._boot_n < 4:
+            self.boot_spread_db = float("nan")
+            return
+        mean = self._boot_sum / self._boot_n
+        var = np.maximum(self._boot_sq / self._boot_n - mean * mean, 0.0)
+        self.boot_spread_db = float(np.median(np.sqrt(var)))
+        if self.boot_spread_db > NO_CHIRP_SPREAD_DB:
+            raise InputUnusable(f"no chirp in the input: over the {self._boot_n} hands-off chirps of the boot calibration the "
+                                f"received spectrum varies by {self.boot_spread_db:.1f} dB from chirp to chirp (a chirp "
+                                f"repeats within ~0.1 dB, noise alone varies by 5.6 dB); is the transmitter playing on "
+                                f"output --tx and reaching the receiver? check it with `sonicskin check`")
 
     def unusable_input(self) -> str:
         """Why the audio since the last usable chirp gave none, with the fix (for :class:`InputUnusable`)."""

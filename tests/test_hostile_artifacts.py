@@ -72,7 +72,10 @@ def _device(fault: str, good_s: float):
             x = np.resize(rig_chirp(self.rig).astype(np.float32) * 0.1, n)
             x += np.random.default_rng(0).normal(0, 1e-3, n).astype(np.float32)
             bad = slice(int(good_s * fs), None)
-            x[bad] = {"zeros": 0.0, "nan": np.nan, "clip": 1.0}[fault]
+            if fault == "noise":  # the transmitter off: the receiver hears its noise only
+                x[bad] = np.random.default_rng(1).normal(0, 0.05, x[bad].size).astype(np.float32)
+            else:
+                x[bad] = {"zeros": 0.0, "nan": np.nan, "clip": 1.0}[fault]
             for k in range(0, n, 1024):
                 self._deliver(x[k:k + 1024])
 
@@ -469,3 +472,18 @@ def test_runtime_takes_a_rig_name_or_yaml(cli_files):
     assert SkinRuntime(cli_files["artifact"], "svm", rig=cli_files["rig"]).rig.n_chirp == 1024
     with pytest.raises(ArtifactError, match=r"^the artifact was trained for another rig \(n_chirp: 1024 vs 20480"):
         SkinRuntime(cli_files["artifact"], "svm", rig="jaco")
+
+
+def test_live_on_a_device_hearing_noise_without_a_chirp_stops_after_the_boot(cli_files, monkeypatch, capsys):
+    """Noise alone (the transmitter off): the framer locked on it, the boot took it as the reference, and the loop
+    emitted touch events at random (880 in 8 s), exit 0."""
+    from sonicskin import acquire
+
+    monkeypatch.setattr(acquire, "SoundDeviceSource", _device("noise", 0.0))
+    code, out, err = run(capsys, ["live", "--device", "0", "--artifact", cli_files["artifact"], "--duration", "20",
+                                  "--no-status"])
+    assert code == 2 and out == "" and "Traceback" not in err, err
+    assert re.fullmatch(r"sonicskin live: error: no chirp in the input: over the \d+ hands-off chirps of the boot calibration "
+                        r"the received spectrum varies by 5\.\d dB from chirp to chirp \(a chirp repeats within ~0\.1 dB, "
+                        r"noise alone varies by 5\.6 dB\); is the transmitter playing on output --tx and reaching the "
+                        r"receiver\? check it with `sonicskin check`", err.strip().splitlines()[-1]), err
