@@ -256,6 +256,8 @@ def simulated_capture(device: SimulatedDevice, *, tx: int = 0, rx: int = 0, sett
                        rate_detail=f"the device runs {', '.join(f'{r:g}' for r in device.rates)} Hz")
     if rx >= device.n_inputs:
         raise SonicskinError(f"--rx {rx}: the device has {device.n_inputs} inputs (0-{device.n_inputs - 1})")
+    if tx >= device.n_inputs:  # the simulated interface has as many outputs as inputs (--tx was not checked)
+        raise SonicskinError(f"--tx {tx}: the device has {device.n_inputs} outputs (0-{device.n_inputs - 1})")
     x = device.received(settle_s=settle_s, rest_s=rest_s, press_s=press_s)
     rng = np.random.default_rng([device.scenario.seed, 17])
     audio = rng.normal(0, device.sim.noise.sensor_rms, (x.size, device.n_inputs)).astype(np.float32)

@@ -487,3 +487,15 @@ def test_live_on_a_device_hearing_noise_without_a_chirp_stops_after_the_boot(cli
                         r"the received spectrum varies by 5\.\d dB from chirp to chirp \(a chirp repeats within ~0\.1 dB, "
                         r"noise alone varies by 5\.6 dB\); is the transmitter playing on output --tx and reaching the "
                         r"receiver\? check it with `sonicskin check`", err.strip().splitlines()[-1]), err
+
+
+def test_channel_options_the_simulated_device_would_ignore_are_refused(cli_files, capsys, tmp_path):
+    """``live --tx 99`` on the simulated device ran as if it were not there; ``check --tx 5`` too (``--rx 5`` was checked)."""
+    code, _, err = run(capsys, ["live", "--artifact", cli_files["artifact"], "--scenario", cli_files["scenario"], "--fast",
+                                "--tx", "99"])
+    assert assert_one_line_error(code, err, "live") == ("sonicskin live: error: --tx/--rx choose the channels of a real "
+                                                        "interface (--device NAME|INDEX); the simulated device has one link: "
+                                                        "drop them")
+    code, _, err = run(capsys, ["check", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--rest", "1",
+                                "--press", "1", "--tx", "5", "--out", tmp_path / "o"])
+    assert assert_one_line_error(code, err, "check") == "sonicskin check: error: --tx 5: the device has 2 outputs (0-1)"

@@ -131,6 +131,9 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.device == "sim":
         from ..sim import Scenario, Simulator, build_timeline
 
+        if a.tx or a.rx:  # were ignored
+            raise UsageError("--tx/--rx choose the channels of a real interface (--device NAME|INDEX); the simulated "
+                             "device has one link: drop them")
         sc = Scenario.load(a.scenario)
         artifact = Path(a.artifact) if a.artifact else _sim_svm_artifact(sc, rig, Path("."))
         rt = SkinRuntime(artifact, a.model, rig=rig)
@@ -142,7 +145,8 @@ def cmd_live(a: argparse.Namespace) -> int:
         # The same simulated link (link_seed), a new person-session of scripted touches (seed).
         live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
         timeline = build_timeline(live_sc, rig)
-        source = SimulatedSource(Simulator(live_sc, rig), timeline, realtime=not a.fast, drop_every=a.drop_every)
+        source = SimulatedSource(Simulator(live_sc, rig), timeline, realtime=not a.fast, drop_every=a.drop_every,
+                                 blocksize=a.blocksize)
     else:
         rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
         source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
