@@ -293,7 +293,8 @@ class Split:
                                      f"validate on sessions that do not train: {', '.join(rest) or 'none left'}")
         test = [s for s in rest if s not in val]
         if not test and not allow_no_test:
-            raise ValueError(f"no session left to test on (sessions {sessions}, train {train}, val {val})")
+            raise ValueError(f"no session left to test on (sessions {', '.join(sessions)}; train {', '.join(train)}; val "
+                             f"{', '.join(val) or 'none'}): leave one out of the training and validation sessions")
         return cls(tuple(train), tuple(val), tuple(test))
 
     def mask(self, t: FeatureTable, part: str) -> np.ndarray:

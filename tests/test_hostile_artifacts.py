@@ -499,3 +499,13 @@ def test_channel_options_the_simulated_device_would_ignore_are_refused(cli_files
     code, _, err = run(capsys, ["check", "--rig", cli_files["rig"], "--scenario", cli_files["scenario"], "--rest", "1",
                                 "--press", "1", "--tx", "5", "--out", tmp_path / "o"])
     assert assert_one_line_error(code, err, "check") == "sonicskin check: error: --tx 5: the device has 2 outputs (0-1)"
+
+
+def test_training_on_every_session_names_them_plainly(cli_files, capsys, tmp_path):
+    """The refusal printed ``sessions [np.str_('s000'), ...]``."""
+    pytest.importorskip("lightning")
+    code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--n-bins", "60", "--trainer.max_epochs", "1",
+                                "--trainer.default_root_dir", str(tmp_path / "run"), "--data.train_sessions=[s000,s001,s002]"])
+    assert assert_one_line_error(code, err, "train") == (
+        "sonicskin train: error: no session left to test on (sessions s000, s001, s002; train s000, s001, s002; val none): "
+        "leave one out of the training and validation sessions")
