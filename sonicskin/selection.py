@@ -186,14 +186,15 @@ def _subsample(press: np.ndarray, max_chirps: int) -> np.ndarray:
     return np.sort(np.concatenate(keep)) if keep else np.zeros(0, int)
 
 
-def _t_interval(x: np.ndarray) -> list[float]:
+def _t_interval(x: np.ndarray, bounds: tuple[float, float] = (-np.inf, np.inf)) -> list[float]:
+    """95 % t interval of the mean of ``x``, cut to the ``bounds`` the quantity cannot leave (NaN below 2 values)."""
     from scipy import stats
 
     x = np.asarray(x, float)
     if x.size < 2:
         return [float("nan"), float("nan")]
     half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
-    return [float(x.mean() - half), float(x.mean() + half)]
+    return [float(np.clip(v, *bounds)) for v in (x.mean() - half, x.mean() + half)]
 
 
 def _oof(est, X, y, cv) -> tuple[np.ndarray, np.ndarray]:
@@ -266,7 +267,7 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
     pr = (press[rows] if val is None else np.where(val[rows], press[rows], -1))[tested]
     ok = (pred[tested] == ys[tested])
     per_press = np.array([ok[pr == p].mean() for p in np.unique(pr)])
-    ci = [float(np.clip(v, 0.0, 1.0)) for v in _t_interval(per_press)]  # an accuracy stays in [0, 1]
+    ci = _t_interval(per_press, (0.0, 1.0))  # an accuracy stays in [0, 1]
     est = {"accuracy": float(ok.mean()), "press_accuracy_mean": float(per_press.mean()), "ci95": ci,
            "n_presses": int(per_press.size), "n_chirps": int(ok.size)}
     # the paper's point of the grid, for comparison
@@ -351,7 +352,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     fourier_rmse = float(-np.nanmax([s for p, s in zip(res["params"], res["mean_test_score"])
                                      if isinstance(p["model"], FourierPerLocation)]))
     return {"status": "validated", "how": how, "model": model, "alpha": float(bp.get("model__alpha", 0.0)) or None,
-            "estimate": {"rmse_n": float(np.sqrt(np.mean(err ** 2))), "press_rmse_ci95": _t_interval(per_press),
+            "estimate": {"rmse_n": float(np.sqrt(np.mean(err ** 2))), "press_rmse_ci95": _t_interval(per_press, (0.0, np.inf)),
                          "n_presses": int(per_press.size)},
             "fourier1_rmse_n": fourier_rmse, "constant_rmse_n": float(np.std(F[tested])),
             "cv": _compact(search, ["model", "model__alpha"], "rmse_n", sign=-1.0)}

@@ -182,3 +182,14 @@ def test_threshold_sits_in_the_middle_of_a_clean_gap_and_prefers_fewer_misses():
     d = select_threshold(np.array([0.8, 2.0, 3.0]), np.array([0.2, 0.5, 1.0]), how="val")
     assert d["threshold"] == pytest.approx(0.65) and d["missed_touch_rate"] == 0.0
     assert d["false_touch_rate"] == pytest.approx(1 / 3)
+
+
+def test_intervals_stay_inside_what_the_quantity_can_be():
+    # Per-press RMSEs of 0.1 and 5 N: the plain t interval of their mean reaches far below 0 N, which no RMSE can.
+    from sonicskin.selection import _t_interval
+
+    lo, hi = _t_interval(np.array([0.1, 5.0]))
+    assert lo < -20 and hi > 25
+    assert _t_interval(np.array([0.1, 5.0]), (0.0, np.inf)) == [0.0, hi]
+    assert _t_interval(np.array([0.9, 1.0, 0.2]), (0.0, 1.0))[1] == 1.0  # an accuracy stays <= 1
+    assert all(np.isnan(_t_interval(np.array([3.0]), (0.0, np.inf))))  # one press: no interval, not a clipped 0
