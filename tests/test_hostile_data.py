@@ -293,3 +293,62 @@ def test_rig_from_axis_refuses_dc_through_the_cli(src, tmp_path, capsys):
     assert "freqs_hz starts at 0 Hz" in assert_one_line_error(code, err, "import-spectra")
     with pytest.raises(SonicskinError, match="freqs_hz starts at -1 Hz"):
         rig_from_axis(np.arange(-1.0, 100.0), log=lambda *_: None)
+
+
+# -- scenario YAML ---------------------------------------------------------------------------------------------------
+def _tiny(**over) -> dict:
+    import yaml
+
+    d = yaml.safe_load(TINY_SCENARIO)
+    d.update(over)
+    return d
+
+
+GRID = {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 1.2, "x0_cm": 9.4, "y0_cm": 12.5}
+SCENARIO_CASES = [  # (what, override, the message); the first four were tracebacks, the others silently simulated
+    ("geometry kind sphere", {"geometry": {"kind": "sphere", "radius_cm": 3.0}}, "geometry kind must be 'tube' or 'plate', got 'sphere'"),
+    ("plate without length", {"geometry": {"kind": "plate", "width_cm": 20.0}},
+     "geometry (plate) {'kind': 'plate', 'width_cm': 20.0} lacks ['length_cm']"),
+    ("radius as text", {"geometry": {"kind": "tube", "radius_cm": "big", "length_cm": 25.0}},
+     "geometry radius_cm must be a positive number of cm, got 'big'"),
+    ("grid without spacing", {"layout": {k: v for k, v in GRID.items() if k != "spacing_cm"}}, "lacks ['spacing_cm']"),
+    ("grid nx as text", {"layout": {**GRID, "nx": "3"}}, "marker counts (counts, nx, ny) are whole numbers >= 1"),
+    ("unknown channel key", {"channel": {"foo": 1}}, "unknown channel keys ['foo']; valid keys: ['irregularity',"),
+    ("misspelled geometry key", {"geometry": {"kind": "plate", "width_cm": 20.0, "length_cm": 25.0, "lenght_cm": 5}},
+     "unknown geometry (plate) keys ['lenght_cm']; valid keys: ['kind', 'length_cm', 'width_cm']"),
+    ("misspelled layout key", {"layout": {**GRID, "spacing": 2.0}}, "unknown layout (grid) keys ['spacing']"),
+    ("misspelled temperature key", {"temperature": {"ambient": 30.0}}, "unknown temperature keys ['ambient']"),
+    ("unknown motion key", {"motion": {"enabled": False, "speed": 3}}, "unknown motion keys ['speed']"),
+    ("motion enabled as text", {"motion": {"enabled": "no"}}, "motion.enabled must be true or false, got 'no'"),
+    ("grid nx 2.5", {"layout": {**GRID, "nx": 2.5}}, "marker counts (counts, nx, ny) are whole numbers >= 1"),
+    ("negative ring count", {"layout": {"kind": "rings", "counts": [-3, 5], "spacing_cm": 1.2}}, "whole numbers >= 1"),
+    ("spacing 0", {"layout": {**GRID, "spacing_cm": 0.0}}, "layout spacing_cm must be > 0 (markers apart), got 0.0"),
+    ("markers off the plate", {"layout": {**GRID, "x0_cm": 100.0}},
+     "layout marker 0 at (100, 12.5) cm lies outside the plate (x 0..20, y 0..25 cm); move the layout"),
+    ("receiver on the transmitter", {"rx_cm": [4.0, 2.5]}, "tx_cm [4.0, 2.5] and rx_cm [4.0, 2.5] are less than 1 cm apart"),
+    ("a person listed twice", {"subjects": [0, 0]}, "subjects [0, 0] name a person twice"),
+    ("warm-up time 0", {"temperature": {"ambient_c": 23.0, "warmup_c": 5.0, "warmup_tau_s": 0.0}},
+     "temperature.warmup_tau_s must be > 0 s, got 0.0"),
+    ("name that is a path", {"name": "../../x"}, "scenario name '../../x' is not a plain name"),
+]
+
+
+@pytest.mark.parametrize("what, over, words", SCENARIO_CASES, ids=[c[0] for c in SCENARIO_CASES])
+def test_scenario_mistakes_are_refused(what, over, words):
+    with pytest.raises(SonicskinError if what == "name that is a path" else ValueError) as e:
+        Scenario.from_dict(_tiny(**over))
+    assert words in _one_line(e.value), str(e.value)
+
+
+def test_scenario_mistakes_are_one_line_through_the_cli(src, tmp_path, capsys):
+    """The KeyError / TypeError tracebacks of a hand-written scenario, and a name that would have put the default
+    output folder (data/<name>) outside data/."""
+    import yaml
+
+    for over in ({"geometry": {"kind": "plate", "width_cm": 20.0}}, {"channel": {"foo": 1}}, {"name": "../../x"}):
+        (tmp_path / "sc.yaml").write_text(yaml.safe_dump(_tiny(**over)))
+        code, _, err = run(capsys, ["simulate", "--scenario", tmp_path / "sc.yaml", "--rig", src["root"] / "small.yaml",
+                                    "--out", tmp_path / "out"])
+        assert_one_line_error(code, err, "simulate")
+        assert not (tmp_path / "out").exists()
+    assert Scenario.from_dict(_tiny()).make_layout().xy_cm.shape == (3, 2)  # the valid one still loads
