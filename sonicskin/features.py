@@ -130,6 +130,7 @@ def _signature(ds: Dataset) -> str:
     FLAC and CSV and of ``session.json`` (which parts count)."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
+    ds.check_distinct()  # a copied session: refused before a cache could hide it
     for s in ds.sessions:
         d = ds.root / s
         info = d / "session.json"

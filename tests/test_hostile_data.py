@@ -352,3 +352,52 @@ def test_scenario_mistakes_are_one_line_through_the_cli(src, tmp_path, capsys):
         assert_one_line_error(code, err, "simulate")
         assert not (tmp_path / "out").exists()
     assert Scenario.from_dict(_tiny()).make_layout().xy_cm.shape == (3, 2)  # the valid one still loads
+
+
+# -- dataset folders ---------------------------------------------------------------------------------------------------
+COLS = ["chirp", "t_s", "time_s", "segment", "location", "x_cm", "y_cm", "force_n", "moving", "temperature_c", "subject"]
+
+
+def _reseal(d: Path) -> None:
+    from cli_helpers import reseal
+
+    reseal(d)
+
+
+def test_a_copied_session_is_refused(src, tmp_path, capsys):
+    """A session folder copied within the dataset (its session.json binds it to this dataset.json, so the manifest
+    accepted it) was trained and tested on twice: evaluate reported the copy of its training session as test data."""
+    d = tmp_path / "data"
+    shutil.copytree(src["root"] / "data", d, ignore=shutil.ignore_patterns(".cache"))
+    shutil.copytree(d / "s000", d / "s002")
+    code, _, err = run(capsys, ["evaluate", "--data", d, "--out", tmp_path / "rep", "--no-ablations", "--n-bins", "40"])
+    assert assert_one_line_error(code, err, "evaluate").endswith(
+        "data: sessions s000 and s002 hold the same recording (identical part-00000.flac): a copied session is trained and "
+        "tested on twice; remove the copy")
+    (d / "s002" / "session.json").unlink()  # an unfinished copy: compared by its bytes
+    with pytest.raises(SonicskinError, match="sessions s000 and s002 hold the same recording"):
+        Dataset(d).features(progress=False)
+    shutil.rmtree(d / "s002")
+    assert len(Dataset(d).features(progress=False)) > 0
+
+
+@pytest.mark.parametrize("what, edit, words", [
+    ("a touched chirp in the calibration segment", {"segment": "calibration"},
+     "segment = 'calibration' but a chirp with a location (>= 0) is in a 'touch' segment"),
+    ("a touched chirp without coordinates", {"x_cm": "nan"}, "x_cm = nan but a touched chirp (location >= 0) has finite coordinates"),
+])
+def test_touch_rows_must_be_touch_rows(src, tmp_path, what, edit, words):
+    """Hand-edited labels (resealed): a touch labelled calibration entered the no-touch reference, a touch without a
+    position entered the distance metrics as NaN."""
+    d = tmp_path / "data"
+    shutil.copytree(src["root"] / "data", d, ignore=shutil.ignore_patterns(".cache"))
+    p = d / "s001" / "part-00000.csv"
+    rows = list(csv.reader(io.StringIO(p.read_text())))
+    k = next(i for i, r in enumerate(rows[1:], 1) if r[COLS.index("location")] != "-1")
+    for c, v in edit.items():
+        rows[k][COLS.index(c)] = v
+    _write(p, rows)
+    _reseal(d / "s001")
+    with pytest.raises(SonicskinError) as e:
+        Dataset(d).read_session("s001")
+    assert words in _one_line(e.value)
