@@ -1504,6 +1504,151 @@ def _(d):
     return scen(d, lol + "name: x\n")
 
 
+# -- round 2 -------------------------------------------------------------------------------------------------------
+@probe("wavcsv", "location names differing only in case (Wrist / wrist)")
+def _(d):
+    def f(rows):
+        for r in rows[1:]:
+            r[3] = {"0": "wrist", "1": "elbow", "2": "shoulder"}[r[3]]
+        rows[4][3] = "Wrist"
+    return wav_setup(d, csv_edit(f))
+
+
+@probe("wavcsv", "the header row repeated mid-file (two CSVs concatenated)")
+def _(d):
+    rows = base_rows()
+    return wav_setup(d, "\n".join(rows[:4] + rows[:1] + rows[4:]) + "\n")
+
+
+@probe("wavcsv", "times with a unit suffix '3.5s'")
+def _(d):
+    return wav_setup(d, csv_edit(lambda rows: rows[1].__setitem__(1, rows[1][1] + "s")))
+
+
+@probe("wavaudio", "stereo: ch0 is the TX loopback (the sweep itself), ch1 the receiver; default --channel 0")
+def _(d):
+    import soundfile as sf
+    argv = wav_setup(d)
+    ref, _ = sf.read(BASE / "sweep.wav", dtype="float32")
+    for s in ("s000", "s001", "s002"):
+        x, fs = sf.read(d / "rec" / f"{s}.wav", dtype="float32")
+        lo = np.resize(ref * 0.5, x.size)
+        sf.write(d / "rec" / f"{s}.wav", np.stack([lo, x], 1), fs, subtype="FLOAT")
+    return argv
+
+
+@probe("wavaudio", "a dropout: 0.5 s of zeros in the middle of a recording")
+def _(d):
+    argv = wav_setup(d)
+
+    def f(x):
+        y = x.copy()
+        y[300_000:396_000] = 0
+        return y
+    audio_edit(d, "s001.wav", f)
+    return argv
+
+
+@probe("wavaudio", "the same recording twice under two names", expect="either")
+def _(d):
+    argv = wav_setup(d)
+    shutil.copy(d / "rec" / "s001.wav", d / "rec" / "s001_copy.wav")
+    return argv
+
+
+@probe("wavaudio", "file names with spaces and non-ASCII", expect="ok")
+def _(d):
+    argv = wav_setup(d)
+    (d / "rec" / "s000.wav").rename(d / "rec" / "Aufnahme ü 1.wav")
+    (d / "labels.csv").write_text((d / "labels.csv").read_text().replace("s000.wav", "Aufnahme ü 1.wav"))
+    return argv
+
+
+@probe("spectra", "every row its own session", expect="either")
+def _(d):
+    return spectra(d, session=lambda z: np.array([f"r{i}" for i in range(z["session"].size)]))
+
+
+@probe("spectra", "a single row")
+def _(d):
+    z = dict(np.load(BASE / "spectra.npz"))
+    np.savez(d / "t.npz", **{k: v[:1] if k != "freqs_hz" else v for k, v in z.items()})
+    return ["import-spectra", "--table", d / "t.npz", "--out", d / "out"]
+
+
+@probe("spectra", "session names with a space ('day 1')")
+def _(d):
+    return spectra(d, session=lambda z: np.char.replace(z["session"].astype(str), "s00", "day "))
+
+
+@probe("spectra", "location names differing only in case")
+def _(d):
+    return spectra(d, location=lambda z: np.array(["rest", "wrist", "Wrist", "elbow"])[z["location"] + 1], x_cm=None, y_cm=None)
+
+
+@probe("dataset", "a complete session whose parts were all deleted (session.json left)")
+def _(d):
+    data = data_copy(d)
+    for p in (data / "s002").glob("part-*"):
+        p.unlink()
+    return ["evaluate", "--data", data, "--out", d / "rep", "--no-ablations"]
+
+
+@probe("dataset", "a session folder holding only a stray CSV named part-00000.csv", expect="error")
+def _(d):
+    data = data_copy(d)
+    (data / "s009").mkdir()
+    (data / "s009" / "part-00000.csv").write_text("hello\n")
+    return fit(d)
+
+
+@probe("dataset", "dataset.json with a BOM")
+def _(d):
+    data = data_copy(d)
+    (data / "dataset.json").write_bytes(b"\xef\xbb\xbf" + (data / "dataset.json").read_bytes())
+    return fit(d)
+
+
+@probe("dataset", "compare --data with a session missing in the artifact's split", expect="either")
+def _(d):
+    data_copy(d)
+    return ["compare", "--data", d / "data", "--artifact", BASE / "art_small", "--out", d / "rep", "--test", "s009"]
+
+
+for desc, kw in [
+    ("noise sensor_rms -1", {"noise": {"sensor_rms": -1.0}}),
+    ("noise sensor_rms 'loud'", {"noise": {"sensor_rms": "loud"}}),
+    ("noise pwm_harmonics 2.5", {"noise": {"pwm_harmonics": 2.5}}),
+    ("bond tan_delta 'x'", {"bond": {"tan_delta": "x"}}),
+    ("bond fr_hz -5", {"bond": {"fr_hz": -5.0}}),
+    ("motion level 0.5 with enabled false", {"motion": {"enabled": False, "level": 0.5}}),
+    ("channel transducer_radius_m 0.5 (50 cm discs)", {"channel": {"transducer_radius_m": 0.5}}),
+    ("tx_cm on the tube at x beyond the circumference", {"geometry": {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0},
+                                                         "tx_cm": [100.0, 2.5], "rx_cm": [5.9, 22.5],
+                                                         "layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 1.2,
+                                                                    "x0_cm": 9.4, "y0_cm": 12.5}}),
+]:
+    def _mk2(kw=kw):
+        return lambda d: scen(d, tiny(**kw))
+    probe("scenario", desc)(_mk2())
+
+
+@probe("scenario", "family file with an unknown key")
+def _(d):
+    import yaml
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "configs" / "scenarios" / "random.yaml").read_text())
+    doc["materialz"] = ["abs"]
+    return scen(d, yaml.safe_dump(doc))
+
+
+@probe("scenario", "family file with seeds as text")
+def _(d):
+    import yaml
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "configs" / "scenarios" / "random.yaml").read_text())
+    doc["seeds"] = {"design": ["a"], "heldout": [1]}
+    return scen(d, yaml.safe_dump(doc))
+
+
 # -- run --------------------------------------------------------------------------------------------------
 def classify(expect, rc, err, timed_out):
     lines = [ln for ln in err.splitlines() if ln.strip() and ": warning:" not in ln]

@@ -64,6 +64,7 @@ STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 
                      11_025, 22_050, 24_000)
 PEAK_LEVEL = 0.5  # imported streams are scaled to this peak (-6 dBFS)
 SILENT_RMS = 1e-7  # a recording quieter than this (about -140 dBFS) holds no received sweep
+LOOPBACK_CORR = 0.98  # a 'received' channel this close to the transmitted sweep is the sweep itself
 MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table of measured spectra
 MARKER_SPREAD_CM = 1.0  # rows of one location whose x_cm/y_cm differ by more than this name two places
 
@@ -271,6 +272,13 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
     else:
         keys = [str(v) for v in np.asarray(vals, dtype=object)[touch]]
         uniq = sorted(set(keys))
+        folded: dict[str, str] = {}
+        for k in uniq:
+            f = " ".join(k.lower().split())
+            if f in folded:
+                raise ImportDataError(f"{where}: location names {folded[f]!r} and {k!r} differ only in case or spaces; they "
+                                      f"would be two locations: spell each location one way")
+            folded[f] = k
         lut = {k: i for i, k in enumerate(uniq)}
         names = {i: k for k, i in lut.items()}
         kind = "names"
@@ -461,11 +469,11 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
     return x, sr
 
 
-def _check_received(frames: np.ndarray, rig: Rig, p: Path) -> None:
+def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
     """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
     the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
     (or the file holds no received sweep) and every feature would be silently meaningless.  No sweep may be clipped."""
-    from .dsp import frame_faults
+    from .dsp import frame_faults, rig_chirp
 
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
@@ -481,7 +489,7 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path) -> None:
     S = np.abs(scipy.fft.rfft(a, axis=1)) ** 2
     r = scipy.fft.irfft(S, n=L, axis=1)
     for k in range(16, 1, -1):
-        if L % k == 0 and np.median(r[:, L // k] / r[:, 0]) > 0.9:
+        if L % k == 0 and np.median(r[:, L // k] / np.maximum(r[:, 0], 1e-300)) > 0.9:
             raise ImportDataError(f"{p}: the recording repeats every {L // k} samples, not every {L}: the sweep period is "
                                   f"{L // k / rig.fs_hz:.6g} s; {fix}")
     blocks = [frames[i:i + 8].astype(np.float64).mean(axis=0) for i in np.linspace(0, max(n - 8, 0), min(64, n)).astype(int)]
@@ -492,7 +500,22 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path) -> None:
         lo, hi = rig.freqs_hz[1 + np.searchsorted(c, 0.05)], rig.freqs_hz[1 + min(np.searchsorted(c, 0.95), c.size - 1)]
         raise ImportDataError(f"{p}: {share:.1%} of the repeating signal's power lies in the sweep band "
                               f"{rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz (most lies at {lo / 1e3:.3g}-{hi / 1e3:.3g} kHz); {fix}")
+    first = frames[: min(8, n)].astype(np.float64).mean(axis=0)
+    first -= first.mean()
+    ref = rig_chirp(rig).astype(np.float64)
+    ref -= ref.mean()
+    xc = scipy.fft.irfft(scipy.fft.rfft(first) * np.conj(scipy.fft.rfft(ref)), n=L)
+    shape = float(np.abs(xc).max() / np.sqrt(np.sum(first ** 2) * np.sum(ref ** 2) + 1e-300))
+    if shape > LOOPBACK_CORR:
+        raise ImportDataError(f"{p}: channel {channel} is the transmitted sweep itself (correlation {shape:.3f} with it), not a "
+                              f"received one: a loopback or the playback file; pass --channel N for the receiver's channel "
+                              f"(the file has {channels})")
     faults = frame_faults(frames)
+    if np.any(faults == 2):
+        k = int(np.flatnonzero(faults == 2)[0])
+        raise ImportDataError(f"{p}: {int(np.sum(faults == 2))} of {n} sweeps are silent (the first is sweep {k}, "
+                              f"{(offset + k * L) / rig.fs_hz:.3f} s): a dropout in the recording; cut the file at the "
+                              f"dropout or record again")
     if np.any(faults == 3):
         raise ImportDataError(f"{p}: {int(np.sum(faults == 3))} of {n} sweeps are clipped at full scale (the first is sweep "
                               f"{np.flatnonzero(faults == 3)[0]}): their spectra are distorted and the model verbs refuse "
@@ -607,6 +630,7 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     with _staged(out, mode) as (root, wmode):
         w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
         done = 0
+        recordings: dict[str, str] = {}  # sha256 of a channel's samples -> file
         for k, p in enumerate(files):
             session = f"s{k:03d}"
             if w.session_done(session):
@@ -614,7 +638,13 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             x, _ = _sf_read(p)
             if channel >= x.shape[1]:
                 raise ValueError(f"{p}: has {x.shape[1]} channels; --channel {channel} does not exist")
+            channels = x.shape[1]
             x = x[:, channel]
+            digest = hashlib.sha256(x.tobytes()).hexdigest()
+            if digest in recordings:
+                raise ImportDataError(f"{p}: holds the same samples as {recordings[digest]}: one recording would be two "
+                                      f"sessions (trained and tested on twice); remove the copy")
+            recordings[digest] = p.name
             if not np.sqrt(np.mean(np.square(x, dtype=np.float64))) > SILENT_RMS:
                 raise ImportDataError(f"{p}: channel {channel} is silent (all zeros or below {SILENT_RMS:g} RMS): no sweep "
                                       f"was received; check the file and --channel")
@@ -625,7 +655,7 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             if x.size < 2 * rig.n_chirp:
                 raise ValueError(f"{p}: {x.size} samples hold less than two sweeps of {rig.n_chirp}; is --sweep/--period right?")
             frames, offset = frame_stream(x, ref)
-            _check_received(frames, rig, p)
+            _check_received(frames, rig, p, offset=offset, channel=channel, channels=channels)
             starts = offset + np.arange(frames.shape[0]) * rig.n_chirp
             t = starts / fs
             lab = {c: np.zeros(t.size) for c in COLUMNS}

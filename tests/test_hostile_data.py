@@ -401,3 +401,65 @@ def test_touch_rows_must_be_touch_rows(src, tmp_path, what, edit, words):
     with pytest.raises(SonicskinError) as e:
         Dataset(d).read_session("s001")
     assert words in _one_line(e.value)
+
+
+# -- round 2: channels, dropouts, copies -------------------------------------------------------------------------------
+def test_a_loopback_channel_a_dropout_and_a_copied_recording_are_refused(src, inp, tmp_path):
+    """Each was imported silently: the transmitter's loopback on channel 0 (flat features, no touch in them), half a
+    second of zeros (the model verbs later refused the whole dataset without naming the file), and one recording under
+    two names (two sessions of the same chirps)."""
+    rec, labels, rows = inp
+    _write(labels, rows)
+    rig = src["rig"]
+    ref = rig_chirp(rig).astype(np.float32) * rig.amplitude
+    x, fs = sf.read(rec / "s000.wav", dtype="float32")
+    sf.write(rec / "s000.wav", np.stack([np.resize(ref, x.size), x], 1), fs, subtype="FLOAT")
+    msg = _refused(import_wav, rec, labels, tmp_path / "o", **_chirp(rig), **QUIET)
+    assert msg.endswith("s000.wav: channel 0 is the transmitted sweep itself (correlation 1.000 with it), not a received one: "
+                        "a loopback or the playback file; pass --channel N for the receiver's channel (the file has 2)"), msg
+    sf.write(rec / "s000.wav", x, fs, subtype="FLOAT")
+
+    def dropout(y):
+        y = y.copy()
+        y[300_000:396_000] = 0
+        return y
+    _edit(rec, "s001.wav", dropout)
+    msg = _refused(import_wav, rec, labels, tmp_path / "o", **_chirp(rig), **QUIET)
+    assert "s001.wav: 92 of" in msg and "sweeps are silent (the first is sweep 293, 1.567 s): a dropout in the recording" in msg
+    shutil.copy(rec / "s000.wav", rec / "s001.wav")
+    msg = _refused(import_wav, rec, labels, tmp_path / "o", **_chirp(rig), **QUIET)
+    assert msg.endswith("s001.wav: holds the same samples as s000.wav: one recording would be two sessions (trained and "
+                        "tested on twice); remove the copy"), msg
+    assert not (tmp_path / "o").exists()
+
+
+def test_location_names_differing_only_in_case_are_refused(src, tmp_path):
+    names = np.array(["rest", "wrist", "Wrist ", "elbow"])
+    table = _table(src, tmp_path, location=lambda z: names[z["location"] + 1], x_cm=None, y_cm=None)
+    msg = _refused(import_spectra, table, tmp_path / "o", **QUIET)
+    assert "t.npz: location names 'Wrist' and 'wrist' differ only in case or spaces" in msg, msg
+
+
+def test_a_complete_session_whose_parts_are_gone_is_refused_not_skipped(src, tmp_path):
+    d = tmp_path / "data"
+    shutil.copytree(src["root"] / "data", d, ignore=shutil.ignore_patterns(".cache"))
+    for p in (d / "s001").glob("part-*"):
+        p.unlink()
+    assert Dataset(d).sessions == ["s000", "s001"]
+    with pytest.raises(SonicskinError) as e:
+        Dataset(d).features(progress=False)
+    assert "s001/part-00000.flac is missing but session.json lists it" in _one_line(e.value)
+
+
+@pytest.mark.parametrize("over, words", [
+    ({"noise": {"sensor_rms": "loud"}}, "noise.sensor_rms must be a finite number, got 'loud'"),  # was a TypeError
+    ({"bond": {"tan_delta": "x"}}, "bond.tan_delta must be a finite number, got 'x'"),  # was a numpy UFuncNoLoopError
+    ({"noise": {"sensor_rms": -1.0}}, "noise.sensor_rms must be >= 0, got -1.0"),
+    ({"noise": {"pwm_harmonics": 2.5}}, "noise.pwm_harmonics must be a whole number >= 0, got 2.5"),
+    ({"bond": {"fr_hz": -5.0}}, "bond.fr_hz must be > 0, got -5.0"),
+    ({"channel": {"transducer_radius_m": 0.5}}, "channel.transducer_radius_m is the piezo discs' bonded radius in metres"),
+])
+def test_scenario_noise_bond_and_disc_values_are_checked(over, words):
+    with pytest.raises(ValueError) as e:
+        Scenario.from_dict(_tiny(**over))
+    assert words in _one_line(e.value)
