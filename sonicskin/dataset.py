@@ -470,8 +470,10 @@ class Dataset:
 
     @property
     def sessions(self) -> list[str]:
-        """Session folders (those holding a labels CSV); one with an unsafe name is refused, not skipped."""
-        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.csv")))
+        """Session folders (those holding a labels CSV, or a session.json: a complete session whose parts are gone is
+        refused when read, not skipped); one with an unsafe name is refused, not skipped."""
+        out = sorted(p.name for p in self.root.iterdir()
+                     if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
         for name in out:
             check_name(name, "session folder", str(self.root))
         return out
