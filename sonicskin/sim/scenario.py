@@ -287,6 +287,7 @@ _LAYOUT_KEYS = {"rings": ((), ("counts", "spacing_cm", "x0_cm", "y0_cm")), "grid
 _MOTION_KEYS = ("enabled", "level", "perturbation")
 _TEMPERATURE_KEYS = ("ambient_c", "warmup_c", "warmup_tau_s", "swing_c", "swing_period_s", "gradient", "lag")
 MIN_TX_RX_CM = 1.0  # the discs (5 mm bonded radius) cannot overlap
+MAX_DISC_RADIUS_M = 0.05  # a piezo disc of 10 cm diameter is already large for a robot link
 
 
 def _number(v) -> bool:
@@ -303,6 +304,23 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
     missing = [k for k in required if k not in d]
     if missing:
         raise ValueError(f"{what} {d!r} lacks {missing}")
+
+
+def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
+    """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
+    its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
+    import dataclasses
+
+    kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
+    for k, v in d.items():
+        if kinds.get(k) is int:
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                raise ValueError(f"{what}.{k} must be a whole number >= 0, got {v!r}")
+        elif k in kinds:
+            if not _number(v):
+                raise ValueError(f"{what}.{k} must be a finite number, got {v!r}")
+            if (k in positive and not v > 0) or (nonneg(k) and v < 0):
+                raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {v!r}")
 
 
 def _check_parts(sc: Scenario) -> None:
@@ -357,10 +375,20 @@ def _check_parts(sc: Scenario) -> None:
     for k, v in sc.channel.items():
         if not (_number(v) and v >= 0):
             raise ValueError(f"channel.{k} must be a number >= 0, got {v!r}")
+    from .noise import NoiseConfig
+    from .thermal import HotMeltBond
+
+    _field_values("noise", sc.noise, NoiseConfig, positive=(), nonneg=lambda k: k.endswith(("_rms", "_hz", "_per_chirp")))
+    _field_values("bond", sc.bond, HotMeltBond, positive=("fr_hz", "tan_delta"), nonneg=lambda k: False)
+    r = sc.channel.get("transducer_radius_m", 5e-3)
+    if not 0 < r <= MAX_DISC_RADIUS_M:
+        raise ValueError(f"channel.transducer_radius_m is the piezo discs' bonded radius in metres, 0 < r <= {MAX_DISC_RADIUS_M:g}, "
+                         f"got {r!r}")
     if len(set(sc.subjects)) != len(sc.subjects):
         raise ValueError(f"subjects {list(sc.subjects)} name a person twice; list each simulated person once")
-    if float(np.hypot(*(np.subtract(sc.tx_cm, sc.rx_cm)))) < MIN_TX_RX_CM:
-        raise ValueError(f"tx_cm {list(sc.tx_cm)} and rx_cm {list(sc.rx_cm)} are less than {MIN_TX_RX_CM:g} cm apart; the two "
+    apart = max(MIN_TX_RX_CM, 2 * r * 100)
+    if float(np.hypot(*(np.subtract(sc.tx_cm, sc.rx_cm)))) < apart:
+        raise ValueError(f"tx_cm {list(sc.tx_cm)} and rx_cm {list(sc.rx_cm)} are less than {apart:g} cm apart; the two "
                          f"discs cannot overlap: place the receiver elsewhere")
     if layout_count(sc) <= 10_000:  # building a huge layout here would cost what check_size guards against
         xy = sc.make_layout().xy_cm
