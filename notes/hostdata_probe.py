@@ -1649,6 +1649,23 @@ def _(d):
     return scen(d, yaml.safe_dump(doc))
 
 
+# -- round 3 -------------------------------------------------------------------------------------------------------
+@probe("spectra", "optional array misspelled: force instead of force_n")
+def _(d):
+    z = dict(np.load(BASE / "spectra.npz"))
+    z["force"] = z.pop("force_n")
+    np.savez(d / "t.npz", **z)
+    return ["import-spectra", "--table", d / "t.npz", "--out", d / "out"]
+
+
+@probe("spectra", "required array in other case: Location")
+def _(d):
+    z = dict(np.load(BASE / "spectra.npz"))
+    z["Location"] = z.pop("location")
+    np.savez(d / "t.npz", **z)
+    return ["import-spectra", "--table", d / "t.npz", "--out", d / "out"]
+
+
 # -- run --------------------------------------------------------------------------------------------------
 def classify(expect, rc, err, timed_out):
     lines = [ln for ln in err.splitlines() if ln.strip() and ": warning:" not in ln]

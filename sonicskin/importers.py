@@ -696,6 +696,28 @@ def _looks_linear(M: np.ndarray) -> bool:
     return bool(M.max() <= 1.0 or M.max() > 300 or p99 > 10 * max(p50, 1e-12))  # 300 dB would be 1e15
 
 
+_TABLE_ARRAYS = ("freqs_hz", "magnitude_db", "location", "session", "x_cm", "y_cm", "force_n", "moving", "subject")
+
+
+def _check_array_names(table: Path) -> None:
+    """An array whose name is a near miss of one the importer reads (``force`` for ``force_n``, ``X_cm``) would be
+    ignored and its values silently lost: refused, naming the array it resembles."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(table) as zf:
+            names = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return  # read_npz reports an unreadable table
+    for a in names:
+        if a in _TABLE_ARRAYS:
+            continue
+        near = [k for k in _TABLE_ARRAYS if k.lower() == a.lower()] or difflib.get_close_matches(a.lower(), _TABLE_ARRAYS, 1, 0.75)
+        if near and near[0] not in names:
+            raise ImportDataError(f"{table}: array {a!r} is not one the importer reads; did you mean {near[0]!r}? "
+                                  f"(arrays: {', '.join(_TABLE_ARRAYS)})")
+
+
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
     """Import a table of magnitude spectra with labels (see the module docstring); returns the dataset.
@@ -710,6 +732,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
     """
     table, out = Path(table), Path(out)
+    _check_array_names(table)
     # Only the arrays this importer uses are read, each checked from its header first.
     z = read_npz(table, {"freqs_hz": ("fiu", 1), "magnitude_db": ("fiu", 2), "location": ("fiuU", 1),
                          "session": ("iuU", 1), "x_cm": ("fiu", 1), "y_cm": ("fiu", 1), "force_n": ("fiu", 1),

@@ -463,3 +463,15 @@ def test_scenario_noise_bond_and_disc_values_are_checked(over, words):
     with pytest.raises(ValueError) as e:
         Scenario.from_dict(_tiny(**over))
     assert words in _one_line(e.value)
+
+
+def test_a_misspelled_array_of_the_table_is_refused(src, tmp_path):
+    """'force' instead of 'force_n' was ignored: the dataset said 'no force sensor' and the forces were lost."""
+    z = dict(src["table"])
+    z["force"] = z.pop("force_n")
+    np.savez(tmp_path / "t.npz", **z)
+    msg = _refused(import_spectra, tmp_path / "t.npz", tmp_path / "o", **QUIET)
+    assert "t.npz: array 'force' is not one the importer reads; did you mean 'force_n'?" in msg, msg
+    z["junk"] = z.pop("force")  # an array with an unrelated name is simply not read
+    np.savez(tmp_path / "t.npz", **z)
+    assert Dataset(import_spectra(tmp_path / "t.npz", tmp_path / "o", **QUIET)).sessions == ["s000", "s001"]
