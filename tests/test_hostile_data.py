@@ -475,3 +475,14 @@ def test_a_misspelled_array_of_the_table_is_refused(src, tmp_path):
     z["junk"] = z.pop("force")  # an array with an unrelated name is simply not read
     np.savez(tmp_path / "t.npz", **z)
     assert Dataset(import_spectra(tmp_path / "t.npz", tmp_path / "o", **QUIET)).sessions == ["s000", "s001"]
+
+
+def test_a_file_named_cache_in_the_dataset_does_not_stop_training(src, tmp_path, capsys):
+    """The feature cache is an optimisation: a file where its folder goes (or a full or read-only disk) was a one-line
+    'Not a directory' error of fit-svm on a good dataset; now the features are simply not cached."""
+    d = tmp_path / "data"
+    shutil.copytree(src["root"] / "data", d, ignore=shutil.ignore_patterns(".cache"))
+    (d / ".cache").write_text("not a folder")
+    code, _, err = run(capsys, ["fit-svm", "--data", d, "--out", tmp_path / "art", "--n-bins", "40", "--mode", "absolute"])
+    assert code == 0, err
+    assert (tmp_path / "art" / "skin.json").is_file() and (d / ".cache").read_text() == "not a folder"
