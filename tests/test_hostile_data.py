@@ -486,3 +486,17 @@ def test_a_file_named_cache_in_the_dataset_does_not_stop_training(src, tmp_path,
     code, _, err = run(capsys, ["fit-svm", "--data", d, "--out", tmp_path / "art", "--n-bins", "40", "--mode", "absolute"])
     assert code == 0, err
     assert (tmp_path / "art" / "skin.json").is_file() and (d / ".cache").read_text() == "not a folder"
+
+
+def test_a_pwm_line_the_recording_cannot_hold_is_refused(src, inp, tmp_path, capsys):
+    """--pwm-hz 500000 (for 50000) on 192 kHz recordings notched nothing and was accepted; a negative line too."""
+    rec, labels, rows = inp
+    _write(labels, rows)
+    code, _, err = run(capsys, ["import-wav", "--wav-dir", rec, "--labels", labels, "--out", tmp_path / "o", "--chirp", "20000",
+                                "80000", "--period", str(src["rig"].period_s), "--pwm-hz", "500000"])
+    assert assert_one_line_error(code, err, "import-wav").endswith(
+        "pwm_hz 500000 Hz is outside 0..96000 Hz (fs_hz/2); the PWM lines to notch are frequencies the recording holds: "
+        "check the value")
+    with pytest.raises(ValueError, match="pwm_hz -30000 Hz is outside"):
+        Rig(pwm_hz=[-30000.0])
+    assert not (tmp_path / "o").exists()
