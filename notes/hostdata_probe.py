@@ -513,7 +513,9 @@ def _(d):
 @probe("wavaudio", "a recording with no label row at all (extra file)", expect="ok")
 def _(d):
     argv = wav_setup(d)
-    shutil.copy(d / "rec" / "s002.wav", d / "rec" / "s003.wav")
+    import soundfile as sf
+    x, fs = sf.read(d / "rec" / "s002.wav", dtype="float32")
+    sf.write(d / "rec" / "s003.wav", 0.9 * x, fs, subtype="FLOAT")  # another recording (a byte copy is refused as one)
     return argv
 
 
