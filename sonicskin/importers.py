@@ -620,6 +620,9 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
         from .dataset import load_json
 
         old = load_json(out / "dataset.json").get("source", {})
+        if isinstance(old, dict) and "files" not in old:
+            raise ImportDataError(f"cannot resume {out}: it was imported by an older sonicskin that did not record which "
+                                  f"files it holds; pass --overwrite to import every recording again")
         if isinstance(old, dict) and old.get("files") != source["files"]:
             raise ImportDataError(f"cannot resume {out}: it was imported from the recordings {old.get('files')}, the folder now "
                                   f"holds {source['files']} (sessions are numbered in file order); import into a new --out "

@@ -500,3 +500,17 @@ def test_a_pwm_line_the_recording_cannot_hold_is_refused(src, inp, tmp_path, cap
     with pytest.raises(ValueError, match="pwm_hz -30000 Hz is outside"):
         Rig(pwm_hz=[-30000.0])
     assert not (tmp_path / "o").exists()
+
+
+def test_resume_of_an_import_made_before_the_file_list_was_recorded(src, inp, tmp_path):
+    import json
+
+    rec, labels, rows = inp
+    _write(labels, rows)
+    out = import_wav(rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
+    meta = json.loads((out / "dataset.json").read_text())
+    del meta["source"]["files"], meta["source"]["labels_sha256"]
+    (out / "dataset.json").write_text(json.dumps(meta))
+    msg = _refused(import_wav, rec, labels, out, **_chirp(src["rig"]), mode="resume", **QUIET)
+    assert msg.endswith("o: it was imported by an older sonicskin that did not record which files it holds; pass --overwrite "
+                        "to import every recording again"), msg
