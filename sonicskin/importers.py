@@ -482,9 +482,19 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
     b = frames[pairs + 1].astype(np.float64)
     a -= a.mean(axis=1, keepdims=True)
     b -= b.mean(axis=1, keepdims=True)
-    c = float(np.median(np.sum(a * b, 1) / np.sqrt(np.sum(a * a, 1) * np.sum(b * b, 1) + 1e-300)))
-    if c < 0.5:
-        raise ImportDataError(f"{p}: consecutive sweep periods of {L} samples do not repeat (median correlation {c:.2f}): "
+    # Correlation of each period with the next at small shifts: a right period repeats at shift 0; a period a few
+    # samples off repeats at that shift (its frames drift); noise or a half period repeats nowhere.
+    xc = scipy.fft.irfft(scipy.fft.rfft(b, axis=1) * np.conj(scipy.fft.rfft(a, axis=1)), n=L, axis=1)
+    xc /= np.sqrt(np.sum(a * a, 1) * np.sum(b * b, 1))[:, None] + 1e-300
+    med = np.median(xc, axis=0)
+    lags = np.r_[0:65, L - 64:L]
+    k = int(lags[np.argmax(med[lags])])
+    lag = k if k < L // 2 else k - L
+    if lag and med[k] >= 0.8 and med[k] > med[0] + 0.1:
+        raise ImportDataError(f"{p}: the recording repeats every {L + lag} samples, not every {L} (correlation "
+                              f"{med[k]:.2f} against {med[0]:.2f}): the sweep period is {(L + lag) / rig.fs_hz:.7g} s; {fix}")
+    if med[0] < 0.3:
+        raise ImportDataError(f"{p}: consecutive sweep periods of {L} samples do not repeat (median correlation {med[0]:.2f}): "
                               f"the file holds no sweep of this period; {fix}")
     S = np.abs(scipy.fft.rfft(a, axis=1)) ** 2
     r = scipy.fft.irfft(S, n=L, axis=1)

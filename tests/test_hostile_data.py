@@ -190,7 +190,10 @@ def test_clipped_sweeps_are_refused_at_import(src, inp, tmp_path):
                                            "correlation 0.00): the file holds no sweep of this period"),
     ("--period twice the sweep's", {"period_s": 2048 / 192000}, "s000.wav: the recording repeats every 1024 samples, not "
                                                                  "every 2048: the sweep period is 0.00533333 s"),
-    ("--period 1 % long", {"period_s": 1034 / 192000}, "s000.wav: consecutive sweep periods of 1034 samples do not repeat"),
+    ("--period 1 % long", {"period_s": 1034 / 192000}, "s000.wav: the recording repeats every 1024 samples, not every 1034 "
+                                                        "(correlation 1.00 against 0.36): the sweep period is 0.005333333 s"),
+    ("--period one sample short", {"period_s": 1023 / 192000}, "s000.wav: the recording repeats every 1024 samples, not every "
+                                                               "1023"),
     ("--period half the sweep's", {"period_s": 512 / 192000}, "s000.wav: consecutive sweep periods of 512 samples do not repeat"),
     ("--chirp in another band", {"band": (5000.0, 15000.0)}, "s000.wav: 0.0% of the repeating signal's power lies in the "
                                                               "sweep band 5-15 kHz"),
@@ -404,6 +407,31 @@ def test_touch_rows_must_be_touch_rows(src, tmp_path, what, edit, words):
 
 
 # -- round 2: channels, dropouts, copies -------------------------------------------------------------------------------
+def test_a_noisy_recording_of_a_moving_robot_is_imported(tmp_path):
+    """The sweep checks must not refuse valid data: the 'moving' scenario at full motion level (consecutive periods
+    correlate about 0.8) imports."""
+    root = tmp_path
+    (root / "small.yaml").write_text(SMALL_RIG)
+    rig = Rig.load(root / "small.yaml")
+    sc = Scenario.load("moving").replace(sessions=1, touch_s=0.5, moving_s=5.0, calibration_s=2.0,
+                                         layout={"kind": "rings", "counts": [3], "spacing_cm": 1.2, "x0_cm": 2.4, "y0_cm": 11.9})
+    simulate_dataset(sc, rig, root / "mv", progress=False, log=lambda *_: None)
+    ds = Dataset(root / "mv")
+    (root / "rec").mkdir()
+    x = np.concatenate([sf.read(ds.root / "s000" / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts("s000")])
+    sf.write(root / "rec" / "m.wav", x, int(rig.fs_hz), subtype="FLOAT")
+    _, lab = ds.read_session("s000")
+    rows = [HEADER]
+    loc = lab["location"]
+    edges = np.flatnonzero(np.diff(loc)) + 1
+    for a, b in zip(np.r_[0, edges], np.r_[edges, loc.size]):  # one row per press (a run of one location)
+        if loc[a] >= 0:
+            rows.append(["m.wav", f"{lab['t_s'][a] - 0.002:.6f}", f"{lab['t_s'][b - 1] + 0.002:.6f}", str(loc[a]), "", "", "", "0", "0"])
+    _write(root / "labels.csv", rows)
+    out = import_wav(root / "rec", root / "labels.csv", root / "imp", **_chirp(rig), **QUIET)
+    np.testing.assert_array_equal(Dataset(out).read_session("s000")[1]["location"], lab["location"])
+
+
 def test_a_loopback_channel_a_dropout_and_a_copied_recording_are_refused(src, inp, tmp_path):
     """Each was imported silently: the transmitter's loopback on channel 0 (flat features, no touch in them), half a
     second of zeros (the model verbs later refused the whole dataset without naming the file), and one recording under
