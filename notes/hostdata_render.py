@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import json
+import re
 import sys
 from collections import Counter
 
@@ -32,7 +33,7 @@ JUDGED = {
     "training session without calibration rows (all rest rows are 'gap')": ("ok-accepted-correctly", "the reference uses rest rows"),
     "no-touch row with segment 'touch' (resealed)": (
         "ok-accepted-correctly", "legitimate: `record` labels a touch prompt's reaction time as touch with location -1"),
-    "no-touch row with a force of 5 N (resealed)": ("SILENT-WRONG (left)", "force of no-touch rows is not used for training; not refused"),
+    "no-touch row with a force of 5 N (resealed)": ("ok-accepted (unused)", "a no-touch row's force is used nowhere"),
     "CSV: location ' 1' with a space (resealed)": ("ok-accepted-correctly", "int(' 1') is 1: the same labels"),
     "CSV: t_s of every row shifted by exactly one period (resealed)": (
         "SILENT-WRONG (left)", "a forged manifest: labels move one chirp; writers may legitimately start on chirp 1 (record's framer)"),
@@ -92,7 +93,7 @@ def main():
             vb = "SILENT-WRONG"  # accepted before, refused now as the wrong input it is
         cnt_b[vb.split(" (")[0]] += 1
         cnt_a[va.split(" (")[0]] += 1
-        line = (r.get("last") or "").replace("|", "\\|").replace("/tmp/hd/runs_final/", "")[:170]
+        line = re.sub(r"/tmp/hd/runs[^/]*/", "", (r.get("last") or "")).replace("|", "\\|")[:170]
         rows.append(f"| {r['id']} | {r['desc'].replace('|', '/')} | `{r['argv'].split()[0]}` | {r.get('rc')} | {line} | {vb} | "
                     f"{va}{' — ' + note if note else ''} |")
     print(f"**{len(after)} probes.** Before: " + ", ".join(f"{k} {v}" for k, v in cnt_b.most_common()) + ".  \nAfter: "
@@ -104,7 +105,7 @@ def main():
           "names differing in case (`importers.py`), a misspelled table array (`importers.py`), an unwritable feature "
           "cache (`sonicskin/features.py`), a PWM line outside 0..fs/2 (`sonicskin/rig.py`).  Left (judged rows marked "
           "'left'): times in minutes when every interval still holds a sweep start, coordinates in mm, a time-reversed "
-          "sweep WAV, a hand-forged manifest shifting every label by one chirp, a force on no-touch rows.\n")
+          "sweep WAV, a hand-forged manifest shifting every label by one chirp.\n")
     print("| id | input | verb | exit | last line of output (after) | before | after |")
     print("|---|---|---|---|---|---|---|")
     print("\n".join(rows))
