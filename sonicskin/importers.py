@@ -66,6 +66,7 @@ PEAK_LEVEL = 0.5  # imported streams are scaled to this peak (-6 dBFS)
 SILENT_RMS = 1e-7  # a recording quieter than this (about -140 dBFS) holds no received sweep
 LOOPBACK_CORR = 0.98  # a 'received' channel this close to the transmitted sweep is the sweep itself
 MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table of measured spectra
+MAX_LOCATIONS = 100_000  # markers of one layout (dataset.json's bound)
 MARKER_SPREAD_CM = 1.0  # rows of one location whose x_cm/y_cm differ by more than this name two places
 
 
@@ -296,30 +297,39 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
         k = int(np.flatnonzero(half)[0])
         raise ImportDataError(f"{where}: row {k} (location {vals[k]!r}) has x_cm {xs[k]:g} but y_cm {ys[k]:g}; give both "
                               f"coordinates of a marker, or neither")
-    xy, guessed = [], []
-    for k in uniq:
+    if len(uniq) > MAX_LOCATIONS:
+        raise ImportDataError(f"{where}: {len(uniq)} distinct touch locations, more than a layout holds ({MAX_LOCATIONS}); is the "
+                              f"location column one value per row (an index or a time)?")
+    # The rows of each location, grouped in one sort (not one scan per location: quadratic in a big table).
+    order = np.flatnonzero(touch)
+    order = order[np.argsort(ids[order], kind="stable")]
+    bounds = np.searchsorted(ids[order], [lut[k] for k in uniq], side="left").tolist() + [order.size]
+    xy, guessed = [], set()
+    for j, k in enumerate(uniq):
         i = lut[k]
-        rows = np.flatnonzero(ids == i)
+        rows = order[bounds[j]:bounds[j + 1]]
         ok = rows[np.isfinite(xs[rows]) & np.isfinite(ys[rows])]
         if ok.size:
             # One marker has one position: rows may differ by a finger's aim (mm), not by a different place.
             far = np.hypot(xs[ok] - xs[ok[0]], ys[ok] - ys[ok[0]])
             if far.max() > MARKER_SPREAD_CM:
-                j = int(ok[np.argmax(far)])
+                r = int(ok[np.argmax(far)])
                 raise ImportDataError(f"{where}: location {names[i]!r} is at ({xs[ok[0]]:g}, {ys[ok[0]]:g}) cm in row {ok[0]} but "
-                                      f"at ({xs[j]:g}, {ys[j]:g}) cm in row {j}, {far.max():.3g} cm apart; one location is "
+                                      f"at ({xs[r]:g}, {ys[r]:g}) cm in row {r}, {far.max():.3g} cm apart; one location is "
                                       f"one marker: fix the coordinates or the label")
             xy.append((float(xs[ok[0]]), float(ys[ok[0]])))
         elif kind != "names":
             xy.append((float(k), 0.0))
-            guessed.append(i)
+            guessed.add(i)
         else:
             xy.append((float(i), 0.0))
-            guessed.append(i)
+            guessed.add(i)
     P = np.array(xy)
-    d = np.hypot(P[:, None, 0] - P[None, :, 0], P[:, None, 1] - P[None, :, 1]) + np.eye(len(P))
-    if d.min() < 1e-6:
-        a, b = sorted(np.unravel_index(int(np.argmin(d)), d.shape))
+    _, first, count = np.unique(np.round(P, 6), axis=0, return_index=True, return_counts=True)
+    if np.any(count > 1):
+        a = int(first[np.flatnonzero(count > 1)[0]])
+        b = next(j for j in range(len(P)) if j != a and np.allclose(np.round(P[j], 6), np.round(P[a], 6)))
+        a, b = sorted((a, b))
         raise ImportDataError(f"{where}: locations {names[lut[uniq[a]]]!r} and {names[lut[uniq[b]]]!r} are both at "
                               f"({P[a, 0]:g}, {P[a, 1]:g}) cm; two markers cannot share a place: fix x_cm/y_cm")
     layout = Layout(ids=tuple(lut[k] for k in uniq), xy_cm=P)

@@ -343,9 +343,13 @@ class Layout:
         return (isinstance(other, Layout) and self.ids == other.ids
                 and np.allclose(self.xy_cm, other.xy_cm) and self.circumference_cm == other.circumference_cm)
 
+    @functools.cached_property
+    def _lut(self) -> dict[int, int]:  # built once: a lookup per call made coords() of K markers quadratic in K
+        return {i: k for k, i in enumerate(self.ids)}
+
     def index_of(self, ids: np.ndarray) -> np.ndarray:
         """Row index in ``xy_cm`` of each location id (raises on an unknown id)."""
-        lut = {i: k for k, i in enumerate(self.ids)}
+        lut = self._lut
         ids = np.asarray(ids)
         try:
             return np.array([lut[int(i)] for i in ids.ravel()], dtype=int).reshape(ids.shape)

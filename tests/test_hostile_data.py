@@ -558,3 +558,17 @@ def test_many_overlapping_intervals_are_checked_in_linear_time(src, inp, tmp_pat
     _write(labels, [rows[0], *chain, *rows[2:]])
     msg = _refused(import_wav, rec, labels, tmp_path / "o2", **_chirp(src["rig"]), **QUIET)
     assert "labels.csv lines 3 and 4: the intervals" in msg and "overlap with different labels (location '0' vs '1')" in msg, msg
+
+
+def test_a_table_with_a_location_per_row_is_fast_or_refused():
+    """20 000 distinct locations took 13 s in label_layout (a marker lookup rebuilt per marker, then a K x K distance
+    matrix: 200 000 would have needed 320 GB); more locations than a layout holds are refused in one line."""
+    from sonicskin.importers import label_layout
+
+    n = 20_000
+    t0 = time.perf_counter()
+    ids, layout, _ = label_layout(np.arange(n), np.arange(n) * 0.01, np.zeros(n), log=lambda *_: None)
+    assert time.perf_counter() - t0 < 5 and len(layout) == n
+    np.testing.assert_array_equal(layout.coords(ids[:3]), [[0.0, 0.0], [0.01, 0.0], [0.02, 0.0]])
+    with pytest.raises(SonicskinError, match="labels: 100001 distinct touch locations, more than a layout holds"):
+        label_layout(np.arange(100_001), None, None, log=lambda *_: None)
