@@ -1668,6 +1668,19 @@ def _(d):
     return ["import-spectra", "--table", d / "t.npz", "--out", d / "out"]
 
 
+# -- round 4: sizes -----------------------------------------------------------------------------------------------
+@probe("wavcsv", "20 000 copies of one interval (overlapping rows)", expect="ok")
+def _(d):
+    rows = base_rows()
+    return wav_setup(d, "\n".join(rows + [rows[1]] * 20_000) + "\n"), same_as_ref
+
+
+@probe("spectra", "every row its own location (3156 distinct ids with coordinates)", expect="ok")
+def _(d):
+    return spectra(d, location=lambda z: np.arange(z["location"].size), x_cm=lambda z: np.arange(z["location"].size) * 0.01,
+                   y_cm=lambda z: np.zeros(z["location"].size))
+
+
 # -- run --------------------------------------------------------------------------------------------------
 def classify(expect, rc, err, timed_out):
     lines = [ln for ln in err.splitlines() if ln.strip() and ": warning:" not in ln]
