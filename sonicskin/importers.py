@@ -824,6 +824,13 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     else:
         A = np.stack([np.interp(fb, f, m) for m in M])
     sessions_n = max(int(np.sum(sessions == s)) for s in set(sessions))
+    seen: dict[bytes, str] = {}
+    for s in sorted(set(sessions.tolist())):  # a session pasted twice under two names: its chirps would count twice
+        h = hashlib.sha256(np.ascontiguousarray(A[sessions == s]).tobytes()).digest()
+        if h in seen:
+            raise ImportDataError(f"{table}: sessions {seen[h]!r} and {s!r} hold the same spectra row for row; one recording "
+                                  f"would be two sessions (trained and tested on twice): remove the copy")
+        seen[h] = s
     # frames_of holds a session's spectra (complex) and its frames (float64) at once, plus the audio.
     check_memory(sessions_n * (rig.n_chirp // 2 + 1) * 16 * 3 + sessions_n * rig.n_chirp * 8 * 3,
                  f"building the longest session of {table} ({sessions_n} rows of {rig.n_chirp}-sample frames)",

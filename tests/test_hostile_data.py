@@ -572,3 +572,13 @@ def test_a_table_with_a_location_per_row_is_fast_or_refused():
     np.testing.assert_array_equal(layout.coords(ids[:3]), [[0.0, 0.0], [0.01, 0.0], [0.02, 0.0]])
     with pytest.raises(SonicskinError, match="labels: 100001 distinct touch locations, more than a layout holds"):
         label_layout(np.arange(100_001), None, None, log=lambda *_: None)
+
+
+def test_a_session_pasted_twice_into_a_table_is_refused(src, tmp_path):
+    z = dict(src["table"])
+    a = z["session"] == "s000"
+    z = {k: (np.concatenate([v, v[a]]) if k != "freqs_hz" else v) for k, v in z.items()}
+    z["session"][-int(a.sum()):] = "s009"
+    np.savez(tmp_path / "t.npz", **z)
+    msg = _refused(import_spectra, tmp_path / "t.npz", tmp_path / "o", **QUIET)
+    assert "t.npz: sessions 's000' and 's009' hold the same spectra row for row" in msg, msg
