@@ -496,6 +496,9 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
 
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
+    if n < 2:
+        raise ImportDataError(f"{p}: holds {n} whole sweep of {L} samples after the first sweep start; a recording needs at "
+                              f"least two: record longer, or {fix}")
     pairs = np.unique(np.linspace(0, n - 2, min(n - 1, 256)).astype(int))
     a = frames[pairs].astype(np.float64)
     b = frames[pairs + 1].astype(np.float64)

@@ -582,3 +582,22 @@ def test_a_session_pasted_twice_into_a_table_is_refused(src, tmp_path):
     np.savez(tmp_path / "t.npz", **z)
     msg = _refused(import_spectra, tmp_path / "t.npz", tmp_path / "o", **QUIET)
     assert "t.npz: sessions 's000' and 's009' hold the same spectra row for row" in msg, msg
+
+
+def test_a_recording_of_barely_two_sweeps_is_one_line(src, inp, tmp_path):
+    """Two sweeps' worth of samples starting mid-sweep hold one whole sweep: the checks took means of empty arrays
+    (numpy warnings printed as 'sonicskin: warning' lines) and the import went on."""
+    rec, labels, rows = inp
+    _write(labels, [rows[0], ["s000.wav", "0.0", "0.005", "0", "9.4", "12.5", "2.5", "0", "0"],
+                    ["s000.wav", "0.005", "0.01", "1", "10.6", "12.5", "2.5", "0", "0"]])
+    x, fs = sf.read(rec / "s000.wav", dtype="float32")
+    for p in rec.iterdir():
+        p.unlink()
+    sf.write(rec / "s000.wav", x[500:500 + 2048 + 10], fs, subtype="FLOAT")
+    import warnings
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        msg = _refused(import_wav, rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
+    assert not seen, [str(w.message) for w in seen]
+    assert "s000.wav: holds 1 whole sweep of 1024 samples after the first sweep start; a recording needs at least two" in msg
