@@ -1700,7 +1700,7 @@ def classify(expect, rc, err, timed_out):
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     results = []
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONWARNINGS="ignore")
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     for pid, cat, desc, expect, fn in PROBES:
         if FILTER and FILTER not in pid and FILTER not in desc:
             continue
@@ -1730,7 +1730,8 @@ def main():
         errl = [ln for ln in err.splitlines() if ln.strip()]
         outl = [ln for ln in out.splitlines() if ln.strip()]
         r = {"id": pid, "cat": cat, "desc": desc, "argv": " ".join(a.replace(str(OUT), "$D") for a in argv), "rc": rc,
-             "first": (errl or outl or [""])[0][:300], "last": (errl or outl or [""])[-1][:300], "verdict": verdict}
+             "first": (errl or outl or [""])[0][:300], "last": (errl or outl or [""])[-1][:300], "verdict": verdict,
+             "warnings": [ln[:300] for ln in errl if ": warning:" in ln]}
         results.append(r)
         print(f"{pid:14s} {verdict:24s} rc={rc} | {desc}\n      {r['last'][:250]}", flush=True)
         for p_ in d.rglob("*"):  # chmod 000 probes: give the tree back

@@ -601,3 +601,18 @@ def test_a_recording_of_barely_two_sweeps_is_one_line(src, inp, tmp_path):
         msg = _refused(import_wav, rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
     assert not seen, [str(w.message) for w in seen]
     assert "s000.wav: holds 1 whole sweep of 1024 samples after the first sweep start; a recording needs at least two" in msg
+
+
+def test_a_temperature_outside_what_a_link_can_be_at_is_refused_before_simulating(src, tmp_path, capsys):
+    """ambient_c 1e6 simulated with five numpy 'divide by zero' warning lines, then failed writing the first part; now
+    it is refused before any work."""
+    import yaml
+
+    (tmp_path / "sc.yaml").write_text(yaml.safe_dump(_tiny(temperature={"ambient_c": 1e6})))
+    code, _, err = run(capsys, ["simulate", "--scenario", tmp_path / "sc.yaml", "--rig", src["root"] / "small.yaml", "--out",
+                                tmp_path / "o"])
+    line = assert_one_line_error(code, err, "simulate")
+    assert "warning" not in err and line.endswith("temperature: ambient_c, warmup_c and swing_c reach 1e+06..1e+06 C, outside "
+                                                   "the -100..200 C a link can be at; give degrees Celsius"), err
+    with pytest.raises(ValueError, match=r"reach -127..178.6 C"):
+        Scenario.from_dict(_tiny(temperature={"ambient_c": 23.0, "warmup_c": 5.6, "swing_c": -150.0}))

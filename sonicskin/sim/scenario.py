@@ -365,6 +365,14 @@ def _check_parts(sc: Scenario) -> None:
     for k in ("warmup_tau_s", "swing_period_s"):
         if k in sc.temperature and not sc.temperature[k] > 0:
             raise ValueError(f"temperature.{k} must be > 0 s, got {sc.temperature[k]!r}")
+    from ..dataset import TEMPERATURE_C
+
+    T = sc.temperature
+    lo = T.get("ambient_c", 23.0) + min(0.0, T.get("warmup_c", 0.0)) - abs(T.get("swing_c", 0.0))
+    hi = T.get("ambient_c", 23.0) + max(0.0, T.get("warmup_c", 0.0)) + abs(T.get("swing_c", 0.0))
+    if lo < TEMPERATURE_C[0] or hi > TEMPERATURE_C[1]:
+        raise ValueError(f"temperature: ambient_c, warmup_c and swing_c reach {lo:g}..{hi:g} C, outside the "
+                         f"{TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C a link can be at; give degrees Celsius")
     import inspect
 
     from .channel import ChannelModel
