@@ -644,6 +644,13 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     ref = rig_chirp(rig)
     for p in files:
         _check_intervals(rows, labels, p.name, infos[p].frames / fs, rig.period_s)
+    # Times in minutes (or ms read as s by a spreadsheet) still fall inside the recordings: a hint, not a refusal.
+    ends = [max((r["end_s"] for r in rows if r["file"] == p.name), default=None) for p in files]
+    if all(e is None or e < 0.2 * infos[p].frames / fs for p, e in zip(files, ends)):
+        last = max(e for e in ends if e is not None)
+        longest = max(files, key=lambda p: infos[p].frames)
+        warnings.warn(f"{labels}: every interval ends in the first fifth of its recording (the last at {last:g} s; "
+                      f"{longest.name} is {infos[longest].frames / fs:.3g} s long): are the times in seconds?", stacklevel=2)
     # The recordings (in session order) and the label file are bound to the dataset: --resume with another
     # folder content or edited labels would otherwise mix two imports (sessions are numbered in file order).
     source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()},

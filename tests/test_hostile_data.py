@@ -616,3 +616,19 @@ def test_a_temperature_outside_what_a_link_can_be_at_is_refused_before_simulatin
                                                    "the -100..200 C a link can be at; give degrees Celsius"), err
     with pytest.raises(ValueError, match=r"reach -127..178.6 C"):
         Scenario.from_dict(_tiny(temperature={"ambient_c": 23.0, "warmup_c": 5.6, "swing_c": -150.0}))
+
+
+def test_times_in_minutes_get_a_warning(src, inp, tmp_path):
+    """Intervals in minutes still fall inside the recordings (each holds a sweep start or two): not refusable, but
+    every one ending in the first fifth of its recording is named."""
+    import warnings
+
+    rec, labels, rows = inp
+    _write(labels, [rows[0], *[[r[0], f"{float(r[1]) / 60:.6f}", f"{float(r[2]) / 60:.6f}", *r[3:]] for r in rows[1:]]])
+    with pytest.warns(UserWarning, match=r"labels.csv: every interval ends in the first fifth of its recording \(the last "
+                                         r"at 0.0\d+ s; s00\d.wav is 5.\d+ s long\): are the times in seconds\?"):
+        import_wav(rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
+    _write(labels, rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the clean labels: no such warning
+        import_wav(rec, labels, tmp_path / "clean", **_chirp(src["rig"]), **QUIET)
