@@ -12,7 +12,8 @@ from collections import Counter
 # Verdicts that need a person: the automatic class (exit code, one line, traceback) cannot tell.
 JUDGED = {
     "times in minutes (/60): every interval inside the first seconds": (
-        "SILENT-WRONG (left)", "intervals of 8 ms hold one or two sweep starts each: not distinguishable from short taps"),
+        "ok-warned", "intervals of 8 ms hold a sweep start or two each (not refusable): 'every interval ends in the first "
+                     "fifth of its recording ... are the times in seconds?'"),
     "--sweep time-reversed (down-chirp instead of up)": (
         "SILENT-WRONG (left)", "frames cut at another offset: features differ by a median 0.15 dB from the right sweep's "
                                "(max 60 dB near touch edges); the phase-coherence gap (0.78 vs 0.39) is too small to refuse on"),
@@ -109,7 +110,7 @@ def main():
           "YAML's mappings and values (`sonicskin/sim/scenario.py`), a loopback channel / dropout / copied recording / "
           "names differing in case (`importers.py`), a misspelled table array (`importers.py`), an unwritable feature "
           "cache (`sonicskin/features.py`), a PWM line outside 0..fs/2 (`sonicskin/rig.py`).  Left (judged rows marked "
-          "'left'): times in minutes when every interval still holds a sweep start, coordinates in mm, a time-reversed "
+          "'left'): coordinates in mm, a time-reversed "
           "sweep WAV, a hand-forged manifest shifting every label by one chirp.\n")
     print("Valid data still imports: the shipped examples (tests/test_examples.py), the moving scenario at full motion "
           "level (tests/test_hostile_data.py) and 13 random-family rigs on the small and jaco rigs, with and without "
