@@ -124,7 +124,8 @@ def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -
 
     location -1 or a layout id; force_n NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite
     in [0, 1]; t_s/time_s finite, t_s >= 0; x_cm/y_cm NaN or finite; temperature_c NaN or finite in
-    range; subject >= 0; segment one of :data:`SEGMENTS`.
+    range; subject >= 0; segment one of :data:`SEGMENTS`; a touched chirp (location >= 0) in a ``touch``
+    segment with finite coordinates.
     """
     n = len(lab["chirp"])
 
@@ -153,7 +154,14 @@ def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -
     bad("temperature_c", ~np.isnan(T) & ~((T >= TEMPERATURE_C[0]) & (T <= TEMPERATURE_C[1])),
         f"a temperature is NaN or in {TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C")
     bad("subject", np.asarray(lab["subject"]) < 0, "a subject is a whole number >= 0")
-    bad("segment", ~np.isin(np.asarray(lab["segment"]).astype(str), SEGMENTS), f"a segment is one of {', '.join(SEGMENTS)}")
+    seg = np.asarray(lab["segment"]).astype(str)
+    bad("segment", ~np.isin(seg, SEGMENTS), f"a segment is one of {', '.join(SEGMENTS)}")
+    # A touched chirp (location >= 0) lies in a touch segment, at a position: a calibration row with a location
+    # would enter the no-touch reference, a touch without coordinates the distance metrics.
+    touched = loc >= 0
+    bad("segment", touched & (seg != "touch"), "a chirp with a location (>= 0) is in a 'touch' segment")
+    for c in ("x_cm", "y_cm"):
+        bad(c, touched & ~np.isfinite(np.asarray(lab[c], float)), "a touched chirp (location >= 0) has finite coordinates")
     if n and np.any(np.asarray(lab["chirp"]) < 0):
         bad("chirp", np.asarray(lab["chirp"]) < 0, "chirp numbers are >= 0")
 
@@ -462,8 +470,10 @@ class Dataset:
 
     @property
     def sessions(self) -> list[str]:
-        """Session folders (those holding a labels CSV); one with an unsafe name is refused, not skipped."""
-        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and any(p.glob("part-*.csv")))
+        """Session folders (those holding a labels CSV, or a session.json: a complete session whose parts are gone is
+        refused when read, not skipped); one with an unsafe name is refused, not skipped."""
+        out = sorted(p.name for p in self.root.iterdir()
+                     if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
         for name in out:
             check_name(name, "session folder", str(self.root))
         return out
@@ -661,6 +671,25 @@ class Dataset:
                                f"session is labelled once, in order; restore the files or {REDO}")
         check_label_values(lab, self.layout, str(d))
 
+    def check_distinct(self, sessions: list[str] | None = None) -> None:
+        """Refuse two sessions that hold the same recording (a session folder copied within the dataset): its
+        chirps would count twice, in training and in testing.  Compares the first part's FLAC bytes (the
+        manifest's hash when there is one)."""
+        seen: dict[str, str] = {}
+        for s in sessions or self.sessions:
+            d = self._session_dir(s)
+            info = self.manifest(s)
+            if info is not None and isinstance(info.get("parts"), list) and info["parts"]:
+                h = info["parts"][0]["flac_sha256"]
+            elif (d / "part-00000.flac").is_file():
+                h = _sha((d / "part-00000.flac").read_bytes())
+            else:
+                continue
+            if h in seen:
+                raise DatasetError(f"{self.root}: sessions {seen[h]} and {s} hold the same recording (identical "
+                                   f"part-00000.flac): a copied session is trained and tested on twice; remove the copy")
+            seen[h] = s
+
     def iter_sessions(self, sessions: list[str] | None = None) -> Iterator[tuple[str, np.ndarray, dict[str, np.ndarray]]]:
         for s in sessions or self.sessions:
             frames, lab = self.read_session(s)
@@ -673,6 +702,7 @@ class Dataset:
         names = sessions or self.sessions
         if not names:
             raise DatasetError(f"{self.root}: no session with a complete part")
+        self.check_distinct(names)
         Xs, labs = [], []
         for _, frames, lab in tqdm(self.iter_sessions(names), total=len(names), desc="features", unit="session",
                                    disable=None if progress else True):

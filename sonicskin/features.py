@@ -8,6 +8,7 @@ a slow drift of the channel is removed before either model sees it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import os
@@ -130,6 +131,7 @@ def _signature(ds: Dataset) -> str:
     FLAC and CSV and of ``session.json`` (which parts count)."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
+    ds.check_distinct()  # a copied session: refused before a cache could hide it
     for s in ds.sessions:
         d = ds.root / s
         info = d / "session.json"
@@ -169,10 +171,11 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
         cache.parent.mkdir(exist_ok=True)
         t.save_npz(tmp, key=key)
         os.replace(tmp, cache)
-    except PermissionError:  # a read-only dataset: features are simply not cached
+    except OSError:  # a read-only dataset, a full disk, a file named .cache: features are simply not cached
         return t
     finally:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
     for old in cache.parent.glob("features-*.npz"):
         if old.name != cache.name:
             old.unlink(missing_ok=True)

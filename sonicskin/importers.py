@@ -36,6 +36,10 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import difflib
+import hashlib
+import io
+import re
 import shutil
 import warnings
 from collections.abc import Iterator
@@ -53,12 +57,17 @@ from .rig import Layout, Rig
 __all__ = ["import_wav", "import_spectra", "sweep_rig", "rig_from_axis", "label_layout", "STANDARD_RATES_HZ"]
 
 _LABEL_COLS = ("file", "start_s", "end_s", "location")
+_OPTIONAL_COLS = ("x_cm", "y_cm", "force_n", "moving", "subject")
 NO_TOUCH_LABELS = frozenset({"", "-1", "nan", "none", "no-touch", "no_touch", "notouch", "rest", "quiet", "idle"})
 # Sample rates of common audio interfaces, preferred in this order when the axis fits several equally.
 STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000,
                      11_025, 22_050, 24_000)
 PEAK_LEVEL = 0.5  # imported streams are scaled to this peak (-6 dBFS)
 SILENT_RMS = 1e-7  # a recording quieter than this (about -140 dBFS) holds no received sweep
+LOOPBACK_CORR = 0.98  # a 'received' channel this close to the transmitted sweep is the sweep itself
+MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table of measured spectra
+MAX_LOCATIONS = 100_000  # markers of one layout (dataset.json's bound)
+MARKER_SPREAD_CM = 1.0  # rows of one location whose x_cm/y_cm differ by more than this name two places
 
 
 class ImportDataError(SonicskinError):
@@ -73,7 +82,8 @@ def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=Non
         if mask.any():
             k = int(np.flatnonzero(mask)[0])
             name = rows[k] if rows is not None else f"row {k}"
-            raise ImportDataError(f"{where}: {name}: {col} = {np.asarray(vals)[k]!r}, but {want}; fix the value")
+            v = np.asarray(vals)[k]
+            raise ImportDataError(f"{where}: {name}: {col} = {getattr(v, 'item', lambda: v)()!r}, but {want}; fix the value")
 
     if force is not None:
         f = np.asarray(force, float)
@@ -103,6 +113,12 @@ def sweep_rig(sweep: np.ndarray, fs_hz: float, *, pwm_hz=(), pwm_halfwidth_hz: f
     S = np.abs(scipy.fft.rfft(x))
     if not S.max() > 0:
         raise ValueError("the sweep is silent (all zeros); pass the WAV of one period of what the transmitter plays")
+    n = x.size
+    r = scipy.fft.irfft(S.astype(np.float64) ** 2, n=n)
+    for k in range(16, 1, -1):  # the shortest repeat first: a WAV of 4 periods also repeats every 2
+        if n % k == 0 and r[n // k] > 0.9 * r[0]:
+            raise ImportDataError(f"the sweep WAV repeats every {n // k} samples: it holds {k} periods of the sweep, not one; "
+                                  f"cut it to one period ({n // k} samples)")
     f = np.fft.rfftfreq(x.size, 1 / fs_hz)
     on = np.flatnonzero(20 * np.log10(S / S.max() + 1e-12) >= band_db)
     f_lo, f_hi = float(max(f[on[0]], f[1])), float(f[on[-1]])
@@ -126,6 +142,9 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
         raise ValueError(f"freqs_hz must list at least two frequencies, got shape {f.shape}")
     if not np.all(np.diff(f) > 0):
         raise ValueError("freqs_hz must increase")
+    if not f[0] > 0:
+        raise ImportDataError(f"freqs_hz starts at {f[0]:g} Hz; the table's columns are the sweep band's FFT bins, "
+                              f"above 0 Hz (leave out DC and negative frequencies)")
     df = (f[-1] - f[0]) / (f.size - 1)
     if np.max(np.abs(np.diff(f) - df)) > 0.05 * df:
         raise ValueError(f"freqs_hz is not evenly spaced (steps {np.diff(f).min():g}-{np.diff(f).max():g} Hz); "
@@ -165,6 +184,9 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
         best = min(e for e, *_ in fits)
         _, _, r, n = min((o, e, r, m) for e, o, r, m in fits if e <= best + min(5.0, 0.25 * df))
         fs = float(r)
+        if n > fs:
+            raise ImportDataError(f"the axis ({f[0]:g}-{f[-1]:g}, bins {df:g} apart) would mean FFT frames of {n / fs:.3g} s; "
+                                  f"freqs_hz must be in Hz (are these kHz? multiply by 1000), or pass --fs and --frame")
         how = f"a standard rate with {n}-sample frames fits the axis; pass --fs or --frame if yours differs"
     if n < 64:
         raise ValueError(f"{n} samples per frame (fs {fs:g} Hz / {df:g} Hz bins) is too short; pass --fs or --frame")
@@ -188,7 +210,7 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
 
 def _as_number(v) -> float | None:
     try:
-        return float(v)
+        return _strict_float(v) if isinstance(v, str) else float(v)
     except (TypeError, ValueError):
         return None
 
@@ -223,6 +245,16 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
     if not touch.any():
         raise ValueError(f"{where}: no touch labels (every location is empty, negative or a no-touch word)")
     nums = [_as_number(v) for v in np.asarray(vals, dtype=object)[touch]]
+    touch_vals = np.asarray(vals, dtype=object)[touch]
+    if any(x is not None and not np.isfinite(x) for x in nums):
+        k = next(i for i, x in enumerate(nums) if x is not None and not np.isfinite(x))
+        raise ImportDataError(f"{where}: location {touch_vals[k]!r} is not a location; use an id, a position in cm, a name, "
+                              f"or an empty cell / -1 / 'none' for no touch")
+    if any(x is None for x in nums) and any(x is not None for x in nums):
+        a = next(v for v, x in zip(touch_vals, nums) if x is not None)
+        b = next(v for v, x in zip(touch_vals, nums) if x is None)
+        raise ImportDataError(f"{where}: location labels mix numbers ({a!r}) and names ({b!r}); use one kind for every "
+                              f"location (a typo such as the letter O for 0?)")
     integer = all(x is not None and float(x).is_integer() for x in nums) and (
         raw.dtype.kind in "iu" or all(isinstance(v, str) and "." not in v and "e" not in v.lower()
                                       for v in np.asarray(vals, dtype=object)[touch]))
@@ -241,6 +273,13 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
     else:
         keys = [str(v) for v in np.asarray(vals, dtype=object)[touch]]
         uniq = sorted(set(keys))
+        folded: dict[str, str] = {}
+        for k in uniq:
+            f = " ".join(k.lower().split())
+            if f in folded:
+                raise ImportDataError(f"{where}: location names {folded[f]!r} and {k!r} differ only in case or spaces; they "
+                                      f"would be two locations: spell each location one way")
+            folded[f] = k
         lut = {k: i for i, k in enumerate(uniq)}
         names = {i: k for k, i in lut.items()}
         kind = "names"
@@ -248,22 +287,52 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
     ids[touch] = [lut[k] for k in keys]
     if len(uniq) < 2:
         raise ValueError(f"{where}: labels name {len(uniq)} touch location; need at least two")
+    if (x_cm is None) != (y_cm is None):
+        raise ImportDataError(f"{where}: has {'x_cm' if y_cm is None else 'y_cm'} but not "
+                              f"{'y_cm' if y_cm is None else 'x_cm'}; give both coordinates of each marker, or neither")
     xs = np.full(raw.shape[0], np.nan) if x_cm is None else np.asarray(x_cm, float)
     ys = np.full(raw.shape[0], np.nan) if y_cm is None else np.asarray(y_cm, float)
-    xy, guessed = [], []
-    for k in uniq:
+    half = touch & (np.isfinite(xs) != np.isfinite(ys))
+    if half.any():
+        k = int(np.flatnonzero(half)[0])
+        raise ImportDataError(f"{where}: row {k} (location {vals[k]!r}) has x_cm {xs[k]:g} but y_cm {ys[k]:g}; give both "
+                              f"coordinates of a marker, or neither")
+    if len(uniq) > MAX_LOCATIONS:
+        raise ImportDataError(f"{where}: {len(uniq)} distinct touch locations, more than a layout holds ({MAX_LOCATIONS}); is the "
+                              f"location column one value per row (an index or a time)?")
+    # The rows of each location, grouped in one sort (not one scan per location: quadratic in a big table).
+    order = np.flatnonzero(touch)
+    order = order[np.argsort(ids[order], kind="stable")]
+    bounds = np.searchsorted(ids[order], [lut[k] for k in uniq], side="left").tolist() + [order.size]
+    xy, guessed = [], set()
+    for j, k in enumerate(uniq):
         i = lut[k]
-        rows = np.flatnonzero(ids == i)
+        rows = order[bounds[j]:bounds[j + 1]]
         ok = rows[np.isfinite(xs[rows]) & np.isfinite(ys[rows])]
         if ok.size:
+            # One marker has one position: rows may differ by a finger's aim (mm), not by a different place.
+            far = np.hypot(xs[ok] - xs[ok[0]], ys[ok] - ys[ok[0]])
+            if far.max() > MARKER_SPREAD_CM:
+                r = int(ok[np.argmax(far)])
+                raise ImportDataError(f"{where}: location {names[i]!r} is at ({xs[ok[0]]:g}, {ys[ok[0]]:g}) cm in row {ok[0]} but "
+                                      f"at ({xs[r]:g}, {ys[r]:g}) cm in row {r}, {far.max():.3g} cm apart; one location is "
+                                      f"one marker: fix the coordinates or the label")
             xy.append((float(xs[ok[0]]), float(ys[ok[0]])))
         elif kind != "names":
             xy.append((float(k), 0.0))
-            guessed.append(i)
+            guessed.add(i)
         else:
             xy.append((float(i), 0.0))
-            guessed.append(i)
-    layout = Layout(ids=tuple(lut[k] for k in uniq), xy_cm=np.array(xy))
+            guessed.add(i)
+    P = np.array(xy)
+    _, first, count = np.unique(np.round(P, 6), axis=0, return_index=True, return_counts=True)
+    if np.any(count > 1):
+        a = int(first[np.flatnonzero(count > 1)[0]])
+        b = next(j for j in range(len(P)) if j != a and np.allclose(np.round(P[j], 6), np.round(P[a], 6)))
+        a, b = sorted((a, b))
+        raise ImportDataError(f"{where}: locations {names[lut[uniq[a]]]!r} and {names[lut[uniq[b]]]!r} are both at "
+                              f"({P[a, 0]:g}, {P[a, 1]:g}) cm; two markers cannot share a place: fix x_cm/y_cm")
+    layout = Layout(ids=tuple(lut[k] for k in uniq), xy_cm=P)
     log(f"{len(uniq)} touch locations from {kind} in {where} (label -> id, x/y cm):")
     for k in uniq:
         i = lut[k]
@@ -276,32 +345,80 @@ def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=pri
     return ids, layout, names
 
 
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf|infinity)", re.IGNORECASE)
+
+
+def _strict_float(text: str) -> float:
+    """A plain decimal number (``3.5``, ``-1e-3``, ``nan``); ValueError for anything else (``1_0``, ``3,5``, ``0x1``)."""
+    t = str(text).strip()
+    if not _NUMBER.fullmatch(t):
+        raise ValueError(t)
+    return float(t)
+
+
 def _read_labels(path: Path) -> list[dict]:
+    """The label CSV's rows, each checked: known columns (a misspelled optional one is refused, not ignored), one
+    value per column, plain numbers, finite times, values in range."""
     try:
         if path.stat().st_size > 256 * 2**20:
             raise ImportDataError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is not a label CSV of touch intervals")
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # -sig: a BOM (Excel's "CSV UTF-8") is not a column name
+            text = fh.read()
+        if "\0" in text:
+            raise ImportDataError(f"{path}: holds NUL bytes; it is not a text CSV (save it as UTF-8 text)")
+        reader = csv.reader(io.StringIO(text, newline=""))
+        lines = [(reader.line_num, r) for r in reader]
     except (UnicodeDecodeError, csv.Error) as e:
         raise ImportDataError(f"{path}: not a readable CSV ({str(e)[:120]}); save it as UTF-8 text") from None
-    if not rows:
+    lines = [(n, r) for n, r in lines if any(c.strip() for c in r)]  # blank lines are skipped
+    if not lines:
         raise ValueError(f"{path}: no label rows")
-    missing = [c for c in _LABEL_COLS if c not in rows[0]]
+    header = [c.strip() for c in lines[0][1]]
+    known = (*_LABEL_COLS, *_OPTIONAL_COLS)
+    dup = sorted({c for c in header if header.count(c) > 1})
+    if dup:
+        raise ImportDataError(f"{path}: column {dup[0]!r} appears {header.count(dup[0])} times in the header; keep one")
+    near = {}
+    for c in header:
+        if c not in known:
+            m = [k for k in known if k.lower() == c.lower()] or difflib.get_close_matches(c.lower(), known, n=1, cutoff=0.75)
+            if m:
+                near[c] = m[0]
+    hint = "".join(f"; is {c!r} meant to be {k!r}?" for c, k in near.items())
+    missing = [c for c in _LABEL_COLS if c not in header]
     if missing:
         raise ValueError(f"{path}: label CSV lacks columns {missing}; need file,start_s,end_s,location "
-                         f"(optional x_cm,y_cm,force_n,moving,subject)")
-
-    def num(r, k, default):
-        return float(r[k]) if r.get(k) not in (None, "") else default
+                         f"(optional x_cm,y_cm,force_n,moving,subject){hint}")
+    if near:  # a misspelled optional column would be ignored: its values silently lost
+        c, k = next(iter(near.items()))
+        raise ImportDataError(f"{path}: column {c!r} is not a label column; did you mean {k!r}? "
+                              f"(columns: {','.join(known)})")
+    ignored = [c for c in header if c not in known]
+    if ignored:
+        warnings.warn(f"{path}: columns {ignored} are not label columns and are ignored", stacklevel=3)
+    if len(lines) < 2:
+        raise ValueError(f"{path}: no label rows")
 
     out = []
-    for i, r in enumerate(rows, start=2):
-        try:
-            d = {"file": r["file"], "start_s": float(r["start_s"]), "end_s": float(r["end_s"]), "label": r["location"].strip(),
-                 "x_cm": num(r, "x_cm", np.nan), "y_cm": num(r, "y_cm", np.nan), "force_n": num(r, "force_n", np.nan),
-                 "moving": num(r, "moving", 0.0), "subject": int(num(r, "subject", 0))}
-        except (ValueError, TypeError, OverflowError, AttributeError) as e:
-            raise ImportDataError(f"{path} line {i}: {e}") from None
+    for i, row in lines[1:]:
+        if len(row) != len(header):
+            raise ImportDataError(f"{path} line {i}: {len(row)} values for {len(header)} columns; a missing value, or a "
+                                  f"decimal comma (write 3.5, not 3,5)? fix the row")
+        r = dict(zip(header, row))
+
+        def num(k, default, r=r, i=i):
+            v = r.get(k, "")
+            if v is None or not v.strip():
+                return default
+            try:
+                return _strict_float(v)
+            except ValueError:
+                raise ImportDataError(f"{path} line {i}: {k} = {v!r} is not a number; write plain numbers "
+                                      f"(a dot for decimals, e.g. 3.5)") from None
+
+        d = {"file": r["file"], "start_s": num("start_s", np.nan), "end_s": num("end_s", np.nan), "label": r["location"].strip(),
+             "x_cm": num("x_cm", np.nan), "y_cm": num("y_cm", np.nan), "force_n": num("force_n", np.nan),
+             "moving": num("moving", 0.0), "subject": num("subject", 0.0)}
         if not (np.isfinite(d["start_s"]) and np.isfinite(d["end_s"]) and d["start_s"] >= 0):
             raise ImportDataError(f"{path} line {i}: start_s and end_s must be finite seconds >= 0, got {r['start_s']}, {r['end_s']}")
         if d["end_s"] <= d["start_s"]:
@@ -311,6 +428,8 @@ def _read_labels(path: Path) -> list[dict]:
     _check_values(str(path), force=[d["force_n"] for d in out], moving=[d["moving"] for d in out],
                   subject=[d["subject"] for d in out],
                   x_cm=[d["x_cm"] for d in out], y_cm=[d["y_cm"] for d in out], rows=[f"line {d['line']}" for d in out])
+    for d in out:
+        d["subject"] = int(d["subject"])
     return out
 
 
@@ -322,15 +441,24 @@ def _check_intervals(rows: list[dict], path: Path, name: str, duration_s: float,
             raise ImportDataError(f"{path} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s ends past the end of "
                                f"{name} ({duration_s:.3f} s long); fix the times or the file name")
     keys = ("location", "force_n", "moving", "subject")
-    for i, a in enumerate(mine):
-        for b in mine[i + 1:]:
-            if b["start_s"] >= a["end_s"]:
-                break
-            same = all(a[k] == b[k] or (isinstance(a[k], float) and np.isnan(a[k]) and np.isnan(b[k])) for k in keys)
-            if not same:
-                raise ImportDataError(f"{path} lines {a['line']} and {b['line']}: the intervals {a['start_s']:g}-{a['end_s']:g} s "
-                                   f"and {b['start_s']:g}-{b['end_s']:g} s of {name} overlap with different labels "
-                                   f"(location {a['label']!r} vs {b['label']!r}); a chirp has one label: fix the times")
+
+    def key(r):
+        return tuple("nan" if isinstance(r[k], float) and np.isnan(r[k]) else r[k] for k in keys)
+
+    # One sweep in start order (linear, not pairwise: 20 000 identical rows took 74 s): the intervals that overlap
+    # form runs; every interval of a run has the label of the one reaching furthest so far, ``a``, which overlaps
+    # any later interval that overlaps the run.
+    a = None
+    for b in mine:
+        if a is None or b["start_s"] >= a["end_s"]:
+            a = b
+            continue
+        if key(b) != key(a):
+            raise ImportDataError(f"{path} lines {a['line']} and {b['line']}: the intervals {a['start_s']:g}-{a['end_s']:g} s "
+                                  f"and {b['start_s']:g}-{b['end_s']:g} s of {name} overlap with different labels "
+                                  f"(location {a['label']!r} vs {b['label']!r}); a chirp has one label: fix the times")
+        if b["end_s"] > a["end_s"]:
+            a = b
 
 
 def _sf_info(p: Path):
@@ -358,6 +486,72 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
     if not np.isfinite(x).all():
         raise ImportDataError(f"{p}: the {what} holds NaN or inf samples (float WAV); it is damaged: export it again")
     return x, sr
+
+
+def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
+    """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
+    the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
+    (or the file holds no received sweep) and every feature would be silently meaningless.  No sweep may be clipped."""
+    from .dsp import frame_faults, rig_chirp
+
+    n, L = frames.shape
+    fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
+    if n < 2:
+        raise ImportDataError(f"{p}: holds {n} whole sweep of {L} samples after the first sweep start; a recording needs at "
+                              f"least two: record longer, or {fix}")
+    pairs = np.unique(np.linspace(0, n - 2, min(n - 1, 256)).astype(int))
+    a = frames[pairs].astype(np.float64)
+    b = frames[pairs + 1].astype(np.float64)
+    a -= a.mean(axis=1, keepdims=True)
+    b -= b.mean(axis=1, keepdims=True)
+    # Correlation of each period with the next at small shifts: a right period repeats at shift 0; a period a few
+    # samples off repeats at that shift (its frames drift); noise or a half period repeats nowhere.
+    xc = scipy.fft.irfft(scipy.fft.rfft(b, axis=1) * np.conj(scipy.fft.rfft(a, axis=1)), n=L, axis=1)
+    xc /= np.sqrt(np.sum(a * a, 1) * np.sum(b * b, 1))[:, None] + 1e-300
+    med = np.median(xc, axis=0)
+    lags = np.r_[0:65, L - 64:L]
+    k = int(lags[np.argmax(med[lags])])
+    lag = k if k < L // 2 else k - L
+    if lag and med[k] >= 0.8 and med[k] > med[0] + 0.1:
+        raise ImportDataError(f"{p}: the recording repeats every {L + lag} samples, not every {L} (correlation "
+                              f"{med[k]:.2f} against {med[0]:.2f}): the sweep period is {(L + lag) / rig.fs_hz:.7g} s; {fix}")
+    if med[0] < 0.3:
+        raise ImportDataError(f"{p}: consecutive sweep periods of {L} samples do not repeat (median correlation {med[0]:.2f}): "
+                              f"the file holds no sweep of this period; {fix}")
+    S = np.abs(scipy.fft.rfft(a, axis=1)) ** 2
+    r = scipy.fft.irfft(S, n=L, axis=1)
+    for k in range(16, 1, -1):
+        if L % k == 0 and np.median(r[:, L // k] / np.maximum(r[:, 0], 1e-300)) > 0.9:
+            raise ImportDataError(f"{p}: the recording repeats every {L // k} samples, not every {L}: the sweep period is "
+                                  f"{L // k / rig.fs_hz:.6g} s; {fix}")
+    blocks = [frames[i:i + 8].astype(np.float64).mean(axis=0) for i in np.linspace(0, max(n - 8, 0), min(64, n)).astype(int)]
+    P = np.mean([np.abs(scipy.fft.rfft(x - x.mean())) ** 2 for x in blocks], axis=0)
+    share = float(P[rig.band_bins].sum() / max(P[1:].sum(), 1e-300))
+    if share < 0.01:
+        c = np.cumsum(P[1:]) / P[1:].sum()
+        lo, hi = rig.freqs_hz[1 + np.searchsorted(c, 0.05)], rig.freqs_hz[1 + min(np.searchsorted(c, 0.95), c.size - 1)]
+        raise ImportDataError(f"{p}: {share:.1%} of the repeating signal's power lies in the sweep band "
+                              f"{rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz (most lies at {lo / 1e3:.3g}-{hi / 1e3:.3g} kHz); {fix}")
+    first = frames[: min(8, n)].astype(np.float64).mean(axis=0)
+    first -= first.mean()
+    ref = rig_chirp(rig).astype(np.float64)
+    ref -= ref.mean()
+    xc = scipy.fft.irfft(scipy.fft.rfft(first) * np.conj(scipy.fft.rfft(ref)), n=L)
+    shape = float(np.abs(xc).max() / np.sqrt(np.sum(first ** 2) * np.sum(ref ** 2) + 1e-300))
+    if shape > LOOPBACK_CORR:
+        raise ImportDataError(f"{p}: channel {channel} is the transmitted sweep itself (correlation {shape:.3f} with it), not a "
+                              f"received one: a loopback or the playback file; pass --channel N for the receiver's channel "
+                              f"(the file has {channels})")
+    faults = frame_faults(frames)
+    if np.any(faults == 2):
+        k = int(np.flatnonzero(faults == 2)[0])
+        raise ImportDataError(f"{p}: {int(np.sum(faults == 2))} of {n} sweeps are silent (the first is sweep {k}, "
+                              f"{(offset + k * L) / rig.fs_hz:.3f} s): a dropout in the recording; cut the file at the "
+                              f"dropout or record again")
+    if np.any(faults == 3):
+        raise ImportDataError(f"{p}: {int(np.sum(faults == 3))} of {n} sweeps are clipped at full scale (the first is sweep "
+                              f"{np.flatnonzero(faults == 3)[0]}): their spectra are distorted and the model verbs refuse "
+                              f"clipped sweeps; record again with a lower input gain")
 
 
 # -- writing all or nothing -----------------------------------------------------------
@@ -413,6 +607,8 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
     if not wav_dir.is_dir():
         raise FileNotFoundError(f"{wav_dir}: no such folder of recordings")
+    if sweep_wav is not None and (chirp_hz is not None or period_s is not None):
+        raise ImportDataError("give the transmitted sweep one way: --sweep SWEEP.wav, or --chirp F_LO F_HI --period S; not both")
     rows = _read_labels(labels)
     files = sorted(p for p in wav_dir.iterdir() if p.suffix.lower() in (".wav", ".flac"))
     if not files:
@@ -448,10 +644,35 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     ref = rig_chirp(rig)
     for p in files:
         _check_intervals(rows, labels, p.name, infos[p].frames / fs, rig.period_s)
-    source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()}}
+    # Times in minutes (or ms read as s by a spreadsheet) still fall inside the recordings: a hint, not a refusal.
+    ends = [max((r["end_s"] for r in rows if r["file"] == p.name), default=None) for p in files]
+    if all(e is None or e < 0.2 * infos[p].frames / fs for p, e in zip(files, ends)):
+        last = max(e for e in ends if e is not None)
+        longest = max(files, key=lambda p: infos[p].frames)
+        warnings.warn(f"{labels}: every interval ends in the first fifth of its recording (the last at {last:g} s; "
+                      f"{longest.name} is {infos[longest].frames / fs:.3g} s long): are the times in seconds?", stacklevel=2)
+    # The recordings (in session order) and the label file are bound to the dataset: --resume with another
+    # folder content or edited labels would otherwise mix two imports (sessions are numbered in file order).
+    source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()},
+              "files": [p.name for p in files], "labels_sha256": hashlib.sha256(labels.read_bytes()).hexdigest()}
+    if mode == "resume" and (out / "dataset.json").is_file():
+        from .dataset import load_json
+
+        old = load_json(out / "dataset.json").get("source", {})
+        if isinstance(old, dict) and "files" not in old:
+            raise ImportDataError(f"cannot resume {out}: it was imported by an older sonicskin that did not record which "
+                                  f"files it holds; pass --overwrite to import every recording again")
+        if isinstance(old, dict) and old.get("files") != source["files"]:
+            raise ImportDataError(f"cannot resume {out}: it was imported from the recordings {old.get('files')}, the folder now "
+                                  f"holds {source['files']} (sessions are numbered in file order); import into a new --out "
+                                  f"or pass --overwrite")
+        if isinstance(old, dict) and old.get("labels_sha256") != source["labels_sha256"]:
+            raise ImportDataError(f"cannot resume {out}: {labels} changed since the import began; pass --overwrite to import "
+                                  f"every recording with the new labels")
     with _staged(out, mode) as (root, wmode):
         w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
         done = 0
+        recordings: dict[str, str] = {}  # sha256 of a channel's samples -> file
         for k, p in enumerate(files):
             session = f"s{k:03d}"
             if w.session_done(session):
@@ -459,13 +680,24 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             x, _ = _sf_read(p)
             if channel >= x.shape[1]:
                 raise ValueError(f"{p}: has {x.shape[1]} channels; --channel {channel} does not exist")
+            channels = x.shape[1]
             x = x[:, channel]
+            digest = hashlib.sha256(x.tobytes()).hexdigest()
+            if digest in recordings:
+                raise ImportDataError(f"{p}: holds the same samples as {recordings[digest]}: one recording would be two "
+                                      f"sessions (trained and tested on twice); remove the copy")
+            recordings[digest] = p.name
             if not np.sqrt(np.mean(np.square(x, dtype=np.float64))) > SILENT_RMS:
                 raise ImportDataError(f"{p}: channel {channel} is silent (all zeros or below {SILENT_RMS:g} RMS): no sweep "
                                       f"was received; check the file and --channel")
+            peak = float(np.max(np.abs(x)))
+            if peak > 1.0:
+                raise ImportDataError(f"{p}: samples reach {peak:.3g}, beyond full scale (1.0): the dataset's 24-bit parts would "
+                                      f"clip them; scale every recording by one gain (at most {1 / peak:.3g}) and import again")
             if x.size < 2 * rig.n_chirp:
                 raise ValueError(f"{p}: {x.size} samples hold less than two sweeps of {rig.n_chirp}; is --sweep/--period right?")
             frames, offset = frame_stream(x, ref)
+            _check_received(frames, rig, p, offset=offset, channel=channel, channels=channels)
             starts = offset + np.arange(frames.shape[0]) * rig.n_chirp
             t = starts / fs
             lab = {c: np.zeros(t.size) for c in COLUMNS}
@@ -474,7 +706,11 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                        temperature_c=np.full(t.size, np.nan), subject=np.zeros(t.size, int))
             seg = np.array(["calibration"] * t.size, dtype=object)
             for r in (r for r in rows if r["file"] == p.name):
-                m = (t >= r["start_s"]) & (t < r["end_s"])
+                m = slice(*np.searchsorted(t, [r["start_s"], r["end_s"]], side="left"))  # t increases: [start, end)
+                if m.start >= m.stop:
+                    raise ImportDataError(f"{labels} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s of {p.name} holds "
+                                          f"no sweep start (sweeps start every {rig.period_s * 1e3:.4g} ms from {t[0]:.4g} s); "
+                                          f"times are in seconds: fix the interval")
                 if r["location"] >= 0:
                     lab["location"][m] = r["location"]
                     lab["x_cm"][m], lab["y_cm"][m] = layout.coords(np.array([r["location"]]))[0]
@@ -502,6 +738,28 @@ def _looks_linear(M: np.ndarray) -> bool:
     return bool(M.max() <= 1.0 or M.max() > 300 or p99 > 10 * max(p50, 1e-12))  # 300 dB would be 1e15
 
 
+_TABLE_ARRAYS = ("freqs_hz", "magnitude_db", "location", "session", "x_cm", "y_cm", "force_n", "moving", "subject")
+
+
+def _check_array_names(table: Path) -> None:
+    """An array whose name is a near miss of one the importer reads (``force`` for ``force_n``, ``X_cm``) would be
+    ignored and its values silently lost: refused, naming the array it resembles."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(table) as zf:
+            names = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return  # read_npz reports an unreadable table
+    for a in names:
+        if a in _TABLE_ARRAYS:
+            continue
+        near = [k for k in _TABLE_ARRAYS if k.lower() == a.lower()] or difflib.get_close_matches(a.lower(), _TABLE_ARRAYS, 1, 0.75)
+        if near and near[0] not in names:
+            raise ImportDataError(f"{table}: array {a!r} is not one the importer reads; did you mean {near[0]!r}? "
+                                  f"(arrays: {', '.join(_TABLE_ARRAYS)})")
+
+
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
     """Import a table of magnitude spectra with labels (see the module docstring); returns the dataset.
@@ -516,6 +774,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
     """
     table, out = Path(table), Path(out)
+    _check_array_names(table)
     # Only the arrays this importer uses are read, each checked from its header first.
     z = read_npz(table, {"freqs_hz": ("fiu", 1), "magnitude_db": ("fiu", 2), "location": ("fiuU", 1),
                          "session": ("iuU", 1), "x_cm": ("fiu", 1), "y_cm": ("fiu", 1), "force_n": ("fiu", 1),
@@ -525,6 +784,8 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     if M.ndim != 2 or M.shape[1] != f.size:
         raise ValueError(f"{table}: magnitude_db must be (n, {f.size}) for {f.size} frequencies, got {M.shape}")
     n = M.shape[0]
+    if n == 0:
+        raise ImportDataError(f"{table}: magnitude_db has no rows; the table holds no spectra")
     for k in ("location", "session", "x_cm", "y_cm", "force_n", "moving", "subject"):
         if k in z and np.shape(z[k]) != (n,):
             raise ValueError(f"{table}: {k} has shape {np.shape(z[k])}; need one value per row ({n},)")
@@ -546,6 +807,10 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
         why = "all <= 1" if M.max() <= 1 else "spread over orders of magnitude"
         warnings.warn(f"{table}: magnitude_db looks linear, not dB (all >= 0, {why}); "
                       f"if so, import with --linear (20 log10 |H|)", stacklevel=2)
+    lo, hi = np.unravel_index(int(np.argmin(M)), M.shape), np.unravel_index(int(np.argmax(M)), M.shape)
+    if not linear and M[hi] - M[lo] > MAX_SPAN_DB and not _looks_linear(M):  # linear-looking: warned above
+        raise ImportDataError(f"{table}: magnitude_db spans {M[hi] - M[lo]:.3g} dB (row {lo[0]}: {M[lo]:.3g}, row {hi[0]}: "
+                              f"{M[hi]:.3g}); measured spectra span less than {MAX_SPAN_DB:g} dB: fix the damaged rows")
     derived = rig is None
     if derived:
         rig = rig_from_axis(f, fs_hz=fs_hz, frame=frame, log=log)
@@ -554,6 +819,9 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     if f[0] > fb[0] + step or f[-1] < fb[-1] - step:
         raise ValueError(f"{table}: spectra cover {f[0]:g}-{f[-1]:g} Hz but the rig's band is {fb[0]:g}-{fb[-1]:g} Hz; "
                          f"leave out the rig (it is derived from the table) or pass one whose band lies inside the table")
+    if n > 1 and not np.ptp(M, axis=0).any():
+        raise ImportDataError(f"{table}: every row of magnitude_db is the same spectrum; the table holds no measurements "
+                              f"(a fill value or a broadcast?)")
     ids, layout, names = label_layout(z["location"], z.get("x_cm"), z.get("y_cm"), where=str(table), log=log)
     sessions = np.asarray(z["session"]).astype(str)
     force = np.asarray(z["force_n"], float) if "force_n" in z else np.full(n, np.nan)
@@ -566,6 +834,13 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     else:
         A = np.stack([np.interp(fb, f, m) for m in M])
     sessions_n = max(int(np.sum(sessions == s)) for s in set(sessions))
+    seen: dict[bytes, str] = {}
+    for s in sorted(set(sessions.tolist())):  # a session pasted twice under two names: its chirps would count twice
+        h = hashlib.sha256(np.ascontiguousarray(A[sessions == s]).tobytes()).digest()
+        if h in seen:
+            raise ImportDataError(f"{table}: sessions {seen[h]!r} and {s!r} hold the same spectra row for row; one recording "
+                                  f"would be two sessions (trained and tested on twice): remove the copy")
+        seen[h] = s
     # frames_of holds a session's spectra (complex) and its frames (float64) at once, plus the audio.
     check_memory(sessions_n * (rig.n_chirp // 2 + 1) * 16 * 3 + sessions_n * rig.n_chirp * 8 * 3,
                  f"building the longest session of {table} ({sessions_n} rows of {rig.n_chirp}-sample frames)",

@@ -220,6 +220,10 @@ class Rig:
             raise ValueError(f"n_chirp must be an integer >= 64 samples, got {self.n_chirp}")
         if self.pwm_halfwidth_hz < 0:
             raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
+        off = [f for f in self.pwm_hz if not 0 < f <= nyq]
+        if off:  # a line the audio cannot hold is a typo (500000 for 50000): it would notch nothing
+            raise ValueError(f"pwm_hz {off[0]:g} Hz is outside 0..{nyq:g} Hz (fs_hz/2); the PWM lines to notch are frequencies "
+                             f"the recording holds: check the value")
         if not 0 < self.amplitude <= 1:
             raise ValueError(f"amplitude must be in (0, 1] of full scale, got {self.amplitude}")
         if self.sweep_b64 is not None and self.sweep().size != self.n_chirp:
@@ -339,9 +343,13 @@ class Layout:
         return (isinstance(other, Layout) and self.ids == other.ids
                 and np.allclose(self.xy_cm, other.xy_cm) and self.circumference_cm == other.circumference_cm)
 
+    @functools.cached_property
+    def _lut(self) -> dict[int, int]:  # built once: a lookup per call made coords() of K markers quadratic in K
+        return {i: k for k, i in enumerate(self.ids)}
+
     def index_of(self, ids: np.ndarray) -> np.ndarray:
         """Row index in ``xy_cm`` of each location id (raises on an unknown id)."""
-        lut = {i: k for k, i in enumerate(self.ids)}
+        lut = self._lut
         ids = np.asarray(ids)
         try:
             return np.array([lut[int(i)] for i in ids.ravel()], dtype=int).reshape(ids.shape)

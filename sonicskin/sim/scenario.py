@@ -113,6 +113,7 @@ class Scenario:
             raise ValueError("touch_s and calibration_s must be positive")
         if min(self.gap_s, self.moving_s, self.session_interval_s, self.start_s) < 0 or self.part_s <= 0:
             raise ValueError("gap_s, moving_s, session_interval_s and start_s must be >= 0 and part_s > 0")
+        _check_parts(self)
         layout_count(self)
         level = self.motion.get("level", 1.0)
         if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
@@ -279,6 +280,134 @@ def _check_types(cls, d: dict) -> None:
 
 
 MAX_LOCATIONS = 100_000
+#: The keys of a scenario's mappings: name -> (required, optional).  Anything else is a typo that would
+#: silently fall back to a default (``lenght_cm``, ``spacing``, ``ambient``).
+_GEOMETRY_KEYS = {"tube": (("radius_cm", "length_cm"), ()), "plate": (("width_cm", "length_cm"), ())}
+_LAYOUT_KEYS = {"rings": ((), ("counts", "spacing_cm", "x0_cm", "y0_cm")), "grid": (("nx", "ny", "spacing_cm"), ("x0_cm", "y0_cm"))}
+_MOTION_KEYS = ("enabled", "level", "perturbation")
+_TEMPERATURE_KEYS = ("ambient_c", "warmup_c", "warmup_tau_s", "swing_c", "swing_period_s", "gradient", "lag")
+MIN_TX_RX_CM = 1.0  # the discs (5 mm bonded radius) cannot overlap
+MAX_DISC_RADIUS_M = 0.05  # a piezo disc of 10 cm diameter is already large for a robot link
+
+
+def _number(v) -> bool:
+    import math
+
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
+    valid = {*required, *optional} | ({"kind"} if kind else set())
+    unknown = sorted(set(d) - valid, key=str)
+    if unknown:
+        raise ValueError(f"unknown {what} keys {unknown}; valid keys: {sorted(valid)}")
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise ValueError(f"{what} {d!r} lacks {missing}")
+
+
+def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
+    """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
+    its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
+    import dataclasses
+
+    kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
+    for k, v in d.items():
+        if kinds.get(k) is int:
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                raise ValueError(f"{what}.{k} must be a whole number >= 0, got {v!r}")
+        elif k in kinds:
+            if not _number(v):
+                raise ValueError(f"{what}.{k} must be a finite number, got {v!r}")
+            if (k in positive and not v > 0) or (nonneg(k) and v < 0):
+                raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {v!r}")
+
+
+def _check_parts(sc: Scenario) -> None:
+    """The scenario's mappings: known keys, numbers where numbers go, sizes > 0, transducers apart, markers on the link."""
+    from ..dataset import check_name
+
+    check_name(sc.name, "scenario name")  # `simulate` writes to data/<name> by default: a name stays a name
+    g = sc.geometry
+    kind = g.get("kind", "tube")
+    if kind not in _GEOMETRY_KEYS:
+        raise ValueError(f"geometry kind must be 'tube' or 'plate', got {kind!r}")
+    _keys(f"geometry ({kind})", g, *_GEOMETRY_KEYS[kind], kind=True)
+    for k in _GEOMETRY_KEYS[kind][0]:
+        if not (_number(g[k]) and g[k] > 0):
+            raise ValueError(f"geometry {k} must be a positive number of cm, got {g[k]!r}")
+    lay = sc.layout
+    lkind = lay.get("kind", "rings")
+    if lkind not in _LAYOUT_KEYS:
+        raise ValueError(f"layout kind must be 'rings' or 'grid', got {lkind!r}")
+    _keys(f"layout ({lkind})", lay, *_LAYOUT_KEYS[lkind], kind=True)
+    if lkind == "grid":
+        counts = [lay["nx"], lay["ny"]]
+    else:
+        rings = lay.get("counts", [16, 15])
+        counts = list(rings) if isinstance(rings, (list, tuple)) and rings else [None]
+    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in counts):
+        raise ValueError(f"layout {lay!r}: marker counts (counts, nx, ny) are whole numbers >= 1")
+    for k in ("spacing_cm", "x0_cm", "y0_cm"):
+        if k in lay and not _number(lay[k]):
+            raise ValueError(f"layout {k} must be a number of cm, got {lay[k]!r}")
+    if "spacing_cm" in lay and not lay["spacing_cm"] > 0:
+        raise ValueError(f"layout spacing_cm must be > 0 (markers apart), got {lay['spacing_cm']!r}")
+    _keys("motion", sc.motion, (), _MOTION_KEYS)
+    if not isinstance(sc.motion.get("enabled", False), bool):
+        raise ValueError(f"motion.enabled must be true or false, got {sc.motion['enabled']!r}")
+    if "perturbation" in sc.motion and not (_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
+        raise ValueError(f"motion.perturbation must be a number >= 0, got {sc.motion['perturbation']!r}")
+    _keys("temperature", sc.temperature, (), _TEMPERATURE_KEYS)
+    for k, v in sc.temperature.items():
+        if not _number(v):
+            raise ValueError(f"temperature.{k} must be a finite number, got {v!r}")
+    for k in ("warmup_tau_s", "swing_period_s"):
+        if k in sc.temperature and not sc.temperature[k] > 0:
+            raise ValueError(f"temperature.{k} must be > 0 s, got {sc.temperature[k]!r}")
+    from ..dataset import TEMPERATURE_C
+
+    T = sc.temperature
+    lo = T.get("ambient_c", 23.0) + min(0.0, T.get("warmup_c", 0.0)) - abs(T.get("swing_c", 0.0))
+    hi = T.get("ambient_c", 23.0) + max(0.0, T.get("warmup_c", 0.0)) + abs(T.get("swing_c", 0.0))
+    if lo < TEMPERATURE_C[0] or hi > TEMPERATURE_C[1]:
+        raise ValueError(f"temperature: ambient_c, warmup_c and swing_c reach {lo:g}..{hi:g} C, outside the "
+                         f"{TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C a link can be at; give degrees Celsius")
+    import inspect
+
+    from .channel import ChannelModel
+
+    allowed = [n for n, prm in inspect.signature(ChannelModel).parameters.items() if prm.kind is prm.KEYWORD_ONLY
+               and n not in ("tx_m", "rx_m", "seed")]
+    _keys("channel", sc.channel, (), allowed)
+    for k, v in sc.channel.items():
+        if not (_number(v) and v >= 0):
+            raise ValueError(f"channel.{k} must be a number >= 0, got {v!r}")
+    from .noise import NoiseConfig
+    from .thermal import HotMeltBond
+
+    _field_values("noise", sc.noise, NoiseConfig, positive=(), nonneg=lambda k: k.endswith(("_rms", "_hz", "_per_chirp")))
+    _field_values("bond", sc.bond, HotMeltBond, positive=("fr_hz", "tan_delta"), nonneg=lambda k: False)
+    r = sc.channel.get("transducer_radius_m", 5e-3)
+    if not 0 < r <= MAX_DISC_RADIUS_M:
+        raise ValueError(f"channel.transducer_radius_m is the piezo discs' bonded radius in metres, 0 < r <= {MAX_DISC_RADIUS_M:g}, "
+                         f"got {r!r}")
+    if len(set(sc.subjects)) != len(sc.subjects):
+        raise ValueError(f"subjects {list(sc.subjects)} name a person twice; list each simulated person once")
+    apart = max(MIN_TX_RX_CM, 2 * r * 100)
+    if float(np.hypot(*(np.subtract(sc.tx_cm, sc.rx_cm)))) < apart:
+        raise ValueError(f"tx_cm {list(sc.tx_cm)} and rx_cm {list(sc.rx_cm)} are less than {apart:g} cm apart; the two "
+                         f"discs cannot overlap: place the receiver elsewhere")
+    if layout_count(sc) <= 10_000:  # building a huge layout here would cost what check_size guards against
+        xy = sc.make_layout().xy_cm
+        length = g["length_cm"]
+        width = None if kind == "tube" else g["width_cm"]
+        out = (xy[:, 1] < 0) | (xy[:, 1] > length) | ((xy[:, 0] < 0) | (xy[:, 0] > width) if width is not None else False)
+        if np.any(out):
+            k = int(np.flatnonzero(out)[0])
+            raise ValueError(f"layout marker {k} at ({xy[k, 0]:g}, {xy[k, 1]:g}) cm lies outside the {kind} "
+                             f"({'x 0..' + format(width, 'g') + ', ' if width is not None else ''}y 0..{length:g} cm); "
+                             f"move the layout (x0_cm, y0_cm, spacing_cm)")
 
 
 def layout_count(sc: Scenario) -> int:
