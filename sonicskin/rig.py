@@ -220,10 +220,13 @@ class Rig:
             raise ValueError(f"n_chirp must be an integer >= 64 samples, got {self.n_chirp}")
         if self.pwm_halfwidth_hz < 0:
             raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
-        off = [f for f in self.pwm_hz if not 0 < f <= nyq]
-        if off:  # a line the audio cannot hold is a typo (500000 for 50000): it would notch nothing
-            raise ValueError(f"pwm_hz {off[0]:g} Hz is outside 0..{nyq:g} Hz (fs_hz/2); the PWM lines to notch are frequencies "
-                             f"the recording holds: check the value")
+        # A line above the sample rate is a typo (500000 for 50000) that would notch nothing.  Lines between fs/2 and
+        # fs are the paper's motor harmonics on a slower interface (60 and 90 kHz at 96 kHz): beyond the recording's
+        # band, they notch nothing, and rigs and artifacts stored with them stay readable.
+        off = [f for f in self.pwm_hz if not 0 < f <= self.fs_hz]
+        if off:
+            raise ValueError(f"pwm_hz {off[0]:g} Hz is outside 0..{self.fs_hz:g} Hz (the sample rate); the PWM lines to "
+                             f"notch are frequencies of the motors' drive: check the value")
         if not 0 < self.amplitude <= 1:
             raise ValueError(f"amplitude must be in (0, 1] of full scale, got {self.amplitude}")
         if self.sweep_b64 is not None and self.sweep().size != self.n_chirp:
