@@ -114,11 +114,10 @@ def sweep_rig(sweep: np.ndarray, fs_hz: float, *, pwm_hz=(), pwm_halfwidth_hz: f
     if not S.max() > 0:
         raise ValueError("the sweep is silent (all zeros); pass the WAV of one period of what the transmitter plays")
     n = x.size
-    r = scipy.fft.irfft(S.astype(np.float64) ** 2, n=n)
-    for k in range(16, 1, -1):  # the shortest repeat first: a WAV of 4 periods also repeats every 2
-        if n % k == 0 and r[n // k] > 0.9 * r[0]:
-            raise ImportDataError(f"the sweep WAV repeats every {n // k} samples: it holds {k} periods of the sweep, not one; "
-                                  f"cut it to one period ({n // k} samples)")
+    k = _repeats(x)
+    if k:
+        raise ImportDataError(f"the sweep WAV repeats every {n // k} samples: it holds {k} periods of the sweep, not one; "
+                              f"cut it to one period ({n // k} samples)")
     f = np.fft.rfftfreq(x.size, 1 / fs_hz)
     on = np.flatnonzero(20 * np.log10(S / S.max() + 1e-12) >= band_db)
     f_lo, f_hi = float(max(f[on[0]], f[1])), float(f[on[-1]])
@@ -488,6 +487,19 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
     return x, sr
 
 
+def _repeats(x: np.ndarray) -> int | None:
+    """How many times a shorter period repeats within the periods ``x`` (n,) or (rows, n): the most repeats k in
+    16..2 whose lag ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does.
+    The most repeats first: a WAV of 4 periods also repeats every 2."""
+    x = np.atleast_2d(np.asarray(x, np.float64))
+    n = x.shape[1]
+    r = scipy.fft.irfft(np.abs(scipy.fft.rfft(x, axis=1)) ** 2, n=n, axis=1)
+    for k in range(16, 1, -1):
+        if n % k == 0 and np.median(r[:, n // k] / np.maximum(r[:, 0], 1e-300)) > 0.9:
+            return k
+    return None
+
+
 def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
     """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
     the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
@@ -518,12 +530,10 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
     if med[0] < 0.3:
         raise ImportDataError(f"{p}: consecutive sweep periods of {L} samples do not repeat (median correlation {med[0]:.2f}): "
                               f"the file holds no sweep of this period; {fix}")
-    S = np.abs(scipy.fft.rfft(a, axis=1)) ** 2
-    r = scipy.fft.irfft(S, n=L, axis=1)
-    for k in range(16, 1, -1):
-        if L % k == 0 and np.median(r[:, L // k] / np.maximum(r[:, 0], 1e-300)) > 0.9:
-            raise ImportDataError(f"{p}: the recording repeats every {L // k} samples, not every {L}: the sweep period is "
-                                  f"{L // k / rig.fs_hz:.6g} s; {fix}")
+    k = _repeats(a)
+    if k:
+        raise ImportDataError(f"{p}: the recording repeats every {L // k} samples, not every {L}: the sweep period is "
+                              f"{L // k / rig.fs_hz:.6g} s; {fix}")
     blocks = [frames[i:i + 8].astype(np.float64).mean(axis=0) for i in np.linspace(0, max(n - 8, 0), min(64, n)).astype(int)]
     P = np.mean([np.abs(scipy.fft.rfft(x - x.mean())) ** 2 for x in blocks], axis=0)
     share = float(P[rig.band_bins].sum() / max(P[1:].sum(), 1e-300))
