@@ -225,7 +225,8 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", nargs="+", default=["heldout"],
-                   help="'heldout' (default: the family's held-out seeds), 'design', or seed numbers")
+                   help="'heldout' (default: the family's held-out seeds), 'previous' (the earlier held-out set), 'design', "
+                        "or seed numbers")
     p.add_argument("--cache", default="data/random", help="simulated datasets (default: data/random)")
     p.add_argument("--out", default="reports/random-rigs", help="report folder (default: reports/random-rigs)")
     p.add_argument("--rig", default="jaco", help="acquisition rig (default: jaco, the paper's)")
@@ -233,11 +234,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resume", action="store_true", help="keep per-seed results already in OUT/seeds (default: recompute)")
     a = p.parse_args(argv)
     fam = family_seeds("random")
-    if a.seeds in (["heldout"], ["design"]):
+    if a.seeds in (["heldout"], ["design"], ["previous"]):
         seed_list, seeds = a.seeds[0], list(fam[a.seeds[0]])
     else:
         seeds = [int(s) for s in a.seeds]
-        seed_list = "held-out" if set(seeds) <= set(fam["heldout"]) else "design" if set(seeds) <= set(fam["design"]) else "mixed"
+        seed_list = ("held-out" if set(seeds) <= set(fam["heldout"]) else "previous held-out" if set(seeds) <= set(fam["previous"])
+                     else "design" if set(seeds) <= set(fam["design"]) else "mixed")
     out = Path(a.out)
     (out / "seeds").mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

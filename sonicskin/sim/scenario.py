@@ -458,9 +458,10 @@ def is_family(name_or_path: str | Path) -> bool:
 
 
 def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
-    """The family's ``design`` seeds (free to develop on) and ``heldout`` seeds (never tuned on)."""
+    """The family's ``design`` seeds (free to develop on), ``heldout`` seeds (never tuned on) and ``previous``
+    (an earlier held-out set, seen by earlier rounds: evaluated, no longer unseen)."""
     fam = RandomFamily.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
-    return {"design": fam.design_seeds, "heldout": fam.heldout_seeds}
+    return {"design": fam.design_seeds, "heldout": fam.heldout_seeds, "previous": fam.previous_seeds}
 
 
 def _pair(v, what: str) -> tuple[float, float]:
@@ -492,6 +493,7 @@ class RandomFamily:
     sessions: int = 4
     design_seeds: tuple[int, ...] = tuple(range(10))
     heldout_seeds: tuple[int, ...] = ()
+    previous_seeds: tuple[int, ...] = ()
     materials: tuple[str, ...] = ("cfrp", "aluminium", "abs", "glass", "wood")
     kinds: tuple[str, ...] = ("tube", "plate")
     tube_radius_cm: tuple[float, float] = (3.0, 5.0)
@@ -520,8 +522,8 @@ class RandomFamily:
     def from_dict(cls, d: dict[str, Any]) -> RandomFamily:
         d = dict(d)
         seeds = d.pop("seeds", {}) or {}
-        if set(seeds) - {"design", "heldout"}:
-            raise ValueError(f"random family: seeds has keys design and heldout, got {sorted(seeds)}")
+        if set(seeds) - {"design", "heldout", "previous"}:
+            raise ValueError(f"random family: seeds has keys design, heldout and previous, got {sorted(seeds)}")
         check_keys(cls, d, "random family")
         kw: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
@@ -533,7 +535,7 @@ class RandomFamily:
             elif isinstance(f.default, tuple):
                 v = tuple(v)
             kw[f.name] = v
-        for k in ("design", "heldout"):
+        for k in ("design", "heldout", "previous"):
             if k in seeds:
                 kw[f"{k}_seeds"] = tuple(int(s) for s in seeds[k])
         fam = cls(**kw)
@@ -550,9 +552,12 @@ class RandomFamily:
             raise ValueError(f"random family: unknown materials {bad}; choose from {sorted(MATERIALS)}")
         if set(self.kinds) - {"tube", "plate"} or not self.kinds:
             raise ValueError(f"random family: kinds are 'tube' and/or 'plate', got {list(self.kinds)}")
-        both = sorted(set(self.design_seeds) & set(self.heldout_seeds))
-        if both:
-            raise ValueError(f"random family: seeds {both} are both design and held-out seeds; the lists must be disjoint")
+        for (a, na), (b, nb) in (((self.design_seeds, "design"), (self.heldout_seeds, "held-out")),
+                                 ((self.design_seeds, "design"), (self.previous_seeds, "previous")),
+                                 ((self.heldout_seeds, "held-out"), (self.previous_seeds, "previous"))):
+            both = sorted(set(a) & set(b))
+            if both:
+                raise ValueError(f"random family: seeds {both} are both {na} and {nb} seeds; the lists must be disjoint")
         if self.sessions < 2:
             raise ValueError("random family: sessions must be >= 2 (one to train, one to test)")
         if not 1 <= self.people[0] <= self.people[1] <= 12 or not 2 <= self.grid_n[0] <= self.grid_n[1]:
