@@ -32,11 +32,16 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
       kind              "skinnet" (net) | "svc-ovo" (svm)
       n_in              == B;  n_locations == N
       parity            optional dict of export parity figures;  hparams: optional dict (net)
+      net only (version 3):
+        detector          optional {mode: "head" | "input-rms" | "either", bias: finite, threshold: 0..1e3 (dB RMS),
+                          reference: optional 1..B finite numbers, bins: optional int 1..B}: the touch decision the
+                          network head applies to the graph's outputs (absent: the graph's own p(touch) >= 0.5)
       svm only:
         reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
         threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
         detection         optional bool (default true); false: trained on touches only, no detector
-        detector          "input-rms";  detector_bins: optional int 1..B (the statistic reads the first ones; default all)
+        detector          "input-rms" | "paper" (version 3: the paper's max calibrated score);  detector_bins:
+                          optional int 1..B (the input-RMS statistic reads the first ones; default all)
         energy_ref_db     finite, |e| <= 1e4
         train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
         force             model (a force curve model); curves: {} or one per layout id, each
@@ -73,7 +78,10 @@ __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "MODEL_KINDS"
            "binding", "check_integrity"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
-ARTIFACT_VERSION = 2
+ARTIFACT_VERSION = 3
+#: Versions this sonicskin reads: 2 (before the network's touch decision moved out of its graph into the head,
+#: sonicskin.head; such a graph decides touches itself, so its entry has no detector) and 3.
+READABLE_VERSIONS = (2, 3)
 BINDING_KEY = "sonicskin.binding"
 MAX_MODEL_BYTES = 256 * 2**20  # an SVM of 31 locations x 300 bins is a few MB; a net < 1 MB
 MAX_PROBES = 64
@@ -92,7 +100,7 @@ _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwi
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
 _UNBOUND = {"file", "sha256", "parity", "probe"}  # entry keys written after the model file (not in its binding)
-_MODEL_KEYS = {"net": _COMMON | {"hparams"},
+_MODEL_KEYS = {"net": _COMMON | {"hparams", "detector"},
                "svm": _COMMON | {"reference_scores", "threshold", "detector", "detector_bins", "detection", "energy_ref_db",
                                  "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
@@ -345,6 +353,8 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
     if name == "net":
         if "hparams" in m:
             doc.obj(m["hparams"], f"{f}.hparams")
+        if "detector" in m:
+            _check_net_detector(doc, m["detector"], f"{f}.detector", n_in)
         return
     if n_loc < 2:
         doc.fail(f"{f}.n_locations", "must be >= 2 for an SVM (it separates locations)")
@@ -361,8 +371,7 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
     elif doc.get(m, "threshold", f) != 0:  # trained on touches only: every chirp is taken as a touch
         doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
-    doc.const(doc.get(m, "detector", f), f"{f}.detector", "input-rms",
-              "the touch detector is from an older sonicskin; " + REEXPORT)
+    doc.choice(doc.get(m, "detector", f), f"{f}.detector", ("input-rms", "paper"))
     if "detector_bins" in m:  # the detector reads the first detector_bins inputs (default: all)
         doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=n_in)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
@@ -370,6 +379,26 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         if k in m and not (m[k] is None and not detection):
             doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
     _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids, n_in)
+
+
+def _check_net_detector(doc: _Doc, d: Any, field: str, n_in: int) -> None:
+    d = doc.obj(d, field)
+    doc.keys(d, {"mode", "bias", "threshold", "reference", "bins"}, field)
+    doc.choice(doc.get(d, "mode", field), f"{field}.mode", ("head", "input-rms", "either"))
+    if "bias" in d:
+        doc.num(d["bias"], f"{field}.bias", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+    if "threshold" in d:
+        doc.num(d["threshold"], f"{field}.threshold", lo=0, hi=MAX_THRESHOLD_DB)
+    elif d["mode"] != "head":
+        doc.fail(f"{field}.threshold", f"is missing (mode {d['mode']!r} thresholds the input-RMS statistic)")
+    if "reference" in d:
+        ref = doc.list(d["reference"], f"{field}.reference", nonempty=True)
+        if len(ref) > n_in:
+            doc.fail(f"{field}.reference", f"has {len(ref)} values, more than the {n_in} inputs")
+        for i, v in enumerate(ref):
+            doc.num(v, f"{field}.reference[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
+    if "bins" in d:
+        doc.int(d["bins"], f"{field}.bins", lo=1, hi=n_in)
 
 
 def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int | None]) -> None:
@@ -430,8 +459,10 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
         doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")
     doc.const(doc.get(meta, "format", ""), "format", ARTIFACT_FORMAT,
               "this is not a sonicskin artifact; point to a folder written by `sonicskin export` or `fit-svm`")
-    doc.const(doc.get(meta, "version", ""), "version", ARTIFACT_VERSION,
-              f"this sonicskin reads version-{ARTIFACT_VERSION} artifacts; " + REEXPORT)
+    version = doc.get(meta, "version", "")
+    if isinstance(version, bool) or version not in READABLE_VERSIONS:
+        doc.fail("version", f"is {_short(version)}; this sonicskin reads version "
+                            f"{' and '.join(map(str, READABLE_VERSIONS))} artifacts", REEXPORT)
     doc.keys(meta, _TOP, "")
     doc.str(doc.get(meta, "sonicskin_version", ""), "sonicskin_version")
     rig = _check_rig(doc, doc.get(meta, "rig", ""))

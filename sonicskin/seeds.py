@@ -16,19 +16,16 @@ differences.  Pairs of one seed share data and the SVM, so they are not counted 
 
 from __future__ import annotations
 
-import contextlib
-import io
+import dataclasses
 import json
-import logging
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
-from .features import FeatureSpec, Split, load_features_cached, quiet_mask, select_bins, training_targets
+from .features import FeatureSpec, Split, load_features_cached
 from .rig import Rig
 from .runtime import SkinRuntime
 
@@ -78,20 +75,6 @@ def _split(t, test_subjects=None) -> Split:
     return Split.make(t, val_sessions=[])
 
 
-def _net_model(predict):
-    """The torch module behind ``training.quick.fit_net``'s predict function (to export it)."""
-    import inspect
-
-    import torch
-
-    model = getattr(predict, "model", None)
-    if model is None:
-        model = next((v for v in inspect.getclosurevars(predict).nonlocals.values() if isinstance(v, torch.nn.Module)), None)
-    if model is None:
-        raise RuntimeError("training.quick.fit_net returned no torch module to export (give its predict a .model)")
-    return model.eval()
-
-
 def _floors(ds: Dataset, tr, te, split) -> dict:
     """The plain scikit-learn floors on the same split: SVC (scaler + default RBF SVC) on every usable bin for
     location, and SVR (scaler + default RBF SVR) on the touch's relative usable bins for force, chirp by chirp
@@ -122,98 +105,38 @@ def _floors(ds: Dataset, tr, te, split) -> dict:
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
               train_stride: int = 1) -> list[dict]:
-    """Both models on one simulated dataset: SVM once, the network per training seed.  ``select``: gamma, C, kernel
-    width, force model and detection, and the network's location layer and touch decision, are chosen by
+    """Both models on one simulated dataset through the one fit (:mod:`sonicskin.fit`): the SVM once, the network per
+    training seed, each exported to ``work`` and its test sessions replayed through the artifact.  ``select``: gamma,
+    C, kernel width, force model and detection, and the network's location layer and touch decision, are chosen by
     validation on the training session's presses (:mod:`sonicskin.selection`); otherwise the paper's values.
     ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
-    from sonicskin.export.onnx import export_net
-    from sonicskin.training.quick import choose_detector, choose_layer, fit_net
+    from sonicskin.training.cli import quiet_third_party
+    from sonicskin.training.fit import choose_network_layer, train_network
 
-    from .artifact import _json_safe, export_svm, skin_json
-    from .selection import press_ids, press_passes, select_gamma_on_table, select_on_inputs
-    from .svm_head import fit_svm_head
+    from .fit import fit_svm, prepare, write_artifact
 
+    quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
-    tr = t.select(split.mask(t, "train"))
-    te = t.select(split.mask(t, "test"))
-    quiet_log = lambda m: None  # noqa: E731
-    sel: dict = {}
-    if select:  # on the training sessions only: tr holds nothing of the test sessions
-        sel["svm"] = select_gamma_on_table(tr, ds.rig, train_sessions=list(split.train), log=quiet_log)
-    gamma = sel["svm"]["params"]["n_bins"] if sel else 300
-    bins = select_bins(tr, ds.rig, gamma)
-    spec = FeatureSpec(tuple(int(b) for b in bins), "relative")
-    # Training inputs: the training sessions' own labelled hands-off reference (the protocol's calibration).
-    X = spec.transform(tr, ds.rig.chirps_per_s)
-    cls, usable = training_targets(tr, ds.layout)
+    # gamma chosen on the training sessions only (validation is on their presses: the split has no val session)
+    data = prepare(ds, table=t, split=split, n_bins=None if select else 300, log=quiet_log)
     if train_stride > 1:
-        usable = usable & (np.arange(len(usable)) % int(train_stride) == 0)
-    force = tr["force_n"].astype(np.float32)
-    n, ids = len(ds.layout), np.asarray(ds.layout.ids)
-    if select:
-        sel = select_on_inputs(X, tr, cls=cls, train_mask=usable, val_mask=None, n_locations=n, location_ids=ids,
-                               selection=sel, log=quiet_log)
-    sp, fs = (sel.get("svm") or {}).get("params", {}), sel.get("force") or {}
-    work.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    pipe, params = fit_svm_head(X[usable], cls[usable], force[usable], quiet_mask(tr)[usable], n_locations=n, location_ids=ids,
-                                C=sp.get("C", 10.0), kernel_gamma=sp["kernel_width"] / X.shape[1] if sp else "scale",
-                                force_model=fs.get("model", "fourier1"), force_alpha=fs.get("alpha") or 10.0)
-    svm_s = time.perf_counter() - t0
-    check = X[np.random.default_rng(0).choice(len(X), size=min(256, len(X)), replace=False)]
-    svm = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": len(bins), "n_locations": n,
-           "parity": export_svm(pipe, n, work / "svm.onnx", check), **params}
-    kw = {} if epochs is None else {"epochs": epochs}
-    if select:
-        # The network's location layer on a held-out pass (train on the other passes and every no-touch chirp).
-        press = press_ids(tr["location"], tr["session"], tr["segment"])
-        passes = press_passes(press, tr["location"])
-        last = passes == passes.max()
-        if passes.max() >= 1:
-            sel["net"] = choose_layer(X, cls, force, n_locations=n, train=usable & ~last, val=usable & last,
-                                      how="held-out last pass", location_ids=ids, alpha=fs.get("alpha") or 10.0, **kw)
-        else:
-            sel["net"] = {"location_layer": "frozen kernel", "layer_how": "one press per location: not validated",
-                          "hparams": {}}
-    floor = _floors(ds, tr, te, split)
+        data = dataclasses.replace(data, usable=data.usable & (np.arange(len(t)) % int(train_stride) == 0))
+    svm = fit_svm(data, select=select, log=quiet_log)
+    te = t.select(split.mask(t, "test"))
+    floor = _floors(ds, t.select(split.mask(t, "train")), te, split)
+    with quiet_third_party():
+        layer = choose_network_layer(data, svm=svm, epochs=epochs) if select else {}
     out, svm_metrics = [], None
     for seed in train_seeds:
-        t0 = time.perf_counter()
-        predict = fit_net(X[usable], cls[usable], force[usable], n_locations=n, seed=int(seed),
-                          **{**kw, **((sel.get("net") or {}).get("hparams") or {})})
-        model = _net_model(predict)
-        if select:
-            # No validation session here: the network's own touch head cannot be validated on data it did not
-            # train on, so its decision is combined with the SVM's input-RMS detector ("either"), which never
-            # misses more touches than the SVM.
-            ref = np.zeros(params.get("detector_bins", X.shape[1]))
-            logits, _ = predict(X[usable])
-            d = choose_detector(logits, X[usable], (cls < n)[usable], quiet_mask(tr)[usable], threshold=params["threshold"],
-                                reference=ref, how="training chirps")
-            d["config"]["mode"], d["detector"] = "either", "either (head or input-RMS; no validation session)"
-            model.set_detector(d["config"])
-            sel["net"] = {**sel.get("net", {}), "detector": d["detector"], "how": d["how"]}
-            if sel["net"].get("force") == "pooled-ridge":  # validated on the held-out pass: the SVM's pooled model
-                from .force import PooledForce
-
-                fr = usable & (cls < n) & np.isfinite(force)
-                pf = PooledForce(fs.get("alpha") or 10.0).fit(X[fr], force[fr], ids[cls[fr]])
-                model.set_force({"coef": pf.coef_, "loc": [pf.loc_coef_[int(k)] + pf.intercept_ for k in ids]})
-        net_s = time.perf_counter() - t0
-        with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # torch.onnx's progress lines
-            warnings.simplefilter("ignore")
-            logging.getLogger("torch.onnx").setLevel(logging.ERROR)
-            parity = export_net(model, len(bins), work / "net.onnx", check)
-        net = {"file": "net.onnx", "kind": "skinnet", "n_in": len(bins), "n_locations": n, "parity": parity}
-        skin_json(work, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=spec, min_force_n=0.5,
-                  training={"data": str(ds.root), "split": split.to_dict(), "svm_train_time_s": svm_s,
-                            "net_train_time_s": net_s, "train_seed": int(seed)}, models={"net": net, "svm": svm},
-                  selection=sel or None)
-        row = {"train_seed": int(seed), "net_train_s": net_s, "svm_train_s": svm_s, "floor": floor, "split": split.to_dict(),
-               "selection": _json_safe({k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector", "force")
-                                            if kk in v}
-                                        for k, v in sel.items()})}
+        with quiet_third_party():
+            net = train_network(data, svm=svm, select=select, seed=int(seed), epochs=epochs, layer=layer)
+        skin = write_artifact(data, work, svm=svm, net=net, training={"train_seed": int(seed)}, log=quiet_log)
+        sel = skin.get("selection") or {}
+        row = {"train_seed": int(seed), "net_train_s": net.train_time_s, "svm_train_s": svm.fit_s, "floor": floor,
+               "split": split.to_dict(),
+               "selection": {k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector", "force") if kk in v}
+                             for k, v in sel.items() if isinstance(v, dict)}}
         for k in ("net", "svm"):
             if k == "svm" and svm_metrics is not None:
                 row[k] = svm_metrics
@@ -224,8 +147,8 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net "
             f"{row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} floor {floor['accuracy']:.1%}; force net "
             f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR floor {floor.get('force_rmse_n', np.nan):.2f} N; "
-            f"missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} (net trained in {net_s:.0f} s; "
-            f"{row['selection']})")
+            f"missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} (net trained in "
+            f"{net.train_time_s:.0f} s; {row['selection']})")
         out.append(row)
     return out
 

@@ -60,7 +60,8 @@ def test_reproduce_runs_only_the_named_experiments(tmp_path, quick_run):
 def test_seed_results_aggregate_to_mean_and_spread():
     import numpy as np
 
-    from sonicskin.reproduce import Spread, _aggregate
+    from sonicskin.reproduce.aggregate import Spread
+    from sonicskin.reproduce.aggregate import aggregate as _aggregate
 
     runs = [{"acc": 0.9, "curve": [0.8, 0.9], "confusion": np.array([[2, 0], [1, 1]]), "errors_cm": np.array([0.0, 1.2]),
              "minutes": 15.0, "model": "first"},
@@ -82,7 +83,7 @@ def test_blas_decision_values_equal_scikit_learns(k):
     import numpy as np
     from sonicskin.models.kernel import svm_pipeline
 
-    from sonicskin.svm_head import ovo_decision
+    from sonicskin.fit import ovo_decision
 
     rng = np.random.default_rng(k)
     X = rng.normal(size=(300, 50)).astype(np.float32)

@@ -1,0 +1,117 @@
+"""One stream through one model: band features -> bins -> Alg. 2 reference -> model -> head.
+
+The live loop calls :meth:`Stream.frame` (or :meth:`Stream.chirp`) once per chirp; every offline report
+replays a recorded stream with :meth:`Stream.replay`, which gives the same decisions vectorised between
+reference refreshes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..schema import ArtifactError
+from .heads import NetHead, SVMHead
+from .predictions import Predictions
+
+__all__ = ["Stream", "band_rows", "finite_rows"]
+
+
+def finite_rows(X: np.ndarray, what: str, fix: str) -> None:
+    """Refuse rows with NaN/inf in one line (they gave silently wrong predictions, or a NaN reference)."""
+    bad = ~np.isfinite(X).all(axis=tuple(range(1, X.ndim)))
+    if bad.any():
+        raise ArtifactError(f"{what} hold NaN or infinite values in {int(bad.sum())} of {len(X)} chirps (the first at row "
+                            f"{int(np.argmax(bad))}); {fix}")
+
+
+def band_rows(X, n_band: int) -> np.ndarray:
+    """Band features (n, n_band) as float32, checked: shape and finite values."""
+    X = np.asarray(X, np.float32)
+    if X.ndim != 2 or X.shape[1] != n_band:
+        raise ArtifactError(f"expected band features (n, {n_band}), got {X.shape}")
+    finite_rows(X, "the band features", "drop those chirps (the live loop skips them) or compute the features again")
+    return X
+
+
+class Stream:
+    """Alg. 2's online reference and the per-chirp path of one model.
+
+    Both :meth:`chirp` and :meth:`replay` decide the reference with the same
+    :class:`~sonicskin.calibration.OnlineReference`: the first ``beta`` seconds are the boot calibration
+    (hands off, no predictions), later refreshes take ``beta`` seconds that this model's own detector calls
+    no-touch, every ``alpha`` seconds.  No label reaches it.
+
+    Parameters
+    ----------
+    run : ``inputs (n, len(spec.bins)) -> outputs`` of the model (its ONNX graph).
+    head : the model's :class:`~sonicskin.head.SVMHead` or :class:`~sonicskin.head.NetHead`.
+    spec : the artifact's :class:`~sonicskin.features.FeatureSpec` (bins, mode, beta, alpha).
+    rig : the artifact's :class:`~sonicskin.rig.Rig`.
+    """
+
+    def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head: SVMHead | NetHead, spec, rig):
+        self.run, self.head, self.spec, self.rig = run, head, spec, rig
+        self.bins = list(spec.bins)
+        score_fn = (lambda x: head.scores(run(x), x)) if isinstance(head, SVMHead) else None
+        self.reference = spec.reference(rig.chirps_per_s, score_fn=score_fn)
+
+    @property
+    def calibrating(self) -> bool:
+        return not self.reference.ready
+
+    def predict(self, inputs: np.ndarray) -> Predictions:
+        """Decisions on model inputs under the current reference."""
+        ref = self.reference
+        input_ref = None
+        if isinstance(self.head, NetHead) and ref.ready:
+            input_ref = np.zeros(len(self.bins)) if ref.relative else ref.features
+        return self.head.decide(self.run(inputs), inputs, score_reference=ref.scores, input_reference=input_ref)
+
+    def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
+        """One chirp-aligned frame (n_chirp,) at stream time ``t_s``; ``None`` during the boot calibration."""
+        from ..dsp import log_magnitude_db
+
+        frame = np.asarray(frame)
+        if frame.shape != (self.rig.n_chirp,):
+            raise ArtifactError(f"expected one chirp-aligned frame of {self.rig.n_chirp} samples (the artifact's rig), "
+                                f"got shape {frame.shape}")
+        return self.chirp(log_magnitude_db(frame[None], self.rig, check=False)[0], t_s)
+
+    def chirp(self, x_band: np.ndarray, t_s: float) -> Predictions | None:
+        """One chirp's band features (n_band,); ``None`` during the boot calibration."""
+        x = np.asarray(x_band, np.float32)
+        if x.shape != (self.rig.n_band,):
+            raise ArtifactError(f"expected one chirp's band features ({self.rig.n_band},), got shape {x.shape}")
+        if not np.isfinite(x).all():  # it would become the reference (boot) or a prediction from NaN
+            raise ArtifactError("the chirp's band features hold NaN or infinite values (a NaN, silent or clipped frame); "
+                                "skip that chirp, as the live loop does")
+        x = x[self.bins]
+        if not self.reference.ready:
+            self.reference.step(x, t_s, None)
+            return None
+        p = self.predict(self.reference.inputs(x[None]))
+        self.reference.step(x, t_s, bool(p.touch[0]))
+        return p
+
+    def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
+        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes; the same
+        output as :meth:`chirp` one at a time.  Boot chirps have ``calibrating`` set, no touch, location -1 and NaN
+        position."""
+        X = band_rows(X_band, self.rig.n_band)[:, self.bins]
+        time_s = np.asarray(time_s, np.float64)
+        if time_s.shape != (len(X),):
+            raise ArtifactError(f"time_s must hold one time per chirp ({len(X)},), got shape {time_s.shape}")
+        if not np.isfinite(time_s).all() or np.any(np.diff(time_s) < 0):
+            raise ArtifactError("time_s must be finite and non-decreasing (the stream clock of each chirp, in order): "
+                                "replay one stream at a time, in recording order")
+        parts, lo = [], None
+        for i, j, out in self.reference.replay(X, time_s, self.predict):
+            lo = i if lo is None else lo
+            parts.append(out.take(slice(0, j - i)))
+        n = len(X)
+        n_boot = n if lo is None else lo
+        p = Predictions.concat([Predictions.boot(n_boot, self.head.K), *parts]) if parts else Predictions.boot(n, self.head.K)
+        p.calibrating = np.arange(n) < n_boot
+        return p

@@ -1,0 +1,86 @@
+"""Fig. 12: warm-up after power-on and Alg. 2's online updating; two months at a daily temperature swing."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..features import touch_mask
+from .context import MODEL, NEVER_S, Context, plt
+
+ALPHAS = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
+
+
+def _per_session(ctx: Context, k: str, d, train: np.ndarray, sessions: list[str]) -> list[float]:
+    """Accuracy on each later session's touch chirps, the recording replayed as one stream from power-on."""
+    t = d[0].table
+    p = ctx.predict(k, d, ~train, one_stream=True)
+    te = t.select(~train)
+    out = []
+    for s in sessions:
+        m = (te["session"] == s) & touch_mask(te)
+        out.append(float(np.mean(p.location[m] == te["location"][m])))
+    return out
+
+
+def run(ctx: Context) -> dict:
+    ds = ctx.dataset("drift-2h")
+    t = ctx.table(ds)
+    sessions = sorted(set(t["session"]))
+    train = t["session"] == sessions[0]
+    bins = ctx.bins(ds, t, train, 300)
+    res: dict = {"minutes": [], "temperature_c": []}
+    for s in sessions[1:]:
+        m = (t["session"] == s) & touch_mask(t)
+        res["minutes"].append(float(t["time_s"][m].mean() / 60))
+        res["temperature_c"].append(float(t["temperature_c"][m].mean()))
+    for name, alpha in ALPHAS.items():
+        d = ctx.data(ds, train=train, bins=bins, alpha_s=NEVER_S if alpha is None else alpha)
+        for k in ctx.kinds:
+            if name not in ("20 min", "never") and k == "net":
+                continue
+            res[f"{k} alpha={name}"] = _per_session(ctx, k, d, train, sessions[1:])
+    out = ctx.save(draw(res), "fig12.png", res)
+    out["two_months"] = two_months(ctx)
+    return out
+
+
+def draw(res: dict):
+    """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves are identical
+    share one line and one legend entry, so no entry names a hidden line."""
+    from ..plots import MODEL_STYLE
+
+    groups: dict = {}
+    for key, v in res.items():
+        if " alpha=" in key:
+            k, alpha = key.split(" alpha=")
+            groups.setdefault(tuple(np.round(np.asarray(v, float), 9)), []).append((k, alpha))
+    fig, ax = plt().subplots(figsize=(10, 3.8))
+    # Shared curves first (underneath), so a single setting that differs only slightly stays visible on top.
+    for i, (v, members) in enumerate(sorted(groups.items(), key=lambda g: -len(g[1]))):
+        kinds = {k for k, _ in members}
+        st = MODEL_STYLE[MODEL[kinds.pop()]] if len(kinds) == 1 else {"ls": "-", "lw": 2.0, "alpha": 1.0, "marker": "s"}
+        label = " = ".join(f"{MODEL[k]}, {'no updating' if a == 'never' else 'every ' + a}" for k, a in members)
+        ax.plot(res["minutes"], v, color=f"C{i}", ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"], ms=5,
+                label=label + (" (identical)" if len(members) > 1 else ""))
+    ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)", title="Fig. 12: warm-up and online updating")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), title="model, reference update", title_fontsize=7)
+    ax.grid(alpha=0.3)
+    return fig
+
+
+def two_months(ctx: Context) -> dict:
+    ds = ctx.dataset("drift-2months")
+    t = ctx.table(ds)
+    sessions = sorted(set(t["session"]))
+    train = t["session"] == sessions[0]
+    bins = ctx.bins(ds, t, train, 300)
+    out: dict = {"days": [], "temperature_c": []}
+    for s in sessions[1:]:
+        m = t["session"] == s
+        out["days"].append(float(t["time_s"][m].mean() / 86400))
+        out["temperature_c"].append(float(t["temperature_c"][m].mean()))
+    for name, alpha in (("with updating", 1200.0), ("without", NEVER_S)):
+        d = ctx.data(ds, train=train, bins=bins, alpha_s=alpha)
+        for k in ctx.kinds:
+            out[f"{k} {name}"] = _per_session(ctx, k, d, train, sessions[1:])
+    return out
