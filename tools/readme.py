@@ -1,42 +1,32 @@
 """Run the command blocks of README.md and the manual's pages and write what they print into them (``make docs``);
 check them (tests/test_readme.py).
 
-The documents are README.md, then the pages of ``PAGES`` in that order (``RECORDS`` are records of earlier rounds:
-neither run nor checked). Their blocks run in that order, as one walkthrough, in one fresh folder; block names are
-shared by all documents. Shell and Python blocks are marked with HTML comments, which GitHub does not render:
+The documents are README.md, then the pages of ``PAGES`` in that order; their blocks run in that order, as one
+walkthrough, in one fresh folder, and block names are shared by all of them (``RECORDS`` are neither run nor checked).
+HTML comments, which GitHub does not render, mark the blocks (docs/reproduction.md, "How these pages stay true"):
 
-``<!-- run: NAME [exact] [timeout=SECONDS] [mask=REGEX ...] -->``
-    before a fenced ``bash`` (or ``python``) block: the block is run as one ``bash -e`` script (a ``python`` block
-    by ``python -``). ``exact``: its printed output is deterministic, and the test fails when it differs from its
-    output block (after masking timings, see ``MASKS``; ``mask=REGEX`` masks more). ``timeout``: default 1800 s.
-``<!-- norun: REASON -->``
-    before a fenced block that is not run (it needs hardware, or it is the test suite itself). Every ``bash`` and
-    ``python`` block needs one of these two markers, so a new section cannot slip through unchecked.
-``<!-- small: NAME`` ... ``-->``
-    a multi-line comment whose body is the block's small variant: a script the test runs instead of the block, with
-    the same effect on the folder on a smaller scale. ``make docs`` runs a block as written when a document shows
-    what it printed (an output block, or a figure ``after`` it), else its small variant (``--full``: every block as
-    written; the real ones may take hours). A block without a small variant always runs as written.
-``<!-- output: NAME -->``
-    where the output of run block NAME goes: ``make docs`` writes (or replaces) the fenced ``text`` block after the
-    marker, each command's output under a ``$ command`` line, the run folder's path replaced by ``.``. Unless NAME is
-    ``exact``, one line ``<sub>Printed by `make docs` on ...</sub>`` follows: machine, load, date and duration.
-``<!-- figure: docs/FILE.png from=PATH [after=NAME] [width=PIXELS] -->``
-    before an image line: ``make docs`` copies PATH (relative to the run folder) to docs/FILE.png after block NAME
-    ran (default: after the last block), scaled down to at most ``width`` pixels (default 900).
+``<!-- run: NAME [exact] [timeout=SECONDS] [mask=REGEX ...] -->`` before a ``bash`` block (run as one ``bash -e``
+    script, each command echoed as ``$ command``) or a ``python`` block (run by ``python -``). ``exact``: the output is
+    deterministic and the test compares it with the output block, timings masked (``MASKS``, plus ``mask=``).
+``<!-- norun: REASON -->`` before a block that is not run. Every ``bash`` and ``python`` block needs one of the two.
+``<!-- small: NAME`` ... ``-->`` the block's small variant, a script with the same effect on smaller data: the test
+    runs it instead of the block, and so does ``make docs`` for a block whose output no document shows (``--full``:
+    every block as written).
+``<!-- output: NAME -->`` where ``make docs`` writes what block NAME printed (a ``text`` block, the run folder shown
+    as ``.``), followed unless NAME is ``exact`` by a line saying on what machine, at what load and when it ran.
+``<!-- figure: docs/FILE.png from=PATH [after=NAME] [width=PIXELS] -->`` ``make docs`` copies PATH of the run folder
+    to docs/FILE.png after block NAME (default: the last), at most ``width`` pixels wide (default 900).
 
-The run folder holds copies of what the commands need from the repository (``COPY``) and ``.venv``, links to the
-entries of the virtual environment running this script plus a fresh install marker (so ``make`` never re-installs);
-its ``bin`` is first on PATH, so ``sonicskin``, ``python`` and ``make demo`` run the installed code as a user's shell
-would. Output is stdout and stderr interleaved as a terminal shows them, without what a carriage return overwrote,
-progress bars (``TQDM_DISABLE=1``) or trailing blanks. A failing command stops the run naming the block, its
-document and line, and its last output lines; ``make docs`` still writes the outputs of the blocks before it, into
-the documents as they are by then (edits made while it ran are kept).
+The run folder holds copies of ``COPY`` and ``.venv``, links to the running virtual environment with a fresh install
+marker (``make`` never re-installs), its ``bin`` first on PATH. Output is stdout and stderr as a terminal shows them,
+without what a carriage return overwrote, progress bars or trailing blanks. A failing block stops the run naming its
+document and line, with its last lines; ``make docs`` still writes the outputs of the blocks before it, into the
+documents as they are by then (edits made meanwhile are kept).
 
     python tools/readme.py            # make docs: run the blocks, rewrite the documents and docs/*.png
     python tools/readme.py --full     # the same, every block as written (hours: the seed sweeps)
     python tools/readme.py --check    # what the test does: small variants, compare exact outputs
-    python tools/readme.py --list     # the documents' blocks, in the order they run
+    python tools/readme.py --list     # the blocks in the order they run
     python tools/readme.py --only spectra wav   # re-run blocks that need nothing before them
 """
 
