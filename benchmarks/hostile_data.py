@@ -9,9 +9,9 @@ The inputs (built once under OUT/base): the small rig and tiny scenario of tests
 features as a spectra .npz, another rig's and another seed's sessions, and SVM artifacts of both rigs.
 
 The hostile-input round probed 276 such inputs (the manual's integrity page has the counts); the ones it found broken
-are fixed and pinned by tests/test_hostile_data.py, one test each, and are not repeated here. What is left runs
-here: inputs refused with one clear line or read correctly since before that round, and three known to be left as
-they are (marked "left"). Verdicts: ok-clear-error (exit 2, one line naming the problem), ok-accepted-correctly,
+are fixed and pinned by tests/test_hostile_data.py and are not repeated here. What runs here: the inputs refused
+with one clear line or read correctly since before that round, and the few left as they are (marked "left": they
+cannot be told from good data). Verdicts: ok-clear-error (exit 2, one line naming the problem), ok-accepted-correctly,
 ok-warned, TRACEBACK, HANG, SILENT-WRONG (accepted, wrong), REFUSED-VALID (a valid input refused), MULTI-LINE-ERROR;
 a judged verdict says why. Prints one line per probe and the counts; exit code 1 when a probe is not ok.
 """
