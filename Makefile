@@ -51,8 +51,10 @@ lint: install
 bench: install
 	$(PY) benchmarks/bench_pipeline.py
 
-# The README's outputs and figures: runs its marked command blocks in a fresh folder and writes what they
-# print into README.md and docs/*.png (tools/readme.py; tests/test_readme.py checks them).
+# The outputs and figures of README.md and the manual (docs/*.md, in the order of PAGES in tools/readme.py):
+# runs their marked command blocks in one fresh folder and writes what they print into the document that holds
+# each marker and docs/*.png, then the stored results (tools/readme.py, tools/results.py; tests/test_readme.py
+# and tests/test_results.py check them).
 docs: install
 	$(PY) tools/readme.py
 	$(PY) tools/results.py render

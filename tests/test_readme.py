@@ -1,4 +1,5 @@
-"""The README's command blocks, pasted in order on a fresh folder, run; its deterministic outputs are this commit's.
+"""The command blocks of README.md and the manual's pages (docs/), pasted in order on a fresh folder, run; their
+deterministic outputs are this commit's; every page is listed and every relative link lands.
 
 The blocks and their markers are described in tools/readme.py (`make docs` writes the outputs).
 """
@@ -47,27 +48,52 @@ echo hello > f.txt && cat f.txt
 ```
 """
 
+PAGE = """\
+# A page
+
+<!-- run: three -->
+```python
+print(open("f.txt").read().strip(), "from python")
+```
+
+<!-- output: three -->
+"""
+
 
 def test_markers_are_parsed_and_every_shell_block_is_marked():
     r = readme.parse(GOOD)
     assert [b.name for b in r.blocks] == ["one", "two"]
     one, two = r.blocks
     assert one.exact and not two.exact and one.small == "echo small\n" and two.small is None
-    assert one.script.startswith('echo "took 1.5 s"') and r.norun == [(18, "needs hardware")]
+    assert one.script.startswith('echo "took 1.5 s"') and r.norun == [("README.md", 18, "needs hardware")]
     assert [(o.name, o.text) for o in r.outputs] == [("one", '$ echo "took 9.9 s"\nold'), ("two", None)]
     assert readme.shown(r) == {"one", "two"}
     for bad, msg in [
-        ("```bash\nls\n```\n", "a bash block without"),
-        ("<!-- run: a -->\ntext\n", "must stand right before a ```bash block"),
+        ("```bash\nls\n```\n", "README.md:1: a bash block without"),
+        ("```python\nprint(1)\n```\n", "README.md:1: a python block without"),
+        ("<!-- run: a -->\ntext\n", "must stand right before a ```bash or ```python block"),
         ("<!-- run: a colour=red -->\n```bash\nls\n```\n", "unknown run attribute(s) ['colour']"),
         ("<!-- output: b -->\n", "output of 'b', but no `<!-- run: b -->` block"),
         ("<!-- small: c\nls\n-->\n", "small variant of 'c'"),
         ("<!-- small: c\nls\n", "is not closed by a line `-->`"),
         ("<!-- norun: -->\n```bash\nls\n```\n", "needs a reason"),
         ("<!-- figure: x.png from=a.png -->\n", "a PNG under docs/"),
+        ("```bash\nls\n", "README.md:1: unclosed code block"),
     ]:
         with pytest.raises(readme.ReadmeError, match=re.escape(msg)):
             readme.parse(bad)
+
+
+def test_pages_run_after_the_readme_and_share_its_block_names():
+    r = readme.parse({"README.md": GOOD, "docs/page.md": PAGE})
+    assert [(b.name, b.where, b.lang) for b in r.blocks] == [
+        ("one", "README.md:3", "bash"), ("two", "README.md:25", "bash"), ("three", "docs/page.md:3", "python")]
+    assert [(o.name, o.doc) for o in r.outputs][-1] == ("three", "docs/page.md")
+    # a name is one block in all documents; markers in a page are reported with the page's name and line
+    with pytest.raises(readme.ReadmeError, match=re.escape("docs/page.md:3: a second run block named 'one'")):
+        readme.parse({"README.md": GOOD, "docs/page.md": PAGE.replace("run: three", "run: one")})
+    with pytest.raises(readme.ReadmeError, match=re.escape("docs/page.md:8: output of 'four', but no")):
+        readme.parse({"README.md": GOOD, "docs/page.md": PAGE.replace("output: three", "output: four")})
 
 
 def test_commands_are_echoed_without_comments_and_continuations_stay_one_command():
@@ -84,44 +110,103 @@ def test_timings_are_masked_and_progress_bars_dropped():
     assert readme.clean(raw) == "kept\ndone"
 
 
-def test_a_small_readme_runs_renders_and_detects_stale_output(tmp_path):
-    r = readme.parse(GOOD)
-    results = readme.run_all(small=False, check=False, readme=r, keep=tmp_path / "run")
+def test_a_small_manual_runs_renders_into_each_document_and_detects_stale_output(tmp_path):
+    r = readme.parse({"README.md": GOOD, "docs/page.md": PAGE})
+    results = readme.run_all(small=False, check=False, man=r, keep=tmp_path / "run")
     assert [x.output for x in results] == ['$ echo "took 1.5 s"\ntook 1.5 s\n$ printf \'a  \\nb\\r\\n\'\na\nb\n',
-                                           "$ echo hello > f.txt && cat f.txt\nhello\n"]
-    text = readme.render(r, results)
-    # the rendered README parses again, its exact block matches, the non-exact one carries where it ran
-    again = readme.parse(text)
+                                           "$ echo hello > f.txt && cat f.txt\nhello\n", "hello from python\n"]
+    texts = readme.render(r, results)
+    # each output lands in the document that holds its marker; the rendered documents parse again, the exact block
+    # matches, the non-exact ones carry where they ran
+    assert "```text\nhello from python\n```\n" + readme.STAMP_PREFIX in texts["docs/page.md"]
+    assert "hello from python" not in texts["README.md"]
+    again = readme.parse(texts)
     assert [o.text for o in again.outputs][0] == '$ echo "took 1.5 s"\ntook 1.5 s\n$ printf \'a  \\nb\\r\\n\'\na\nb'
+    text = texts["README.md"]
     assert readme.STAMP_PREFIX + " on " in text and text.count(readme.STAMP_PREFIX) == 1 and "cores, load" in text
-    assert readme.render(again, results) == text  # idempotent: nothing accumulates
+    assert readme.render(again, results) == texts  # idempotent: nothing accumulates
     readme.compare_exact(results[0], again)  # timings differ only by the masked number
-    with pytest.raises(readme.ReadmeError, match=r"the output of 'one' is stale; run `make docs`"):
+    with pytest.raises(readme.ReadmeError, match=r"README.md:12: the output of 'one' is stale; run `make docs`"):
         readme.compare_exact(results[0], r)
-    # the small variant replaces the block; a failing command names the block and shows its last lines
+    # the small variant replaces the block; a failing command names the block, its document and line, and its last lines
     assert readme.run_block(r.blocks[0], tmp_path / "run", small=True).output == "$ echo small\nsmall\n"
-    bad = readme.Block("broken", "echo before\nfalse\necho after\n", 7)
-    with pytest.raises(readme.ReadmeError, match=r"(?s)README.md:7: block 'broken' \(as written\) failed: exit code 1.*before"):
+    bad = readme.Block("broken", "echo before\nfalse\necho after\n", 7, doc="docs/page.md")
+    with pytest.raises(readme.ReadmeError, match=r"(?s)docs/page.md:7: block 'broken' \(as written\) failed: exit code 1.*before"):
+        readme.run_block(bad, tmp_path / "run", small=False)
+    bad = readme.Block("broken", "print('before')\nraise SystemExit(3)\n", 9, doc="docs/page.md", lang="python")
+    with pytest.raises(readme.ReadmeError, match=r"(?s)docs/page.md:9: block 'broken' \(as written\) failed: exit code 3.*before"):
         readme.run_block(bad, tmp_path / "run", small=False)
 
 
-def test_the_readme_is_marked():
-    r = readme.parse(readme.README.read_text())
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a heading."""
+    return re.sub(r"\s", "-", re.sub(r"[^\w\- ]", "", heading.strip().lower()))
+
+
+def _anchors(text: str) -> set[str]:
+    out, fence = set(), None
+    for ln in text.split("\n"):
+        m = re.match(r"^(```+|~~~+)", ln)
+        if m and fence is None:
+            fence = m.group(1)
+        elif fence and ln.startswith(fence):
+            fence = None
+        elif fence is None and re.match(r"^#{1,6} ", ln):
+            out.add(_slug(ln.lstrip("#")))
+    return out
+
+
+def broken_links(doc: str, text: str) -> list[str]:
+    """Relative links and images of ``doc`` whose file or heading does not exist."""
+    out = []
+    for m in re.finditer(r"!?\[[^\]]*\]\(([^)\s]+)\)", text):
+        target = m.group(1)
+        if re.match(r"^[a-z]+:", target):
+            continue
+        path, _, anchor = target.partition("#")
+        dest = (ROOT / doc).parent / path if path else ROOT / doc
+        line = text.count("\n", 0, m.start()) + 1
+        if not dest.exists():
+            out.append(f"{doc}:{line}: {target}: no such file")
+        elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest.read_text() if path else text):
+            out.append(f"{doc}:{line}: {target}: no heading #{anchor} in {path or doc}")
+    return out
+
+
+def test_broken_links_are_found():
+    text = "[a](docs/history.md) [b](#nowhere) [c](docs/none.md) [d](https://x.org/#y) ![e](docs/probe.png)\n# Here it is\n[f](#here-it-is)"
+    assert broken_links("README.md", text) == ["README.md:1: #nowhere: no heading #nowhere in README.md",
+                                               "README.md:1: docs/none.md: no such file"]
+    assert _slug("`record` then `live`: 3 passes (why)") == "record-then-live-3-passes-why"
+
+
+def test_the_documents_are_marked_listed_and_linked():
+    r = readme.parse(readme.read())
     names = [b.name for b in r.blocks]
-    assert {"demo", "spectra", "wav"} <= set(names)
+    assert {"demo", "api", "spectra", "wav", "learned"} <= set(names)
     assert {b.name for b in r.blocks if b.exact} >= {"spectra", "wav"}
+    assert next(b for b in r.blocks if b.name == "api").lang == "python"
     for fig in r.figures:  # committed and small
         assert (ROOT / fig.dest).is_file() and (ROOT / fig.dest).stat().st_size < 300_000, fig.dest
     for o in r.outputs:
-        assert o.text, f"README.md:{o.start + 1}: output of {o.name!r} is empty: run `make docs`"
+        assert o.text, f"{o.doc}:{o.start + 1}: output of {o.name!r} is empty: run `make docs`"
+    # every page of docs/ is in the manual's one list (or a record), and the README stays short
+    pages = {p.relative_to(ROOT).as_posix() for p in (ROOT / "docs").glob("*.md")}
+    assert pages == set(readme.PAGES) | set(readme.RECORDS), "list new pages in PAGES (tools/readme.py)"
+    assert len((ROOT / "README.md").read_text().splitlines()) <= 250
+    problems = [p for doc in (*readme.DOCS, *readme.RECORDS) for p in broken_links(doc, (ROOT / doc).read_text())]
+    assert problems == [], "\n".join(problems)
 
 
 @pytest.mark.slow
 def test_readme_blocks_run_in_order_and_exact_outputs_are_this_commits(tmp_path):
-    """Every marked block, small variants where given, in README order on one fresh folder (~2 min on 2 quiet cores)."""
+    """Every marked block of README.md and the pages, small variants where given, in order on one fresh folder."""
     results = readme.run_all(small=True, check=True, keep=tmp_path / "clone")
-    assert [x.block.name for x in results] == [b.name for b in readme.parse(readme.README.read_text()).blocks]
-    # the walkthroughs left what the README says they write
-    for path in ("reports/moving/report.json", "reports/compare-moving/compare.png", "artifacts/moving/skin.json",
-                 "data/lab-b/dataset.json", "artifacts/lab-c/skin.json"):
+    assert [x.block.name for x in results] == [b.name for b in readme.parse(readme.read()).blocks]
+    # the walkthroughs left what the documents say they write
+    for path in ("reports/moving/report.json", "reports/compare-moving/compare.png", "runs/compare-moving/artifact/skin.json",
+                 "artifacts/moving/skin.json", "data/lab-b/dataset.json", "artifacts/lab-c/skin.json"):
         assert (tmp_path / "clone" / path).is_file(), path
+    # the Python example, as written, on the demo's artifact: its duration covers the scripted touches
+    api = next(x.output for x in results if x.block.name == "api")
+    assert " touch marker " in api and re.search(r"^[1-9]\d* touch events from the controller loop$", api, flags=re.M), api

@@ -1,4 +1,4 @@
-"""The README's measured results are the stored stdout of registered commands (tools/results.py)."""
+"""The measured results of README.md and the manual are the stored stdout of registered commands (tools/results.py)."""
 
 from __future__ import annotations
 
@@ -102,13 +102,28 @@ def test_unmeasured_and_unregistered_results_are_named(store):
         results.index()
 
 
-def test_every_result_of_the_readme_is_stored_shown_as_stored_and_every_table_is_marked():
-    """The real README: each measured table/figure is a stored result of its registered command."""
-    problems = results.problems(results.README.read_text())
+def test_results_may_live_in_any_page_once_and_every_page_is_checked(store):
+    results.run("hello", results.index()["hello"], log=lambda s: None)
+    results.run("plain", results.index()["plain"], log=lambda s: None)
+    page = "# p\n\n<!-- result: hello -->\n<!-- /result -->\n"
+    texts = {"README.md": results.render(README), "docs/p.md": results.render(page, "docs/p.md")}
+    assert "| 1 | 2 |" in texts["docs/p.md"]
+    probs = results.problems(texts)
+    assert probs == ["docs/p.md:3: result 'hello' is shown twice (also at README.md:3); show it in one place and link there"]
+    probs = results.problems({"README.md": texts["README.md"], "docs/p.md": "# p\n\n| typed | by hand |\n|---|---|\n"})
+    assert probs == ["docs/p.md:3: a table that is neither a result (<!-- result: NAME -->) nor marked "
+                     "<!-- spec: WHY --> (parameters, not measurements)"]
+    with pytest.raises(results.ResultError, match=r"docs/p.md:1: result 'x' is not closed"):
+        results.regions(["<!-- result: x -->"], "docs/p.md")
+
+
+def test_every_result_of_the_documents_is_stored_shown_once_as_stored_and_every_table_is_marked():
+    """README.md and the manual's pages: each measured table/figure is a stored result of its registered command."""
+    problems = results.problems(results.read())
     assert problems == [], "\n".join(problems)
     reg = results.index()
-    shown = {name for name, _, _ in results.regions(results.README.read_text().split("\n"))}
-    assert shown == set(reg), f"registered but not in the README: {sorted(set(reg) - shown)}"
+    shown = results.shown()
+    assert set(shown) == set(reg), f"registered but in no document: {sorted(set(reg) - set(shown))}"
     for name in reg:  # the commands a result names exist
         for word in reg[name]["run"].split():
             if word.startswith(("benchmarks/", "tools/")):

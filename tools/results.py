@@ -1,27 +1,28 @@
-"""The README's measured results: each one the stored stdout of one registered command (``make results``, ``make docs``).
+"""The measured results of README.md and the manual: each one the stored stdout of one registered command
+(``make results``, ``make docs``).
 
 A number in a results table is only as good as the run that printed it. So every measured table, figure and
-benchmark figure in README.md is a *result*: a command registered in ``docs/results/index.yaml``, run from the
-repository root with the project's virtual environment first on PATH, whose **stdout is exactly the block the
-README shows** (logs and progress go to stderr). Running it stores ``docs/results/NAME.json``: the block, the
-command, the commit and whether the tree was clean, a digest of the code it ran, the machine, the load at the
-start, the date, wall and CPU time, and copies of the figures it wrote (``docs/*.png``). The README marks where a
-result goes::
+benchmark figure of README.md and the manual's pages (``readme.DOCS``) is a *result*: a command registered in
+``docs/results/index.yaml``, run from the repository root with the project's virtual environment first on PATH,
+whose **stdout is exactly the block the document shows** (logs and progress go to stderr). Running it stores
+``docs/results/NAME.json``: the block, the command, the commit and whether the tree was clean, a digest of the code
+it ran, the machine, the load at the start, the date, wall and CPU time, and copies of the figures it wrote
+(``docs/*.png``). A document marks where a result goes (any document; each result in exactly one place)::
 
     <!-- result: NAME -->
     ... written by ``python tools/results.py render`` (part of ``make docs``): the stored block, then one line
     saying what command measured it, at which commit, on what machine, at what load, when and how long ...
     <!-- /result -->
 
-and ``tests/test_results.py`` fails when a README block differs from its stored result, when a stored result was
-measured by another command than the registered one, or when a table or ``text`` block of the README is neither a
-result, a ``make docs`` output (tools/readme.py) nor marked ``<!-- spec: WHY -->`` (parameters, formats and
-limits that are not measurements). ``status`` lists the results whose code changed since they were measured.
+and ``tests/test_results.py`` fails when a block differs from its stored result, when a stored result was measured
+by another command than the registered one, or when a table or ``text`` block of a document is neither a result,
+a ``make docs`` output (tools/readme.py) nor marked ``<!-- spec: WHY -->`` (parameters, formats and limits that are
+not measurements). ``status`` lists the results whose code changed since they were measured.
 
     python tools/results.py list               # the registered results, their cost and when they were measured
     python tools/results.py run probe seeds    # measure (long: see each entry's cost), store, then render
     python tools/results.py run --all          # every result (make results: hours on 2 cores)
-    python tools/results.py render             # write the stored results into README.md (make docs does this)
+    python tools/results.py render             # write the stored results into the documents (make docs does this)
     python tools/results.py status             # which results ran on code that has changed since
 """
 
@@ -43,10 +44,9 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme import DOCS, ROOT, read  # noqa: E402  (one list of the documents for both generators)
 from readme import _machine as machine  # noqa: E402  (one description of the machine for both generators)
 
-ROOT = Path(__file__).resolve().parents[1]
-README = ROOT / "README.md"
 STORE = ROOT / "docs" / "results"
 INDEX = STORE / "index.yaml"
 # The code a result depends on: a change here may change what a result's command prints.
@@ -148,7 +148,7 @@ def run(name: str, entry: dict, log=None) -> dict:
 
 
 def block(rec: dict) -> list[str]:
-    """The README lines of one stored result (between its markers)."""
+    """The document lines of one stored result (between its markers)."""
     body = rec["stdout"].split("\n")
     if rec["format"] == "text":
         body = ["```text", *body, "```"]
@@ -158,61 +158,78 @@ def block(rec: dict) -> list[str]:
                    f"(1-min average), {day}; it ran {_duration(rec['wall_s'])} ({_duration(rec['cpu_s'])} of CPU).</sub>"]
 
 
-def regions(lines: list[str]) -> list[tuple[str, int, int]]:
-    """(name, index of the opening marker, index of the closing marker) of every result region."""
+def regions(lines: list[str], doc: str = "README.md") -> list[tuple[str, int, int]]:
+    """(name, index of the opening marker, index of the closing marker) of every result region of one document."""
     out, open_ = [], None
     for i, ln in enumerate(lines):
         m = _OPEN.match(ln)
         if m:
             if open_:
-                raise ResultError(f"README.md:{i + 1}: result {m.group(1)!r} opens inside {open_[0]!r} (close it with {_CLOSE})")
+                raise ResultError(f"{doc}:{i + 1}: result {m.group(1)!r} opens inside {open_[0]!r} (close it with {_CLOSE})")
             open_ = (m.group(1), i)
         elif ln.strip() == _CLOSE:
             if not open_:
-                raise ResultError(f"README.md:{i + 1}: {_CLOSE} without an opening `<!-- result: NAME -->`")
+                raise ResultError(f"{doc}:{i + 1}: {_CLOSE} without an opening `<!-- result: NAME -->`")
             out.append((*open_, i))
             open_ = None
     if open_:
-        raise ResultError(f"README.md:{open_[1] + 1}: result {open_[0]!r} is not closed by a line {_CLOSE}")
+        raise ResultError(f"{doc}:{open_[1] + 1}: result {open_[0]!r} is not closed by a line {_CLOSE}")
     return out
 
 
-def render(text: str) -> str:
-    """``text`` (the README) with every result region rewritten from its stored record."""
+def render(text: str, doc: str = "README.md") -> str:
+    """``text`` (one document) with every result region rewritten from its stored record."""
     reg = index()
     lines = text.split("\n")
-    for name, start, end in reversed(regions(lines)):
+    for name, start, end in reversed(regions(lines, doc)):
         if name not in reg:
-            raise ResultError(f"README.md:{start + 1}: result {name!r} is not registered in docs/results/index.yaml")
+            raise ResultError(f"{doc}:{start + 1}: result {name!r} is not registered in docs/results/index.yaml")
         rec = stored(name)
         lines[start + 1:end] = block(rec) if rec else [f"*(not measured yet: `python tools/results.py run {name}`)*"]
     return "\n".join(lines)
 
 
-def problems(text: str) -> list[str]:
-    """What the test checks: stored results match their commands, the README shows them as stored, and every table
-    and ``text`` block of the README is a result, a ``make docs`` output or marked as a spec."""
-    reg, lines, out = index(), text.split("\n"), []
-    spans = regions(lines)
-    for name, start, _ in spans:
-        rec = stored(name) if name in reg else None
-        if name in reg and rec is None and not reg[name].get("of_the_commit"):
-            # (a result `of_the_commit`, CI's own time, can only be measured once the commit exists)
-            out.append(f"README.md:{start + 1}: result {name!r} was never measured: python tools/results.py run {name}")
-        if name in reg and rec is not None and rec["run"] != reg[name]["run"]:
-            out.append(f"README.md:{start + 1}: result {name!r} was measured by another command than the registered one: "
-                       f"python tools/results.py run {name}")
-        for dest, sha in (rec or {}).get("figures", {}).items():
-            p = ROOT / dest
-            if not p.is_file() or hashlib.sha256(p.read_bytes()).hexdigest() != sha:
-                out.append(f"{dest}: not the figure result {name!r} stored; python tools/results.py run {name}")
-    try:
-        if render(text) != text:
-            out.append("README.md: a result block differs from its stored result: run `python tools/results.py render`")
-    except ResultError as e:
-        out.append(str(e))
-    inside = {i for _, s, e in spans for i in range(s, e + 1)}
-    i, prev = 0, ""
+def problems(texts: dict[str, str] | str) -> list[str]:
+    """What the test checks, over the documents (``{document: text}``; a str is README.md): stored results match their
+    commands, each result is shown once and as stored, and every table and ``text`` block is a result, a ``make docs``
+    output or marked as a spec."""
+    texts = {"README.md": texts} if isinstance(texts, str) else texts
+    reg, out, seen = index(), [], {}
+    for doc, text in texts.items():
+        lines = text.split("\n")
+        try:
+            spans = regions(lines, doc)
+        except ResultError as e:
+            out.append(str(e))
+            continue
+        for name, start, _ in spans:
+            where = f"{doc}:{start + 1}"
+            if name in seen:
+                out.append(f"{where}: result {name!r} is shown twice (also at {seen[name]}); show it in one place and link there")
+            seen[name] = where
+            rec = stored(name) if name in reg else None
+            if name in reg and rec is None and not reg[name].get("of_the_commit"):
+                # (a result `of_the_commit`, CI's own time, can only be measured once the commit exists)
+                out.append(f"{where}: result {name!r} was never measured: python tools/results.py run {name}")
+            if name in reg and rec is not None and rec["run"] != reg[name]["run"]:
+                out.append(f"{where}: result {name!r} was measured by another command than the registered one: "
+                           f"python tools/results.py run {name}")
+            for dest, sha in (rec or {}).get("figures", {}).items():
+                p = ROOT / dest
+                if not p.is_file() or hashlib.sha256(p.read_bytes()).hexdigest() != sha:
+                    out.append(f"{dest}: not the figure result {name!r} stored; python tools/results.py run {name}")
+        try:
+            if render(text, doc) != text:
+                out.append(f"{doc}: a result block differs from its stored result: run `python tools/results.py render`")
+        except ResultError as e:
+            out.append(str(e))
+        out += _unmarked(lines, {i for _, s, e in spans for i in range(s, e + 1)}, doc)
+    return out
+
+
+def _unmarked(lines: list[str], inside: set[int], doc: str) -> list[str]:
+    """Tables and plain/``text`` blocks outside result regions that are neither an output nor marked as a spec."""
+    out, i, prev = [], 0, ""
     while i < len(lines):
         ln = lines[i]
         f = re.match(r"^\s*(```+|~~~+)\s*([\w+-]*)", ln)
@@ -221,12 +238,12 @@ def problems(text: str) -> list[str]:
             while j < len(lines) and not lines[j].lstrip().startswith(f.group(1)):
                 j += 1
             if f.group(2) in ("", "text") and i not in inside and not _covered(lines, i, ("output", "spec")):
-                out.append(f"README.md:{i + 1}: a text or plain block that is neither a result (<!-- result: NAME -->), a make docs "
+                out.append(f"{doc}:{i + 1}: a text or plain block that is neither a result (<!-- result: NAME -->), a make docs "
                            f"output (<!-- output: NAME -->) nor marked <!-- spec: WHY -->")
             i, prev = j + 1, ""
             continue
         if ln.startswith("|") and not prev.startswith("|") and i not in inside and not _covered(lines, i, ("spec",)):
-            out.append(f"README.md:{i + 1}: a table that is neither a result (<!-- result: NAME -->) nor marked "
+            out.append(f"{doc}:{i + 1}: a table that is neither a result (<!-- result: NAME -->) nor marked "
                        f"<!-- spec: WHY --> (parameters, not measurements)")
         prev = ln
         i += 1
@@ -239,6 +256,22 @@ def _covered(lines: list[str], i: int, kinds: tuple[str, ...]) -> bool:
     while j >= 0 and not lines[j].strip():
         j -= 1
     return j >= 0 and bool(re.match(r"^<!--\s*(" + "|".join(kinds) + r"):", lines[j]))
+
+
+def shown() -> dict[str, str]:
+    """Where each result is shown: NAME -> document."""
+    return {name: doc for doc, text in read().items() for name, _, _ in regions(text.split("\n"), doc)}
+
+
+def render_all() -> list[str]:
+    """Write the stored results into every document; the documents changed."""
+    changed = []
+    for doc, text in read().items():
+        new = render(text, doc)
+        if new != text:
+            (ROOT / doc).write_text(new)
+            changed.append(doc)
+    return changed
 
 
 def status() -> list[str]:
@@ -258,11 +291,11 @@ def status() -> list[str]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("run", help="measure results (long), store them, write them into README.md")
+    r = sub.add_parser("run", help="measure results (long), store them, write them into the documents")
     r.add_argument("names", nargs="*", metavar="NAME")
     r.add_argument("--all", action="store_true", help="every registered result")
     r.add_argument("--keep-going", action="store_true", help="go on with the next result when one fails")
-    sub.add_parser("render", help="write the stored results into README.md")
+    sub.add_parser("render", help="write the stored results into README.md and the manual's pages")
     sub.add_parser("check", help="what tests/test_results.py checks")
     sub.add_parser("status", help="when each result was measured and whether its code changed since")
     sub.add_parser("list", help="the registered results")
@@ -275,8 +308,8 @@ def main(argv=None) -> int:
         elif a.cmd == "status":
             print("\n".join(status()))
         elif a.cmd == "check":
-            errs = problems(README.read_text())
-            print("\n".join(errs) or "README results: ok")
+            errs = problems(read())
+            print("\n".join(errs) or f"results of {len(DOCS)} documents: ok")
             return 1 if errs else 0
         else:
             if a.cmd == "run":
@@ -296,11 +329,8 @@ def main(argv=None) -> int:
                         print(f"results: error: {e}", file=sys.stderr)
                 if failed:
                     print(f"results: failed: {' '.join(failed)}", file=sys.stderr)
-            text = README.read_text()
-            new = render(text)
-            if new != text:
-                README.write_text(new)
-                print("results: README.md rewritten", file=sys.stderr)
+            for doc in render_all():
+                print(f"results: {doc} rewritten", file=sys.stderr)
     except ResultError as e:
         print(f"results: error: {e}", file=sys.stderr)
         return 2

@@ -1,28 +1,89 @@
-"""Hostile-data probes of issue hostdata: each probe builds a malformed (or valid-but-odd) input from the small
-valid inputs in BASE, runs one `sonicskin` verb in a subprocess (timeout 60 s) and classifies the outcome.
+"""Hostile data inputs that never broke the package, kept as a corpus: each probe builds a malformed (or valid but odd)
+input from small valid ones, runs one `sonicskin` verb in a subprocess (60 s limit) and classifies the outcome.
 
-    python notes/hostdata_probe.py BASE OUTDIR [filter]
+    python benchmarks/hostile_data.py                      # all 207 probes (30 min on 2 cores shared at load 8-14)
+    python benchmarks/hostile_data.py --filter spectra     # the probes whose id or description holds the text
 
-BASE holds data/ (tiny simulated dataset), rec/ + labels.csv (WAV recordings with interval labels),
-sweep.wav, spectra.npz and small.yaml / tiny.yaml (see notes/hostdata-probes.md for how they are made).
+The inputs (built once under OUT/base): the small rig and tiny scenario of tests/cli_helpers.py simulated into a
+3-session dataset, its sessions as float WAVs with an interval CSV (one row per press) and the sweep as a WAV, its
+features as a spectra .npz, another rig's and another seed's sessions, and SVM artifacts of both rigs.
+
+The hostile-input round probed 276 such inputs (the manual's integrity page has the counts); the ones it found broken
+are fixed and pinned by tests/test_hostile_data.py and are not repeated here. What runs here: the inputs refused
+with one clear line or read correctly since before that round, and the few left as they are (marked "left": they
+cannot be told from good data). Verdicts: ok-clear-error (exit 2, one line naming the problem), ok-accepted-correctly,
+ok-warned, TRACEBACK, HANG, SILENT-WRONG (accepted, wrong), REFUSED-VALID (a valid input refused), MULTI-LINE-ERROR;
+a judged verdict says why. Prints one line per probe and the counts; exit code 1 when a probe is not ok.
 """
 from __future__ import annotations
 
+import argparse
+import csv
 import json
 import os
 import shutil
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-BASE = Path(sys.argv[1])
-OUT = Path(sys.argv[2])
-FILTER = sys.argv[3] if len(sys.argv) > 3 else ""
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from cli_helpers import SMALL_RIG, TINY_SCENARIO  # noqa: E402  (the tests' small rig and tiny scenario)
+
+BASE = Path("reports/hostile-data/base")  # set by main()
 EXE = str(Path(sys.executable).parent / "sonicskin")
 PROBES = []
 PERIOD = str(1024 / 192000)
+HEADER = ["file", "start_s", "end_s", "location", "x_cm", "y_cm", "force_n", "moving", "subject"]
+
+
+def build_base(root: Path) -> None:
+    """The small valid inputs every probe starts from (see the module docstring)."""
+    import soundfile as sf
+    import yaml
+
+    from sonicskin.dataset import Dataset
+    from sonicskin.dsp import rig_chirp
+    from sonicskin.rig import Rig
+    from sonicskin.sim.generate import simulate_dataset
+    from sonicskin.sim.scenario import Scenario
+
+    quiet = {"progress": False, "log": lambda *_: None}
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "small.yaml").write_text(SMALL_RIG)
+    (root / "tiny.yaml").write_text(TINY_SCENARIO)
+    rig = Rig.load(root / "small.yaml")
+    simulate_dataset(Scenario.load(root / "tiny.yaml"), rig, root / "data", **quiet)
+    ds = Dataset(root / "data")
+    (root / "rec").mkdir()
+    rows = [HEADER]
+    for s in ds.sessions:
+        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
+        sf.write(root / "rec" / f"{s}.wav", audio, int(rig.fs_hz), subtype="FLOAT")
+        _, lab = ds.read_session(s)
+        for v in ds.layout.ids:
+            k = np.flatnonzero(lab["location"] == v)
+            x, y = ds.layout.coords(np.array([v]))[0]
+            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
+                         f"{y:g}", "2.5", "0", "0"])
+    with open(root / "labels.csv", "w", newline="") as fh:
+        csv.writer(fh, lineterminator="\n").writerows(rows)
+    sf.write(root / "sweep.wav", rig_chirp(rig).astype(np.float32), int(rig.fs_hz), subtype="FLOAT")
+    t = ds.features(progress=False)
+    np.savez(root / "spectra.npz", freqs_hz=rig.freqs_hz[rig.band_bins], magnitude_db=t.X.astype(float), location=t["location"],
+             session=t["session"], force_n=t["force_n"], x_cm=t["x_cm"], y_cm=t["y_cm"], moving=t["moving"],
+             subject=t["subject"])
+    # another seed of the same rig and scenario, and another rig (twice the chirp), one session each
+    simulate_dataset(Scenario.load(root / "tiny.yaml").replace(sessions=1, seed=2), rig, root / "seed2", **quiet)
+    other = yaml.safe_load(SMALL_RIG) | {"name": "small-2048", "n_chirp": 2048}
+    (root / "other.yaml").write_text(yaml.safe_dump(other))
+    simulate_dataset(Scenario.load(root / "tiny.yaml").replace(sessions=2), Rig.load(root / "other.yaml"), root / "other",
+                     **quiet)
+    for data, art in (("data", "art_small"), ("other", "art_other")):
+        subprocess.run([EXE, "fit-svm", "--data", str(root / data), "--out", str(root / art), "--n-bins", "40"],
+                       check=True, capture_output=True)
 
 
 def probe(cat, desc, expect="error"):
@@ -75,7 +136,7 @@ REF = {}
 
 def ref_wav():
     if "wav" not in REF:
-        d = OUT / "_ref_wav"
+        d = BASE.parent / "_ref_wav"
         shutil.rmtree(d, ignore_errors=True)
         d.mkdir(parents=True)
         argv = wav_setup(d)
@@ -114,11 +175,6 @@ def _(d):
     return wav_setup(d, "\n".join(r.replace(",", "\t") for r in base_rows()) + "\n")
 
 
-@probe("wavcsv", "UTF-8 BOM (Excel 'CSV UTF-8')", expect="ok")
-def _(d):
-    return wav_setup(d, "\ufeff" + "\n".join(base_rows()) + "\n"), same_as_ref
-
-
 @probe("wavcsv", "Windows CRLF line endings", expect="ok")
 def _(d):
     return wav_setup(d, "\r\n".join(base_rows()) + "\r\n"), same_as_ref
@@ -139,21 +195,6 @@ def _(d):
     return wav_setup(d, base_rows()[0] + "\n")
 
 
-@probe("wavcsv", "duplicated column force_n (second one all 0)")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: [r.append("force_n" if i == 0 else "0") for i, r in enumerate(rows)]))
-
-
-@probe("wavcsv", "optional column misspelled: force instead of force_n")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: rows[0].__setitem__(6, "force")))
-
-
-@probe("wavcsv", "optional column misspelled: Force_N (case)")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: rows[0].__setitem__(6, "Force_N")))
-
-
 @probe("wavcsv", "header with spaces after commas")
 def _(d):
     return wav_setup(d, csv_edit(lambda rows: rows.__setitem__(0, [rows[0][0]] + [" " + c for c in rows[0][1:]])))
@@ -169,19 +210,9 @@ def _(d):
     return wav_setup(d, csv_edit(lambda rows: rows[2].__setitem__(6, rows[2][6].replace(".", ","))))
 
 
-@probe("wavcsv", "a row with fewer fields than the header")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: rows.__setitem__(2, rows[2][:5])))
-
-
 @probe("wavcsv", "a row with only file,start,end (location missing)")
 def _(d):
     return wav_setup(d, csv_edit(lambda rows: rows.__setitem__(2, rows[2][:3])))
-
-
-@probe("wavcsv", "subject 1.5 (not whole)")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: rows[2].__setitem__(8, "1.5")))
 
 
 @probe("wavcsv", "subject 1e20")
@@ -199,21 +230,6 @@ def _(d):
     def f(rows):
         for r in rows[1:]:
             r[1], r[2] = str(float(r[1]) * 1000), str(float(r[2]) * 1000)
-    return wav_setup(d, csv_edit(f))
-
-
-@probe("wavcsv", "times in minutes (/60): every interval inside the first seconds")
-def _(d):
-    def f(rows):
-        for r in rows[1:]:
-            r[1], r[2] = str(float(r[1]) / 60), str(float(r[2]) / 60)
-    return wav_setup(d, csv_edit(f))
-
-
-@probe("wavcsv", "an interval shorter than one sweep period (covers no chirp start)")
-def _(d):
-    def f(rows):
-        rows[1][2] = f"{float(rows[1][1]) + 0.001:.6f}"
     return wav_setup(d, csv_edit(f))
 
 
@@ -279,11 +295,6 @@ def _(d):
     return argv
 
 
-@probe("wavcsv", "labels CSV with a NUL byte")
-def _(d):
-    return wav_setup(d, "\n".join(base_rows()) + "\n" + "s000.wav,1,2,0\x00,,,,,\n")
-
-
 @probe("wavcsv", "location names with a 'rest' row", expect="ok")
 def _(d):
     def f(rows):
@@ -296,22 +307,6 @@ def _(d):
     def f(rows):
         for r in rows[1:]:
             r[4], r[5] = str(float(r[4]) * 10), str(float(r[5]) * 10)
-    return wav_setup(d, csv_edit(f))
-
-
-@probe("wavcsv", "same location with two different coordinates in two rows")
-def _(d):
-    def f(rows):
-        rows[4][4] = str(float(rows[4][4]) + 5)  # s001 location 0 at x + 5 cm
-    return wav_setup(d, csv_edit(f))
-
-
-@probe("wavcsv", "two different locations at the same coordinates")
-def _(d):
-    def f(rows):
-        for r in rows[1:]:
-            if r[3] == "1":
-                r[4], r[5] = "9.4", "12.5"
     return wav_setup(d, csv_edit(f))
 
 
@@ -358,16 +353,6 @@ def _(d):
 @probe("wavcsv", "start_s '1e-400' (underflow) and end_s '1e400' (overflow)")
 def _(d):
     return wav_setup(d, csv_edit(lambda rows: (rows[1].__setitem__(1, "1e-400"), rows[1].__setitem__(2, "1e400"))))
-
-
-@probe("wavcsv", "location '0x1' (hex) and '1_0' (underscore digits)")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: (rows[1].__setitem__(3, "1_0"))))
-
-
-@probe("wavcsv", "location given as 'inf'")
-def _(d):
-    return wav_setup(d, csv_edit(lambda rows: rows[1].__setitem__(3, "inf")))
 
 
 @probe("wavcsv", "subject 'nan' (float)")
@@ -444,28 +429,6 @@ def _(d):
     for s in ("s000", "s001", "s002"):
         audio_edit(d, f"{s}.wav", lambda x: x, subtype="PCM_16")
     return argv, same_as_ref
-
-
-@probe("wavaudio", "float WAV with samples at 40 (way beyond full scale)")
-def _(d):
-    argv = wav_setup(d)
-    audio_edit(d, "s001.wav", lambda x: x * 80)
-    return argv
-
-
-@probe("wavaudio", "heavily clipped recording (x20 then clipped to +-1)")
-def _(d):
-    argv = wav_setup(d)
-    for s in ("s000", "s001", "s002"):
-        audio_edit(d, f"{s}.wav", lambda x: np.clip(x * 20, -1, 1), subtype="PCM_16")
-    return argv
-
-
-@probe("wavaudio", "a recording of white noise only (no sweep)")
-def _(d):
-    argv = wav_setup(d)
-    audio_edit(d, "s001.wav", lambda x: (np.random.default_rng(0).standard_normal(x.size) * 0.1).astype(np.float32))
-    return argv
 
 
 @probe("wavaudio", "one recording truncated to 1 s (labels past its end)")
@@ -554,20 +517,6 @@ def _(d):
     return argv
 
 
-@probe("wavaudio", "--period 2x the true period")
-def _(d):
-    argv = wav_setup(d)
-    argv[argv.index("--period") + 1] = str(2048 / 192000)
-    return argv
-
-
-@probe("wavaudio", "--period 1 % off the true period")
-def _(d):
-    argv = wav_setup(d)
-    argv[argv.index("--period") + 1] = str(1034 / 192000)
-    return argv
-
-
 @probe("wavaudio", "--chirp band swapped (80000 20000)")
 def _(d):
     argv = wav_setup(d)
@@ -599,39 +548,11 @@ def _(d):
     return argv
 
 
-@probe("wavaudio", "--chirp 20-80 kHz but the recordings hold a 5-15 kHz chirp (wrong band)")
-def _(d):
-    argv = wav_setup(d)
-    i = argv.index("--chirp")
-    argv[i + 1], argv[i + 2] = "5000", "15000"
-    return argv
-
-
 @probe("wavaudio", "--amplitude 5")
 def _(d):
     argv = wav_setup(d)
     argv[argv.index("--amplitude") + 1] = "5"
     return argv
-
-
-@probe("wavaudio", "--sweep of 4 periods")
-def _(d):
-    import soundfile as sf
-    argv = wav_setup(d)
-    x, fs = sf.read(BASE / "sweep.wav", dtype="float32")
-    sf.write(d / "sw.wav", np.tile(x, 4), fs, subtype="FLOAT")
-    i = argv.index("--chirp")
-    return argv[:i] + ["--sweep", d / "sw.wav"]
-
-
-@probe("wavaudio", "--sweep of half a period")
-def _(d):
-    import soundfile as sf
-    argv = wav_setup(d)
-    x, fs = sf.read(BASE / "sweep.wav", dtype="float32")
-    sf.write(d / "sw.wav", x[:512], fs, subtype="FLOAT")
-    i = argv.index("--chirp")
-    return argv[:i] + ["--sweep", d / "sw.wav"]
 
 
 @probe("wavaudio", "--sweep time-reversed (down-chirp instead of up)")
@@ -673,39 +594,6 @@ def _(d):
     return argv[:i] + ["--sweep", d / "sw.wav"]
 
 
-@probe("wavaudio", "--sweep is a 1 kHz sine (not a sweep)")
-def _(d):
-    import soundfile as sf
-    argv = wav_setup(d)
-    sf.write(d / "sw.wav", (0.5 * np.sin(2 * np.pi * 1000 * np.arange(1024) / 192000)).astype(np.float32), 192000,
-             subtype="FLOAT")
-    i = argv.index("--chirp")
-    return argv[:i] + ["--sweep", d / "sw.wav"]
-
-
-@probe("wavaudio", "--sweep and --chirp both given")
-def _(d):
-    return wav_setup(d) + ["--sweep", BASE / "sweep.wav"]
-
-
-@probe("wavaudio", "--resume after a file that sorts first was added")
-def _(d):
-    argv = [str(a) for a in wav_setup(d)]
-    subprocess.run([EXE, *argv], capture_output=True, check=True)
-    shutil.copy(d / "rec" / "s002.wav", d / "rec" / "a_new.wav")
-    (d / "labels.csv").write_text((d / "labels.csv").read_text() + "a_new.wav,1.0,2.0,1,10.6,12.5,3,0,0\n")
-
-    def check(d, rc, out, err):
-        if rc != 0:
-            return None
-        from sonicskin.dataset import Dataset
-        ds = Dataset(d / "out")
-        srcs = [json.loads((d / "out" / s / "session.json").read_text()).get("source_file") for s in ds.sessions]
-        return "ok-accepted-correctly" if "a_new.wav" in srcs and len(set(srcs)) == len(srcs) else \
-            f"SILENT-WRONG (sessions' source files {srcs}: a_new.wav not imported / a file imported twice)"
-    return argv + ["--resume"], check
-
-
 @probe("wavaudio", "--resume after the labels CSV was edited (location of one interval changed)")
 def _(d):
     argv = [str(a) for a in wav_setup(d)]
@@ -718,9 +606,6 @@ def _(d):
 
 
 # -- import-spectra ----------------------------------------------------------------------------------------
-@probe("spectra", "frequencies in kHz")
-def _(d):
-    return spectra(d, freqs_hz=lambda z: z["freqs_hz"] / 1000)
 
 
 @probe("spectra", "frequencies unsorted (reversed columns)")
@@ -767,11 +652,6 @@ def _(d):
     return spectra(d, magnitude_db=lambda z: z["magnitude_db"] > -40)
 
 
-@probe("spectra", "magnitude all equal (constant)")
-def _(d):
-    return spectra(d, magnitude_db=lambda z: np.full_like(z["magnitude_db"], -30.0))
-
-
 @probe("spectra", "magnitude in linear power (10**(dB/10))")
 def _(d):
     return spectra(d, magnitude_db=lambda z: 10 ** (z["magnitude_db"] / 10))
@@ -780,24 +660,6 @@ def _(d):
 @probe("spectra", "magnitude dB +1e6 (huge offset)")
 def _(d):
     return spectra(d, magnitude_db=lambda z: z["magnitude_db"] + 1e6)
-
-
-@probe("spectra", "magnitude dB with range 1e5 dB (one row at +1e5)")
-def _(d):
-    def f(z):
-        m = z["magnitude_db"].copy()
-        m[5] += 1e5
-        return m
-    return spectra(d, magnitude_db=f)
-
-
-@probe("spectra", "one row of magnitude at -1e300")
-def _(d):
-    def f(z):
-        m = z["magnitude_db"].copy()
-        m[5] = -1e300
-        return m
-    return spectra(d, magnitude_db=f)
 
 
 @probe("spectra", "only one location")
@@ -883,11 +745,6 @@ def _(d):
     return spectra(d, x_cm=lambda z: np.full(z["x_cm"].shape, np.nan), y_cm=None)
 
 
-@probe("spectra", "y_cm present, x_cm missing")
-def _(d):
-    return spectra(d, x_cm=None)
-
-
 @probe("spectra", "subject float 0.0/1.0", expect="ok")
 def _(d):
     return spectra(d, subject=lambda z: z["subject"].astype(float))
@@ -906,16 +763,6 @@ def _(d):
 @probe("spectra", "freqs_hz 0-d scalar")
 def _(d):
     return spectra(d, freqs_hz=np.array(1.0))
-
-
-@probe("spectra", "freqs_hz negative (shifted by -50 kHz)")
-def _(d):
-    return spectra(d, freqs_hz=lambda z: z["freqs_hz"] - 50000)
-
-
-@probe("spectra", "freqs_hz starting at 0 Hz (DC)")
-def _(d):
-    return spectra(d, freqs_hz=lambda z: z["freqs_hz"] - z["freqs_hz"][0])
 
 
 @probe("spectra", "only 2 frequency columns", expect="either")
@@ -1001,11 +848,6 @@ def _(d):
 def _(d):
     return spectra(d, location=lambda z: np.where(z["location"] >= 0, z["location"] * 1.5 - 1.5, np.nan),
                    x_cm=None, y_cm=None)
-
-
-@probe("spectra", "x_cm 1e4 (100 m) coordinates", expect="either")
-def _(d):
-    return spectra(d, x_cm=lambda z: z["x_cm"] * 1000)
 
 
 # -- dataset folders (fit-svm / evaluate / compare / train) -------------------------------------------------------
@@ -1127,18 +969,6 @@ def _(d):
     return ["fit-svm", "--data", data, "--out", d / "art", "--n-bins", "40"]
 
 
-@probe("dataset", "touch row labelled segment 'calibration' (resealed)")
-def _(d):
-    data = data_copy(d)
-
-    def f(rows):
-        for r in rows[1:]:
-            if r[COL["location"]] != "-1":
-                r[COL["segment"]] = "calibration"
-    edit_labels(data, "s000", f)
-    return ["fit-svm", "--data", data, "--out", d / "art", "--n-bins", "40"]
-
-
 @probe("dataset", "no-touch row with segment 'touch' (resealed)")
 def _(d):
     data = data_copy(d)
@@ -1149,18 +979,6 @@ def _(d):
                 r[COL["segment"]] = "touch"
     edit_labels(data, "s000", f)
     return ["fit-svm", "--data", data, "--out", d / "art", "--n-bins", "40"]
-
-
-@probe("dataset", "touch row with x_cm/y_cm NaN (resealed)")
-def _(d):
-    data = data_copy(d)
-
-    def f(rows):
-        for r in rows[1:]:
-            if r[COL["location"]] != "-1":
-                r[COL["x_cm"]] = "nan"
-    edit_labels(data, "s001", f)
-    return ["evaluate", "--data", data, "--out", d / "rep", "--no-ablations"]
 
 
 @probe("dataset", "no-touch row with a force of 5 N (resealed)")
@@ -1249,14 +1067,6 @@ def _(d):
     info["n_chirps"] -= 50
     (data / "s001" / "session.json").write_text(json.dumps(info))
     return fit(d)
-
-
-@probe("dataset", "FLAC of s001 replaced by s002's audio, labels kept (resealed)")
-def _(d):
-    data = data_copy(d)
-    shutil.copy(data / "s002" / "part-00000.flac", data / "s001" / "part-00000.flac")
-    reseal(data / "s001")
-    return ["evaluate", "--data", data, "--out", d / "rep", "--no-ablations"]
 
 
 @probe("dataset", "FLAC of s001 truncated to half (resealed; labels run past the audio)")
@@ -1349,13 +1159,6 @@ def _(d):
     return fit(d)
 
 
-@probe("dataset", "a session folder that is a symlink to another session", expect="either")
-def _(d):
-    data = data_copy(d)
-    os.symlink(data / "s000", data / "s003")
-    return fit(d)
-
-
 @probe("dataset", "dataset.json: layout with two markers at the same coordinates (sessions not resealed)")
 def _(d):
     data = data_copy(d)
@@ -1425,50 +1228,27 @@ for desc, kw in [
     ("gap_s .nan", {"gap_s": float("nan")}),
     ("tx_cm outside the plate [50, 50]", {"tx_cm": [50.0, 50.0]}),
     ("tx_cm negative [-3, 2]", {"tx_cm": [-3.0, 2.0]}),
-    ("rx_cm == tx_cm", {"rx_cm": [4.0, 2.5]}),
     ("tx_cm with three numbers", {"tx_cm": [1.0, 2.0, 3.0]}),
     ("geometry plate width -20", {"geometry": {"kind": "plate", "width_cm": -20.0, "length_cm": 25.0}}),
     ("geometry plate width 0", {"geometry": {"kind": "plate", "width_cm": 0.0, "length_cm": 25.0}}),
-    ("geometry kind 'sphere'", {"geometry": {"kind": "sphere", "radius_cm": 3.0}}),
-    ("geometry plate without length", {"geometry": {"kind": "plate", "width_cm": 20.0}}),
-    ("geometry unknown key 'lenght_cm'", {"geometry": {"kind": "plate", "width_cm": 20.0, "length_cm": 25.0, "lenght_cm": 5}}),
-    ("geometry tube radius 'big'", {"geometry": {"kind": "tube", "radius_cm": "big", "length_cm": 25.0}}),
     ("geometry tube radius 0", {"geometry": {"kind": "tube", "radius_cm": 0.0, "length_cm": 25.0}}),
     ("material 'unobtainium'", {"material": "unobtainium"}),
     ("material 'ABS' (upper case)", {"material": "ABS"}),
-    ("layout markers outside the plate (x0 100)", {"layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 1.2,
-                                                             "x0_cm": 100.0, "y0_cm": 12.5}}),
-    ("layout spacing negative", {"layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": -1.2, "x0_cm": 9.4, "y0_cm": 12.5}}),
-    ("layout spacing 0 (markers on top of each other)", {"layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 0.0,
-                                                                    "x0_cm": 9.4, "y0_cm": 12.5}}),
-    ("layout nx 2.5", {"layout": {"kind": "grid", "nx": 2.5, "ny": 1, "spacing_cm": 1.2, "x0_cm": 9.4, "y0_cm": 12.5}}),
-    ("layout nx '3' text", {"layout": {"kind": "grid", "nx": "3", "ny": 1, "spacing_cm": 1.2, "x0_cm": 9.4, "y0_cm": 12.5}}),
-    ("layout unknown key 'spacing'", {"layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing": 1.2, "spacing_cm": 1.2,
-                                                 "x0_cm": 9.4, "y0_cm": 12.5}}),
-    ("layout grid without spacing_cm", {"layout": {"kind": "grid", "nx": 3, "ny": 1, "x0_cm": 9.4, "y0_cm": 12.5}}),
     ("layout kind 'hex'", {"layout": {"kind": "hex", "nx": 3, "ny": 1, "spacing_cm": 1.2}}),
     ("layout one marker", {"layout": {"kind": "grid", "nx": 1, "ny": 1, "spacing_cm": 1.2, "x0_cm": 9.4, "y0_cm": 12.5}}),
     ("layout rings counts [0]", {"layout": {"kind": "rings", "counts": [0], "spacing_cm": 1.2}}),
-    ("layout rings counts [-3, 5]", {"layout": {"kind": "rings", "counts": [-3, 5], "spacing_cm": 1.2}}),
     ("layout a list", {"layout": [1, 2]}),
-    ("motion enabled 'yes' text", {"motion": {"enabled": "yes"}}),
-    ("motion unknown key 'speed'", {"motion": {"enabled": False, "speed": 3}}),
     ("noise unknown key", {"noise": {"snr_db": 3}}),
     ("temperature ambient_c 'warm'", {"temperature": {"ambient_c": "warm"}}),
     ("temperature ambient_c 1e6", {"temperature": {"ambient_c": 1e6}}),
-    ("temperature warmup_tau_s 0", {"temperature": {"ambient_c": 23.0, "warmup_c": 5.0, "warmup_tau_s": 0.0}}),
-    ("temperature unknown key 'ambient'", {"temperature": {"ambient": 30.0}}),
-    ("channel unknown key", {"channel": {"foo": 1}}),
     ("bond unknown key", {"bond": {"foo": 1}}),
     ("subjects [12]", {"subjects": [12]}),
     ("subjects [] empty", {"subjects": []}),
-    ("subjects [0, 0] duplicated", {"subjects": [0, 0]}),
     ("peak_force_n [10, 1] reversed", {"peak_force_n": [10.0, 1.0]}),
     ("peak_force_n [1, 1e6]", {"peak_force_n": [1.0, 1e6]}),
     ("seed -1", {"seed": -1}),
     ("seed 1.5", {"seed": 1.5}),
     ("seed 2**70", {"seed": 2 ** 70}),
-    ("name '../../x'", {"name": "../../x"}),
     ("name 42 (number)", {"name": 42}),
     ("part_s 0.001", {"part_s": 0.001}),
     ("order 'backwards'", {"order": "backwards"}),
@@ -1527,37 +1307,6 @@ def _(d):
     return wav_setup(d, csv_edit(lambda rows: rows[1].__setitem__(1, rows[1][1] + "s")))
 
 
-@probe("wavaudio", "stereo: ch0 is the TX loopback (the sweep itself), ch1 the receiver; default --channel 0")
-def _(d):
-    import soundfile as sf
-    argv = wav_setup(d)
-    ref, _ = sf.read(BASE / "sweep.wav", dtype="float32")
-    for s in ("s000", "s001", "s002"):
-        x, fs = sf.read(d / "rec" / f"{s}.wav", dtype="float32")
-        lo = np.resize(ref * 0.5, x.size)
-        sf.write(d / "rec" / f"{s}.wav", np.stack([lo, x], 1), fs, subtype="FLOAT")
-    return argv
-
-
-@probe("wavaudio", "a dropout: 0.5 s of zeros in the middle of a recording")
-def _(d):
-    argv = wav_setup(d)
-
-    def f(x):
-        y = x.copy()
-        y[300_000:396_000] = 0
-        return y
-    audio_edit(d, "s001.wav", f)
-    return argv
-
-
-@probe("wavaudio", "the same recording twice under two names", expect="either")
-def _(d):
-    argv = wav_setup(d)
-    shutil.copy(d / "rec" / "s001.wav", d / "rec" / "s001_copy.wav")
-    return argv
-
-
 @probe("wavaudio", "file names with spaces and non-ASCII", expect="ok")
 def _(d):
     argv = wav_setup(d)
@@ -1583,19 +1332,6 @@ def _(d):
     return spectra(d, session=lambda z: np.char.replace(z["session"].astype(str), "s00", "day "))
 
 
-@probe("spectra", "location names differing only in case")
-def _(d):
-    return spectra(d, location=lambda z: np.array(["rest", "wrist", "Wrist", "elbow"])[z["location"] + 1], x_cm=None, y_cm=None)
-
-
-@probe("dataset", "a complete session whose parts were all deleted (session.json left)")
-def _(d):
-    data = data_copy(d)
-    for p in (data / "s002").glob("part-*"):
-        p.unlink()
-    return ["evaluate", "--data", data, "--out", d / "rep", "--no-ablations"]
-
-
 @probe("dataset", "a session folder holding only a stray CSV named part-00000.csv", expect="error")
 def _(d):
     data = data_copy(d)
@@ -1618,13 +1354,7 @@ def _(d):
 
 
 for desc, kw in [
-    ("noise sensor_rms -1", {"noise": {"sensor_rms": -1.0}}),
-    ("noise sensor_rms 'loud'", {"noise": {"sensor_rms": "loud"}}),
-    ("noise pwm_harmonics 2.5", {"noise": {"pwm_harmonics": 2.5}}),
-    ("bond tan_delta 'x'", {"bond": {"tan_delta": "x"}}),
-    ("bond fr_hz -5", {"bond": {"fr_hz": -5.0}}),
     ("motion level 0.5 with enabled false", {"motion": {"enabled": False, "level": 0.5}}),
-    ("channel transducer_radius_m 0.5 (50 cm discs)", {"channel": {"transducer_radius_m": 0.5}}),
     ("tx_cm on the tube at x beyond the circumference", {"geometry": {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0},
                                                          "tx_cm": [100.0, 2.5], "rx_cm": [5.9, 22.5],
                                                          "layout": {"kind": "grid", "nx": 3, "ny": 1, "spacing_cm": 1.2,
@@ -1652,12 +1382,6 @@ def _(d):
 
 
 # -- round 3 -------------------------------------------------------------------------------------------------------
-@probe("spectra", "optional array misspelled: force instead of force_n")
-def _(d):
-    z = dict(np.load(BASE / "spectra.npz"))
-    z["force"] = z.pop("force_n")
-    np.savez(d / "t.npz", **z)
-    return ["import-spectra", "--table", d / "t.npz", "--out", d / "out"]
 
 
 @probe("spectra", "required array in other case: Location")
@@ -1669,10 +1393,6 @@ def _(d):
 
 
 # -- round 4: sizes -----------------------------------------------------------------------------------------------
-@probe("wavcsv", "20 000 copies of one interval (overlapping rows)", expect="ok")
-def _(d):
-    rows = base_rows()
-    return wav_setup(d, "\n".join(rows + [rows[1]] * 20_000) + "\n"), same_as_ref
 
 
 @probe("spectra", "every row its own location (3156 distinct ids with coordinates)", expect="ok")
@@ -1680,8 +1400,77 @@ def _(d):
     return spectra(d, location=lambda z: np.arange(z["location"].size), x_cm=lambda z: np.arange(z["location"].size) * 0.01,
                    y_cm=lambda z: np.zeros(z["location"].size))
 
+# -- run --------------------------------------------------------------------------------------------------------------
+# The verdict a person gave where the automatic class (exit code, one line, traceback) cannot tell: (verdict, why).
+JUDGED = {
+    '--sweep time-reversed (down-chirp instead of up)':
+        ('SILENT-WRONG (left)', "frames cut at another offset: features differ by a median 0.15 dB from the right sweep's "
+                                "(max 60 dB near touch edges); the phase-coherence gap (0.78 vs 0.39) is too small to refuse on"),
+    'magnitude in linear power (10**(dB/10))':
+        ('ok-warned', "one warning line: 'looks linear, not dB ... import with --linear'"),
+    'magnitude dB +1e6 (huge offset)':
+        ('ok-warned', "one warning line 'looks linear'; relative levels (the data) intact"),
+    'only 2 frequency columns':
+        ('ok-accepted-correctly', 'a 2-bin rig; gamma is clamped to the band'),
+    '--rig jaco with a table of the small rig':
+        ('ok-accepted (documented)', 'another rig interpolates the table (docstring)'),
+    'location labels numeric cm positions incl. negative -1.5 cm':
+        ('ok-accepted (documented)', 'a negative number means no touch (module docstring, README); left'),
+    'x_cm in mm (x10) for every row':
+        ('accepted (left)', 'a consistent unit mistake in coordinates cannot be told from a big link'),
+    '--data dataset.json not readable (chmod 000)':
+        ('n/a (root)', 'the probes run as root: permissions are not enforced'),
+    '--data session folder not readable (chmod 000)':
+        ('n/a (root)', 'the probes run as root: permissions are not enforced'),
+    'one session only: fit-svm':
+        ('ok-accepted-correctly', 'fit-svm trains on every session; evaluate refuses (no test session)'),
+    'training session with no touch (every location -1, resealed)':
+        ('ok-accepted-correctly', 'fit-svm trains on all sessions; evaluate (trains on s000) refuses in one line'),
+    'training session touches one location only (others relabelled 0, resealed)':
+        ('ok-accepted-correctly', "as above: evaluate refuses 'training data holds a single touch location'"),
+    "training session without calibration rows (all rest rows are 'gap')":
+        ('ok-accepted-correctly', 'the reference uses rest rows'),
+    "no-touch row with segment 'touch' (resealed)":
+        ('ok-accepted-correctly', "legitimate: `record` labels a touch prompt's reaction time as touch with location -1"),
+    'no-touch row with a force of 5 N (resealed)':
+        ('ok-accepted (unused)', "a no-touch row's force is used nowhere"),
+    "CSV: location ' 1' with a space (resealed)":
+        ('ok-accepted-correctly', "int(' 1') is 1: the same labels"),
+    'CSV: t_s of every row shifted by exactly one period (resealed)':
+        ('SILENT-WRONG (left)', "a forged manifest: labels move one chirp; writers may legitimately start on chirp 1 (record's framer)"),
+    'CSV: the last 50 rows deleted (labels shorter than audio, resealed)':
+        ('ok-accepted-correctly', 'unlabelled audio is not used'),
+    'FLAC of s001 replaced by a WAV with the .flac name (resealed)':
+        ('ok-accepted-correctly', 'the same samples'),
+    'touch_s 0.001 (shorter than one chirp)':
+        ('ok-accepted-correctly', 'rounded up to one chirp (Rig.seconds_to_chirps)'),
+    'calibration_s 0.001 (shorter than one chirp)':
+        ('ok-accepted-correctly', 'one chirp; the model verbs warn about a short reference'),
+    'layout one marker':
+        ('accepted (left)', 'a 1-marker simulation is valid data; the model verbs refuse one location'),
+    'seed 2**70':
+        ('ok-accepted-correctly', 'numpy seeds take big integers'),
+    'part_s 0.001':
+        ('ok-accepted-correctly', 'one-chirp parts'),
+    'motion level 0.5 with enabled false':
+        ('ok-accepted-correctly', 'motion is off'),
+    'tx_cm on the tube at x beyond the circumference':
+        ('ok-accepted-correctly', 'a tube is periodic around x'),
+    'a recording with no label row at all (extra file)':
+        ('ok-accepted-correctly', 'a hands-off session'),
+    'header with spaces after commas':
+        ('ok-accepted-correctly', 'the same labels as the clean file (compared)'),
+    'every row its own session':
+        ('ok-accepted-correctly', 'fit-svm uses absolute features (warned); evaluate refuses one-row training'),
+    'magnitude int8 (dB rounded)':
+        ('ok-clear-error', 'int8 wrapped -152 dB to +104: the table is damaged'),
+    'x_cm all NaN with numeric labels':
+        ('ok-clear-error', "the probe also dropped y_cm: 'has x_cm but not y_cm'"),
+    'temperature ambient_c 1e6':
+        ('ok-clear-error', 'refused before simulating; before: five numpy warning lines, then the error at the first part'),
+}
 
-# -- run --------------------------------------------------------------------------------------------------
+
 def classify(expect, rc, err, timed_out):
     lines = [ln for ln in err.splitlines() if ln.strip() and ": warning:" not in ln]
     if timed_out:
@@ -1697,50 +1486,65 @@ def classify(expect, rc, err, timed_out):
     return f"EXIT-{rc}"
 
 
-def main():
-    OUT.mkdir(parents=True, exist_ok=True)
-    results = []
+def run_probe(pid, desc, expect, fn, out: Path, env) -> dict:
+    d = out / pid
+    shutil.rmtree(d, ignore_errors=True)
+    d.mkdir(parents=True)
+    try:
+        got = fn(d)
+    except Exception as e:  # the probe's own setup failed
+        return {"id": pid, "desc": desc, "verdict": f"SETUP-FAILED {e!r}", "last": ""}
+    argv, check = (got if isinstance(got, tuple) else (got, None))
+    argv = [str(a) for a in argv]
+    try:
+        p = subprocess.run([EXE, *argv], capture_output=True, text=True, timeout=60, env=env, cwd=d)
+        rc, stdout, err, to = p.returncode, p.stdout, p.stderr, False
+    except subprocess.TimeoutExpired as e:
+        rc, stdout, err, to = None, (e.stdout or b"").decode(errors="replace"), (e.stderr or b"").decode(errors="replace"), True
+    verdict = classify(expect, rc, err, to)
+    if check and not to:
+        try:
+            verdict = check(d, rc, stdout, err) or verdict
+        except Exception as e:
+            verdict = f"CHECK-FAILED {e!r}"
+    if desc in JUDGED and rc in (0, 2) and not verdict.startswith(("TRACEBACK", "MULTI-LINE", "CHECK-FAILED")):
+        verdict = f"{JUDGED[desc][0]} ({JUDGED[desc][1]})" if JUDGED[desc][1] else JUDGED[desc][0]
+    lines = [ln for ln in (err.splitlines() or stdout.splitlines()) if ln.strip()]
+    for p_ in d.rglob("*"):  # chmod 000 probes: give the tree back
+        try:
+            os.chmod(p_, 0o755)
+        except OSError:
+            pass
+    return {"id": pid, "desc": desc, "argv": " ".join(argv), "rc": rc, "verdict": verdict, "last": (lines or [""])[-1][:300]}
+
+
+def main(argv=None) -> int:
+    global BASE
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", type=Path, default=Path("reports/hostile-data"), help="work folder (default: %(default)s)")
+    ap.add_argument("--filter", default="", help="only probes whose id or description holds this text")
+    a = ap.parse_args(argv)
+    BASE = a.out.resolve() / "base"
+    if not (BASE / "art_other" / "skin.json").is_file():
+        shutil.rmtree(BASE, ignore_errors=True)
+        print(f"building the inputs in {BASE}", file=sys.stderr, flush=True)
+        build_base(BASE)
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    for pid, cat, desc, expect, fn in PROBES:
-        if FILTER and FILTER not in pid and FILTER not in desc:
+    results = []
+    for pid, _cat, desc, expect, fn in PROBES:
+        if a.filter and a.filter not in pid and a.filter not in desc:
             continue
-        d = OUT / pid
-        shutil.rmtree(d, ignore_errors=True)
-        d.mkdir(parents=True)
-        try:
-            got = fn(d)
-        except Exception as e:  # the probe's own setup failed
-            results.append({"id": pid, "cat": cat, "desc": desc, "verdict": f"SETUP-FAILED {e!r}"})
-            print(pid, "SETUP-FAILED", e)
-            continue
-        argv, check = (got if isinstance(got, tuple) else (got, None))
-        argv = [str(a) for a in argv]
-        try:
-            p = subprocess.run([EXE, *argv], capture_output=True, text=True, timeout=60, env=env, cwd=d)
-            rc, out, err, to = p.returncode, p.stdout, p.stderr, False
-        except subprocess.TimeoutExpired as e:
-            rc, out, err, to = None, (e.stdout or b"").decode(errors="replace"), (e.stderr or b"").decode(errors="replace"), True
-        verdict = classify(expect, rc, err, to)
-        if check and not to:
-            try:
-                v = check(d, rc, out, err)
-            except Exception as e:
-                v = f"CHECK-FAILED {e!r}"
-            verdict = v or verdict
-        errl = [ln for ln in err.splitlines() if ln.strip()]
-        outl = [ln for ln in out.splitlines() if ln.strip()]
-        r = {"id": pid, "cat": cat, "desc": desc, "argv": " ".join(a.replace(str(OUT), "$D") for a in argv), "rc": rc,
-             "first": (errl or outl or [""])[0][:300], "last": (errl or outl or [""])[-1][:300], "verdict": verdict,
-             "warnings": [ln[:300] for ln in errl if ": warning:" in ln]}
+        r = run_probe(pid, desc, expect, fn, a.out.resolve() / "probes", env)
         results.append(r)
-        print(f"{pid:14s} {verdict:24s} rc={rc} | {desc}\n      {r['last'][:250]}", flush=True)
-        for p_ in d.rglob("*"):  # chmod 000 probes: give the tree back
-            try:
-                os.chmod(p_, 0o755)
-            except OSError:
-                pass
-    (OUT / "results.json").write_text(json.dumps(results, indent=1))
+        print(f"{pid:14s} {r['verdict'][:60]:60s} | {desc}", flush=True)
+    (a.out / "results.json").write_text(json.dumps(results, indent=1))
+    counts = Counter(r["verdict"].split(" (")[0] for r in results)
+    print(f"{len(results)} probes: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
+    bad = [r for r in results if not r["verdict"].startswith(("ok", "accepted", "n/a", "SILENT-WRONG (left)"))]
+    for r in bad:
+        print(f"NOT OK {r['id']} {r['desc']}: {r['verdict']}\n    {r['last']}")
+    return 1 if bad else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
