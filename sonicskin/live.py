@@ -316,9 +316,14 @@ class LiveLoop:
         if was_calibrating and not self.stream.calibrating and self.boot_spread_db is None:
             self._boot_check()
         if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
-            self.warn(f"boot calibration disturbed: {self.boot_faults} faulty chirp(s) (NaN, dropout, silence, a constant level or clipping) "
-                      f"in the first {ref.beta / ref.cps:.1f} s; reference from the {ref.boot_chirps} clean chirps of "
-                      f"that window, re-taken from the next {ref.beta / ref.cps:.1f} s of rest")
+            c = self.source.counters()
+            lost = (f"{self.boot_faults} faulty chirp(s) (NaN, dropout, silence, a constant level or clipping)"
+                    if self.boot_faults else  # none faulty: the chirps were cut by lost audio (a slow start, a busy machine)
+                    f"chirps cut by lost audio ({c['overflows'] + c['dropped_blocks']} overflows or dropped blocks, "
+                    f"{self.framer.relocks} re-locks)")
+            self.warn(f"boot calibration disturbed: {lost} in the first {ref.beta / ref.cps:.1f} s; reference from the "
+                      f"{ref.boot_chirps} clean chirps of that window, re-taken from the next {ref.beta / ref.cps:.1f} s "
+                      f"of rest")
         if self.on_chirp is not None:
             self.on_chirp(t_s, p)
         if p is None:  # boot calibration

@@ -429,3 +429,25 @@ def test_live_without_an_artifact_names_the_one_it_reuses(cli_files, tmp_path, m
     assert code == 0 and out, err
     assert err.splitlines()[0] == ("no --artifact: using artifacts/sim-tiny-svm, trained on the simulated 'tiny' link by "
                                    "an earlier run (delete it to train again)")
+
+
+def test_a_boot_cut_by_lost_audio_says_so(cli_files):
+    """A boot window that lost chirps to dropped blocks (no faulty frame) warned of '0 faulty chirp(s) (NaN, dropout,
+    silence, ...)': it names the lost audio now."""
+    from sonicskin.acquire import SimulatedSource
+    from sonicskin.live import LiveLoop
+    from sonicskin.rig import Rig
+    from sonicskin.runtime import SkinRuntime
+    from sonicskin.sim import Scenario, Simulator, build_timeline
+
+    rig, sc = Rig.load(cli_files["rig"]), Scenario.load(cli_files["scenario"]).replace(sessions=1)
+    src = SimulatedSource(Simulator(sc, rig), build_timeline(sc, rig), realtime=False, drop_every=40)
+    warnings: list[str] = []
+    loop = LiveLoop(SkinRuntime(cli_files["artifact"], "svm"), src, emit=lambda _: None, warn=warnings.append)
+    with src:
+        summary = loop.run()
+    assert summary["boot_disturbed"] and sum(summary["skipped"].values()) == 0
+    assert len(warnings) == 1 and re.fullmatch(
+        r"boot calibration disturbed: chirps cut by lost audio \(\d+ overflows or dropped blocks, [1-9]\d* re-locks\) in "
+        r"the first 3\.0 s; reference from the \d+ clean chirps of that window, re-taken from the next 3\.0 s of rest",
+        warnings[0]), warnings
