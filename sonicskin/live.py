@@ -1,18 +1,19 @@
 """The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
 
-The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs one FFT,
-one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
+The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs two FFTs and
+an inverse FFT of one period (the features, the chirp check), one ONNX call and some numpy, a few
+percent of the 106.7 ms chirp period.
 
 - **Framing** locks onto the chirp train by cross-correlation over one period, then cuts frames
   every ``n_chirp`` samples; a discontinuity (overflow, dropped block) or a drift of the
   correlation peak makes it discard what it holds and lock again.
-- **Per chirp** one call, :meth:`sonicskin.runtime.SkinStream.frame`: features, Alg. 2's online
+- **Per chirp** the band features, then one call, :meth:`sonicskin.runtime.SkinStream.chirp`: Alg. 2's online
   reference (the first ``beta`` seconds are taken as no-touch, as the system starts with hands
   off; every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected become the
   new reference), model, detection, force.  Offline evaluation replays recordings through the
   same object (:meth:`sonicskin.runtime.SkinStream.replay`).
-- **Faults**: frames with NaN/inf, silence, clipping or a dropout (a run of exact zeros, which no
-  live ADC produces) are skipped and counted and never reach the model; overflows and underflows
+- **Faults**: frames with NaN/inf, silence, clipping, a constant level or a dropout (a run of exact
+  zeros, which no live ADC produces) are skipped and counted and never reach the model; overflows and underflows
   are counted.  A boot calibration that loses chirps to such faults is detected
   (:class:`~sonicskin.calibration.OnlineReference`) and re-taken from later rest, with one warning.
 - **Watchdog and clock**: ``duration_s`` is honoured by the wall clock (and by stream time, when a
@@ -55,20 +56,21 @@ class DeviceLost(AudioError):
 # Chirp-to-chirp spread (std, dB) of the band features over the boot window, median over the usable bins: a repeating
 # chirp gives ~0.1 dB on every shipped rig and scenario (moving robot, aluminium plate, several people), noise without a
 # chirp (the transmitter off) the Rayleigh figure, 5.6 dB.  (Only for the hands-off boot: a moving robot's motor noise
-# raises the spread of a valid run to 3.4-4.2 dB, so the rest of the run is checked by the chirp's lock below.)
+# raises the spread of a valid run to 3.4-4.2 dB, so the rest of the run is checked by the chirp coherence below.)
 NO_CHIRP_SPREAD_DB = 4.0
 # After the boot, every frame must repeat the one before: the chirp-to-chirp coherence (chirp_coherence) of a chirp
-# train is 0.84-1.00 per frame, and its median over any LOCK_WINDOW_S at least 0.98, on every shipped rig and scenario
+# train is 0.84-1.00 per frame, and its median over any CHIRP_CHECK_S at least 0.98, on every shipped rig and scenario
 # (touches, a moving robot and its motor noise, reverberant random links whose matched-filter peak is barely above
 # noise's); noise alone gives at most 0.1 per frame (the largest of the window's lags), 0.04 as a median.
 MIN_COHERENCE = 0.5
-LOCK_WINDOW_S = 1.0  # a chirp lost mid-run stops the run about half of this later
+CHIRP_CHECK_S = 1.0  # a chirp lost mid-run stops the run about half of this later
 MIN_AC_RMS = 1e-7  # a frame whose samples vary (std) by less is a constant level: a DC offset with no signal on it
 
 
 class InputUnusable(DeviceLost):
     """Audio arrives but for the watchdog's time not one chirp of it could be used (all NaN, silent,
-    clipped or cut by lost blocks): the model would be blind while the loop looked healthy."""
+    clipped, constant or cut by lost blocks), or it holds no chirp (noise alone, at boot or for a
+    second of the run): the model would be blind, or see noise, while the loop looked healthy."""
 
 
 def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
@@ -282,7 +284,7 @@ class LiveLoop:
         self.boot_spread_db: float | None = None
         # the running check (_no_chirp): the last usable frame's band spectrum, the recent coherences
         self._prev_spectrum: np.ndarray | None = None
-        self.coherences: collections.deque = collections.deque(maxlen=max(8, math.ceil(LOCK_WINDOW_S * self.rig.chirps_per_s)))
+        self.coherences: collections.deque = collections.deque(maxlen=max(8, math.ceil(CHIRP_CHECK_S * self.rig.chirps_per_s)))
 
     @property
     def refreshes(self) -> int:
@@ -390,7 +392,7 @@ class LiveLoop:
         """The chirp must stay in the input for the whole run, not only at boot: a transmitter that stopped, or an input
         that turned to noise after a good boot, gave about 9 touch events a second from noise, with no error.
 
-        Every frame's :func:`chirp_coherence` with the last usable frame joins the last :data:`LOCK_WINDOW_S` of them.
+        Every frame's :func:`chirp_coherence` with the last usable frame joins the last :data:`CHIRP_CHECK_S` of them.
         After the boot (which has its own check, :meth:`_boot_check`), a frame below :data:`MIN_COHERENCE` is skipped
         (True: it never reaches the model, so noise gives no touch event), and a window in which more than half are
         below it stops the run (:class:`InputUnusable`: the chirp is gone, not one odd frame).  Costs an FFT and an

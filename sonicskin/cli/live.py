@@ -62,7 +62,7 @@ def json_safe(obj):
 
 def _live_links(a: argparse.Namespace) -> int:
     """``live --links NAME``: several links on one audio interface (configs/links), one model and one loop per link."""
-    from ..acquire import SoundDeviceSource, check_blocksize, load_links
+    from ..acquire import SoundDeviceSource, load_links
     from ..live import LiveLoop, UdpSink, run_loops
     from ..rig import Rig
     from ..runtime import SkinRuntime
@@ -76,7 +76,6 @@ def _live_links(a: argparse.Namespace) -> int:
     if len(arts) != len(links):
         raise UsageError(f"--links {a.links} has {len(links)} links ({', '.join(lk.name for lk in links)}); pass "
                          f"--link-artifact DIR once per link, in that order (got {len(arts)})")
-    check_blocksize(a.blocksize, "--blocksize")
     for art in arts:
         if not (Path(art) / "skin.json").is_file():
             raise FileNotFoundError(f"{art} is not a sonicskin artifact (no skin.json there); train one per link on "
@@ -125,6 +124,16 @@ def cmd_live(a: argparse.Namespace) -> int:
     from ..live import DeviceLost, LiveLoop, UdpSink
     from ..runtime import SkinRuntime
 
+    check_blocksize(a.blocksize, "--blocksize")
+    if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
+        raise UsageError(f"--lsl {a.lsl!r}: the stream needs a name (e.g. --lsl sonicskin, or --lsl alone for that "
+                         f"default)")
+    if a.drop_every is not None and a.device != "sim":
+        raise UsageError("--drop-every injects lost blocks into the simulated device (--device sim); a real device "
+                         "loses its own")
+    if a.drop_every == 1:
+        raise UsageError("--drop-every 1 drops every audio block, so nothing would reach the loop; give N >= 2 "
+                         "(one block lost in N)")
     if getattr(a, "links", None):
         return _live_links(a)
 
@@ -137,16 +146,6 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
         raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin fit-svm` or `sonicskin export`")
-    check_blocksize(a.blocksize, "--blocksize")
-    if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
-        raise UsageError(f"--lsl {a.lsl!r}: the stream needs a name (e.g. --lsl sonicskin, or --lsl alone for that "
-                         f"default)")
-    if a.drop_every is not None and a.device != "sim":
-        raise UsageError("--drop-every injects lost blocks into the simulated device (--device sim); a real device "
-                         "loses its own")
-    if a.drop_every == 1:
-        raise UsageError("--drop-every 1 drops every audio block, so nothing would reach the loop; give N >= 2 "
-                         "(one block lost in N)")
     if sys.stdout is None and not (a.udp or a.lsl):  # started with stdout closed (`>&-`): print() drops every event
         raise UsageError("stdout is closed, so the touch events would go nowhere; send them to a file or a pipe "
                          "(`sonicskin live ... > events.jsonl`), or add --udp/--lsl")
