@@ -46,8 +46,8 @@ def _device(fault: str, good_s: float, *, fault_s: float = 6.0):
 
 
 CHIRP_LOST = (r"sonicskin live: error: the chirp was lost: (9[5-9]|1[0-9][0-9]) of the last 188 chirps \(1\.0 s\) do not "
-              r"repeat the chirp before them \(coherence median 0\.[0-2]\d; a chirp train's is 0\.84-1\.00, noise's below "
-              r"0\.3\); is the transmitter still playing on output --tx and reaching the receiver\? check it with "
+              r"repeat the chirp before them \(coherence median 0\.[0-2]\d; a chirp train's is 0\.92-1\.00, noise's "
+              r"0\.03-0\.25\); is the transmitter still playing on output --tx and reaching the receiver\? check it with "
               r"`sonicskin check`")
 
 
