@@ -13,6 +13,7 @@ the next block as a discontinuity, never fatal; the live loop re-locks its frami
 from __future__ import annotations
 
 import dataclasses
+import os
 import queue
 import threading
 import time
@@ -20,15 +21,30 @@ import time
 import numpy as np
 
 from .dsp import rig_chirp
+from .errors import SonicskinError
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "Link", "load_links", "import_sounddevice", "list_devices", "find_device", "resolve_device",
+__all__ = ["Block", "AudioError", "MAX_BLOCKSIZE", "check_blocksize", "Link", "load_links", "import_sounddevice", "list_devices", "find_device", "resolve_device",
            "check_device_rate", "SoundDeviceSource",
            "SimulatedSource", "RecordingSource"]
 
 
-class AudioError(RuntimeError):
-    """No usable audio device, rate or library; the message says what to do."""
+class AudioError(SonicskinError, RuntimeError):
+    """No usable audio device, rate or library, or a device that stopped; the message says what to do.
+
+    A :class:`~sonicskin.errors.SonicskinError` (one line from the CLI, caught by ``except SonicskinError`` in a
+    robot program) that is still a ``RuntimeError``, as it was before."""
+
+
+MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds the whole run in one block
+
+
+def check_blocksize(value, name: str = "blocksize") -> int:
+    """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`; otherwise one :class:`SonicskinError` line
+    (the same for the API's ``blocksize=`` and the CLI's ``--blocksize``)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_BLOCKSIZE:
+        raise SonicskinError(f"{name} must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {value!r}")
+    return value
 
 
 @dataclasses.dataclass
@@ -177,8 +193,27 @@ def check_device_rate(idx: int, rig: Rig, n_in: int, n_out: int) -> None:
                          f"{rig.fs_hz:g} Hz or use a rig config with its rate") from None
 
 
+def thread_cpu_s(thread: threading.Thread | None) -> float | None:
+    """CPU seconds a running thread has used (Linux: ``/proc/self/task/<tid>/stat``), ``None`` where that cannot be read
+    (another OS, or the thread has ended)."""
+    tid = getattr(thread, "native_id", None)
+    if tid is None or not thread.is_alive():
+        return None
+    try:
+        with open(f"/proc/self/task/{tid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime, in clock ticks
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class _QueueSource:
     """Shared consumer side: a bounded queue of blocks, counters, and a clean shutdown."""
+
+    #: what the consumer's watchdog says when this source delivers nothing (:func:`sonicskin.live.run_loops`)
+    stall_text = ("no audio from the device for {s:g} s (the audio server or the interface stopped, or the cable is out); "
+                  "check it with `sonicskin devices` and start again")
+    error: BaseException | None = None  # what ended a producer thread early (raised in the consumer's thread)
 
     def __init__(self, rig: Rig, blocksize: int, max_queued_s: float = 2.0):
         self.rig, self.blocksize = rig, int(blocksize)
@@ -210,6 +245,19 @@ class _QueueSource:
 
     def counters(self) -> dict:
         return {"overflows": self.overflows, "underflows": self.underflows, "dropped_blocks": self.dropped_blocks}
+
+    def producer_cpu_s(self) -> float | None:
+        """CPU seconds the producer thread has used (a simulated or recorded source's; ``None`` for a device, whose
+        producer is the audio driver): a producer that still computes (a slow first render) is alive."""
+        return thread_cpu_s(getattr(self, "_thread", None))
+
+    def _run_producer(self) -> None:
+        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
+        instead of a stream that just stops."""
+        try:
+            self._produce()
+        except BaseException as e:  # handed to the consumer's thread
+            self.error = e
 
     def __enter__(self):
         self.start()
@@ -284,6 +332,10 @@ class SoundDeviceSource(_QueueSource):
 
 
 class SimulatedSource(_QueueSource):
+
+    stall_text = ("no audio from the simulated device for {s:g} s: its producer thread stopped delivering without ending "
+                  "the stream (and is not computing); start again")
+
     """The simulated rig as an audio source: scripted touches from a scenario, rendered ahead in
     a producer thread and delivered block by block, in real time or as fast as it is read.
 
@@ -303,7 +355,7 @@ class SimulatedSource(_QueueSource):
         self.realtime, self.drop_every = realtime, drop_every
         self.offset, self.chunk = int(offset) % simulator.rig.n_chirp, int(chunk_chirps)
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._produce, name="sonicskin-sim-audio", daemon=True)
+        self._thread = threading.Thread(target=self._run_producer, name="sonicskin-sim-audio", daemon=True)
         self.finished = threading.Event()
 
     def chirp_start(self, k: int) -> int:
@@ -367,6 +419,10 @@ class SimulatedSource(_QueueSource):
 
 
 class RecordingSource(_QueueSource):
+
+    stall_text = ("no audio from the recording for {s:g} s: its reader thread stopped delivering without ending the "
+                  "stream (and is not computing); start again")
+
     """A recorded session of a dataset played as an audio source (its parts in order, block by block),
     so a recording runs through the live loop exactly as it was received.
 
@@ -381,7 +437,7 @@ class RecordingSource(_QueueSource):
         super().__init__(dataset.rig, blocksize)
         self.dataset, self.session, self.realtime = dataset, session, realtime
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._produce, name="sonicskin-recording", daemon=True)
+        self._thread = threading.Thread(target=self._run_producer, name="sonicskin-recording", daemon=True)
         self.finished = threading.Event()
 
     def audio(self) -> np.ndarray:

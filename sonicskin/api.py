@@ -29,7 +29,7 @@ import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .errors import SonicskinError
+from .errors import ConfigNotFoundError, SonicskinError
 from .events import TouchEvent
 
 __all__ = ["listen", "Listener"]
@@ -37,13 +37,17 @@ __all__ = ["listen", "Listener"]
 _END = object()
 
 
-MAX_BLOCKSIZE = 2**20  # frames per audio block (5 s at 192 kHz)
+MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz); the CLI's --blocksize has the same cap (acquire)
 
 
-def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocksize) -> None:
+def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocksize, scenario=None, rig=None, fast=False,
+                     on_event=None) -> None:
     """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (a negative blocksize hung the
-    simulated device, 0 divided by zero, strings compared with numbers in the loop's thread)."""
+    simulated device, 0 divided by zero, strings compared with numbers in the loop's thread, ``fast="no"`` meant
+    true, ``on_event="print"`` failed at the first touch, ``scenario=None`` was a TypeError)."""
     import math
+
+    from .acquire import check_blocksize
 
     def number(v):
         return isinstance(v, (int, float)) and not isinstance(v, bool)
@@ -62,8 +66,23 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocks
     for name, v in (("tx", tx), ("rx", rx)):
         if not (count(v) and v >= 0):
             raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
-    if not (count(blocksize) and 1 <= blocksize <= MAX_BLOCKSIZE):
-        raise SonicskinError(f"blocksize must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {blocksize!r}")
+    check_blocksize(blocksize)
+    if not isinstance(scenario, (str, Path)):
+        raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")
+    if not (rig is None or isinstance(rig, (str, Path))):
+        raise SonicskinError(f"rig must be None (the artifact's own), a rig name or a YAML path, got {rig!r}")
+    if not isinstance(fast, bool):
+        raise SonicskinError(f"fast must be True or False, got {fast!r}")
+    if not (on_event is None or callable(on_event)):
+        raise SonicskinError(f"on_event must be a function called with each TouchEvent (or None), got {on_event!r}")
+
+
+def _load_config(load, what: str):
+    """A rig or scenario config; a name that is no config is :class:`ConfigNotFoundError` (still a FileNotFoundError)."""
+    try:
+        return load(what)
+    except FileNotFoundError as e:
+        raise ConfigNotFoundError(str(e)) from None
 
 
 class Listener:
@@ -79,10 +98,14 @@ class Listener:
         its marker layout must be the artifact's.
     rig : rig name or YAML (default: the artifact's own).
     tx, rx : output and input channel (0-based) of a real interface.
-    fast : simulated device only: run faster than real time.
-    on_event : called in the listener's thread with each :class:`TouchEvent`; keep it short.
-    watchdog_s : a real device that delivers no audio for this long ends the run with
-        :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`).
+    fast : simulated device only: run faster than real time (``True`` or ``False``).
+    on_event : a function called in the listener's thread with each :class:`TouchEvent`; keep it short.
+    watchdog_s : a device (or the simulated one, at any pace) that delivers no audio for this long ends the run with
+        :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`); so does a run
+        whose input holds no usable chirp (:class:`sonicskin.live.InputUnusable`, a ``DeviceLost``).
+
+    Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError` with one line that
+    names the fix (:class:`~sonicskin.acquire.AudioError` and ``DeviceLost`` among them).
     """
 
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str = "svm",
@@ -95,17 +118,17 @@ class Listener:
         from .runtime import SkinRuntime
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
-                         blocksize=blocksize)
+                         blocksize=blocksize, scenario=scenario, rig=rig, fast=fast, on_event=on_event)
         art = Path(artifact)
         if not (art / "skin.json").is_file():
             raise SonicskinError(f"{art} is not a sonicskin artifact (no skin.json there); create one with "
                                  f"`sonicskin fit-svm` or `sonicskin export`")
-        the_rig = Rig.load(rig) if rig is not None else None
+        the_rig = _load_config(Rig.load, rig) if rig is not None else None
         self.runtime = SkinRuntime(art, model, rig=the_rig)
         if device is None or device == "sim":
             from .sim import Scenario, Simulator, build_timeline
 
-            sc = Scenario.load(scenario)
+            sc = _load_config(Scenario.load, scenario)
             layout = sc.make_layout()
             if self.runtime.layout != layout:
                 raise SonicskinError(f"the artifact knows {len(self.runtime.layout)} markers but scenario {sc.name!r} has "

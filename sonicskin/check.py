@@ -45,22 +45,25 @@ __all__ = ["Capture", "CheckLine", "CheckReport", "SimulatedDevice", "simulated_
 
 FAULTS = ("none", "disconnected", "clipping", "weak", "wrong-channel", "rate")
 MIN_REST_CHIRPS = 9   # the lock offset takes up to one period; the delay, SNR and repeatability lines need 8 whole chirps
+MIN_PRESS_CHIRPS = 3  # the touch contrast takes the pressed half of the whole chirps after the lock offset: 2 at least
 MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on every input
 
 
 def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
     """The rest and press windows the check records, before anything is played: long enough for its measurements,
     short enough to hold in memory (``--rest 0.001`` failed the chirp lock as 'no chirp on any input', blaming the
-    cables; ``--rest 1e9`` asked numpy for 1.4 TiB)."""
+    cables; ``--rest 1e9`` asked numpy for 1.4 TiB; ``--press 0.05`` reported 'touch contrast: fail', which reads as a
+    rig fault, for a press too short to measure)."""
     import math
 
-    need = MIN_REST_CHIRPS * rig.period_s
-    for name, v, lo in (("--rest", rest_s, need), ("--press", press_s, 0.0)):
+    for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
+                             ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
             raise SonicskinError(f"{name} {v:g}: give seconds in (0, {MAX_WINDOW_S:g}]")
-        if v < lo:
-            raise SonicskinError(f"{name} {v:g} s holds fewer than the {MIN_REST_CHIRPS} chirp periods the check needs at rest "
-                                 f"({rig.period_s * 1e3:.1f} ms each): give --rest {math.ceil(need * 10) / 10:g} or more")
+        need = n * rig.period_s
+        if v < need:
+            raise SonicskinError(f"{name} {v:g} s holds fewer than the {n} chirp periods the check needs {what} "
+                                 f"({rig.period_s * 1e3:.1f} ms each): give {name} {math.ceil(need * 10) / 10:g} or more")
 
 # pass at or above the first value, warn at or above the second, fail below (lower-is-better rows say so)
 THRESHOLDS = {

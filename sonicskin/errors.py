@@ -4,12 +4,13 @@ Every error a user can cause by what they pass in (a file that is not a dataset,
 another rig, a value out of range) derives from :class:`SonicskinError`.  ``sonicskin <verb>``
 prints such an error as one line, ``sonicskin <verb>: error: <message>``, and exits with code 2;
 anything else is a bug and keeps its traceback.  :class:`SonicskinError` is a ``ValueError``, so
-code that caught ``ValueError`` before keeps working.
+code that caught ``ValueError`` before keeps working; the subclasses below also keep the built-in
+type they replaced (``except FileNotFoundError`` still catches a config that is not there).
 """
 
 from __future__ import annotations
 
-__all__ = ["SonicskinError", "UsageError"]
+__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError"]
 
 
 class SonicskinError(ValueError):
@@ -18,3 +19,7 @@ class SonicskinError(ValueError):
 
 class UsageError(SonicskinError):
     """A combination of command-line options that cannot work (checked before anything runs)."""
+
+
+class ConfigNotFoundError(SonicskinError, FileNotFoundError):
+    """A rig, scenario or links config name (or YAML path) that names no config; the message lists the known names."""

@@ -3,7 +3,9 @@
 Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, UDP, LSL) is a
 :class:`TouchEvent`; its JSON form is described by :data:`EVENT_SCHEMA` (a JSON Schema, draft
 2020-12) and checked by :func:`validate_event`.  The schema carries a version, ``v``: a reader
-accepts the major version it knows; fields are only ever *added* within a version.
+accepts the major version it knows; fields are only ever *added* within a version, so a reader of
+version 1 accepts an event with fields it does not know (a later 1.x writer's), ignores them and
+keeps them (:attr:`TouchEvent.extra`, written back by :meth:`TouchEvent.to_json`).
 
 Semantics (version 1)
 ---------------------
@@ -26,6 +28,8 @@ Semantics (version 1)
   sure the model is about *where*, not whether there is a touch (the detector decides that).
 - ``model``: ``"svm"`` or ``"net"``, the artifact model that produced the event.
 - ``latency_ms``: processing time from the chirp's last sample being available to the event.
+- ``link`` (optional): the name of the link that sensed it, on a multi-link rig (``sonicskin live
+  --links``: the links config's ``name``); absent on a single link.
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ EVENT_SCHEMA: dict[str, Any] = {
     "title": "sonicskin touch event",
     "type": "object",
     "required": ["v", "t_s", "kind", "location", "x_cm", "y_cm", "force_n", "confidence", "model", "latency_ms"],
-    "additionalProperties": False,
+    "additionalProperties": True,  # fields are only ever added within a version: a v1 reader ignores (and keeps) them
     "properties": {
         "v": {"const": SCHEMA_VERSION, "description": "schema version"},
         "t_s": {"type": "number", "minimum": 0, "description": "stream time of the chirp's first sample, s"},
@@ -66,6 +70,7 @@ EVENT_SCHEMA: dict[str, Any] = {
         "confidence": {"type": "number", "minimum": 0, "maximum": 1},
         "model": {"enum": ["svm", "net"]},
         "latency_ms": {"type": "number", "minimum": 0},
+        "link": {"type": "string", "description": "the link that sensed it (live --links); absent on a single link"},
     },
 }
 
@@ -84,22 +89,30 @@ class TouchEvent:
     model: str
     latency_ms: float
     v: int = SCHEMA_VERSION
+    link: str | None = None  # the link's name on a multi-link rig (not written when None)
+    #: fields of the event this reader does not know (a later writer of the same major version), kept as read
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict, hash=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("extra", "link")}
         for k in ("t_s", "x_cm", "y_cm", "force_n", "confidence", "latency_ms"):
             x = float(d[k])
             d[k] = round(x, 4) if math.isfinite(x) else None
         d["location"] = int(d["location"])
-        return {"v": d.pop("v"), **d}
+        out = {"v": d.pop("v"), **d}
+        if self.link is not None:
+            out["link"] = self.link
+        return {**out, **{k: v for k, v in self.extra.items() if k not in out}}
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), allow_nan=False)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TouchEvent:
+        """A validated event; fields the schema does not know are kept in :attr:`extra`."""
         validate_event(d)
-        return cls(**{k: (math.nan if d[k] is None else d[k]) for k in d})
+        known = {k: (math.nan if d[k] is None else d[k]) for k in d if k in EVENT_SCHEMA["properties"]}
+        return cls(**known, extra={k: v for k, v in d.items() if k not in EVENT_SCHEMA["properties"]})
 
 
 def _type_ok(value, types) -> bool:
@@ -120,17 +133,17 @@ def validate_event(d: Any) -> None:
     """Check one decoded event against :data:`EVENT_SCHEMA`; raise :class:`EventError` naming the first problem.
 
     (The subset of JSON Schema the event schema uses: type, const, enum, minimum, maximum,
-    required, additionalProperties; no third-party validator needed at run time.)
+    required; no third-party validator needed at run time.)  Fields the schema does not declare are
+    accepted (``additionalProperties``: within a version, fields are only ever added).
     """
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]
     if missing:
         raise EventError(f"event lacks {missing}")
-    extra = sorted(set(d) - set(EVENT_SCHEMA["properties"]))
-    if extra:
-        raise EventError(f"event has unknown fields {extra}")
     for k, rule in EVENT_SCHEMA["properties"].items():
+        if k not in d:  # an optional field (required ones were checked above)
+            continue
         x = d[k]
         if "const" in rule and x != rule["const"]:
             raise EventError(f"{k} must be {rule['const']!r}, got {x!r} (a reader for schema v{SCHEMA_VERSION})")

@@ -1,35 +1,44 @@
 """The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
 
-The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs one FFT,
-one ONNX call and some numpy, a few percent of the 106.7 ms chirp period.
+The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs two FFTs and
+an inverse FFT of one period (the features, the chirp check), one ONNX call and some numpy, a few
+percent of the 106.7 ms chirp period.
 
 - **Framing** locks onto the chirp train by cross-correlation over one period, then cuts frames
   every ``n_chirp`` samples; a discontinuity (overflow, dropped block) or a drift of the
   correlation peak makes it discard what it holds and lock again.
-- **Per chirp** one call, :meth:`sonicskin.runtime.SkinStream.frame`: features, Alg. 2's online
+- **Per chirp** the band features, then one call, :meth:`sonicskin.runtime.SkinStream.chirp`: Alg. 2's online
   reference (the first ``beta`` seconds are taken as no-touch, as the system starts with hands
   off; every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected become the
   new reference), model, detection, force.  Offline evaluation replays recordings through the
   same object (:meth:`sonicskin.runtime.SkinStream.replay`).
-- **Faults**: frames with NaN/inf, silence, clipping or a dropout (a run of exact zeros, which no
-  live ADC produces) are skipped and counted and never reach the model; overflows and underflows
+- **Faults**: frames with NaN/inf, silence, clipping, a constant level or a dropout (a run of exact
+  zeros, which no live ADC produces) are skipped and counted and never reach the model; overflows and underflows
   are counted.  A boot calibration that loses chirps to such faults is detected
   (:class:`~sonicskin.calibration.OnlineReference`) and re-taken from later rest, with one warning.
 - **Watchdog and clock**: ``duration_s`` is honoured by the wall clock (and by stream time, when a
   fast simulated source runs ahead of it); when no audio arrives for ``watchdog_s`` (the audio
-  server or the interface died), the run stops with :class:`DeviceLost`.
+  server or the interface died, or a simulated source's producer stalled, at any pace), the run
+  stops with :class:`DeviceLost`.
+- **No chirp**: the hands-off boot window must hold a repeating chirp, and after it every frame
+  must repeat the one before (:func:`chirp_coherence`): a frame that does not is skipped, and a
+  second in which most do not (the transmitter stopped, the input turned to noise) stops the run
+  with :class:`InputUnusable`; a constant input (a DC level with no signal) is a faulty frame too.
 - **Output**: :class:`~sonicskin.events.TouchEvent` per touched chirp (and one ``release``), as
   JSON lines (the contract of :mod:`sonicskin.events`) and optionally as UDP datagrams.
 """
 
 from __future__ import annotations
 
+import collections
+import math
 import socket
 import sys
 import time
 from collections.abc import Callable
 
 import numpy as np
+import scipy.fft
 
 from .acquire import AudioError
 from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
@@ -46,13 +55,44 @@ class DeviceLost(AudioError):
 
 # Chirp-to-chirp spread (std, dB) of the band features over the boot window, median over the usable bins: a repeating
 # chirp gives ~0.1 dB on every shipped rig and scenario (moving robot, aluminium plate, several people), noise without a
-# chirp (the transmitter off) the Rayleigh figure, 5.6 dB.
+# chirp (the transmitter off) the Rayleigh figure, 5.6 dB.  (Only for the hands-off boot: a moving robot's motor noise
+# raises the spread of a valid run to 3.4-4.2 dB, so the rest of the run is checked by the chirp coherence below.)
 NO_CHIRP_SPREAD_DB = 4.0
+# After the boot, every frame must repeat the one before: the chirp-to-chirp coherence (chirp_coherence) of a chirp
+# train is 0.92-1.00 per frame, and its median over any CHIRP_CHECK_S at least 0.98, on both shipped rigs x the six
+# shipped scenarios and 42 rigs of the random family (design seeds 0-9, held-out 7001-7032; the live session, frames cut
+# mid-chirp; touches, a moving robot and its motor noise, reverberant links whose matched-filter peak is barely above
+# noise's); noise alone gives 0.03-0.06 per frame on jaco, 0.07-0.15 on the fast rig, 0.12-0.24 on a 1024-sample rig
+# (the best of n_chirp lags over fewer bins).
+MIN_COHERENCE = 0.5
+CHIRP_CHECK_S = 1.0  # a chirp lost mid-run stops the run about half of this later
+MIN_AC_RMS = 1e-7  # a frame whose samples vary (std) by less is a constant level: a DC offset with no signal on it
 
 
 class InputUnusable(DeviceLost):
     """Audio arrives but for the watchdog's time not one chirp of it could be used (all NaN, silent,
-    clipped or cut by lost blocks): the model would be blind while the loop looked healthy."""
+    clipped, constant or cut by lost blocks), or it holds no chirp (noise alone, at boot or for a
+    second of the run): the model would be blind, or see noise, while the loop looked healthy."""
+
+
+def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
+    """The frame's rfft on the rig's usable band bins (PWM notches dropped), complex64."""
+    X = scipy.fft.rfft(np.asarray(frame, np.float32), workers=1)
+    return X[rig.band_bins][rig.allowed_mask]
+
+
+def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
+    """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation of
+    their band spectra (:func:`band_spectrum`) over every lag.  A periodic chirp train through a link repeats (1 for a
+    still link; the share of the energy that repeats when a finger or the robot moves, or motors add noise); noise does
+    not (about ``sqrt(ln(n_chirp) / bins)``).  Taking the best lag makes it blind to where the frames were cut (a
+    re-lock after lost audio, a jittery clock), as the magnitude features are."""
+    L = rig.n_chirp
+    Y = np.zeros(L, np.complex64)
+    Y[np.asarray(rig.band_bins)[rig.allowed_mask]] = X * np.conj(X_prev)
+    c = np.abs(scipy.fft.ifft(Y, workers=1)) * L  # the analytic cross-correlation at every circular lag
+    norm = np.sqrt(float(np.vdot(X, X).real) * float(np.vdot(X_prev, X_prev).real))
+    return float(c.max() / norm) if norm > 0 else 0.0
 
 
 def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
@@ -133,14 +173,18 @@ class Framer:
 class UdpSink:
     """Send event JSON as UDP datagrams; localhost unless told otherwise.
 
-    The host is resolved once, here: an unknown name is one :class:`SonicskinError` before the
-    run starts.  A datagram that cannot be sent later (network down) is counted in :attr:`errors`
-    and reported once on stderr; the loop goes on.
+    The host is resolved once, here, and must be a destination this machine can send to: an unknown
+    name, the broadcast or the unspecified address, or a network this machine has no route to is one
+    :class:`SonicskinError` before the run starts (a broadcast target ran the whole run with one
+    warning that no event was sent).  A datagram that cannot be sent later (network down) is counted
+    in :attr:`errors` and reported once on stderr; the loop goes on.
     """
 
     def __init__(self, target: str):
         host, _, port = target.rpartition(":")
         host = host or "127.0.0.1"
+        if host.startswith("[") and host.endswith("]"):  # [::1]:9999, an IPv6 address in URL brackets
+            host = host[1:-1]
         try:
             port_n = int(port)
             if not 1 <= port_n <= 65535:
@@ -154,8 +198,32 @@ class UdpSink:
             raise SonicskinError(f"--udp {host}:{port_n}: cannot resolve host {host!r} ({msg}); "
                                  f"pass an IP address or a name this machine resolves") from None
         family, _, _, _, self.addr = info[0]
+        self._check_destination(target, family)
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         self.errors = 0
+
+    def _check_destination(self, target: str, family) -> None:
+        import errno
+        import ipaddress
+
+        ip = ipaddress.ip_address(self.addr[0].split("%")[0])
+        why = None
+        if ip.is_unspecified:
+            why = f"{ip} is the unspecified address, not a destination"
+        elif ip == ipaddress.IPv4Address("255.255.255.255"):
+            why = f"{ip} is the broadcast address, which a UDP socket may not send to (Permission denied)"
+        else:  # a connect() of a datagram socket sends nothing; it asks the kernel for a route
+            probe = socket.socket(family, socket.SOCK_DGRAM)
+            try:
+                probe.connect(self.addr)
+            except OSError as e:
+                if e.errno in (errno.EACCES, errno.EPERM, errno.ENETUNREACH, errno.EHOSTUNREACH, errno.EADDRNOTAVAIL):
+                    why = f"this machine cannot send to {ip} ({e.strerror})"
+            finally:
+                probe.close()
+        if why:
+            raise SonicskinError(f"--udp {target}: {why}; give the address of the machine that reads the events "
+                                 f"(127.0.0.1 for this one)")
 
     def __call__(self, line: str) -> None:
         try:
@@ -196,6 +264,7 @@ class LiveLoop:
         # Time-duplexed links: frame whole duplex periods, keep this link's chirp slot.
         self.channel = channel
         self.slot = (link.slot, link.n_slots) if link is not None else (0, 1)
+        self.link_name = link.name if link is not None else None  # each event names its link (live --links)
         self.framer = Framer(link.tx_period(source.rig) if link is not None else rig_chirp(self.rig))
         self.stream = runtime.stream()
         self.on_chirp = on_chirp
@@ -205,7 +274,7 @@ class LiveLoop:
         self.touching = False
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
-        self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0}
+        self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0, "constant": 0, "no_chirp": 0}
         self.n_chirps = 0
         # Since the last usable chirp: seconds of audio fed to this loop and what became of their frames.
         self.blind_s = 0.0
@@ -215,6 +284,9 @@ class LiveLoop:
         self._boot_sq: np.ndarray | None = None
         self._boot_n = 0
         self.boot_spread_db: float | None = None
+        # the running check (_no_chirp): the last usable frame's band spectrum, the recent coherences
+        self._prev_spectrum: np.ndarray | None = None
+        self.coherences: collections.deque = collections.deque(maxlen=max(8, math.ceil(CHIRP_CHECK_S * self.rig.chirps_per_s)))
 
     @property
     def refreshes(self) -> int:
@@ -226,8 +298,12 @@ class LiveLoop:
         fault = int(frame_faults(frame[None])[0])
         if not fault and dropout_frames(frame[None])[0]:
             fault = 4
+        if not fault and float(np.std(frame)) < MIN_AC_RMS:  # a DC offset alone: its band features are all at the floor
+            fault = 5
+        if not fault and self._no_chirp(frame):  # after the boot: no chirp in this frame (noise alone, a knock)
+            fault = 6
         if fault:  # never reaches the features or the model
-            kind = {1: "nan", 2: "silent", 3: "clipped", 4: "dropout"}[fault]
+            kind = {1: "nan", 2: "silent", 3: "clipped", 4: "dropout", 5: "constant", 6: "no_chirp"}[fault]
             self.skipped[kind] += 1
             self.blind_skipped[kind] += 1
             self.boot_faults += self.stream.calibrating
@@ -236,16 +312,22 @@ class LiveLoop:
         self.blind_s, self.blind_skipped, self.blind_relocks = 0.0, dict.fromkeys(self.skipped, 0), self.framer.relocks
         t_s = start / self.rig.fs_hz
         was_calibrating = self.stream.calibrating
+        x = log_magnitude_db(frame[None], self.rig, check=False)[0]  # the band features, computed once
         if was_calibrating and self.boot_spread_db is None:
-            self._boot_add(frame)
-        p = self.stream.frame(frame, t_s)  # features, Alg. 2 reference, model, detection, force
+            self._boot_add(x)
+        p = self.stream.chirp(x, t_s)  # Alg. 2 reference, model, detection, force
         ref = self.stream.reference
         if was_calibrating and not self.stream.calibrating and self.boot_spread_db is None:
             self._boot_check()
         if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
-            self.warn(f"boot calibration disturbed: {self.boot_faults} faulty chirp(s) (NaN, dropout, silence or clipping) "
-                      f"in the first {ref.beta / ref.cps:.1f} s; reference from the {ref.boot_chirps} clean chirps of "
-                      f"that window, re-taken from the next {ref.beta / ref.cps:.1f} s of rest")
+            c = self.source.counters()
+            lost = (f"{self.boot_faults} faulty chirp(s) (NaN, dropout, silence, a constant level or clipping)"
+                    if self.boot_faults else  # none faulty: the chirps were cut by lost audio (a slow start, a busy machine)
+                    f"chirps cut by lost audio ({c['overflows'] + c['dropped_blocks']} overflows or dropped blocks, "
+                    f"{self.framer.relocks} re-locks)")
+            self.warn(f"boot calibration disturbed: {lost} in the first {ref.beta / ref.cps:.1f} s; reference from the "
+                      f"{ref.boot_chirps} clean chirps of that window, re-taken from the next {ref.beta / ref.cps:.1f} s "
+                      f"of rest")
         if self.on_chirp is not None:
             self.on_chirp(t_s, p)
         if p is None:  # boot calibration
@@ -255,7 +337,7 @@ class LiveLoop:
         if touch or self.touching:
             ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
                             float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
-                            (time.perf_counter() - t_ready) * 1e3)
+                            (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
         self.touching = touch
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
         return ev
@@ -285,8 +367,8 @@ class LiveLoop:
         return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
                          idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s, stop=stop)[0]
 
-    def _boot_add(self, frame: np.ndarray) -> None:
-        x = log_magnitude_db(frame[None], self.rig, check=False)[0][self.rig.allowed_mask].astype(np.float64)
+    def _boot_add(self, x_band: np.ndarray) -> None:
+        x = x_band[self.rig.allowed_mask].astype(np.float64)
         if self._boot_sum is None:
             self._boot_sum, self._boot_sq = np.zeros_like(x), np.zeros_like(x)
         self._boot_sum += x
@@ -308,6 +390,32 @@ class LiveLoop:
                                 f"repeats within ~0.1 dB, noise alone varies by 5.6 dB); is the transmitter playing on "
                                 f"output --tx and reaching the receiver? check it with `sonicskin check`")
 
+    def _no_chirp(self, frame: np.ndarray) -> bool:
+        """The chirp must stay in the input for the whole run, not only at boot: a transmitter that stopped, or an input
+        that turned to noise after a good boot, gave about 9 touch events a second from noise, with no error.
+
+        Every frame's :func:`chirp_coherence` with the last usable frame joins the last :data:`CHIRP_CHECK_S` of them.
+        After the boot (which has its own check, :meth:`_boot_check`), a frame below :data:`MIN_COHERENCE` is skipped
+        (True: it never reaches the model, so noise gives no touch event), and a window in which more than half are
+        below it stops the run (:class:`InputUnusable`: the chirp is gone, not one odd frame).  Costs an FFT and an
+        inverse FFT of one period per chirp."""
+        X = band_spectrum(frame, self.rig)
+        prev, self._prev_spectrum = self._prev_spectrum, X
+        if prev is None:
+            return False
+        rho = chirp_coherence(X, prev, self.rig)
+        self.coherences.append(rho)
+        if self.stream.calibrating:
+            return False
+        low = [c for c in self.coherences if c < MIN_COHERENCE]
+        if len(self.coherences) == self.coherences.maxlen and 2 * len(low) > len(self.coherences):
+            n = len(self.coherences)
+            raise InputUnusable(f"the chirp was lost: {len(low)} of the last {n} chirps ({n / self.rig.chirps_per_s:.1f} s) "
+                                f"do not repeat the chirp before them (coherence median {np.median(low):.2f}; a chirp "
+                                f"train's is 0.92-1.00, noise's 0.03-0.25); is the transmitter still playing on output "
+                                f"--tx and reaching the receiver? check it with `sonicskin check`")
+        return rho < MIN_COHERENCE
+
     def unusable_input(self) -> str:
         """Why the audio since the last usable chirp gave none, with the fix (for :class:`InputUnusable`)."""
         sk = {k: v for k, v in self.blind_skipped.items() if v}
@@ -324,6 +432,10 @@ class LiveLoop:
                           "with `sonicskin check`",
                "clipped": "the input is clipped at full scale: lower the transmit amplitude or the input gain "
                           "(`sonicskin check` measures the level)",
+               "no_chirp": "the input holds no chirp (noise alone): is the transmitter still playing on output --tx and "
+                           "reaching the receiver? check it with `sonicskin check`",
+               "constant": "the input is a constant level with no signal on it (a DC offset): the receiver's preamp or "
+                           "the interface's input (--rx) is stuck; check the cable and the levels with `sonicskin check`",
                None: f"audio blocks are lost ({lost} overflows or dropped blocks): close other programs or raise --blocksize"}
         return (f"the device delivers audio but none of the last {self.blind_s:.1f} s gave a usable chirp ({where}); "
                 f"{fix[worst]}")
@@ -362,15 +474,19 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
     Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
     first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
     after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  When no
-    block arrives for ``watchdog_s`` seconds from an audio device (a source without a ``finished``
-    event), raises :class:`DeviceLost` (``None``: wait for ever); when audio arrives but ``watchdog_s`` seconds of it
-    give a loop no usable chirp (all NaN, silent, clipped, or cut by lost blocks), raises :class:`InputUnusable`,
-    whatever the source: the model would be blind while the loop looked healthy.  ``idle_timeout_s``
+    block arrives for ``watchdog_s`` seconds and the source has not ended (an audio device, or a simulated
+    or recorded source whose producer thread neither delivers nor computes: a slow render is not a stall, whatever
+    the pace), raises :class:`DeviceLost` (``None``: wait for ever); an exception that ended a producer thread is raised
+    here; when audio arrives but ``watchdog_s`` seconds of it
+    give a loop no usable chirp (all NaN, silent, clipped, constant, or cut by lost blocks), or a loop's input holds no
+    chirp (:meth:`LiveLoop._no_chirp`), raises :class:`InputUnusable`, whatever the source: the model would be blind, or
+    see noise, while the loop looked healthy.  ``idle_timeout_s``
     is kept for callers that set it, the wait for a block is never longer than 0.1 s.
     """
     t_last_status = time.perf_counter()
     started = time.perf_counter()
-    t_last_block = started
+    t_alive = started  # the last block, or the last sign of life of the source's producer thread
+    cpu_seen = None
     cpu0 = time.process_time()
     stream_s = 0.0
     status = any(lp.status for lp in loops)
@@ -392,16 +508,31 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
                     if source.queue.empty():
                         break
                     continue
-                # A finite source (simulated, recording) ends by itself; a device can die silently.
-                if watchdog_s is not None and finished is None and time.perf_counter() - t_last_block > watchdog_s:
+                if getattr(source, "error", None) is not None:  # the producer thread died of it
+                    raise source.error
+                # A device can die silently; a simulated source's producer can stall, at real-time pace or --fast.
+                if watchdog_s is not None:
+                    now = time.perf_counter()
+                    cpu = source.producer_cpu_s() if hasattr(source, "producer_cpu_s") else None
+                    if cpu is not None and cpu != cpu_seen:  # still computing (a slow render on a loaded machine)
+                        cpu_seen, t_alive = cpu, now
+                    if now - t_alive > watchdog_s:
+                        if status:
+                            print(file=sys.stderr)
+                        text = getattr(source, "stall_text", None) or ("no audio from the device for {s:g} s (the audio "
+                                                                       "server or the interface stopped, or the cable is "
+                                                                       "out); check it with `sonicskin devices` and start "
+                                                                       "again")
+                        raise DeviceLost(text.format(s=watchdog_s))
+                continue
+            t_alive = time.perf_counter()
+            for lp in loops:
+                try:
+                    lp.feed(block)
+                except InputUnusable:  # no chirp in the input (the boot's check or the running one)
                     if status:
                         print(file=sys.stderr)
-                    raise DeviceLost(f"no audio from the device for {watchdog_s:g} s (the audio server or the interface "
-                                     f"stopped, or the cable is out); check it with `sonicskin devices` and start again")
-                continue
-            t_last_block = time.perf_counter()
-            for lp in loops:
-                lp.feed(block)
+                    raise
                 if watchdog_s is not None and lp.blind_s > max(watchdog_s, 2 * lp.framer.L / source.rig.fs_hz):
                     if status:
                         print(file=sys.stderr)

@@ -167,7 +167,7 @@ def test_bad_frames_are_skipped_and_counted(rig, artifact):
     loop = LiveLoop(SkinRuntime(artifact, "svm"), src, emit=lambda _: None)
     src.start()
     summary = loop.run(idle_timeout_s=0.1)
-    assert summary["skipped"] == {"nan": 1, "silent": 0, "clipped": 1, "dropout": 0}
+    assert summary["skipped"] == {"nan": 1, "silent": 0, "clipped": 1, "dropout": 0, "constant": 0, "no_chirp": 0}
     assert summary["chirps"] == loop.framer.n_frames - 2 >= 57  # the last chirp is cut by the channel delay
 
 

@@ -13,16 +13,34 @@ from ..errors import UsageError
 from ._common import nonneg_int, positive_float, positive_int, udp_target
 
 
+# One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
+# an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
+ONESHOT_S_PER_SAMPLE = 118 / (3097 * 20480)
+ONESHOT_BYTES_PER_SAMPLE = 199e6 / (3097 * 20480)
+
+
 def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
-    """One-shot training on the simulated link (cached): what `sonicskin record` + `fit-svm` do on a real rig."""
+    """One-shot training on the simulated link (cached): what `sonicskin record` + `fit-svm` do on a real rig.
+
+    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
+    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
     from ..artifact import build_svm_artifact
+    from ..sim import build_timeline
     from ..sim.generate import simulate_dataset
 
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():
+        print(f"no --artifact: using {art}, trained on the simulated {scenario.name!r} link by an earlier run "
+              f"(delete it to train again)", file=sys.stderr)
         return art
     data = root / f"data/sim-{scenario.name}-oneshot"
-    print(f"no --artifact: one-shot training on the simulated link first ({data} -> {art})", file=sys.stderr)
+    samples = len(build_timeline(scenario.replace(sessions=1), rig)) * rig.n_chirp
+    est_s = samples * ONESHOT_S_PER_SAMPLE
+    took = f"about {est_s / 60:.0f} min" if est_s >= 90 else f"about {max(est_s, 1):.0f} s"
+    print(f"no --artifact: training an SVM on the simulated {scenario.name!r} link first, once: {took} on an idle 2-core "
+          f"machine (longer when it is busy), {samples * ONESHOT_BYTES_PER_SAMPLE / 1e6:,.0f} MB of simulated recordings "
+          f"written to {data}, the artifact to {art} (reused by later runs); pass --artifact DIR to run a trained one",
+          file=sys.stderr)
     simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False,
                      log=lambda m: print(m, file=sys.stderr))
     build_svm_artifact(data, art, progress=False, log=lambda m: print(m, file=sys.stderr))
@@ -65,10 +83,11 @@ def _live_links(a: argparse.Namespace) -> int:
     sinks = [lambda line: print(line, flush=True)] + ([UdpSink(f"{a.udp[0]}:{a.udp[1]}")] if a.udp else [])
     source = SoundDeviceSource(rig, a.device, links=links, blocksize=a.blocksize)
 
-    def emit_for(name: str):  # each event line names its link
-        return lambda line: [s(json.dumps({"link": name, **json.loads(line)})) for s in sinks]
+    def emit(line: str) -> None:  # each event names its link (LiveLoop's link=)
+        for sink in sinks:
+            sink(line)
 
-    loops = [LiveLoop(SkinRuntime(Path(art), a.model, rig=lk.rig or rig), source, emit=emit_for(lk.name),
+    loops = [LiveLoop(SkinRuntime(Path(art), a.model, rig=lk.rig or rig), source, emit=emit,
                       status=not a.no_status, link=lk, channel=i) for i, (lk, art) in enumerate(zip(links, arts))]
     with source:
         summaries = run_loops(loops, source, duration_s=a.duration)
@@ -101,10 +120,20 @@ def _live_rig(a: argparse.Namespace):
 
 
 def cmd_live(a: argparse.Namespace) -> int:
-    from ..acquire import Link, SimulatedSource, SoundDeviceSource
+    from ..acquire import Link, SimulatedSource, SoundDeviceSource, check_blocksize
     from ..live import DeviceLost, LiveLoop, UdpSink
     from ..runtime import SkinRuntime
 
+    check_blocksize(a.blocksize, "--blocksize")
+    if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
+        raise UsageError(f"--lsl {a.lsl!r}: the stream needs a name (e.g. --lsl sonicskin, or --lsl alone for that "
+                         f"default)")
+    if a.drop_every is not None and a.device != "sim":
+        raise UsageError("--drop-every injects lost blocks into the simulated device (--device sim); a real device "
+                         "loses its own")
+    if a.drop_every == 1:
+        raise UsageError("--drop-every 1 drops every audio block, so nothing would reach the loop; give N >= 2 "
+                         "(one block lost in N)")
     if getattr(a, "links", None):
         return _live_links(a)
 
@@ -164,9 +193,11 @@ def cmd_live(a: argparse.Namespace) -> int:
 
 
 def cmd_check(a: argparse.Namespace) -> int:
+    from ..acquire import check_blocksize
     from ..check import SimulatedDevice, analyse, device_capture, simulated_capture
     from ..rig import Rig
 
+    check_blocksize(a.blocksize, "--blocksize")
     rig = Rig.load(a.rig)
     if a.device == "sim":
         cap = simulated_capture(SimulatedDevice(rig, a.scenario, fault=a.sim_fault, motors=a.sim_motors), tx=a.tx, rx=a.rx,
@@ -218,10 +249,18 @@ def add_parsers(sub) -> None:
     lv = sub.add_parser("live", help="real-time touch sensing: audio -> touch events (JSON lines)",
                         description="Run the live loop. By default on the simulated device with scripted touches; "
                                     "--device NAME|INDEX uses a real audio interface (see `sonicskin devices`). "
-                                    "Touch events go to stdout as JSON lines, a summary to stderr at the end.")
+                                    "Touch events go to stdout as JSON lines, a summary to stderr at the end. "
+                                    "Without --artifact on the simulated device, an SVM is trained first, once: it "
+                                    "takes about 2 min (the stationary scenario, an idle 2-core machine), writes about "
+                                    "200 MB of simulated recordings to ./data/sim-SCENARIO-oneshot and the artifact to "
+                                    "./artifacts/sim-SCENARIO-svm, which later runs reuse; a line on stderr says so "
+                                    "before it starts. The run stops with one line when the device stops delivering "
+                                    "(--watchdog), or when its input holds no usable chirp (silent, NaN, clipped, "
+                                    "constant, or noise without the chirp).")
     lv.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
     lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm) (default: on the simulated device, "
-                                       "an SVM is trained on the spot)")
+                                       "an SVM is trained on the spot the first time, about 2 min and 200 MB under ./data "
+                                       "and ./artifacts, and reused later)")
     lv.add_argument("--model", choices=("svm", "net"), default="svm", help="which model of the artifact (default: svm)")
     lv.add_argument("--scenario", default="stationary",
                     help="simulated device: scenario of the link and the touches (default: stationary)")
@@ -234,13 +273,15 @@ def add_parsers(sub) -> None:
                     help="also publish events as a Lab Streaming Layer string stream of this name (needs pylsl: "
                          "pip install 'sonicskin[lsl]') (default: off; NAME defaults to sonicskin)")
     lv.add_argument("--watchdog", type=positive_float, default=3.0, metavar="S",
-                    help="stop with an error when the device delivers no audio for S seconds (default: 3)")
+                    help="stop with an error when the device (or the simulated one, --fast too) delivers no audio, or no "
+                         "usable chirp, for S seconds (default: 3)")
     lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
     lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
-    lv.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
+    lv.add_argument("--blocksize", type=positive_int, default=1024,
+                    help="audio block in samples, at most 1048576 (default: 1024)")
     lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time (default: real time)")
     lv.add_argument("--drop-every", type=positive_int, metavar="N",
-                    help="simulated device: drop one audio block in N, fault injection (default: none)")
+                    help="simulated device: drop one audio block in N (N >= 2), fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
     lv.add_argument("--links", metavar="NAME",
                     help="several links on one interface, a links config (`sonicskin info` lists them, e.g. "
@@ -259,9 +300,11 @@ def add_parsers(sub) -> None:
     ck.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
     ck.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
     ck.add_argument("--rest", type=positive_float, default=4.0, help="seconds of hands-off chirps (default: 4)")
-    ck.add_argument("--press", type=positive_float, default=3.0, help="seconds of the press (default: 3)")
+    ck.add_argument("--press", type=positive_float, default=3.0,
+                    help="seconds of the press, at least 3 chirp periods (0.4 s on jaco) (default: 3)")
     ck.add_argument("--out", default=".", help="folder for check.png and check.json (default: .)")
-    ck.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples (default: 1024)")
+    ck.add_argument("--blocksize", type=positive_int, default=1024,
+                    help="audio block in samples, at most 1048576 (default: 1024)")
     ck.add_argument("--scenario", default="stationary", help="simulated device: the link (default: stationary)")
     ck.add_argument("--sim-fault", default="none", choices=("none", "disconnected", "clipping", "weak", "wrong-channel", "rate"),
                     help="simulated device: inject a fault (default: none)")
