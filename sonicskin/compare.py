@@ -280,7 +280,10 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "compare.json").write_text(json.dumps(res, indent=1, default=float))
+    from .artifact import json_safe
+
+    # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
+    (out / "compare.json").write_text(json.dumps(json_safe(res), indent=1, allow_nan=False))
     from .plots import cdf_panel, confusion_panel, force_panel, location_names
 
     names = location_names(res.get("data"), layout)

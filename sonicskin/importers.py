@@ -48,7 +48,17 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
-from .dataset import COLUMNS, MAX_ABS_CM, MAX_FORCE_N, DatasetWriter, check_name, read_npz
+from .dataset import (
+    COLUMNS,
+    MAX_ABS_CM,
+    MAX_FORCE_N,
+    DatasetWriter,
+    check_name,
+    read_npz,
+    refuse_inside_dataset,
+    swap_folders,
+    writer_lock,
+)
 from .dsp import chirp_spectrum, frame_stream
 from .errors import SonicskinError
 from .limits import check_memory
@@ -568,29 +578,40 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
 
 @contextlib.contextmanager
 def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
-    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one."""
+    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one.
+
+    ``out`` is locked for the whole import (:func:`sonicskin.dataset.writer_lock`): a second import (or simulate,
+    record) into the same folder is refused before it touches the first one's staging folder."""
     if mode not in ("create", "overwrite", "resume"):
         raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
-    exists = (out / "dataset.json").is_file()
-    if exists and mode == "create":
-        raise FileExistsError(f"{out} already holds a dataset; pass --resume to continue it or --overwrite to replace it")
-    if out.exists() and not exists and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and not out.is_dir():
         raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
-    if exists and mode == "resume":
-        yield out, "resume"
-        return
-    tmp = out.parent / f".{out.name}.importing"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    refuse_inside_dataset(out, "a dataset")
+    created = not out.exists()
     try:
-        yield tmp, "create"
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    tmp.rename(out)
+        with writer_lock(out):
+            exists = (out / "dataset.json").is_file()
+            if exists and mode == "create":
+                raise FileExistsError(f"{out} already holds a dataset; pass --resume to continue it or --overwrite to "
+                                      f"replace it")
+            if not exists and any(out.iterdir()):
+                raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
+            if exists and mode == "resume":
+                yield out, "resume"
+                return
+            tmp = out.parent / f".{out.name}.importing"
+            if tmp.exists():
+                shutil.rmtree(tmp)
+            try:
+                yield tmp, "create"
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            swap_folders(tmp, out)  # out (locked, empty or the old dataset) now holds the new dataset
+            created = False
+    finally:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # the empty folder the lock made for a refused or failed new import
 
 
 def _write_session(w: DatasetWriter, session: str, audio: np.ndarray, lab: dict, info: dict) -> None:

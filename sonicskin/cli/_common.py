@@ -208,14 +208,19 @@ def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
     so a retry is not blocked by a lone ``dataset.json``.  Anything a previous run made is kept
     unless ``--overwrite`` had already replaced it; written parts are kept (``--resume`` continues
     them)."""
+    from ..dataset import writer_lock
+
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
-    try:
-        yield out
-    except BaseException:
-        if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up
+    # below could remove that run's files (two `simulate --out X` at once used to end with no dataset at all).
+    with writer_lock(out):
+        try:
+            yield out
+        except BaseException:
+            if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
+                shutil.rmtree(out, ignore_errors=True)
+            raise
 
 
 @contextlib.contextmanager
