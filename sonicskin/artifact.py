@@ -25,6 +25,7 @@ import numpy as np
 
 from . import __version__
 from .baseline import ovr_scores_from_ovo
+from .dataset import write_file
 from .features import prepare, quiet_mask
 from .schema import (
     ARTIFACT_FORMAT,
@@ -168,7 +169,7 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     del onx.opset_import[:]
     for domain, version in ops:
         onx.opset_import.add(domain=domain, version=version)
-    Path(path).write_bytes(onx.SerializeToString())
+    write_file(path, onx.SerializeToString())
     sess = ort_session(path)
     _, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
     ref_ovo = pipe.decision_function(X_check.astype(np.float32))
@@ -248,7 +249,7 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     skin = validate_skin(skin, source=where)
     text = json.dumps(skin, indent=1, allow_nan=False)
     tmp = out / "skin.json.tmp"
-    tmp.write_text(text)
+    write_file(tmp, text)  # a full disk names the file
     tmp.replace(out / "skin.json")
     return skin
 

@@ -49,7 +49,7 @@ from .errors import SonicskinError
 from .rig import Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
-           "writer_lock", "swap_folders", "enclosing_dataset", "refuse_inside_dataset",
+           "writer_lock", "swap_folders", "write_file", "named_os_error", "enclosing_dataset", "refuse_inside_dataset",
            "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json"]
 
 FORMAT = "sonicskin-dataset"
@@ -257,13 +257,39 @@ def _empty_folder(root: Path) -> None:
             p.unlink()
 
 
+def named_os_error(e: OSError, path: str | Path) -> OSError:
+    """``e`` with the path it happened on: a full disk said ``[Errno 28] No space left on device`` and no more (the
+    error of a write to an open file names no file)."""
+    if e.filename is not None:
+        return e
+    if e.errno == 28:  # ENOSPC
+        return OSError(e.errno, "No space left on device (free some space there, or write elsewhere)", str(path))
+    return OSError(e.errno, e.strerror or str(e), str(path))
+
+
+def write_file(path: str | Path, data: bytes | str) -> None:
+    """``Path.write_bytes``/``write_text`` whose errors name ``path`` (:func:`named_os_error`)."""
+    try:
+        if isinstance(data, str):
+            Path(path).write_text(data)
+        else:
+            Path(path).write_bytes(data)
+    except OSError as e:
+        raise named_os_error(e, path) from None
+
+
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise named_os_error(e, path) from None
 
 
 def _atomic_write_json(path: Path, obj: Any) -> None:
@@ -463,10 +489,20 @@ class FeatureTable:
     def touch(self) -> np.ndarray:
         return self.labels["location"] >= 0
 
-    def save_npz(self, path: str | Path, *, key: str = "") -> None:
-        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``."""
+    def save_npz(self, path: str | Path, *, key: str = "", content: str = "") -> None:
+        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``, ``content``
+        (a digest of the arrays, :mod:`sonicskin.features`) as ``content``."""
         arrays = {f"label_{k}": v for k, v in self.labels.items()}
-        np.savez(path, X=self.X, key=np.array(key), **arrays)
+        np.savez(path, X=self.X, key=np.array(key), content=np.array(content), **arrays)
+
+    @staticmethod
+    def stored_content(path: str | Path) -> str | None:
+        """The ``content`` digest stored by :meth:`save_npz`, or ``None`` (none stored, or unreadable)."""
+        try:
+            z = read_npz(path, {"content": ("U", 0)}, optional=("content",), what="feature cache")
+        except DatasetError:
+            return None
+        return str(z["content"]) if "content" in z else None
 
     @classmethod
     def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .baseline import SVMLocalizer
-from .dataset import Dataset, FeatureTable
+from .dataset import Dataset, FeatureTable, write_file
 from .force import PerLocationForce, energy_db
 from .metrics import force_report, localization_report
 from .skin import SkinSVM
@@ -269,7 +269,7 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     from .artifact import json_safe
 
-    (out / "report.json").write_text(json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
+    write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
     from .plots import cdf_panel, confusion_panel, location_names
 

@@ -614,6 +614,15 @@ def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
             out.rmdir()  # the empty folder the lock made for a refused or failed new import
 
 
+def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
+    """Whether label row ``r``'s interval holds no whole sweep but the start of the recording's last, incomplete one
+    (the sweep after the last whole frame, begun before the file ends)."""
+    if not t.size:
+        return False
+    nxt = t[-1] + rig.period_s  # where the incomplete sweep starts
+    return bool(r["start_s"] <= nxt < r["end_s"] and nxt * fs < n_samples)
+
+
 def _write_session(w: DatasetWriter, session: str, audio: np.ndarray, lab: dict, info: dict) -> None:
     """One session, removed again if anything fails half-way (so ``--resume`` starts it afresh)."""
     try:
@@ -738,6 +747,14 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             seg = np.array(["calibration"] * t.size, dtype=object)
             for r in (r for r in rows if r["file"] == p.name):
                 m = slice(*np.searchsorted(t, [r["start_s"], r["end_s"]], side="left"))  # t increases: [start, end)
+                if m.start >= m.stop and _cut_short(r, t, x.size, rig, fs):
+                    # a recording stopped a moment early: its last sweep began inside the interval but is incomplete
+                    tail = (x.size - starts[-1] - rig.n_chirp) / fs if t.size else 0.0
+                    warnings.warn(f"{labels} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s of {p.name} "
+                                  f"holds only the sweep starting at {t[-1] + rig.period_s:.4f} s, which the recording cuts "
+                                  f"short ({rig.n_chirp - round(tail * fs)} of its {rig.n_chirp} samples missing at the end "
+                                  f"of the file): that chirp is left out", stacklevel=2)
+                    continue
                 if m.start >= m.stop:
                     raise ImportDataError(f"{labels} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s of {p.name} holds "
                                           f"no sweep start (sweeps start every {rig.period_s * 1e3:.4g} ms from {t[0]:.4g} s); "
@@ -751,6 +768,9 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                     seg[m] = "moving" if r["moving"] > 0 else "gap"
                 lab["moving"][m] = r["moving"]
                 lab["subject"][m] = r["subject"]
+            # chirps no interval labels: the leading rest is the boot calibration, later ones are no-touch chirps
+            unlabelled = seg == "calibration"
+            seg[unlabelled & (np.arange(t.size) >= _first_touch(seg == "touch"))] = "gap"
             lab["segment"] = seg.astype(str)
             _write_session(w, session, x, lab, {"source_file": p.name})
             done += 1
@@ -760,6 +780,20 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
 
 
 # -- tables of spectra ----------------------------------------------------------------
+
+def _first_touch(touch: np.ndarray) -> int:
+    """Index of a session's first touch chirp (its length when it has none)."""
+    return int(np.argmax(touch)) if touch.any() else int(touch.size)
+
+
+def _segments(touch: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """Segments of a session's rows: touches, the hands-off rows before the first touch as the boot calibration, the
+    later hands-off rows as no-touch chirps ("gap", or "moving" with the robot moving).  Every hands-off row used to be
+    "calibration", as if the whole session's rest were the boot reference's."""
+    later = np.arange(touch.size) >= _first_touch(touch)
+    return np.where(touch, "touch", np.where(~later, "calibration", np.where(moving > 0, "moving", "gap")))
+
+
 
 def _looks_linear(M: np.ndarray) -> bool:
     """Magnitudes that are all >= 0 and spread over orders of magnitude (or all <= 1) are linear, not dB."""
@@ -904,7 +938,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
             loc = ids[idx]
             touch = loc >= 0
             lab = {"chirp": np.arange(idx.size), "t_s": t, "time_s": t,
-                   "segment": np.where(touch, "touch", "calibration"), "location": loc,
+                   "segment": _segments(touch, np.asarray(z.get("moving", np.zeros(n)), float)[idx]), "location": loc,
                    "x_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 0], np.nan),
                    "y_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 1], np.nan),
                    "force_n": force[idx], "moving": np.asarray(z.get("moving", np.zeros(n)), float)[idx],

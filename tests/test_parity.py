@@ -105,9 +105,8 @@ def test_nan_in_onnxruntime_output_fails():
 def _toy_net():
     pytest.importorskip("torch")
     pytest.importorskip("onnxruntime")
-    from test_net import _toy
-
     from sonicskin.training.quick import fit_net
+    from test_net import _toy
 
     X, cls, force = _toy()
     return X, fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
@@ -116,7 +115,6 @@ def _toy_net():
 def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
     import onnxruntime
     import torch
-
     from sonicskin.export import onnx as ex
 
     X, predict = _toy_net()
@@ -147,9 +145,9 @@ def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch)
 def test_a_real_svm_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
     import onnxruntime
     import sklearn
+    from sonicskin.models import svm_pipeline
 
     from sonicskin import artifact
-    from sonicskin.models import svm_pipeline
 
     rng = np.random.default_rng(0)
     cls = np.repeat(np.arange(3), 20)

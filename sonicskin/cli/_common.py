@@ -157,6 +157,15 @@ def check_split_options(a: argparse.Namespace) -> None:
         if len(val_opt) > 1:
             raise UsageError(f"--val {' '.join(val_opt)}: 'none' means no validation session; give it alone or drop it")
         a.val = []
+    for k in ("train", "val", "test"):  # a session named twice was recorded twice in the artifact's split
+        given = getattr(a, k, None)
+        if given:
+            twice = sorted({s for s in given if given.count(s) > 1})
+            if twice:
+                import warnings
+
+                warnings.warn(f"--{k} names {', '.join(twice)} more than once; each session counts once", stacklevel=2)
+                setattr(a, k, list(dict.fromkeys(given)))
     train, val, test = (set(getattr(a, k, None) or ()) for k in ("train", "val", "test"))
     for x, y, nx, ny in ((train, val, "--train", "--val"), (train, test, "--train", "--test"), (val, test, "--val", "--test")):
         if x & y:
