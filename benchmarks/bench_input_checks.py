@@ -5,7 +5,7 @@ Each row is one hostile input that the tests check for its answer (tests/test_ho
 tests/test_integrity_data.py); here only its wall time on this machine is measured and printed:
 
     input                                          before the fix       wall time here
-    label_layout, 20 000 distinct locations        13 s                 0.2 s
+    label_layout, 20 000 distinct locations        13 s                 (seconds on this machine)
     ...
 
     python benchmarks/bench_input_checks.py [--work DIR]
