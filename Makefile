@@ -34,9 +34,13 @@ demo: install
 # that need the machine to themselves (marked serial: JACK in real time, DDP) alone.
 # `make test-fast` leaves out every run marked slow.
 TEST_WORKERS ?= 2
+# The serial step runs even when the parallel one failed (its failures are reported too); then the target fails.
 test: install
-	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
-	$(PY) -m pytest -q -m serial
+	@rc=0; \
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial" || rc=$$?; \
+	$(PY) -m pytest -q -m serial || rc2=$$?; \
+	if [ $$rc -ne 0 ] || [ $${rc2:-0} -ne 0 ]; then \
+	  echo "make test: failed (parallel step exit $$rc, serial step exit $${rc2:-0})" >&2; exit 1; fi
 
 test-fast: install
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not slow"

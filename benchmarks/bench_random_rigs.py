@@ -60,10 +60,13 @@ SPLIT = {"train": ["s000"], "val": ["s001"], "test": ["s002", "s003"]}
 
 
 def _model_metrics(r: dict) -> dict:
+    def num(v):  # compare.json writes a value that is not measurable as null
+        return float("nan") if v is None else v
+
     return {"accuracy": r["localization"]["accuracy"], "within_2cm": r["localization"]["within_2cm"],
-            "force_rmse_n": r["force"].get("rmse_n", float("nan")),
-            "missed_touch": r["detection"].get("missed_touch_rate", float("nan")),
-            "false_touch": r["detection"].get("false_touch_rate", float("nan"))}
+            "force_rmse_n": num(r["force"].get("rmse_n")),
+            "missed_touch": num(r["detection"].get("missed_touch_rate")),
+            "false_touch": num(r["detection"].get("false_touch_rate"))}
 
 
 def floors(ds, *, min_force_n: float = 0.5) -> dict:

@@ -9,18 +9,32 @@ import numpy as np
 import torch
 from sonicskin.training.checkpoint import load_checkpoint
 
-from sonicskin.artifact import PARITY_TOL, atomic_artifact, ort_session, skin_json, svm_entry
+from sonicskin.artifact import (
+    PARITY_TOL,
+    ParityError,
+    atomic_artifact,
+    decisions_parity,
+    ort_session,
+    parity_bound,
+    parity_failure,
+    skin_json,
+    svm_entry,
+)
 from sonicskin.features import FeatureSpec, Split, model_inputs, training_targets
 from sonicskin.rig import Layout
 from sonicskin.schema import check_layout, check_rig
 
 __all__ = ["export_artifact", "export_net"]
 
-TOL = PARITY_TOL
+TOL = PARITY_TOL  # kept for callers of the old name
 
 
 def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarray) -> dict:
-    """torch -> ONNX with a dynamic batch axis, then parity on ``X_check``."""
+    """torch -> ONNX with a dynamic batch axis, then parity on ``X_check`` (:func:`sonicskin.artifact.decisions_parity`):
+    the location (argmax of the location logits), the touch decision (p(touch) >= 0.5, as the runtime reads it),
+    the logits and the force within :data:`~sonicskin.artifact.PARITY_TOL` of their scale.  The raw figures
+    (``max_abs_logits``, ``max_abs_force_n``) are returned for ``skin.json``; a mismatch raises
+    :class:`~sonicskin.artifact.ParityError` (one line)."""
     model = model.eval()
     example = torch.from_numpy(X_check[:2].astype(np.float32))
     torch.onnx.export(model, (example,), str(path), input_names=["features"], output_names=["logits", "force"],
@@ -30,19 +44,31 @@ def export_net(model: torch.nn.Module, n_in: int, path: Path, X_check: np.ndarra
         ref_logits, ref_force = (t.numpy() for t in model(torch.from_numpy(X_check.astype(np.float32))))
     logits, force = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
     # The kernel layer votes with sign(d): a pairwise decision within float32 rounding of zero can vote the other
-    # way in onnxruntime than in torch and move two locations' logits by a whole vote.  Such chirps are counted
-    # (near_ties) and left out of the logits' parity, as for the SVM's export; the force never votes.
+    # way in onnxruntime than in torch and move two locations' logits by a whole vote.  Such a chirp, when its
+    # logits differ, is a flipped vote (as for the SVM's export), held to the force only: the force never votes.
     tie = np.zeros(len(X_check), bool)
     kernel = getattr(model, "kernel", None)
     if kernel is not None:
         with torch.no_grad():
-            z = model.standardize(torch.from_numpy(X_check.astype(np.float32)))
-            tie = (kernel.decision(kernel.rbf(z)).abs() < 10 * TOL).any(1).numpy()
-    parity = {"max_abs_logits": float(np.abs(logits - ref_logits)[~tie].max(initial=0.0)),
-              "max_abs_force_n": float(np.abs(force - ref_force).max()), "near_ties": int(tie.sum()),
-              "labels_equal": bool(np.array_equal(logits[~tie].argmax(1), ref_logits[~tie].argmax(1)))}
-    if not (parity["labels_equal"] and parity["max_abs_logits"] < TOL and parity["max_abs_force_n"] < TOL):
-        raise RuntimeError(f"ONNX export of the network does not match torch: {parity}")
+            d = kernel.decision(kernel.rbf(model.standardize(torch.from_numpy(X_check.astype(np.float32))))).numpy()
+        tie = (np.abs(d) < parity_bound(d)).any(1)
+
+    def touch_margin(lg):  # log p(touch) / p(no touch): the runtime's p(touch) >= 0.5
+        from scipy.special import logsumexp
+
+        lg = np.asarray(lg, np.float64)
+        return logsumexp(lg[:, :-1], axis=1) - lg[:, -1]
+
+    parity = decisions_parity({"logits": logits, "force_n": force}, {"logits": ref_logits, "force_n": ref_force},
+                              label="logits", label_cols=slice(0, -1), touch=(touch_margin(logits), touch_margin(ref_logits)),
+                              vote_tie=tie, every_chirp=("force_n",))
+    if not parity.pop("ok"):
+        import onnxruntime
+
+        raise ParityError(parity_failure("net.onnx", "the torch network", parity, len(X_check),
+                                         f"onnxruntime {onnxruntime.__version__} runs the graph torch {torch.__version__} "
+                                         f"exported differently; reinstall the tested versions (pip install -c "
+                                         f"constraints.txt -e '.[train]') and export again"))
     return parity
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset import Dataset, FeatureTable
+from .dataset import Dataset, FeatureTable, write_file
 from .features import load_features_cached, touch_mask
 from .metrics import force_report, localization_report, speed_ratio
 from .runtime import Predictions, SkinRuntime
@@ -280,7 +280,10 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "compare.json").write_text(json.dumps(res, indent=1, default=float))
+    from .artifact import json_safe
+
+    # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
+    write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))
     from .plots import cdf_panel, confusion_panel, force_panel, location_names
 
     names = location_names(res.get("data"), layout)

@@ -27,13 +27,16 @@ later ones is damage and refused) and checked by their label rows only.  Session
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
 import json
 import os
 import re
+import shutil
 import warnings
+import weakref
 import zipfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,6 +49,7 @@ from .errors import SonicskinError
 from .rig import Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
+           "writer_lock", "swap_folders", "write_file", "named_os_error", "enclosing_dataset", "refuse_inside_dataset",
            "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json"]
 
 FORMAT = "sonicskin-dataset"
@@ -166,13 +170,126 @@ def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -
         bad("chirp", np.asarray(lab["chirp"]) < 0, "chirp numbers are >= 0")
 
 
+_LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks this process holds
+
+
+@contextlib.contextmanager
+def writer_lock(root: str | Path) -> Iterator[Path]:
+    """The right to write the dataset folder ``root``, exclusive between processes: an ``fcntl.flock`` on the
+    folder itself (created if missing), held for the block; reentrant within a process.
+
+    Two ``sonicskin simulate --out X`` at once: the second is refused here, before it touches anything, and its
+    clean-up can never remove the first one's files (it used to: "already holds a dataset", then the first died
+    with ``No such file or directory: X/s000`` and nothing was left).  Where ``fcntl`` is missing, no lock.
+    """
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    key = os.path.realpath(root)
+    held = _LOCKS.get(key)
+    if held is not None:
+        held[1] += 1
+    else:
+        try:
+            import fcntl
+        except ImportError:  # not POSIX: writers are not serialised
+            yield root
+            return
+        fd = os.open(key, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise DatasetError(f"{root} is being written by another process (a `sonicskin simulate`, `record` or import "
+                               f"into the same folder); wait for it to finish, or choose another --out") from None
+        held = _LOCKS[key] = [fd, 1]
+    try:
+        yield root
+    finally:
+        held[1] -= 1
+        if held[1] == 0:
+            del _LOCKS[key]
+            os.close(held[0])  # closing the descriptor releases the lock
+
+
+def enclosing_dataset(path: str | Path) -> Path | None:
+    """The dataset folder ``path`` lies inside (a folder above it holding ``dataset.json``), or ``None``."""
+    for parent in Path(os.path.abspath(path)).parents:
+        if (parent / "dataset.json").is_file():
+            return parent
+    return None
+
+
+def refuse_inside_dataset(out: str | Path, what: str) -> None:
+    """One line when the output folder ``out`` lies inside a dataset: what is written there becomes part of that
+    dataset's folder (a session folder, a file beside its sessions) and changes what it reads as."""
+    ds = enclosing_dataset(out)
+    if ds is not None:
+        raise DatasetError(f"--out {out} is inside the dataset {ds}: {what} written there would become part of that "
+                           f"dataset's folder; choose an --out outside it")
+
+
+def swap_folders(new: Path, old: Path) -> None:
+    """Put the folder ``new`` in place of ``old`` (an existing folder, removed): one ``renameat2(RENAME_EXCHANGE)``
+    where Linux offers it, so ``old``'s path never lacks a dataset, else remove then rename."""
+    import ctypes
+    import sys
+
+    swapped = False
+    if sys.platform == "linux":
+        try:
+            fn = ctypes.CDLL(None, use_errno=True).renameat2
+            swapped = fn(-100, os.fsencode(new), -100, os.fsencode(old), 2) == 0  # AT_FDCWD, RENAME_EXCHANGE
+        except (OSError, AttributeError):
+            swapped = False
+    if swapped:
+        shutil.rmtree(new)  # the old folder, now at new's path
+        return
+    shutil.rmtree(old, ignore_errors=True)
+    os.rename(new, old)
+
+
+def _empty_folder(root: Path) -> None:
+    """Remove everything inside ``root``, keeping the folder (its writer lock is on the folder itself)."""
+    for p in root.iterdir():
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+
+
+def named_os_error(e: OSError, path: str | Path) -> OSError:
+    """``e`` with the path it happened on: a full disk said ``[Errno 28] No space left on device`` and no more (the
+    error of a write to an open file names no file)."""
+    if e.filename is not None:
+        return e
+    if e.errno == 28:  # ENOSPC
+        return OSError(e.errno, "No space left on device (free some space there, or write elsewhere)", str(path))
+    return OSError(e.errno, e.strerror or str(e), str(path))
+
+
+def write_file(path: str | Path, data: bytes | str) -> None:
+    """``Path.write_bytes``/``write_text`` whose errors name ``path`` (:func:`named_os_error`)."""
+    try:
+        if isinstance(data, str):
+            Path(path).write_text(data)
+        else:
+            Path(path).write_bytes(data)
+    except OSError as e:
+        raise named_os_error(e, path) from None
+
+
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise named_os_error(e, path) from None
 
 
 def _atomic_write_json(path: Path, obj: Any) -> None:
@@ -202,13 +319,18 @@ class DatasetWriter:
                 "source": source or {}}
         if mode not in ("create", "overwrite", "resume"):
             raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
+        refuse_inside_dataset(self.root, "a dataset")
+        # Held while this writer lives (and by the caller's own `with writer_lock(root)`, if any): no other process
+        # writes, overwrites or cleans up the folder meanwhile.
+        lock = writer_lock(self.root)
+        lock.__enter__()
+        weakref.finalize(self, lock.__exit__, None, None, None)
         if meta_path.exists():
             if mode == "create":
                 raise FileExistsError(f"{self.root} already holds a dataset; pass --resume to continue it "
                                       f"or --overwrite to replace it")
             if mode == "overwrite":
-                import shutil
-                shutil.rmtree(self.root)
+                _empty_folder(self.root)
             elif mode == "resume":
                 old = Dataset(self.root)
                 diffs = old.rig.mismatch(rig)
@@ -367,10 +489,20 @@ class FeatureTable:
     def touch(self) -> np.ndarray:
         return self.labels["location"] >= 0
 
-    def save_npz(self, path: str | Path, *, key: str = "") -> None:
-        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``."""
+    def save_npz(self, path: str | Path, *, key: str = "", content: str = "") -> None:
+        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``, ``content``
+        (a digest of the arrays, :mod:`sonicskin.features`) as ``content``."""
         arrays = {f"label_{k}": v for k, v in self.labels.items()}
-        np.savez(path, X=self.X, key=np.array(key), **arrays)
+        np.savez(path, X=self.X, key=np.array(key), content=np.array(content), **arrays)
+
+    @staticmethod
+    def stored_content(path: str | Path) -> str | None:
+        """The ``content`` digest stored by :meth:`save_npz`, or ``None`` (none stored, or unreadable)."""
+        try:
+            z = read_npz(path, {"content": ("U", 0)}, optional=("content",), what="feature cache")
+        except DatasetError:
+            return None
+        return str(z["content"]) if "content" in z else None
 
     @classmethod
     def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .baseline import SVMLocalizer
-from .dataset import Dataset, FeatureTable
+from .dataset import Dataset, FeatureTable, write_file
 from .force import PerLocationForce, energy_db
 from .metrics import force_report, localization_report
 from .skin import SkinSVM
@@ -82,6 +82,15 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     sessions = sorted(set(table["session"]))
     train_sessions = train_sessions or sessions[:1]
     tr, te = split_sessions(table, train_sessions)
+    trained = set(np.unique(tr["location"][_touch(tr, min_force_n)]).tolist())
+    never = [str(i) for i in ds.layout.ids if int(i) not in trained]
+    if never:  # the SVM has no class for them: every test touch there is an error, which the accuracy alone hides
+        import warnings
+
+        warnings.warn(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the layout's "
+                      f"{len(ds.layout)} locations (never trained: {', '.join(never[:12])}{', ...' if len(never) > 12 else ''}); "
+                      f"the SVM cannot predict those and counts their test touches as errors: train on sessions that touch "
+                      f"every location (--train)", stacklevel=2)
     moving_tr = (tr["location"] < 0) & (tr["moving"] > 0)
     X_moving = tr.X[moving_tr] if moving_tr.sum() >= 2 else None
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
@@ -258,7 +267,9 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "report.json").write_text(json.dumps(res, indent=2, default=float))
+    from .artifact import json_safe
+
+    write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
     from .plots import cdf_panel, confusion_panel, location_names
 

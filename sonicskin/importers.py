@@ -48,7 +48,17 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
-from .dataset import COLUMNS, MAX_ABS_CM, MAX_FORCE_N, DatasetWriter, check_name, read_npz
+from .dataset import (
+    COLUMNS,
+    MAX_ABS_CM,
+    MAX_FORCE_N,
+    DatasetWriter,
+    check_name,
+    read_npz,
+    refuse_inside_dataset,
+    swap_folders,
+    writer_lock,
+)
 from .dsp import chirp_spectrum, frame_stream
 from .errors import SonicskinError
 from .limits import check_memory
@@ -568,29 +578,49 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
 
 @contextlib.contextmanager
 def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
-    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one."""
+    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one.
+
+    ``out`` is locked for the whole import (:func:`sonicskin.dataset.writer_lock`): a second import (or simulate,
+    record) into the same folder is refused before it touches the first one's staging folder."""
     if mode not in ("create", "overwrite", "resume"):
         raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
-    exists = (out / "dataset.json").is_file()
-    if exists and mode == "create":
-        raise FileExistsError(f"{out} already holds a dataset; pass --resume to continue it or --overwrite to replace it")
-    if out.exists() and not exists and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and not out.is_dir():
         raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
-    if exists and mode == "resume":
-        yield out, "resume"
-        return
-    tmp = out.parent / f".{out.name}.importing"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    refuse_inside_dataset(out, "a dataset")
+    created = not out.exists()
     try:
-        yield tmp, "create"
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    tmp.rename(out)
+        with writer_lock(out):
+            exists = (out / "dataset.json").is_file()
+            if exists and mode == "create":
+                raise FileExistsError(f"{out} already holds a dataset; pass --resume to continue it or --overwrite to "
+                                      f"replace it")
+            if not exists and any(out.iterdir()):
+                raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
+            if exists and mode == "resume":
+                yield out, "resume"
+                return
+            tmp = out.parent / f".{out.name}.importing"
+            if tmp.exists():
+                shutil.rmtree(tmp)
+            try:
+                yield tmp, "create"
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+            swap_folders(tmp, out)  # out (locked, empty or the old dataset) now holds the new dataset
+            created = False
+    finally:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # the empty folder the lock made for a refused or failed new import
+
+
+def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
+    """Whether label row ``r``'s interval holds no whole sweep but the start of the recording's last, incomplete one
+    (the sweep after the last whole frame, begun before the file ends)."""
+    if not t.size:
+        return False
+    nxt = t[-1] + rig.period_s  # where the incomplete sweep starts
+    return bool(r["start_s"] <= nxt < r["end_s"] and nxt * fs < n_samples)
 
 
 def _write_session(w: DatasetWriter, session: str, audio: np.ndarray, lab: dict, info: dict) -> None:
@@ -717,6 +747,14 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
             seg = np.array(["calibration"] * t.size, dtype=object)
             for r in (r for r in rows if r["file"] == p.name):
                 m = slice(*np.searchsorted(t, [r["start_s"], r["end_s"]], side="left"))  # t increases: [start, end)
+                if m.start >= m.stop and _cut_short(r, t, x.size, rig, fs):
+                    # a recording stopped a moment early: its last sweep began inside the interval but is incomplete
+                    tail = (x.size - starts[-1] - rig.n_chirp) / fs if t.size else 0.0
+                    warnings.warn(f"{labels} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s of {p.name} "
+                                  f"holds only the sweep starting at {t[-1] + rig.period_s:.4f} s, which the recording cuts "
+                                  f"short ({rig.n_chirp - round(tail * fs)} of its {rig.n_chirp} samples missing at the end "
+                                  f"of the file): that chirp is left out", stacklevel=2)
+                    continue
                 if m.start >= m.stop:
                     raise ImportDataError(f"{labels} line {r['line']}: the interval {r['start_s']:g}-{r['end_s']:g} s of {p.name} holds "
                                           f"no sweep start (sweeps start every {rig.period_s * 1e3:.4g} ms from {t[0]:.4g} s); "
@@ -730,6 +768,9 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                     seg[m] = "moving" if r["moving"] > 0 else "gap"
                 lab["moving"][m] = r["moving"]
                 lab["subject"][m] = r["subject"]
+            # chirps no interval labels: the leading rest is the boot calibration, later ones are no-touch chirps
+            unlabelled = seg == "calibration"
+            seg[unlabelled & (np.arange(t.size) >= _first_touch(seg == "touch"))] = "gap"
             lab["segment"] = seg.astype(str)
             _write_session(w, session, x, lab, {"source_file": p.name})
             done += 1
@@ -739,6 +780,20 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
 
 
 # -- tables of spectra ----------------------------------------------------------------
+
+def _first_touch(touch: np.ndarray) -> int:
+    """Index of a session's first touch chirp (its length when it has none)."""
+    return int(np.argmax(touch)) if touch.any() else int(touch.size)
+
+
+def _segments(touch: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """Segments of a session's rows: touches, the hands-off rows before the first touch as the boot calibration, the
+    later hands-off rows as no-touch chirps ("gap", or "moving" with the robot moving).  Every hands-off row used to be
+    "calibration", as if the whole session's rest were the boot reference's."""
+    later = np.arange(touch.size) >= _first_touch(touch)
+    return np.where(touch, "touch", np.where(~later, "calibration", np.where(moving > 0, "moving", "gap")))
+
+
 
 def _looks_linear(M: np.ndarray) -> bool:
     """Magnitudes that are all >= 0 and spread over orders of magnitude (or all <= 1) are linear, not dB."""
@@ -883,7 +938,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
             loc = ids[idx]
             touch = loc >= 0
             lab = {"chirp": np.arange(idx.size), "t_s": t, "time_s": t,
-                   "segment": np.where(touch, "touch", "calibration"), "location": loc,
+                   "segment": _segments(touch, np.asarray(z.get("moving", np.zeros(n)), float)[idx]), "location": loc,
                    "x_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 0], np.nan),
                    "y_cm": np.where(touch, layout.coords(np.where(touch, loc, layout.ids[0]))[:, 1], np.nan),
                    "force_n": force[idx], "moving": np.asarray(z.get("moving", np.zeros(n)), float)[idx],

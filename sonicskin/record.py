@@ -431,6 +431,10 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     for name, v in (("moving-s", moving_s), ("gap-s", gap_s)):
         if not v >= 0:
             raise ValueError(f"--{name} must be >= 0 s, got {v:g}")
+    if device == "sim" and (force_csv or force_serial):  # was silently ignored (a missing file too)
+        opt = f"--force-csv {force_csv}" if force_csv else f"--force-serial {force_serial}"
+        raise ValueError(f"{opt}: the simulated device (--device sim) measures its own force and reads no force sensor; "
+                         f"drop {opt.split()[0]}, or record from an audio interface (--device NAME|INDEX)")
     check_record_size(rig, len(wanted), calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s)
     if calibration_s < 3.0:
         log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "

@@ -448,6 +448,26 @@ def _check_training(doc: _Doc, tr: Any) -> None:
             doc.str(s, f"training.split.{k}[{i}]")
 
 
+def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
+    """The first field of a JSON-like document holding NaN or +-Infinity (``"models.net.hparams.lr"``, the value),
+    or ``None``: Python's json reads and writes them, strict JSON (and :func:`canonical`) has no such numbers."""
+    if isinstance(obj, dict):
+        items = obj.items()
+    elif isinstance(obj, (list, tuple)):
+        items = ((f"[{i}]", v) for i, v in enumerate(obj))
+    else:
+        try:
+            return None if isinstance(obj, (bool, str)) or obj is None or math.isfinite(obj) else (path, float(obj))
+        except (TypeError, OverflowError):  # not a number, or an integer beyond the float range (a finite one)
+            return None
+    for k, v in items:
+        sub = f"{path}{k}" if str(k).startswith("[") else (f"{path}.{k}" if path else str(k))
+        hit = nonfinite_field(v, sub)
+        if hit is not None:
+            return hit
+    return None
+
+
 def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
     """Check a parsed ``skin.json`` against the schema (without touching any file); return it.
 
@@ -484,6 +504,9 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
     doc.keys(models, set(MODEL_KINDS), "models")
     for name, m in models.items():
         _check_model(doc, name, m, n_in=len(spec.bins), layout_ids=list(layout.ids), sealed=sealed)
+    bad = nonfinite_field(meta)  # in a free-form field (parity, hparams, training): the checked ones name their own
+    if bad is not None:  # json.loads reads NaN/Infinity literals; the digest (strict JSON) cannot hold them
+        doc.fail(bad[0], f"is {bad[1]}: NaN and Infinity are not JSON numbers")
     if not sealed:
         return meta
     digest = doc.str(doc.get(meta, "digest", ""), "digest")

@@ -10,7 +10,6 @@ from __future__ import annotations
 import csv
 import io
 import shutil
-import time
 from pathlib import Path
 
 import numpy as np
@@ -283,10 +282,9 @@ SPECTRA_CASES = [
 @pytest.mark.parametrize("name, over, words", SPECTRA_CASES, ids=[c[0] for c in SPECTRA_CASES])
 def test_spectra_table_mistakes_are_refused(src, tmp_path, name, over, words):
     table = _table(src, tmp_path, **over)
-    t0 = time.perf_counter()
-    msg = _refused(import_spectra, table, tmp_path / "out", **QUIET)
-    assert words in msg, msg
-    assert time.perf_counter() - t0 < 10 and not (tmp_path / "out").exists()  # the kHz axis used to run for minutes
+    msg = _refused(import_spectra, table, tmp_path / "out", **QUIET)  # the kHz axis used to run for minutes: its
+    assert words in msg, msg  # time now is a figure of benchmarks/bench_input_checks.py (no wall clock in tests)
+    assert not (tmp_path / "out").exists()
 
 
 def test_rig_from_axis_refuses_dc_through_the_cli(src, tmp_path, capsys):
@@ -550,9 +548,8 @@ def test_many_overlapping_intervals_are_checked_in_linear_time(src, inp, tmp_pat
     """20 000 copies of one interval took 74 s (every pair compared); a chain of overlaps is still checked link by link."""
     rec, labels, rows = inp
     _write(labels, rows + [list(rows[1]) for _ in range(20_000)])
-    t0 = time.perf_counter()
-    out = import_wav(rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
-    assert time.perf_counter() - t0 < 15 and Dataset(out).sessions == ["s000", "s001"]
+    out = import_wav(rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)  # its time: benchmarks/bench_input_checks.py
+    assert Dataset(out).sessions == ["s000", "s001"]
     a0, a1 = float(rows[1][1]), float(rows[1][2])
     chain = [list(rows[1]), list(rows[1]), list(rows[1])]
     chain[1][1:3] = [f"{a0 + 0.1:.6f}", f"{a1 + 0.3:.6f}"]  # overlaps the first, reaches further
@@ -565,12 +562,18 @@ def test_many_overlapping_intervals_are_checked_in_linear_time(src, inp, tmp_pat
 def test_a_table_with_a_location_per_row_is_fast_or_refused():
     """20 000 distinct locations took 13 s in label_layout (a marker lookup rebuilt per marker, then a K x K distance
     matrix: 200 000 would have needed 320 GB); more locations than a layout holds are refused in one line."""
+    import tracemalloc
+
     from sonicskin.importers import label_layout
 
     n = 20_000
-    t0 = time.perf_counter()
-    ids, layout, _ = label_layout(np.arange(n), np.arange(n) * 0.01, np.zeros(n), log=lambda *_: None)
-    assert time.perf_counter() - t0 < 5 and len(layout) == n
+    tracemalloc.start()  # memory, not time (the suite runs at any load): a K x K matrix of 20 000 markers is 3.2 GB
+    try:
+        ids, layout, _ = label_layout(np.arange(n), np.arange(n) * 0.01, np.zeros(n), log=lambda *_: None)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 200e6 and len(layout) == n  # its time: benchmarks/bench_input_checks.py
     np.testing.assert_array_equal(layout.coords(ids[:3]), [[0.0, 0.0], [0.01, 0.0], [0.02, 0.0]])
     with pytest.raises(SonicskinError, match="labels: 100001 distinct touch locations, more than a layout holds"):
         label_layout(np.arange(100_001), None, None, log=lambda *_: None)

@@ -672,14 +672,11 @@ CORPUS["sizes (simulate, record, import-spectra --frame/--fs)"] = len(SIZE_CASES
 
 @pytest.mark.parametrize("argv, words", SIZE_CASES, ids=[" ".join(a) for a, _ in SIZE_CASES])
 def test_sizes_beyond_the_machine_are_refused_before_allocating(small, tmp_path, capsys, argv, words):
-    import time
-
-    t0 = time.perf_counter()
     code, _, err = run(capsys, [*argv, "--out", tmp_path / "o", "--rig", small["root"] / "small.yaml",
                                 "--scenario", small["root"] / "tiny.yaml"])
-    line = assert_one_line_error(code, err, argv[0])
+    line = assert_one_line_error(code, err, argv[0])  # how long the refusal takes: benchmarks/bench_input_checks.py
     assert words in line, line
-    assert time.perf_counter() - t0 < 20 and not (tmp_path / "o").exists()
+    assert not (tmp_path / "o").exists()
 
 
 def test_rig_bounds(tmp_path):

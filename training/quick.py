@@ -7,6 +7,8 @@ chirps (measured 20 s vs 3 s for 40 epochs of ~1,100 chirps).
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import torch
 
@@ -32,6 +34,24 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)
     np.random.seed(seed)
+    with deterministic_torch():
+        return _fit(X, cls, force, n_locations=n_locations, epochs=epochs, batch_size=batch_size, kernel_svm=kernel_svm,
+                    **hparams)
+
+
+@contextlib.contextmanager
+def deterministic_torch():
+    """torch's deterministic algorithms for the block (the caller's setting restored after): the same seed, threads and
+    machine give bit-identical weights (see :mod:`training`)."""
+    before, warn = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        torch.use_deterministic_algorithms(before, warn_only=warn)
+
+
+def _fit(X, cls, force, *, n_locations: int, epochs: int, batch_size: int, kernel_svm, **hparams):
     m = SkinLitModule(n_in=X.shape[1], n_locations=n_locations, **{**DEFAULTS, **hparams})
     X = np.ascontiguousarray(X, np.float32)
     m.model.set_normalization(X.mean(0), X.std(0) + 1e-3)
@@ -101,7 +121,8 @@ LAYERS = {"frozen kernel": {"kernel": True, "kernel_lr": 0.0}, "fine-tuned kerne
 def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, train: np.ndarray,
                  val: np.ndarray, how: str, seed: int = 0, location_ids=None, alpha: float = 10.0, **kw) -> dict:
     """Fit each location layer of :data:`LAYERS` on ``train`` rows and score touch accuracy on ``val`` rows
-    (a held-out pass or the validation session); the best (ties: the first, the frozen kernel) wins."""
+    (a held-out pass or the validation session); the best wins, compared at the printed whole percent (ties: the first
+    in :data:`LAYERS`' order, the frozen kernel first)."""
     scores, models = {}, {}
     touch = val & (cls < n_locations)
     for name, hp in LAYERS.items():
@@ -112,7 +133,10 @@ def choose_layer(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locatio
         logits, _ = pred(X[touch])
         scores[name] = float(np.mean(logits[:, :n_locations].argmax(1) == cls[touch]))
         models[name] = pred.model
-    best = max(scores, key=lambda k: scores[k]) if scores else "frozen kernel"
+    # Compared as printed (whole percent): candidates that print the same are a tie, which goes to the first in
+    # LAYERS' fixed order, never to a difference below what the line shows.
+    best = (max(scores, key=lambda k: (int(f"{scores[k]:.0%}"[:-1]), -list(LAYERS).index(k))) if scores else
+            "frozen kernel")
     out = {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
            "layer_scores": scores, "hparams": LAYERS[best]}
     if best in models and location_ids is not None:  # the chosen net's force head on the held-out presses

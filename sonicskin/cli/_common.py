@@ -157,6 +157,15 @@ def check_split_options(a: argparse.Namespace) -> None:
         if len(val_opt) > 1:
             raise UsageError(f"--val {' '.join(val_opt)}: 'none' means no validation session; give it alone or drop it")
         a.val = []
+    for k in ("train", "val", "test"):  # a session named twice was recorded twice in the artifact's split
+        given = getattr(a, k, None)
+        if given:
+            twice = sorted({s for s in given if given.count(s) > 1})
+            if twice:
+                import warnings
+
+                warnings.warn(f"--{k} names {', '.join(twice)} more than once; each session counts once", stacklevel=2)
+                setattr(a, k, list(dict.fromkeys(given)))
     train, val, test = (set(getattr(a, k, None) or ()) for k in ("train", "val", "test"))
     for x, y, nx, ny in ((train, val, "--train", "--val"), (train, test, "--train", "--test"), (val, test, "--val", "--test")):
         if x & y:
@@ -208,14 +217,19 @@ def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
     so a retry is not blocked by a lone ``dataset.json``.  Anything a previous run made is kept
     unless ``--overwrite`` had already replaced it; written parts are kept (``--resume`` continues
     them)."""
+    from ..dataset import writer_lock
+
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
-    try:
-        yield out
-    except BaseException:
-        if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
-            shutil.rmtree(out, ignore_errors=True)
-        raise
+    # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up
+    # below could remove that run's files (two `simulate --out X` at once used to end with no dataset at all).
+    with writer_lock(out):
+        try:
+            yield out
+        except BaseException:
+            if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
+                shutil.rmtree(out, ignore_errors=True)
+            raise
 
 
 @contextlib.contextmanager

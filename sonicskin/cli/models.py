@@ -58,10 +58,12 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
     n_bins = resolve_n_bins(a, a.data)
     train, val = _sessions_for_test(a, a.data)
     table = ds.features()
-    if val:  # held out: the SVM has no validation step
+    # held out: the SVM has no validation step; with --test, exactly those sessions are tested (not every other one)
+    out_of_split = list(val or ()) + [s for s in ds.sessions if a.test and s not in {*train, *(val or ()), *a.test}]
+    if out_of_split:
         import numpy as np
 
-        table = table.select(~np.isin(table["session"], val))
+        table = table.select(~np.isin(table["session"], out_of_split))
     res = evaluate_svm(ds, train_sessions=train, table=table, ablations=not a.no_ablations, n_bins=n_bins,
                        mode=a.mode or "relative", val_sessions=val or ())
     print(format_report(res))
@@ -209,6 +211,7 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         _report_training(cli, selection=False)  # the export below prints the whole selection
         artifact = run / "artifact"
         export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
+        sessions = a.test  # exactly those (the split tests every session it does not train or validate on)
     res = compare_artifact(artifact, a.data, sessions=sessions)
     title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
     print(format_comparison(res, title))
