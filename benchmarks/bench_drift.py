@@ -34,6 +34,11 @@ Two stream layouts:
 - ``one stream`` (``--fig12``): power-on to the end is one stream with refreshes every 20 min, as
   ``sonicskin reproduce``'s Fig. 12 replays it (the tracker then lags the warm-up by up to 20 min).
 
+``--variant nowarm`` adds the paired control: the same seed's presses, aims and noise without any warm-up (a
+single session's accuracy moves by several points with its 31 presses alone); ``nograd``, ``nodamp`` and
+``nograd_nodamp`` switch off the warm-up's gradient along the link and the wall's damping rise, to show what
+a uniform warp cannot undo.
+
 Prints per session: minutes, the true and estimated stretch and temperature rise, and accuracy (touch chirps) per
 model and warp; per half hour the sessions nearest 30 / 60 / 90 / 120 min and the mean of each half hour; the
 estimator's error against the truth; and the cost of an estimate and of a warp per chirp.  Writes
@@ -60,14 +65,45 @@ WARPS = ("off", "est", "truth")
 HALF_HOURS_MIN = (30.0, 60.0, 90.0, 120.0)
 
 
-def _simulated(seed: int, cache: Path) -> Path:
-    from sonicskin.cli import main
+#: Physics ablations of the simulated warm-up (``--variant``): what a uniform warp can and cannot undo.
+VARIANTS = {
+    "nowarm": "no warm-up at all (warmup_c 0): the same presses and noise without drift, the paired ceiling",
+    "nograd": "a uniform warm-up (gradient 0, lag 0): no mode-shape change along the link",
+    "nodamp": "no damping rise with temperature (the wall's deta_per_k 0)",
+    "nograd_nodamp": "a pure stretch (plus the piezo bonds, which cancel in relative features)",
+}
 
-    path = cache / f"drift-2h-s{seed}"
-    if not (path / "dataset.json").is_file():
-        rc = main(["simulate", "--scenario", "drift-2h", "--seed", str(seed), "--out", str(path), "--overwrite", "--quiet"])
-        if rc:
-            sys.exit(f"bench_drift: simulating seed {seed} failed ({rc})")
+
+def _simulated(seed: int, cache: Path, variant: str | None = None, link_seed: int | None = None) -> Path:
+    """drift-2h of one simulator seed (``variant``: one of :data:`VARIANTS`; ``link_seed``: another link than the
+    scenario's), simulated once into ``cache``."""
+    import dataclasses
+
+    from sonicskin.rig import Rig
+    from sonicskin.sim import channel, simulator
+    from sonicskin.sim.generate import simulate_dataset
+    from sonicskin.sim.scenario import Scenario
+
+    path = cache / (f"drift-2h-s{seed}" + (f"-link{link_seed}" if link_seed is not None else "")
+                    + (f"-{variant}" if variant else ""))
+    if (path / "dataset.json").is_file():
+        return path
+    sc = Scenario.load("drift-2h").replace(seed=seed)
+    if link_seed is not None:
+        sc = sc.replace(link_seed=link_seed)
+    T = dict(sc.temperature)
+    if variant == "nowarm":
+        T["warmup_c"] = 0.0
+    if variant in ("nograd", "nograd_nodamp"):
+        T.update(gradient=0.0, lag=0.0)
+    sc = sc.replace(temperature=T)
+    saved = channel.MATERIALS[sc.material]
+    if variant in ("nodamp", "nograd_nodamp"):  # a bench-only ablation: the material table is not a scenario key
+        simulator.MATERIALS[sc.material] = dataclasses.replace(saved, deta_per_k=0.0)
+    try:
+        simulate_dataset(sc, Rig.load("jaco"), path, mode="overwrite", progress=False, log=lambda *_: None)
+    finally:
+        simulator.MATERIALS[sc.material] = saved
     return path
 
 
@@ -404,10 +440,17 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="reports/drift", help="where the JSON goes (default: reports/drift)")
     ap.add_argument("--no-net", action="store_true", help="leave the network out (no torch needed)")
     ap.add_argument("--fig12", action="store_true", help="also replay power-on to the end as one stream (Fig. 12)")
+    ap.add_argument("--variant", nargs="*", default=[], choices=sorted(VARIANTS),
+                    help="also run these physics ablations of each seed: " + "; ".join(f"{k}: {v}" for k, v in VARIANTS.items()))
+    ap.add_argument("--reproduce", type=int, nargs="*", default=[], metavar="K",
+                    help="also the datasets of `sonicskin reproduce`'s simulator seeds K (seed 3 + 1000 K, link_seed 7 + K; "
+                         "K = 0 is --seeds 3)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = [Path(p) for p in a.data] if a.data else [_simulated(s, Path(a.cache)) for s in a.seeds]
+    runs = [(s, None) for s in a.seeds] + [(3 + 1000 * k, 7 + k) for k in a.reproduce]
+    paths = [Path(p) for p in a.data] if a.data else [_simulated(s, Path(a.cache), v, link) for s, link in runs
+                                                     for v in [None, *a.variant]]
     if not a.data and set(a.seeds) & set(HELD_OUT):
         print(f"note: seeds {sorted(set(a.seeds) & set(HELD_OUT))} are the held-out final-report seeds")
     for p in paths:

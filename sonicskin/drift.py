@@ -27,8 +27,18 @@ uses allowed bins only, away from every segment edge by the largest searched shi
 bridged by linear interpolation before the trend is taken (a PWM line of a moving robot cannot pose as
 a mode, and it does not stretch).
 
-Pure numpy/scipy (no torch): it runs in the live loop.  The estimate costs milliseconds once per reference
-refresh; the warp is one gather and blend per chirp (``benchmarks/bench_drift.py`` reports both).
+Pure numpy/scipy (no torch): it runs in the live loop.  The estimate costs tens of milliseconds once per
+reference refresh; the warp is one gather and blend per chirp (``benchmarks/bench_drift.py`` reports both).
+
+Wiring it into Alg. 2 (one code path for ``live``, ``listen()`` and every replay), as the benchmark does:
+the training reference is the mean dB of the training session's hands-off chirps (``quiet_mask``), stored
+in the artifact as :meth:`DriftTracker.to_dict`.  A stream's :class:`~sonicskin.calibration.OnlineReference`
+is fed *band* rows (not the model's bins) with ``relative=False`` and ``score_fn=on_reference``;
+``on_reference(block)`` runs when a new reference takes effect (boot and every refresh) with that
+reference's chirps: it calls ``tracker.update(block)`` and returns the score material of the warped block
+(the SVM's ``S_c``).  Each chirp's model inputs are then ``tracker.warp_bins(x, bins) -
+tracker.warp_bins(ref.features, bins)`` (the warp is linear, so this is the warped relative feature).
+Training features are not warped: the training reference is the warp's zero.
 """
 
 from __future__ import annotations
