@@ -453,6 +453,7 @@ def main(argv=None) -> int:
                                                      for v in [None, *a.variant]]
     if not a.data and set(a.seeds) & set(HELD_OUT):
         print(f"note: seeds {sorted(set(a.seeds) & set(HELD_OUT))} are the held-out final-report seeds")
+    done: dict[str, dict] = {}
     for p in paths:
         print(f"{p}:")
         t0 = time.perf_counter()
@@ -461,7 +462,23 @@ def main(argv=None) -> int:
         res["wall_s"] = time.perf_counter() - t0
         (out / f"drift-{p.name}.json").write_text(json.dumps(res, indent=1, default=float))
         print(f"  {res['wall_s']:.0f} s; wrote {out / f'drift-{p.name}.json'}")
+        done[p.name] = res
+    paired(done)
     return 0
+
+
+def paired(done: dict[str, dict], log=print) -> None:
+    """Each seed against its no-warm-up control (same presses and noise): half-hour means, control / off / est."""
+    pairs = [(k[: -len("-nowarm")], k) for k in done if k.endswith("-nowarm") and k[: -len("-nowarm")] in done]
+    if not pairs:
+        return
+    log("paired with the no-warm-up control (half-hour means, 6 sessions each: control / no warp / warp):")
+    for base, ctl in pairs:
+        b, c = done[base]["summary"]["half_hour_mean"], done[ctl]["summary"]["half_hour_mean"]
+        for m in done[base]["models"]:
+            cells = [f"{100 * c[f'{m} off'][i]:5.1f} / {100 * b[f'{m} off'][i]:5.1f} / {100 * b[f'{m} est'][i]:5.1f}"
+                     for i in range(4)]
+            log(f"  {base:22s} {m:9s} " + "   ".join(cells))
 
 
 if __name__ == "__main__":
