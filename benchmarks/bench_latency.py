@@ -39,7 +39,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from sonicskin.artifact import build_svm_artifact  # noqa: E402
+from sonicskin.fit import build_svm_artifact  # noqa: E402
 from sonicskin.live import LiveLoop  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.runtime import SkinRuntime  # noqa: E402

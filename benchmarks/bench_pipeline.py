@@ -30,9 +30,11 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sonicskin.dsp import log_magnitude_db  # noqa: E402
+from sonicskin.fit import fit_svm_head  # noqa: E402
+from sonicskin.head import SVMHead  # noqa: E402
+from sonicskin.ospa import OSPA  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.sim import Scenario, Simulator, build_timeline  # noqa: E402
-from sonicskin.skin import SkinSVM  # noqa: E402
 
 
 def timeit(fn, n):
@@ -163,13 +165,23 @@ def main() -> None:
     X1 = log_magnitude_db(f1, rig)
 
     quiet = (s0.location < 0) & (s0.moving == 0)
-    model = SkinSVM(rig, sc.make_layout()).fit(X0, s0.location, s0.force_n, quiet=quiet,
-                                                 X_moving=X0[(s0.location < 0) & (s0.moving > 0)])
+    layout = sc.make_layout()
+    touch = s0.location >= 0
+    bins = OSPA(gamma=300, allowed=rig.allowed_mask).fit(X0[touch], X_moving=X0[(s0.location < 0) & (s0.moving > 0)]).selected_
+    cls = np.where(touch, layout.index_of(np.where(touch, s0.location, layout.ids[0])), len(layout))
+    pipe, params = fit_svm_head(X0[:, bins], cls, s0.force_n, quiet, n_locations=len(layout), location_ids=layout.ids,
+                                detector="paper")
+    head = SVMHead(params, layout)
     frame = f1[100:101]
     feat = timeit(lambda: log_magnitude_db(frame, rig), 200)
-    x = X1[100:101]
-    dec = timeit(lambda: model.localizer_.decision_function(x), 200)
-    full = timeit(lambda: model.predict(log_magnitude_db(frame, rig), online=False), 200)
+    x = X1[100:101, bins]
+    dec = timeit(lambda: pipe.decision_function(x), 200)
+
+    def decide(fr):
+        z = log_magnitude_db(fr, rig)[:, bins]
+        return head.decide([None, pipe.decision_function(z)], z)
+
+    full = timeit(lambda: decide(frame), 200)
     period_ms = rig.period_s * 1e3
     for name, t in (("frame -> features", feat), ("features -> SVM scores", dec), ("frame -> location + force", full)):
         print(f"per chirp {name:26s} median {np.median(t) * 1e3:6.3f} ms  p99 {np.percentile(t, 99) * 1e3:6.3f} ms"

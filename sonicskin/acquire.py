@@ -24,9 +24,9 @@ from .dsp import rig_chirp
 from .errors import SonicskinError
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "MAX_BLOCKSIZE", "check_blocksize", "Link", "load_links", "import_sounddevice", "list_devices", "find_device", "resolve_device",
-           "check_device_rate", "SoundDeviceSource",
-           "SimulatedSource", "RecordingSource"]
+__all__ = ["Block", "AudioError", "MAX_BLOCKSIZE", "check_blocksize", "Link", "load_links", "import_sounddevice",
+           "list_devices", "find_device", "resolve_device", "check_device_rate", "SoundDeviceSource", "SimulatedSource",
+           "RecordingSource"]
 
 
 class AudioError(SonicskinError, RuntimeError):

@@ -16,7 +16,6 @@ import os
 import re
 import shutil
 import sys
-import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .baseline import ovr_scores_from_ovo
 from .dataset import write_file
-from .features import prepare, quiet_mask
+from .head.heads import ovr_scores_from_ovo
+from .head.heads import pairwise as _pairwise
 from .schema import (
     ARTIFACT_FORMAT,
     ARTIFACT_VERSION,
@@ -42,10 +41,9 @@ from .schema import (
     stamp_binding,
     validate_skin,
 )
-from .svm_head import _pairwise, fit_svm_head
 
 __all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "sha256", "ort_session",
-           "export_svm", "skin_json", "build_svm_artifact", "atomic_artifact", "json_safe"]
+           "export_svm", "skin_json", "atomic_artifact", "json_safe"]
 
 #: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
 #: scikit-learn (float64): their outputs differ by rounding that grows with the size of the values (a network's
@@ -198,8 +196,9 @@ def _default_probe(n_in: int) -> np.ndarray:
 
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
-              probe_inputs: np.ndarray | None = None, selection: dict | None = None) -> dict:
-    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters).
+              probe_inputs: np.ndarray | None = None, selection: dict | None = None, drift: dict | None = None) -> dict:
+    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters); ``drift``:
+    drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`).
 
     The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
     width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
@@ -217,6 +216,8 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
             "models": {k: {kk: vv for kk, vv in e.items() if kk not in ("sha256", "probe")} for k, e in models.items()}}
     if selection:
         skin["selection"] = _json_safe(selection)
+    if drift:
+        skin["drift"] = drift
     old_probes = {k: e["probe"]["inputs"] for k, e in models.items() if isinstance(e.get("probe"), dict) and "inputs" in e["probe"]}
     where = str(out / "skin.json (being written)")
     skin = json.loads(json.dumps(skin, default=_plain))
@@ -282,42 +283,6 @@ def json_safe(o):
 
 
 _json_safe = json_safe  # the earlier private name (sonicskin.seeds)
-
-
-def svm_entry(p: dict, out: Path, train_mask: np.ndarray, *, C: float = 10.0, val_mask: np.ndarray | None = None,
-              selection: dict | None = None, select: bool = True, log=print) -> tuple[dict, float, dict]:
-    """Fit the SVM head on the training chirps of a :func:`sonicskin.features.prepare` result, export
-    ``svm.onnx`` with parity, and return its ``skin.json`` entry, the fit time and the model selection
-    (:mod:`sonicskin.selection`: C, kernel width, force model and threshold validated on the training
-    and ``val_mask`` chirps; ``select=False`` keeps the paper's values)."""
-    from .selection import select_on_inputs
-
-    t, X = p["table"], p["X"]
-    sel = dict(selection or {})
-    if select:
-        sel = select_on_inputs(X, t, cls=p["cls"], train_mask=train_mask, val_mask=val_mask, n_locations=p["n_locations"],
-                               location_ids=p["dataset"].layout.ids, selection=sel, log=log)
-    sp = (sel.get("svm") or {}).get("params", {})
-    fsel = sel.get("force") or {}
-    t0 = time.perf_counter()
-    pipe, params = fit_svm_head(X[train_mask], p["cls"][train_mask], p["force"][train_mask], quiet_mask(t)[train_mask],
-                                n_locations=p["n_locations"], location_ids=p["dataset"].layout.ids, C=sp.get("C", C),
-                                kernel_gamma=sp.get("kernel_width", 1.0) / X.shape[1] if sp else "scale",
-                                force_model=fsel.get("model", "fourier1"), force_alpha=fsel.get("alpha") or 10.0)
-    fit_s = time.perf_counter() - t0
-    if params["detection"] and val_mask is not None and np.any(val_mask):  # what the threshold does on validation
-        from .selection import detection_on_validation
-
-        det = detection_on_validation(X, t, cls=p["cls"], val_mask=val_mask, n_locations=p["n_locations"],
-                                      threshold=params["threshold"])
-        if det is not None:
-            sel["detection"] = det
-    rng = np.random.default_rng(0)
-    Xc = X[train_mask]  # parity on training chirps: nothing of a test session reaches the artifact
-    check = Xc[rng.choice(Xc.shape[0], size=min(512, Xc.shape[0]), replace=False)]
-    parity = export_svm(pipe, p["n_locations"], Path(out) / "svm.onnx", check)
-    return {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(X.shape[1]), "n_locations": p["n_locations"],
-            "parity": parity, **params, "_probe": check[:PROBE_ROWS]}, fit_s, sel
 
 
 ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.png)")
@@ -399,44 +364,3 @@ def _swap_in(tmp: Path, out: Path) -> None:
     os.rename(out, old)
     os.rename(tmp, out)
     shutil.rmtree(old, ignore_errors=True)
-
-
-def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
-                       min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
-    """SVM-only artifact from a dataset, torch-free: OSPA on the training sessions (default: all),
-    scaler + RBF SVM, Alg. 2 reference, detection threshold, force model.  ``n_bins=None`` chooses
-    gamma (with C, kernel width, force model) by validation on the training sessions' presses
-    (:mod:`sonicskin.selection`), or keeps the paper's 300 with a warning when it cannot validate.
-
-    ``out`` is replaced as a whole when everything is written (:func:`atomic_artifact`)."""
-    from .dataset import Dataset
-    from .features import load_features_cached
-    from .selection import format_selection, select_gamma_on_table
-
-    ds = Dataset(data)
-    sessions = ds.sessions
-    train = list(train_sessions or sessions)
-    sel: dict = {}
-    if n_bins is None:
-        t = load_features_cached(ds, progress=progress)
-        sel["svm"] = select_gamma_on_table(t, ds.rig, train_sessions=train, mode=mode, min_force_n=min_force_n, log=log)
-        n_bins = sel["svm"]["params"]["n_bins"]
-    # Every session may train here (no test split): give Split one dummy test session if needed.
-    p = prepare(data, n_bins=n_bins, mode=mode, train_sessions=train, val_sessions=[],
-                min_force_n=min_force_n, progress=progress, allow_no_test=True)
-    out = Path(out)
-    tr = p["split"].mask(p["table"], "train") & p["usable"]
-    with atomic_artifact(out) as tmp:
-        entry, fit_s, sel = svm_entry(p, tmp, tr, selection=sel, log=log)
-        skin = skin_json(tmp, rig=ds.rig.to_dict(), layout=ds.layout.to_dict(), spec=p["spec"], min_force_n=min_force_n,
-                         training={"data": str(Path(data).resolve()), "split": p["split"].to_dict(), "svm_train_time_s": fit_s},
-                         models={"svm": entry}, probe_inputs=entry.pop("_probe"), selection=sel)
-        for line in format_selection(sel):
-            log(line)
-        from .selection import save_learning_curve
-
-        if save_learning_curve(sel, tmp / "learning_curve.png", title=f"{ds.root.name}: SVM accuracy vs presses per location"):
-            log(f"wrote {out}/learning_curve.png")
-    log(f"wrote {out}/svm.onnx ({(out / 'svm.onnx').stat().st_size / 1e3:.0f} kB, parity max |d scores| "
-        f"{entry['parity']['max_abs_scores']:.1e}) and skin.json")
-    return skin

@@ -9,52 +9,10 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 from sklearn.utils.validation import check_is_fitted
 
+from .head.heads import ovr_scores_from_ovo
 from .ospa import OSPA
 
 __all__ = ["SVMLocalizer", "ovr_scores_from_ovo"]
-
-
-def _pair_index(n_classes: int) -> tuple[np.ndarray, np.ndarray]:
-    i, j = np.triu_indices(n_classes, k=1)  # libsvm's pair order: (0,1), (0,2), ..., (1,2), ...
-    return i, j
-
-
-def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
-    """Per-class scores from the ``K (K-1) / 2`` pairwise SVM decision values.
-
-    The same transform scikit-learn applies for ``decision_function_shape="ovr"``: votes
-    plus the summed pairwise confidences squashed into ``(-1/3, 1/3)``, vectorised.  Computing
-    it outside the model lets the ONNX graph stay tiny (2 nodes for ovo vs ~2,400 for ovr).
-
-    Parameters
-    ----------
-    ovo : (n, K (K-1) / 2) pairwise decision values, libsvm pair order; for K = 2 also scikit-learn's
-        1-D binary decision values.
-    n_classes : K.
-
-    Returns
-    -------
-    scores : (n, K) float64.
-    """
-    ovo = np.asarray(ovo, dtype=np.float64)
-    if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
-        ovo = ovo[:, 0]  # skl2onnx's binary SVM output is [d, -d] with scikit-learn's d
-    if ovo.ndim == 1:
-        # scikit-learn's binary decision value is positive for classes_[1]; libsvm's pair value
-        # is positive for the first class of the pair.
-        ovo = -ovo[:, None]
-    i, j = _pair_index(n_classes)
-    if ovo.ndim != 2 or ovo.shape[1] != i.size:
-        raise ValueError(f"expected (n, {i.size}) pairwise scores for {n_classes} classes, got {ovo.shape}")
-    P = np.zeros((i.size, n_classes))
-    P[np.arange(i.size), i] = 1.0
-    P[np.arange(i.size), j] = -1.0
-    conf = ovo @ P
-    win_i = (ovo > 0).astype(np.float64)  # libsvm votes for i when the decision value is positive
-    Vi = np.zeros((i.size, n_classes)); Vi[np.arange(i.size), i] = 1.0
-    Vj = np.zeros((i.size, n_classes)); Vj[np.arange(i.size), j] = 1.0
-    votes = win_i @ Vi + (1.0 - win_i) @ Vj
-    return votes + conf / (3.0 * (np.abs(conf) + 1.0))
 
 
 class SVMLocalizer(ClassifierMixin, BaseEstimator):

@@ -54,14 +54,16 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
             "onnx_median_ms": float(np.median(onnx) * 1e3), "onnx_p99_ms": float(np.percentile(onnx, 99) * 1e3)}
 
 
-def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
+def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions, *, drift: dict | None = None) -> Predictions:
     """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it.
 
     The live loop boots Alg. 2's reference on the stream's first ``beta`` chirps, which the recording
     protocol keeps hands-off.  A stream that starts with less rest than that (a table of touches only, or
     rest too short for a reference, where training fell back to absolute inputs) has nothing to boot on:
     with absolute inputs every chirp is scored as it is (the training reference, no boot calibration);
-    relative inputs cannot be formed there and are refused in one line.
+    relative inputs cannot be formed there and are refused in one line.  ``drift``: a dict that receives, per
+    session, what drift tracking found there (:meth:`sonicskin.drift.DriftTracker.report`; artifacts with drift
+    tracking only).
     """
     parts = []
     beta = rt.spec.reference(rt.rig.chirps_per_s).beta
@@ -77,7 +79,10 @@ def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions) -> Predictions:
             p.calibrating = np.zeros(int(m.sum()), bool)
             parts.append(p)
         else:
-            parts.append(rt.replay(t.X[m], t["time_s"][m]))
+            st = rt.stream()
+            parts.append(st.replay(t.X[m], t["time_s"][m]))
+            if drift is not None and st.drift is not None:
+                drift[str(s)] = st.drift.report()
     return Predictions.concat(parts)
 
 
@@ -180,7 +185,8 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     te = t.select(np.isin(t["session"], test))
     svm_meta = meta["models"].get("svm", {})
     for k, rt in rts.items():
-        p = replay_sessions(rt, te, test)
+        drift: dict = {}
+        p = replay_sessions(rt, te, test, drift=drift)
         r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
                            detection=svm_meta.get("detection", True))
         sel = touch_mask(te, meta.get("min_force_n", 0.5)) & p.touch  # the chirps force is scored on (plotted)
@@ -192,6 +198,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
         else:
             r["latency"] = None
         r["model_bytes"] = int((art / rt.m["file"]).stat().st_size)
+        r["drift"] = drift or None  # per test session: the stretch drift tracking estimated and its warning
         r["train_time_s"] = meta["training"].get(f"{k}_train_time_s")
         res["models"][k] = r
     beta = rts[names[0]].spec.reference(rts[names[0]].rig.chirps_per_s).beta
@@ -264,6 +271,14 @@ def format_comparison(res: dict, title: str = "") -> str:
     for key, what in (("force", "force"), ("detection", "detection")):
         if first[key].get("measurable") is False:
             out.append(f"  {what}: {first[key]['reason']}")
+    drift = first.get("drift")  # the models share the reference's chirps: one line
+    if drift:
+        out.append("  drift tracking (the frequency stretch each test session showed): " + ", ".join(
+            f"{s} {d['stretch']:+.1e}" + ("" if d.get("kelvin") is None else f" ({d['kelvin']:+.1f} K)")
+            for s, d in drift.items()))
+        warned = [f"{s}: {d['warning']}" for s, d in drift.items() if d.get("warning")]
+        if warned:
+            out.append(f"  warning: drift tracking on {warned[0]}" + (f" (and {len(warned) - 1} more)" if len(warned) > 1 else ""))
     if "net" in models and "svm" in models and models["net"]["latency"] and models["svm"]["latency"]:
         net, svm = models["net"], models["svm"]
         speed = speed_ratio(net["latency"]["onnx_median_ms"], svm["latency"]["onnx_median_ms"])

@@ -17,11 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .baseline import SVMLocalizer
 from .dataset import Dataset, FeatureTable, write_file
 from .force import PerLocationForce, energy_db
-from .metrics import force_report, localization_report
-from .skin import SkinSVM
+from .metrics import force_report
 
 __all__ = ["split_sessions", "evaluate_svm"]
 
@@ -63,18 +61,28 @@ def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
                  val_sessions=(), log=print) -> dict:
-    """Train :class:`SkinSVM` on ``train_sessions`` (default: the first), test on the rest.
+    """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
 
-    ``mode="relative"`` calibrates the scores online (Alg. 2), ``"absolute"`` keeps the training
-    session's reference throughout.  ``n_bins``: OSPA's gamma (default the paper's 300, clamped to the rig's bins).  On data without
-    hands-off chirps (a table of touches only) localization and force are trained and reported,
-    detection and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant
-    force) force is reported as absent.  Streams whose rest is shorter than Alg. 2's beta use the
-    rest they have, down to :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the
-    caller, not in ``table``) are only named in the report.
+    The paper's SVM (OSPA's ``n_bins`` on the absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
+    per-location Fourier-1 force, the paper's detector: the largest calibrated score ``max(S - S_c)`` above a
+    threshold) is fitted by the one fit (:mod:`sonicskin.fit`), exported, and every test session replayed through
+    the artifact as the live loop runs it (:class:`sonicskin.head.Stream`).  ``mode="relative"`` calibrates the
+    scores online (Alg. 2: ``S_c`` from the stream's no-touch chirps), ``"absolute"`` keeps the training session's
+    reference throughout.  ``n_bins``: OSPA's gamma (default the paper's 300, clamped to the rig's bins).  On data
+    without hands-off chirps (a table of touches only) localization and force are trained and reported, detection
+    and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant force) force is reported as
+    absent.  Streams whose rest is shorter than Alg. 2's beta use the rest they have, down to
+    :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the caller, not in ``table``) are only
+    named in the report.
     """
+    import dataclasses
+    import tempfile
+
     from .calibration import OnlineReference
-    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
+    from .compare import chirps_per_location, coverage_note, replay_sessions, stream_metrics
+    from .features import MIN_REST_CHIRPS, Split, rest_beta, usable_bins
+    from .fit import fit_artifact, prepare
+    from .runtime import SkinRuntime
 
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
@@ -84,126 +92,123 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     tr, te = split_sessions(table, train_sessions)
     trained = set(np.unique(tr["location"][_touch(tr, min_force_n)]).tolist())
     never = [str(i) for i in ds.layout.ids if int(i) not in trained]
-    if never:  # the SVM has no class for them: every test touch there is an error, which the accuracy alone hides
-        import warnings
-
-        warnings.warn(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the layout's "
-                      f"{len(ds.layout)} locations (never trained: {', '.join(never[:12])}{', ...' if len(never) > 12 else ''}); "
-                      f"the SVM cannot predict those and counts their test touches as errors: train on sessions that touch "
-                      f"every location (--train)", stacklevel=2)
-    moving_tr = (tr["location"] < 0) & (tr["moving"] > 0)
-    X_moving = tr.X[moving_tr] if moving_tr.sum() >= 2 else None
+    if never:  # the SVM has no class for them: every test touch there would be an error the accuracy alone hides
+        raise ValueError(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the "
+                         f"layout's {len(ds.layout)} locations (never trained: {', '.join(never[:12])}"
+                         f"{', ...' if len(never) > 12 else ''}); the SVM needs a press at every location: train on "
+                         f"sessions that touch every location (--train)")
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
     cal = OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
     beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
     rest = beta is not None  # every stream has a no-touch reference: detection and Alg. 2 are measurable
-    if rest and beta < cal.beta:
-        cal = OnlineReference(beta, cal.alpha, ds.rig.chirps_per_s)
     if not rest:
         log(f"note: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps (touches only?): localization "
             f"and force only, on absolute features; detection and Alg. 2 are {NOT_MEASURABLE}")
-    t0 = time.perf_counter()
-    model = SkinSVM(ds.rig, ds.layout, n_bins=gamma, min_force_n=min_force_n, calibrator=cal)
-    model.fit(tr.X, tr["location"], tr["force_n"], quiet=_quiet(tr) if rest else np.zeros(len(tr), bool),
-              X_moving=X_moving)
-    train_s = time.perf_counter() - t0
-    res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions),
-                 "test_sessions": sorted(set(te["session"])), "n_train": len(tr), "n_test": len(te),
-                 "train_time_s": train_s, "n_bins": gamma, "beta_chirps": beta}
-    # Test stream, session by session (each session is a stream with its own calibration).
-    preds = {k: [] for k in ("location", "touch", "force", "location_offline")}
-    for s in res["test_sessions"]:
-        t = te.select(te["session"] == s)
-        # Alg. 2 from the model's own detection (boot: the stream's first beta chirps); no test labels.
-        p = model.predict(t.X, time_s=t["time_s"], online=rest and mode == "relative")
-        p0 = model.predict(t.X, online=False)
-        preds["location"].append(p.location)
-        preds["touch"].append(p.touch)
-        f = (model.force_.predict(p.energy_db, t["location"].clip(min(ds.layout.ids))) if model.force_ is not None
-             else np.full(len(t), np.nan))
-        preds["force"].append(np.clip(f, 0, None))
-        preds["location_offline"].append(p0.location)
-    P = {k: np.concatenate(v) for k, v in preds.items()}
-    touch = _touch(te, min_force_n)
-    quiet_te = te["location"] < 0
-    loc = localization_report(te["location"][touch], P["location"][touch], ds.layout)
-    res["localization"] = {k: v for k, v in loc.items() if k != "errors_cm"}
-    res["errors_cm"] = loc["errors_cm"].tolist()
-    from .compare import chirps_per_location, coverage_note
+    test_sessions = sorted(set(te["session"]))
+    split = Split(tuple(str(s) for s in train_sessions), (), tuple(str(s) for s in test_sessions))
+    quiet = lambda m: None  # noqa: E731
 
-    res["val_sessions"] = list(val_sessions)
-    res["chirps_per_location"] = chirps_per_location(te, touch, ds.layout)
-    res["coverage_note"] = coverage_note(res["chirps_per_location"])
-    if model.detector_ is not None and quiet_te.any():
-        res["detection"] = {"threshold": model.detector_.threshold_,
-                            "false_touch_rate": float(np.mean(P["touch"][quiet_te])),
-                            "missed_touch_rate": float(np.mean(~P["touch"][touch])),
-                            "train_false_touch_rate": model.detector_.false_touch_rate_,
-                            "train_missed_touch_rate": model.detector_.missed_touch_rate_}
-    else:
-        res["detection"] = {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"}
-    # Force at the true location (the paper calibrates and reports force per location).
-    absent = _force_absent(tr, _touch(tr, min_force_n)) or _force_absent(te, touch)
-    res["force"] = {"measurable": False, "reason": absent} if absent else force_report(te["force_n"][touch], P["force"][touch])
-    if ablations:
-        res["ablations"] = _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, rest=rest,
-                                      force=absent is None)
+    def paper_data(**kw):
+        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, log=quiet, **kw)
+        if rest and beta < cal.beta:  # Alg. 2's reference averages the rest every stream has
+            d.spec = dataclasses.replace(d.spec, beta_s=beta / ds.rig.chirps_per_s)
+        if not rest:  # no hands-off chirps in some stream: no detector, no Alg. 2 reference
+            d.usable = d.usable & (d.cls < d.n_locations)
+        return d
+
+    with tempfile.TemporaryDirectory(prefix="sonicskin-evaluate-") as tmp:
+        data = paper_data(n_bins=gamma)
+        skin = fit_artifact(data, Path(tmp) / "paper", select=False, detector="paper", log=quiet)
+        rt = SkinRuntime(Path(tmp) / "paper", "svm")
+        # Alg. 2 from the model's own detection (boot: each stream's first beta chirps); no test labels.
+        p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative"
+             else rt.predict_inputs(rt.inputs(te.X)))
+        if p.calibrating is None:
+            p.calibrating = np.zeros(len(te), bool)
+        offline = rt.predict_inputs(rt.inputs(te.X))  # the training session's reference throughout
+        m = stream_metrics(p, te, ds.layout, min_force_n=min_force_n, detection=rest)
+        svm = skin["models"]["svm"]
+        res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions), "test_sessions": test_sessions,
+                     "n_train": len(tr), "n_test": len(te), "train_time_s": skin["training"]["svm_train_time_s"],
+                     "n_bins": len(data.spec.bins), "beta_chirps": beta}
+        touch = _touch(te, min_force_n)
+        res["localization"] = m["localization"]
+        res["errors_cm"] = m["errors_cm"]
+        res["val_sessions"] = list(val_sessions)
+        res["chirps_per_location"] = chirps_per_location(te, touch, ds.layout)
+        res["coverage_note"] = coverage_note(res["chirps_per_location"])
+        res["detection"] = ({**m["detection"], "threshold": svm["threshold"],
+                             "train_false_touch_rate": svm["train_false_touch_rate"],
+                             "train_missed_touch_rate": svm["train_missed_touch_rate"]}
+                            if rest and m["detection"].get("measurable", True)
+                            else {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"})
+        absent = _force_absent(tr, _touch(tr, min_force_n)) or _force_absent(te, touch)
+        res["force"] = {"measurable": False, "reason": absent} if absent else m["force"]
+        if ablations:
+            res["ablations"] = _ablations(ds, tr, te, p, offline, touch, svm, data, paper_data, Path(tmp), beta, rest=rest,
+                                          force=absent is None)
     return res
 
 
-def _ablations(ds, tr, te, model, P, touch, X_moving, min_force_n, log, *, rest: bool = True, force: bool = True) -> dict:
+def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
+               force: bool = True) -> dict:
+    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin (no
+    matched filter), online calibration vs the training reference only, E^O vs the total band energy for force, and
+    Alg. 2 applied to the features."""
+    from .compare import replay_sessions
+    from .fit import fit_artifact, prepare
+    from .rig import Rig
+    from .runtime import SkinRuntime
+
     out = {}
-    tr_touch = _touch(tr, min_force_n)
-    # OSPA vs every bin of the chirp band (no selection, no matched filter).
+    quiet = lambda m: None  # noqa: E731
+    loc = te["location"]
+    scored = touch & ~p.calibrating
+    # OSPA vs every bin of the chirp band (no selection, no matched filter: a rig without PWM notches).
     t0 = time.perf_counter()
-    allbins = SVMLocalizer(n_bins=ds.rig.n_band, allowed=None).fit(tr.X[tr_touch], tr["location"][tr_touch])
-    acc_all = float(np.mean(allbins.predict(te.X[touch]) == te["location"][touch]))
-    out["accuracy_all_bins"] = acc_all
-    out["accuracy_ospa"] = float(np.mean(P["location"][touch] == te["location"][touch]))
+    every = paper_data(bins=np.arange(ds.rig.n_band), rig=Rig.from_dict({**ds.rig.to_dict(), "pwm_hz": []}))
+    fit_artifact(every, tmp / "all-bins", select=False, detector="paper", log=quiet)
+    rt_all = SkinRuntime(tmp / "all-bins", "svm")
+    out["accuracy_all_bins"] = float(np.mean(rt_all.predict_inputs(rt_all.inputs(te.X[touch])).location == loc[touch]))
+    out["accuracy_ospa"] = float(np.mean(p.location[scored] == loc[scored]))
     out["all_bins_train_time_s"] = time.perf_counter() - t0
     if not rest:  # no rest in the streams: Alg. 2 has nothing to calibrate on
         out["alg2"] = {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"}
     else:
-        # Online calibration vs the training reference only.
-        out["accuracy_without_online_calibration"] = float(np.mean(P["location_offline"][touch] == te["location"][touch]))
-    beta = model.calibrator.beta
+        out["accuracy_without_online_calibration"] = float(np.mean(offline.location[touch] == loc[touch]))
     if force and rest:
-        # Force from total band energy E vs E^O over the OSPA bins.
+        # Force from total band energy E vs E^O over the OSPA bins (per-location Fourier-1 at the true location).
         all_bins = np.arange(ds.rig.n_band)
         ref_tr = tr.X[_quiet(tr)].mean(axis=0)
+        tr_touch = _touch(tr, data.min_force_n)
         has_f = tr_touch & np.isfinite(tr["force_n"])
         E_tr = energy_db(tr.X[has_f], all_bins, ref_tr)
         fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][has_f], tr["location"][has_f])
         # Test reference: each stream's boot calibration (its first beta chirps), not its labelled rest.
         E_te = np.concatenate([energy_db(te.X[(te["session"] == s)], all_bins, te.X[(te["session"] == s)][:beta])
                                for s in sorted(set(te["session"]))])
-        f_total = np.clip(fm.predict(E_te[touch], te["location"][touch]), 0, None)
+        f_total = np.clip(fm.predict(E_te[touch], loc[touch]), 0, None)
         out["force_total_energy"] = force_report(te["force_n"][touch], f_total)
-        out["force_train_r2_ospa"] = float(np.mean([c.r2 for c in model.force_.curves_.values()]))
+        out["force_train_r2_ospa"] = float(np.mean([c["r2"] for c in svm["force"]["curves"].values()]))
         out["force_train_r2_total"] = float(np.mean([c.r2 for c in fm.curves_.values()]))
-    rows = []
-    sess_touch = te["session"][touch]
     p_rel = None
     if rest:
-        # Alg. 2 applied to the features: both splits minus their own running no-touch reference, the
-        # training split's from its labelled rest, the test streams' from the SVM's own detection.
-        from .features import relative_features
-
-        bins = model.localizer_.selected_
-        rel = {"train": relative_features(tr.X[:, bins], _quiet(tr), tr["session"], tr["time_s"], model.calibrator),
-               "test": relative_features(te.X[:, bins], ~P["touch"], te["session"], te["time_s"], model.calibrator)}
-        rel_model = SVMLocalizer(n_bins=len(bins)).fit(rel["train"][tr_touch], tr["location"][tr_touch])
-        p_rel = rel_model.predict(rel["test"][touch])
-        out["accuracy_feature_calibration"] = float(np.mean(p_rel == te["location"][touch]))
-    # Accuracy over stream time, session by session (Fig. 12).
+        # Alg. 2 applied to the features: the same bins minus the stream's running no-touch reference (the training
+        # session's from its labelled rest, the test streams' from the SVM's own detection).
+        d = prepare(data.dataset, table=data.table, split=data.split, bins=data.spec.bins, mode="relative",
+                    min_force_n=data.min_force_n, log=quiet)
+        fit_artifact(d, tmp / "relative", select=False, detector="paper", log=quiet)
+        pr = replay_sessions(SkinRuntime(tmp / "relative", "svm"), te, sorted(set(te["session"])))
+        p_rel = pr.location
+        ok = touch & ~pr.calibrating
+        out["accuracy_feature_calibration"] = float(np.mean(p_rel[ok] == loc[ok]))
+    rows = []
     for s in sorted(set(te["session"])):
-        k = sess_touch == s
-        sel = (te["session"] == s) & touch
+        sel = (te["session"] == s) & scored
         rows.append({"session": s, "minutes": float(te["time_s"][sel].mean() / 60),
                      "temperature_c": float(te["temperature_c"][sel].mean()),
-                     "accuracy": float(np.mean(P["location"][touch][k] == te["location"][touch][k])),
-                     "accuracy_feature_calibration": float(np.mean(p_rel[k] == te["location"][touch][k]))
-                     if p_rel is not None else None})
+                     "accuracy": float(np.mean(p.location[sel] == loc[sel])),
+                     "accuracy_feature_calibration": float(np.mean(p_rel[sel] == loc[sel])) if p_rel is not None else None})
     out["over_time"] = rows
     return out
 

@@ -23,7 +23,7 @@ from .calibration import OnlineReference
 from .dataset import Dataset, FeatureTable
 
 __all__ = ["FeatureSpec", "Split", "relative_features", "load_features_cached", "quiet_mask", "touch_mask",
-           "select_bins", "usable_bins", "rest_beta", "MIN_REST_CHIRPS", "model_inputs", "prepare"]
+           "select_bins", "usable_bins", "rest_beta", "MIN_REST_CHIRPS"]
 
 MODES = ("absolute", "relative")
 DEFAULT_N_BINS = 300  # the paper's gamma
@@ -54,9 +54,9 @@ class FeatureSpec:
             raise ValueError(f"feature mode must be one of {MODES}, got {self.mode!r}")
 
     def reference(self, chirps_per_s: float, **kw) -> OnlineReference:
-        """A fresh Alg. 2 reference for one stream (``kw``: ``score_fn``)."""
-        return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s,
-                                            relative=self.mode == "relative", **kw)
+        """A fresh Alg. 2 reference for one stream (``kw``: ``score_fn``, or ``relative`` to override the mode's)."""
+        kw.setdefault("relative", self.mode == "relative")
+        return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s, **kw)
 
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
         """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams),
@@ -354,38 +354,3 @@ class Split:
 
     def to_dict(self) -> dict:
         return {"train": list(self.train), "val": list(self.val), "test": list(self.test)}
-
-
-def model_inputs(data, spec: FeatureSpec, *, progress: bool = True) -> tuple[Dataset, FeatureTable, np.ndarray]:
-    """A dataset's features table and the model inputs ``spec`` defines, for every chirp."""
-    ds = data if isinstance(data, Dataset) else Dataset(data)
-    t = load_features_cached(ds, progress=progress)
-    return ds, t, spec.transform(t, ds.rig.chirps_per_s)
-
-
-def prepare(data: str | Path, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
-            val_sessions=None, test_subjects=None, min_force_n: float = 0.5, progress: bool = True,
-            allow_no_test: bool = False) -> dict:
-    """Load a dataset, split it by session/subject, select OSPA bins on the training split and build
-    model inputs for every chirp.  Shared by the DataModule, the SVM baseline and ``compare``."""
-    ds = Dataset(data)
-    t = load_features_cached(ds, progress=progress)
-    split = Split.make(t, train_sessions=train_sessions, val_sessions=val_sessions, test_subjects=test_subjects,
-                       allow_no_test=allow_no_test)
-    tr = t.select(split.mask(t, "train"))
-    bins = select_bins(tr, ds.rig, n_bins, min_force_n)
-    spec = FeatureSpec(tuple(int(b) for b in bins), mode)
-    if mode == "relative":
-        # Relative inputs need Alg. 2's rest in every stream; shorter rest is used down to MIN_REST_CHIRPS,
-        # a table of touches only falls back to absolute inputs.
-        beta = rest_beta(t, spec.reference(ds.rig.chirps_per_s).beta)
-        if beta is None:
-            warnings.warn(f"{ds.root}: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps for Alg. 2's "
-                          f"no-touch reference (touches only?); using absolute features (mode absolute)", stacklevel=2)
-            spec = dataclasses.replace(spec, mode="absolute")
-        elif beta < spec.reference(ds.rig.chirps_per_s).beta:
-            spec = dataclasses.replace(spec, beta_s=beta / ds.rig.chirps_per_s)
-    X = spec.transform(t, ds.rig.chirps_per_s)
-    cls, usable = training_targets(t, ds.layout, min_force_n)
-    return {"dataset": ds, "table": t, "split": split, "spec": spec, "X": X, "cls": cls,
-            "force": t["force_n"].astype(np.float32), "usable": usable, "n_locations": len(ds.layout)}

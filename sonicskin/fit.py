@@ -39,7 +39,7 @@ from .features import (
 )
 
 __all__ = ["TrainingData", "SVMFit", "prepare", "fit_svm", "fit_svm_head", "ovo_decision", "write_artifact",
-           "fit_artifact"]
+           "fit_artifact", "build_svm_artifact", "summary_lines"]
 
 
 @dataclasses.dataclass
@@ -115,15 +115,15 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
                                                      val_sessions=list(split.val), mode=mode, min_force_n=min_force_n,
                                                      log=log or (lambda m: warnings.warn(m, stacklevel=2)))
             n_bins = selection["svm"]["params"]["n_bins"]
-        bins = select_bins(tr, ds.rig, n_bins, min_force_n, log=log)
+        bins = select_bins(tr, ds.rig, n_bins, min_force_n)
     spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=float(alpha_s))
     if mode == "relative":
         beta0 = spec.reference(ds.rig.chirps_per_s).beta
-        beta = rest_beta(t, beta0, log=log)
+        beta = rest_beta(t, beta0)
         if beta is None:
             msg = (f"{ds.root}: not every session has {MIN_REST_CHIRPS} consecutive hands-off chirps for Alg. 2's "
                    f"no-touch reference (touches only?); using absolute features (mode absolute)")
-            (log or (lambda m: warnings.warn(m, stacklevel=3)))(msg)
+            warnings.warn(msg, stacklevel=2)
             spec = dataclasses.replace(spec, mode="absolute")
         elif beta < beta0:
             spec = dataclasses.replace(spec, beta_s=beta / ds.rig.chirps_per_s)
@@ -264,11 +264,40 @@ def _check_rows(data: TrainingData, n: int = 512) -> np.ndarray:
     return Xc[rng.choice(Xc.shape[0], size=min(n, Xc.shape[0]), replace=False)]
 
 
+#: The largest |stretch| of the channel's frequency axis an artifact is said to be trained for (drift tracking warns
+#: beyond it: "record a new session").  On the simulated drift-2h link, warped accuracy stayed within 2.1 points of
+#: the no-warm-up control up to 1.5e-3 (about 4.3 K on CFRP; benchmarks/bench_drift.py, design seeds 3 and 77).
+TRAINED_STRETCH = 1.5e-3
+
+
+def drift_reference(data: TrainingData, log=None) -> dict | None:
+    """Drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`): the mean dB spectrum of the
+    training sessions' hands-off chirps at rest over the whole band, with the wall's material when the dataset names
+    it (its kappa gives the temperature equivalent).  ``None`` without rest (a table of touches only) or without a
+    mode pattern to track."""
+    from .drift import DriftError, DriftTracker
+
+    rest = data.quiet & data.split.mask(data.table, "train")
+    if rest.sum() < 2:
+        return None
+    material = ((data.dataset.meta.get("source") or {}).get("scenario") or {}).get("material")
+    try:
+        tr = DriftTracker.from_rig(data.rig, data.table.X[rest].mean(axis=0), trained_stretch=TRAINED_STRETCH,
+                                   material=material if isinstance(material, str) else None)
+    except DriftError as e:
+        if log:
+            log(f"note: no drift tracking ({e})")
+        return None
+    return tr.to_dict()
+
+
 def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = None, net=None, training: dict | None = None,
-                   learning_curve: bool = False, log=print) -> dict:
+                   learning_curve: bool = False, drift: bool = True, log=print) -> dict:
     """Export ``svm`` (skl2onnx) and ``net`` (a ``sonicskin.training.fit.NetFit``: torch.onnx) with their parity
     checks into ``out`` with a sealed ``skin.json`` (:func:`sonicskin.artifact.skin_json`); ``out`` is replaced as a
-    whole at the end (:func:`sonicskin.artifact.atomic_artifact`).  Returns the ``skin.json`` document."""
+    whole at the end (:func:`sonicskin.artifact.atomic_artifact`).  ``drift``: store drift tracking's training
+    reference (:func:`drift_reference`), so every stream maps its chirps back onto the training frequency axis.
+    Returns the ``skin.json`` document."""
     from .artifact import PROBE_ROWS, atomic_artifact, export_svm, skin_json
 
     if svm is None and net is None:
@@ -292,7 +321,7 @@ def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = 
             from sonicskin.training.cli import quiet_third_party
 
             with quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):  # torch.onnx's progress lines
-                parity = export_net(net.model, int(data.X.shape[1]), tmp / "net.onnx", check)
+                parity = export_net(net.model, tmp / "net.onnx", check)
             entry = {"file": "net.onnx", "kind": "skinnet", "n_in": int(data.X.shape[1]), "n_locations": data.n_locations,
                      "parity": parity, "hparams": net.hparams}
             if net.detector is not None:
@@ -304,7 +333,8 @@ def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = 
                          min_force_n=data.min_force_n,
                          training={"data": str(Path(data.dataset.root).resolve()), "split": data.split.to_dict(), **times,
                                    **(training or {})},
-                         models=models, probe_inputs=check[:PROBE_ROWS], selection=sel)
+                         models=models, probe_inputs=check[:PROBE_ROWS], selection=sel,
+                         drift=drift_reference(data, log) if drift else None)
         if learning_curve:
             from .selection import save_learning_curve
 
@@ -336,3 +366,41 @@ def fit_artifact(data: TrainingData, out: str | Path, *, net=None, svm: SVMFit |
         else:
             net_fit = finish_network(net, data, svm=svm, **(net_options or {}))
     return write_artifact(data, out, svm=svm, net=net_fit, training=training, learning_curve=learning_curve, log=log)
+
+
+def summary_lines(out: str | Path, skin: dict) -> list[str]:
+    """What every training verb prints about the artifact it wrote: the model selection, then its files with their
+    size and export parity."""
+    from .selection import format_selection
+
+    out = Path(out)
+    models = skin["models"]
+
+    def size(name: str) -> str:
+        return f"{(out / models[name]['file']).stat().st_size / 1e3:.0f} kB"
+
+    lines = format_selection(skin.get("selection"))
+    if "net" in models:
+        svm = (f", svm.onnx ({size('svm')}, parity max |d scores| {models['svm']['parity']['max_abs_scores']:.1e})"
+               if "svm" in models else "")
+        lines.append(f"exported {out}: net.onnx ({size('net')}, parity max |d logits| "
+                     f"{models['net']['parity']['max_abs_logits']:.1e}){svm}")
+    else:
+        lines.append(f"wrote {out}/svm.onnx ({size('svm')}, parity max |d scores| "
+                     f"{models['svm']['parity']['max_abs_scores']:.1e}) and skin.json")
+    return lines
+
+
+def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
+                       min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
+    """``fit-svm`` (and ``record``): an SVM-only artifact from a dataset, torch-free, trained on every session (or
+    ``train_sessions``) with no validation or test split.  ``n_bins=None`` chooses gamma (with C, kernel width, force
+    model) by validation on the training sessions' presses (:mod:`sonicskin.selection`), or keeps the paper's 300
+    with a warning when it cannot validate.  ``out`` is replaced as a whole when everything is written."""
+    ds = data if isinstance(data, Dataset) else Dataset(data)
+    d = prepare(ds, n_bins=n_bins, mode=mode, train_sessions=list(train_sessions or ds.sessions), val_sessions=[],
+                min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log)
+    skin = fit_artifact(d, out, learning_curve=True, log=log)
+    for line in summary_lines(out, skin):
+        log(line)
+    return skin

@@ -271,6 +271,7 @@ class LiveLoop:
         self.on_event = on_event
         self.warn = warn or (lambda msg: print(f"sonicskin: warning: {msg}", file=sys.stderr, flush=True))
         self.boot_faults = 0  # chirps skipped before the boot reference was taken
+        self._drift_warned: str | None = None  # the drift tracker's last warning, said once
         self.touching = False
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
@@ -315,8 +316,13 @@ class LiveLoop:
         x = log_magnitude_db(frame[None], self.rig, check=False)[0]  # the band features, computed once
         if was_calibrating and self.boot_spread_db is None:
             self._boot_add(x)
-        p = self.stream.chirp(x, t_s)  # Alg. 2 reference, model, detection, force
+        refreshes = self.stream.reference.refreshes
+        p = self.stream.chirp(x, t_s)  # Alg. 2 reference (and drift tracking), model, detection, force
         ref = self.stream.reference
+        drift = self.stream.drift
+        if drift is not None and ref.refreshes != refreshes and drift.warning and drift.warning != self._drift_warned:
+            self._drift_warned = drift.warning  # once per new finding, at the reference that found it
+            self.warn(f"drift tracking: {drift.warning}")
         if was_calibrating and not self.stream.calibrating and self.boot_spread_db is None:
             self._boot_check()
         if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
@@ -446,7 +452,8 @@ class LiveLoop:
         c = self.source.counters()
         touch = f"last touch: loc {last.location} ({last.x_cm:.1f}, {last.y_cm:.1f}) cm {last.force_n:.1f} N" if last else "no touch yet"
         state = "calibrating" if self.stream.calibrating else "running"
-        return (f"{state}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
+        drift = f"  {self.stream.drift.status()}" if self.stream.drift is not None else ""
+        return (f"{state}{drift}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
                 f"{touch}  relocks {self.framer.relocks}  driver overflows {c['overflows']}  dropped blocks {c['dropped_blocks']}"
                 f"{self._startup_note(c['dropped_blocks'])}  skipped frames {sum(self.skipped.values())}   ")
 
@@ -464,6 +471,7 @@ class LiveLoop:
                 "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
                 "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
                 "reference_refreshes": self.refreshes, "boot_disturbed": self.stream.reference.boot_disturbed,
+                "drift": None if self.stream.drift is None else self.stream.drift.report(),
                 "skipped": dict(self.skipped), **self.source.counters()}
 
 

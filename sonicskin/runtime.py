@@ -92,6 +92,7 @@ class SkinRuntime:
         self.n_locations = len(self.layout)
         self.ids = np.asarray(self.layout.ids)
         self.head = make_head(model, self.m, self.layout)  # model outputs -> touch, location, xy, force (sonicskin.head)
+        self.drift = self.meta.get("drift")  # drift tracking's training reference (each stream tracks its own stretch)
 
     # -- features ----------------------------------------------------------------------
     def band_features(self, frames: np.ndarray) -> np.ndarray:
@@ -111,7 +112,12 @@ class SkinRuntime:
 
     def stream(self) -> Stream:
         """A new stream: Alg. 2's online reference and the per-chirp path (see :class:`sonicskin.head.Stream`)."""
-        return Stream(self.run, self.head, self.spec, self.rig)
+        drift = None
+        if self.drift is not None:
+            from .drift import DriftTracker
+
+            drift = DriftTracker.from_dict(self.drift, self.rig)
+        return Stream(self.run, self.head, self.spec, self.rig, drift=drift)
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
         """Predict a recorded stream in order, as the live loop would (see :meth:`sonicskin.head.Stream.replay`)."""

@@ -21,6 +21,9 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
     training            provenance: data (string), split {train, val, test: [session names]}, other keys free
     digest              64 lowercase hex digits: sha256 of the canonical JSON of this document without
                         ``digest`` (which holds every model file's sha256): one digest binds the artifact
+    drift               optional (version 3): drift tracking's training rest spectrum over the band and its limits
+                        (sonicskin.drift.DriftTracker.to_dict); the stream estimates the channel's frequency
+                        stretch against it at every Alg. 2 reference and maps each chirp back
     selection           optional: what model selection chose on the training/validation presses and its
                         validation estimate (svm, force, detection, net; see sonicskin.selection), reported only
     models              {"net": ..., "svm": ...}, at least one:
@@ -94,7 +97,7 @@ MAX_THRESHOLD_DB = 1e3
 MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned but stay finite
 
 _TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "calibration", "training",
-        "models", "digest", "selection"}
+        "models", "digest", "selection", "drift"}
 _SELECTION_KEYS = {"svm", "force", "detection", "net"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
@@ -496,6 +499,13 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
             if k in cal and cal[k] != getattr(spec, k):
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
     _check_training(doc, doc.get(meta, "training", ""))
+    if "drift" in meta:  # drift tracking's training reference (sonicskin.drift.DriftTracker.to_dict), version 3
+        from .drift import DriftError, DriftTracker
+
+        try:
+            DriftTracker.from_dict(meta["drift"], rig)
+        except DriftError as e:
+            doc.fail("drift", f"is not a drift tracker for this rig ({e})")
     if "selection" in meta:  # what model selection chose and its validation estimate (sonicskin.selection); reported only
         _check_selection(doc, meta["selection"])
     models = doc.obj(doc.get(meta, "models", ""), "models")

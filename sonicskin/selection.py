@@ -385,13 +385,13 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
     """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every
     no-touch chirp a negative, the session's own rest the reference); ``None`` without rest and touches there."""
     from .features import quiet_mask
-    from .svm_head import touch_statistic
+    from .head import touch_statistic
 
     q, touch = quiet_mask(t) & val_mask, (cls < n_locations) & val_mask
     no_touch = (t["location"] < 0) & val_mask
     if q.sum() < 2 or not touch.any():
         return None
-    from .svm_head import DETECTOR_BINS
+    from .head import DETECTOR_BINS
 
     stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations,
                            min(DETECTOR_BINS, X.shape[1]))

@@ -20,7 +20,7 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="session")
 def cli_files(tmp_path_factory) -> dict[str, Path]:
     """Rig and scenario YAMLs, the tiny dataset and its SVM artifact (read-only for the tests)."""
-    from sonicskin.artifact import build_svm_artifact
+    from sonicskin.fit import build_svm_artifact
     from sonicskin.rig import Rig
     from sonicskin.sim.generate import simulate_dataset
     from sonicskin.sim.scenario import Scenario

@@ -21,10 +21,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sonicskin.artifact import build_svm_artifact, skin_json
+from sonicskin.artifact import skin_json
 from sonicskin.compare import replay_sessions
 from sonicskin.dataset import Dataset
 from sonicskin.features import FeatureSpec, load_features_cached, quiet_mask
+from sonicskin.fit import build_svm_artifact
 from sonicskin.rig import Layout, Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
 from sonicskin.schema import artifact_digest, binding, check_layout, load_skin, stamp_binding, validate_skin
@@ -303,8 +304,8 @@ MUTATIONS = [
     ("rig-string", "svm", _set("rig", "jaco"), "rig must be a JSON object"),
     # document
     ("format-wrong", "svm", _set("format", "onnx-bundle"), "format"),
-    ("version-1", "svm", _set("version", 1), "version must be 2"),  # written before artifacts were sealed
-    ("version-3", "svm", _set("version", 3), "version must be 2"),
+    ("version-1", "svm", _set("version", 1), "version is 1; this sonicskin reads version 2 and 3"),  # written before artifacts were sealed
+    ("version-4", "svm", _set("version", 4), "version is 4; this sonicskin reads version 2 and 3"),
     ("version-string", "svm", _set("version", "1"), "version"),
     ("unknown-top-key", "svm", _set("modles", {}), "has unknown keys ['modles']"),
     ("models-list", "svm", _set("models", ["svm"]), "models must be a JSON object"),

@@ -222,10 +222,9 @@ def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
     reseal(data / "s000")
     code, _, err = run(capsys, ["evaluate", "--data", data, "--train", "s000", "--val", "s001", "--test", "s002",
                                 "--no-ablations", "--n-bins", "40", "--out", tmp_path / "r"])
-    assert code == 0, err
-    assert ("sonicskin evaluate: warning: training session(s) s000 touch 2 of the layout's 3 locations (never trained: 2); "
-            "the SVM cannot predict those and counts their test touches as errors: train on sessions that touch every "
-            "location (--train)") in err.splitlines()
+    line = assert_one_line_error(code, err, "evaluate")
+    assert line == ("sonicskin evaluate: error: training session(s) s000 touch 2 of the layout's 3 locations (never trained: "
+                    "2); the SVM needs a press at every location: train on sessions that touch every location (--train)")
 
 
 

@@ -28,8 +28,9 @@ import numpy as np
 import pytest
 from cli_helpers import SMALL_RIG, assert_one_line_error, run
 
-from sonicskin.artifact import atomic_artifact, build_svm_artifact, skin_json
+from sonicskin.artifact import atomic_artifact, skin_json
 from sonicskin.features import FeatureSpec
+from sonicskin.fit import build_svm_artifact
 from sonicskin.rig import Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
 from sonicskin.schema import artifact_digest, binding, read_binding, stamp_binding
@@ -117,7 +118,7 @@ def _refused(a: Path, model: str, pattern: str) -> str:
 
 def test_sealed_artifact_loads_and_is_bound(sealed):
     meta = _meta(sealed)
-    assert meta["version"] == 2 and meta["digest"] == artifact_digest(meta)
+    assert meta["version"] == 3 and meta["digest"] == artifact_digest(meta)
     for k in ("net", "svm"):
         rt = SkinRuntime(sealed, k)
         b = read_binding((sealed / f"{k}.onnx").read_bytes())
@@ -548,6 +549,7 @@ def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeyp
 
 def test_interrupted_export_keeps_the_old_artifact(sealed, cli_files, tmp_path, monkeypatch):
     import sonicskin.export.onnx as X
+    from sonicskin.training.fit import artifact_from_checkpoint
 
     ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])
     out = tmp_path / "art"
@@ -558,7 +560,7 @@ def test_interrupted_export_keeps_the_old_artifact(sealed, cli_files, tmp_path, 
         raise KeyboardInterrupt
     monkeypatch.setattr(X, "export_net", boom)  # after svm.onnx was written: the old one must survive
     with pytest.raises(KeyboardInterrupt):
-        X.export_artifact(ckpt, out, log=lambda *_: None)
+        artifact_from_checkpoint(ckpt, out, log=lambda *_: None)
     assert _fingerprint(out) == before
     SkinRuntime(out, "net")
 
@@ -571,7 +573,8 @@ KILL_SCRIPT = textwrap.dedent("""
         real(path, b)
         os.kill(os.getpid(), signal.SIGKILL)
     A.stamp_binding = stamp
-    A.build_svm_artifact(sys.argv[1], sys.argv[2], n_bins=60, progress=False, log=lambda *_: None)
+    import sonicskin.fit as F
+    F.build_svm_artifact(sys.argv[1], sys.argv[2], n_bins=60, progress=False, log=lambda *_: None)
 """)
 
 

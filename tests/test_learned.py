@@ -30,7 +30,7 @@ def _train(data, root, *extra):
 
 @pytest.fixture(scope="module")
 def artifact(tmp_path_factory, rig):
-    from sonicskin.export.onnx import export_artifact
+    from sonicskin.training.fit import artifact_from_checkpoint as export_artifact
 
     root = tmp_path_factory.mktemp("learned")
     data = root / "data"

@@ -13,8 +13,8 @@ import pytest
 
 from sonicskin import acquire
 from sonicskin.acquire import AudioError, SimulatedSource
-from sonicskin.artifact import build_svm_artifact
 from sonicskin.dsp import rig_chirp
+from sonicskin.fit import build_svm_artifact
 from sonicskin.live import Framer, LiveLoop, UdpSink
 from sonicskin.runtime import SkinRuntime
 from sonicskin.sim import Scenario, Simulator, build_timeline

@@ -105,7 +105,7 @@ def test_kernel_net_exports_to_onnx_with_parity(tmp_path):
 
     X, cls, force = _toy()
     predict = fit_net(X, cls, force, n_locations=4, epochs=2, seed=0)
-    parity = export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
+    parity = export_net(predict.model, tmp_path / "net.onnx", X)
     assert parity["labels_equal"] and parity["touch_equal"] and parity["max_abs_logits"] <= parity["logits_tol"]
     assert parity["max_abs_force_n"] <= parity["force_n_tol"]
 
@@ -142,7 +142,7 @@ def test_saturated_touch_logit_exports_finite(tmp_path, bias):
     predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
     with torch.no_grad():
         predict.model.location.bias.fill_(bias)
-    parity = export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
+    parity = export_net(predict.model, tmp_path / "net.onnx", X)
     assert parity["labels_equal"] and parity["max_abs_logits"] <= parity["logits_tol"]
 
 
@@ -191,5 +191,5 @@ def test_export_parity_holds_at_a_vote_tie(tmp_path):
         mid = (lo + hi) / 2
         lo, hi = (mid, hi) if d01(mid) > 0 else (lo, mid)
     edge = (a + lo * (b - a)).astype(np.float32)
-    parity = export_net(net, X.shape[1], tmp_path / "net.onnx", np.vstack([X, edge[None]]))
+    parity = export_net(net, tmp_path / "net.onnx", np.vstack([X, edge[None]]))
     assert parity["labels_equal"] and parity["max_abs_logits"] <= parity["logits_tol"]

@@ -135,7 +135,7 @@ def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch)
     monkeypatch.setattr(ex, "ort_session", Shifted)
     tol = parity_bound(predict(X)[1])
     with pytest.raises(ParityError) as e:
-        ex.export_net(predict.model, X.shape[1], tmp_path / "net.onnx", X)
+        ex.export_net(predict.model, tmp_path / "net.onnx", X)
     assert str(e.value) == (
         f"the exported net.onnx does not decide as the torch network does on its {len(X)} check chirps (max |d force_n| "
         f"0.5 > {tol:.2g}): onnxruntime {onnxruntime.__version__} runs the graph torch {torch.__version__} exported "

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sonicskin.artifact import build_svm_artifact
 from sonicskin.dataset import Dataset
-from sonicskin.features import Split, prepare, touch_mask
+from sonicskin.features import Split, touch_mask
+from sonicskin.fit import build_svm_artifact, prepare
 from sonicskin.importers import import_spectra
 from sonicskin.rig import Rig
 from sonicskin.sim.generate import simulate_dataset
@@ -53,7 +53,7 @@ def test_split_with_no_validation_tests_every_other_session(four_sessions):
     # The default (val None) still validates on the next session.
     assert Split.make(t, train_sessions=["s000"]).to_dict() == {"train": ["s000"], "val": ["s001"], "test": ["s002", "s003"]}
     p = prepare(four_sessions, n_bins=40, train_sessions=["s000", "s001"], val_sessions=[], progress=False)
-    assert p["split"].test == ("s002", "s003")
+    assert p.split.test == ("s002", "s003")
 
 
 def test_val_none_and_test_reach_training_as_an_empty_validation(four_sessions, capsys):

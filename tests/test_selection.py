@@ -112,7 +112,7 @@ def test_validation_never_sees_test_sessions(cli_files, tmp_path):
     labels changed -> bit-identical choice, svm.onnx and skin.json (but the data path)."""
     import soundfile as sf
 
-    from sonicskin.artifact import build_svm_artifact
+    from sonicskin.fit import build_svm_artifact
 
     a, b = tmp_path / "a", tmp_path / "b"
     shutil.copytree(cli_files["data"], a, ignore=shutil.ignore_patterns(".cache"))

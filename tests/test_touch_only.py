@@ -7,9 +7,10 @@ import pytest
 
 from sonicskin.dataset import FeatureTable
 from sonicskin.features import MIN_REST_CHIRPS, rest_beta, select_bins
+from sonicskin.fit import fit_svm_head
+from sonicskin.head import SVMHead
 from sonicskin.metrics import force_report
 from sonicskin.rig import Layout, Rig
-from sonicskin.skin import SkinSVM
 
 RIG = Rig(fs_hz=8000, f_lo_hz=1000, f_hi_hz=2000, n_chirp=400, pwm_hz=(), pwm_halfwidth_hz=0.0, name="small")
 
@@ -52,15 +53,25 @@ def test_gamma_larger_than_the_band_is_clamped(rng):
         select_bins(_table(X[:1], loc[:1]), RIG, 10)
 
 
+def _paper_svm(X, loc, force, layout):
+    """The paper's SVM on arrays: OSPA's 20 bins, the SVM head fitted without rest (the one fit's own function), and the
+    head's decisions on new chirps (scikit-learn's pairwise scores, what the exported graph outputs)."""
+    bins = select_bins(_table(X, loc), RIG, 20)
+    pipe, params = fit_svm_head(X[:, bins], loc, force, np.zeros(loc.size, bool), n_locations=len(layout),
+                                location_ids=layout.ids)
+    head = SVMHead(params, layout)
+    return params, lambda Z: head.decide([None, pipe.decision_function(Z[:, bins])], Z[:, bins])
+
+
 def test_skin_svm_without_rest_or_force_sensor(rng):
     X, loc = _locations(rng)
     Xt, loct = _locations(rng)
     layout = Layout(ids=(0, 1, 2), xy_cm=np.array([[0, 0], [1, 0], [2, 0]]))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no divide-by-zero, no empty means
-        m = SkinSVM(RIG, layout, n_bins=20).fit(X, loc, np.full(loc.size, np.nan), quiet=np.zeros(loc.size, bool))
-        p = m.predict(Xt, online=False)
-    assert m.detector_ is None and m.force_ is None
+        params, predict = _paper_svm(X, loc, np.full(loc.size, np.nan), layout)
+        p = predict(Xt)
+    assert not params["detection"] and params["force"]["curves"] == {}
     assert np.mean(p.location == loct) > 0.95  # chance 33 %
     assert p.touch.all() and np.isnan(p.force_n).all()  # no detector: every chirp a touch; no force: NaN, not 0 N
 
@@ -70,8 +81,8 @@ def test_constant_force_is_no_force(rng):
     layout = Layout(ids=(0, 1, 2), xy_cm=np.array([[0, 0], [1, 0], [2, 0]]))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        m = SkinSVM(RIG, layout, n_bins=20).fit(X, loc, np.full(loc.size, 5.0), quiet=np.zeros(loc.size, bool))
-        assert m.force_ is None and np.isnan(m.predict(X, online=False).force_n).all()
+        params, predict = _paper_svm(X, loc, np.full(loc.size, 5.0), layout)
+        assert params["force"]["curves"] == {} and np.isnan(predict(X).force_n).all()
         r = force_report(np.full(10, 5.0), np.full(10, 5.0))
     assert np.isnan(r["r2"]) and r["rmse_n"] == 0.0
 

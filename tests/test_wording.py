@@ -80,7 +80,7 @@ def test_training_report_says_force_is_not_measurable_without_a_force_sensor(cap
 
     res = {"epochs": 3, "train_time_s": 1.0, "val_loss": 0.5, "val_acc": 0.9, "val_force_rmse": 0.0}
     for force, want in ((np.full(4, np.nan), "val_force_rmse n/a (no force sensor)"), (np.array([1.0, np.nan]), "val_force_rmse 0.000")):
-        cli = SimpleNamespace(epoch_bar=SimpleNamespace(results=res), datamodule=SimpleNamespace(prepared={"force": force}))
+        cli = SimpleNamespace(epoch_bar=SimpleNamespace(results=res), datamodule=SimpleNamespace(prepared=SimpleNamespace(force=force)))
         _report_training(cli)
         out = capsys.readouterr().out
         assert want in out and "val_acc 0.900" in out
@@ -97,6 +97,6 @@ def test_epoch_bar_shows_force_as_na_without_a_force_sensor():
         bar = EpochBar()
         bar._bar = SimpleNamespace(set_postfix=lambda d, refresh, shown=shown: shown.update(d), update=lambda n: None)
         trainer = SimpleNamespace(callback_metrics={"val_force_rmse": 0.0, "val_acc": 0.9},
-                                  datamodule=SimpleNamespace(prepared={"force": force}))
+                                  datamodule=SimpleNamespace(prepared=SimpleNamespace(force=force)))
         bar.on_train_epoch_end(trainer, None)
         assert shown == {"val_force_rmse": want, "val_acc": "0.9"}

@@ -81,7 +81,7 @@ class EpochBar(L.Callback):
         m = self._metrics(trainer)
         if self._bar is not None:
             prep = getattr(getattr(trainer, "datamodule", None), "prepared", None)  # no force sensor: force RMSE is n/a, not 0
-            no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+            no_force = prep is not None and not any(v == v for v in prep.force.tolist())
             self._bar.set_postfix({k: "n/a" if no_force and "force" in k else f"{v:.3g}" for k, v in m.items()
                                    if k.startswith("val_")}, refresh=False)
             self._bar.update(1)
@@ -313,6 +313,12 @@ class SkinCLI(LightningCLI):
         if self.follow_root_dir and root and init is not None and "save_dir" in init:
             init.save_dir = root
 
+    def before_fit(self) -> None:
+        if self.model.hparams.kernel == "auto":  # the location layer, chosen on data it does not train on
+            from .fit import choose_auto_layer
+
+            choose_auto_layer(self.model, self.datamodule, epochs=self.trainer.max_epochs or 40)
+
     def add_arguments_to_parser(self, parser) -> None:
         parser.link_arguments("data.n_in", "model.n_in", apply_on="instantiate")
         parser.link_arguments("data.n_locations", "model.n_locations", apply_on="instantiate")
@@ -354,6 +360,7 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
         check_monitors(cli.trainer.callbacks)
         if run:
             try:
+                cli.before_fit()  # run=False: LightningCLI does not call it
                 cli.trainer.fit(cli.model, datamodule=cli.datamodule)
             except MisconfigurationException as e:
                 raise UsageError(f"{' '.join(str(e).split())} (`{PROG} --help` lists the model/data/trainer options)") from None

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
-from sonicskin.features import prepare
+from sonicskin.fit import prepare
 
 __all__ = ["SkinDataModule"]
 
@@ -68,7 +68,7 @@ class SkinDataModule(L.LightningDataModule):
             n_bins = self._select(data)
         # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning).
         self._n_in = usable_bins(Rig.from_dict(meta["rig"]), n_bins)
-        self.prepared: dict | None = None
+        self.prepared = None  # sonicskin.fit.TrainingData, after setup
 
     def _select(self, data: str) -> int:
         from sonicskin.dataset import Dataset
@@ -108,28 +108,30 @@ class SkinDataModule(L.LightningDataModule):
         h = self.hparams
         p = prepare(h.data, n_bins=self._n_in, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
                     test_subjects=h.test_subjects, min_force_n=h.min_force_n)
+        if self.selection:
+            p.selection = dict(self.selection)
         self.prepared = p
-        tr = p["split"].mask(p["table"], "train") & p["usable"]
-        self.mean = p["X"][tr].mean(axis=0)
-        self.std = p["X"][tr].std(axis=0) + 1e-3
-        ds = p["dataset"]
+        tr = p.rows("train")
+        self.mean = p.X[tr].mean(axis=0)
+        self.std = p.X[tr].std(axis=0) + 1e-3
+        ds, split = p.dataset, p.split
         self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
-                     "spec": p["spec"].to_dict(), "split": p["split"].to_dict(), "min_force_n": h.min_force_n,
-                     "sessions_sha256": session_fingerprints(ds.root, [*p["split"].train, *p["split"].val, *p["split"].test])}
+                     "spec": p.spec.to_dict(), "split": split.to_dict(), "min_force_n": h.min_force_n,
+                     "sessions_sha256": session_fingerprints(ds.root, [*split.train, *split.val, *split.test])}
         if self.selection:
             self.meta["selection"] = self.selection
 
     def _loader(self, part: str, shuffle: bool) -> DataLoader:
         p = self.prepared
-        m = p["split"].mask(p["table"], part) & p["usable"]
-        tensors = [torch.from_numpy(np.ascontiguousarray(p[k][m])) for k in ("X", "cls", "force")]
+        m = p.rows(part)
+        tensors = [torch.from_numpy(np.ascontiguousarray(getattr(p, k)[m])) for k in ("X", "cls", "force")]
         return DataLoader(TensorDataset(*tensors), batch_size=self.hparams.batch_size, shuffle=shuffle)
 
     def train_dataloader(self) -> DataLoader:
         return self._loader("train", True)
 
     def val_dataloader(self) -> DataLoader:
-        return self._loader("val" if self.prepared["split"].val else "train", False)
+        return self._loader("val" if self.prepared.split.val else "train", False)
 
     def test_dataloader(self) -> DataLoader:
         return self._loader("test", False)

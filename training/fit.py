@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NetFit", "train_network", "choose_network_layer", "finish_network"]
+__all__ = ["NetFit", "train_network", "choose_network_layer", "finish_network", "artifact_from_checkpoint"]
 
 
 @dataclasses.dataclass
@@ -59,7 +60,7 @@ def train_network(data, *, svm, select: bool = True, seed: int = 0, epochs: int 
                           seed=seed)
 
 
-def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None) -> dict:
+def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
     """The network's location layer chosen on the validation session, or without one on the training session's last
     pass over the markers (trained on the others): :func:`sonicskin.training.quick.choose_layer`."""
     from sonicskin.selection import press_ids, press_passes
@@ -69,7 +70,7 @@ def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None)
     n, ids = data.n_locations, np.asarray(data.layout.ids)
     X, cls, force, t = data.X, data.cls, data.force, data.table
     train, val = data.rows("train"), data.rows("val")
-    kw = {} if epochs is None else {"epochs": int(epochs)}
+    kw = {**hparams, **({} if epochs is None else {"epochs": int(epochs)})}
     alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
     if val.any():
         return choose_layer(X, cls, force, n_locations=n, train=train, val=val, seed=seed,
@@ -81,6 +82,23 @@ def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None)
         return choose_layer(X, cls, force, n_locations=n, train=train & ~last, val=train & last, seed=seed,
                             how="held-out last pass", location_ids=ids, alpha=alpha, **kw)
     return {"location_layer": "frozen kernel", "layer_how": "one press per location: not validated", "hparams": {}}
+
+
+def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
+    """``sonicskin train`` with ``model.kernel: auto``: the Lightning module's location layer chosen as
+    :func:`choose_network_layer` chooses it for an in-process network, set on the module's hyperparameters and
+    recorded in its checkpoint's selection."""
+    datamodule.setup("fit")
+    h = module.hparams
+    res = choose_network_layer(datamodule.prepared, svm=None, epochs=epochs, hidden=tuple(h.hidden), dropout=h.dropout,
+                               weight_decay=h.weight_decay)
+    hp = res.get("hparams") or {"kernel": True, "kernel_lr": 0.0}
+    h.kernel = bool(hp.get("kernel", True))
+    h.kernel_lr = float(hp.get("kernel_lr", h.kernel_lr))
+    if datamodule.meta is not None:
+        datamodule.meta.setdefault("selection", {})["net"] = {k: res[k] for k in ("location_layer", "layer_how")}
+    print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
+    return res
 
 
 def finish_network(model, data, *, svm, selection: dict | None = None, train_time_s: float | None = None,
@@ -143,3 +161,66 @@ def finish_network(model, data, *, svm, selection: dict | None = None, train_tim
     if seed is not None:
         sel["train_seed"] = int(seed)
     return NetFit(model, dict(hparams or {}), detector, sel, train_time_s)
+
+
+def check_same_sessions(meta: dict, ds, ckpt) -> None:
+    """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
+    the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
+    layout and session names gave an artifact whose two models were trained on different recordings."""
+    from sonicskin.schema import ArtifactError
+
+    from .data import session_fingerprints
+
+    split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
+    missing = [s for s in split if s not in set(ds.sessions)]
+    if missing:
+        raise ArtifactError(f"dataset {ds.root} lacks session(s) {', '.join(missing)} of checkpoint {Path(ckpt).name}'s split "
+                            f"(train {', '.join(meta['split']['train'])}); pass the dataset it was trained on (--data)")
+    want = meta.get("sessions_sha256")
+    if isinstance(want, dict):
+        have = session_fingerprints(ds.root, list(want))
+        other = [s for s in want if have[s] != want[s]]
+        if other:
+            raise ArtifactError(f"dataset {ds.root}'s session(s) {', '.join(other)} are other recordings than checkpoint "
+                                f"{Path(ckpt).name} was trained on (their session.json differs); pass the dataset it was "
+                                f"trained on (a copy of it is fine) with --data")
+
+
+
+
+def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, log=print) -> dict:
+    """``sonicskin export``: the checkpoint's network beside the SVM, through the one fit (:mod:`sonicskin.fit`).
+
+    The SVM is fitted on the checkpoint's own split, bins and inputs, so both models in the artifact see exactly the
+    same bins, reference and sessions; the network's touch decision and force are chosen as for an in-process network
+    (:func:`finish_network`).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout
+    and hold the very recordings it was trained on.  ``out`` is replaced as a whole at the end."""
+    from sonicskin.dataset import Dataset
+    from sonicskin.features import FeatureSpec, Split
+    from sonicskin.fit import fit_artifact, prepare, summary_lines
+    from sonicskin.schema import ArtifactError, check_layout, check_rig
+
+    from .checkpoint import load_checkpoint
+
+    lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
+    meta = lit.meta
+    spec = FeatureSpec.from_dict(meta["spec"])
+    ds = Dataset(data or meta["data"])
+    # The data must be the checkpoint's rig and marker layout: the SVM is fitted on its positions here.
+    check_rig({"rig": meta["rig"]}, ds.rig, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
+    check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
+    check_same_sessions(meta, ds, ckpt)
+    split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
+    d = prepare(ds, split=split, bins=spec.bins, mode=spec.mode, alpha_s=spec.alpha_s, min_force_n=meta["min_force_n"],
+                progress=False, log=log)
+    if d.spec != spec:
+        raise ArtifactError(f"dataset {ds.root} gives other model inputs than checkpoint {Path(ckpt).name} was trained on "
+                            f"({d.spec.mode}, beta {d.spec.beta_s:g} s vs {spec.mode}, beta {spec.beta_s:g} s); pass the "
+                            f"dataset it was trained on with --data")
+    d.selection = dict(meta.get("selection") or {})
+    skin = fit_artifact(d, out, net=lit.model, training={"checkpoint": str(ckpt)}, log=log,
+                        net_options={"hparams": _plain_hparams(lit.hparams), "train_time_s": meta.get("train_time_s"),
+                                     "selection": (meta.get("selection") or {}).get("net")})
+    for line in summary_lines(out, skin):
+        log(line)
+    return skin

@@ -102,42 +102,14 @@ class SkinLitModule(L.LightningModule):
         if dm is not None and getattr(dm, "prepared", None) is not None:
             self.model.set_normalization(dm.mean, dm.std)
             self.meta = dm.meta
-            if stage == "fit" and self.hparams.kernel == "auto":
-                self._choose_layer(dm)
+            if stage == "fit" and self.hparams.kernel == "auto":  # SkinCLI.before_fit chooses it (training.fit)
+                raise ValueError("model.kernel 'auto' must be resolved before training (training.fit.choose_auto_layer)")
             if stage == "fit" and self.hparams.kernel and self.model.kernel is None:
                 p = dm.prepared
-                tr = p["split"].mask(p["table"], "train") & p["usable"]
-                self.init_kernel(p["X"][tr], p["cls"][tr])
+                tr = p.rows("train")
+                self.init_kernel(p.X[tr], p.cls[tr])
             if self.model.kernel is not None:  # before DDP wraps the model: a frozen layer is no unused parameter
                 self.model.kernel.requires_grad_(self.hparams.kernel_lr > 0)
-
-    def _choose_layer(self, dm) -> None:
-        """``kernel="auto"``: the location layer that scores best on the validation session (or the last pass)."""
-        from sonicskin.selection import press_ids, press_passes
-
-        from .quick import LAYERS, choose_layer
-
-        p, h = dm.prepared, self.hparams
-        t, split = p["table"], p["split"]
-        train = split.mask(t, "train") & p["usable"]
-        if split.val:
-            val, how = split.mask(t, "val") & p["usable"], f"validation on {', '.join(split.val)}"
-        else:
-            passes = press_passes(np.where(train, press_ids(t["location"], t["session"], t["segment"]), -1), t["location"])
-            val = train & (passes == passes.max()) & (passes >= 1)
-            train, how = train & ~val, "held-out last pass"
-        if not val.any():
-            res = {"location_layer": "frozen kernel", "layer_how": "not validated: one press per location and no "
-                                                                   "validation session", "hparams": LAYERS["frozen kernel"]}
-        else:
-            res = choose_layer(p["X"], p["cls"], p["force"], n_locations=h.n_locations, train=train, val=val, how=how,
-                               epochs=self.trainer.max_epochs or 40 if self.trainer else 40,
-                               location_ids=None, hidden=tuple(h.hidden), dropout=h.dropout, weight_decay=h.weight_decay)
-        h.kernel = bool(res["hparams"]["kernel"])
-        h.kernel_lr = float(res["hparams"].get("kernel_lr", h.kernel_lr))
-        if self.meta is not None:
-            self.meta.setdefault("selection", {})["net"] = {k: res[k] for k in ("location_layer", "layer_how")}
-        print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
 
     def on_train_start(self) -> None:
         import time

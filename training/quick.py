@@ -155,7 +155,7 @@ def calibrate_net_detector(model, X: np.ndarray, t, cls: np.ndarray, *, train: n
     import torch
 
     from sonicskin.features import quiet_mask
-    from sonicskin.svm_head import DETECTOR_BINS
+    from sonicskin.head import DETECTOR_BINS
 
     q = quiet_mask(t)
     n_det = min(DETECTOR_BINS, X.shape[1])  # the SVM's detector reads the first (best) inputs only

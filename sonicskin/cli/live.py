@@ -12,7 +12,6 @@ from .. import __version__
 from ..errors import UsageError
 from ._common import nonneg_int, positive_float, positive_int, udp_target
 
-
 # One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
 # an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
 ONESHOT_S_PER_SAMPLE = 118 / (3097 * 20480)
@@ -24,7 +23,7 @@ def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
 
     Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
     two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
-    from ..artifact import build_svm_artifact
+    from ..fit import build_svm_artifact
     from ..sim import build_timeline
     from ..sim.generate import simulate_dataset
 

@@ -74,7 +74,7 @@ def cmd_evaluate(a: argparse.Namespace) -> int:
 
 
 def cmd_fit_svm(a: argparse.Namespace) -> int:
-    from ..artifact import build_svm_artifact
+    from ..fit import build_svm_artifact
 
     check_split_options(a)
     if a.val or a.test or a.test_subjects:
@@ -116,10 +116,10 @@ def _report_training(cli, *, selection: bool = True) -> None:
     res = getattr(cli, "epoch_bar", None) and cli.epoch_bar.results
     if res:
         prep = getattr(cli.datamodule, "prepared", None)  # no finite force anywhere: RMSE 0 would be a made-up number
-        no_force = prep is not None and not any(v == v for v in prep["force"].tolist())
+        no_force = prep is not None and not any(v == v for v in prep.force.tolist())
         metrics = ", ".join(f"{k} n/a (no force sensor)" if no_force and "force" in k else f"{k} {v:.3f}"
                             for k, v in res.items() if k.startswith("val_"))
-        split = (prep or {}).get("split")
+        split = getattr(prep, "split", None)
         if split is not None:  # say where the val_ metrics come from (no validation session: the training data)
             metrics += (f" (validation {', '.join(split.val)})" if split.val else
                         f" (no validation session: on the training sessions {', '.join(split.train)})")
@@ -144,17 +144,17 @@ def cmd_export(a: argparse.Namespace) -> int:
 
 
 def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> None:
-    """``export_artifact`` with one result line: torch.onnx's progress prints and third-party
+    """:func:`sonicskin.training.fit.artifact_from_checkpoint` with one result line: torch.onnx's progress prints and third-party
     warnings are dropped, a half-made artifact is removed, an unreadable checkpoint is one line (training.checkpoint refuses it)."""
     import io
     import sys
 
-    from sonicskin.export.onnx import export_artifact
     from sonicskin.training.cli import quiet_third_party
+    from sonicskin.training.fit import artifact_from_checkpoint
 
     stdout = sys.stdout
     with removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
-        export_artifact(ckpt, out, data=data, log=lambda msg: print(msg, file=stdout))
+        artifact_from_checkpoint(ckpt, out, data=data, log=lambda msg: print(msg, file=stdout))
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:

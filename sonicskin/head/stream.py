@@ -49,13 +49,41 @@ class Stream:
     head : the model's :class:`~sonicskin.head.SVMHead` or :class:`~sonicskin.head.NetHead`.
     spec : the artifact's :class:`~sonicskin.features.FeatureSpec` (bins, mode, beta, alpha).
     rig : the artifact's :class:`~sonicskin.rig.Rig`.
+    drift : a :class:`~sonicskin.drift.DriftTracker` holding the training session's rest spectrum (the artifact's
+        ``drift``), or ``None``.  With one, every new reference (the boot's and each refresh's hands-off chirps) also
+        estimates the channel's frequency stretch against the training rest (a warming wall's modes all move by one
+        factor), and every chirp and the reference are mapped back onto the training frequency axis before the
+        model: the reference then tracks gain, tilt *and* stretch.
     """
 
-    def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head: SVMHead | NetHead, spec, rig):
-        self.run, self.head, self.spec, self.rig = run, head, spec, rig
+    def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head: SVMHead | NetHead, spec, rig, *, drift=None):
+        self.run, self.head, self.spec, self.rig, self.drift = run, head, spec, rig, drift
         self.bins = list(spec.bins)
-        score_fn = (lambda x: head.scores(run(x), x)) if isinstance(head, SVMHead) else None
-        self.reference = spec.reference(rig.chirps_per_s, score_fn=score_fn)
+        if drift is None:
+            score_fn = (lambda x: head.scores(run(x), x)) if isinstance(head, SVMHead) else None
+            self.reference = spec.reference(rig.chirps_per_s, score_fn=score_fn)
+        else:  # the reference holds band rows; inputs are formed here, on the warped axis
+            self._bins = np.asarray(self.bins, np.int64)
+            self._ref_inputs = np.zeros(len(self.bins), np.float32)
+            self.reference = spec.reference(rig.chirps_per_s, relative=False, score_fn=self._on_reference)
+
+    def _inputs(self, x: np.ndarray) -> np.ndarray:
+        """Model inputs of rows the reference holds: the bins as they are, or (drift tracking) band rows mapped back
+        onto the training axis, minus the reference in relative mode."""
+        if self.drift is None:
+            return self.reference.inputs(x)
+        z = self.drift.warp_bins(x, self._bins)
+        return z - self._ref_inputs if self.spec.mode == "relative" else z
+
+    def _on_reference(self, block: np.ndarray) -> np.ndarray:
+        """A new reference took effect (its band rows ``block``): estimate the stretch from them, then the score
+        material Alg. 2 averages (the SVM's ``S_c``) on the warped axis."""
+        self.drift.update(block)
+        self._ref_inputs = self.drift.warp_bins(self.reference.features, self._bins)
+        inputs = self._inputs(block)
+        if isinstance(self.head, SVMHead):
+            return self.head.scores(self.run(inputs), inputs)
+        return np.zeros((len(block), 1))
 
     @property
     def calibrating(self) -> bool:
@@ -66,7 +94,10 @@ class Stream:
         ref = self.reference
         input_ref = None
         if isinstance(self.head, NetHead) and ref.ready:
-            input_ref = np.zeros(len(self.bins)) if ref.relative else ref.features
+            if self.drift is not None:
+                input_ref = np.zeros(len(self.bins)) if self.spec.mode == "relative" else self._ref_inputs
+            else:
+                input_ref = np.zeros(len(self.bins)) if ref.relative else ref.features
         return self.head.decide(self.run(inputs), inputs, score_reference=ref.scores, input_reference=input_ref)
 
     def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
@@ -87,11 +118,12 @@ class Stream:
         if not np.isfinite(x).all():  # it would become the reference (boot) or a prediction from NaN
             raise ArtifactError("the chirp's band features hold NaN or infinite values (a NaN, silent or clipped frame); "
                                 "skip that chirp, as the live loop does")
-        x = x[self.bins]
+        if self.drift is None:
+            x = x[self.bins]
         if not self.reference.ready:
             self.reference.step(x, t_s, None)
             return None
-        p = self.predict(self.reference.inputs(x[None]))
+        p = self.predict(self._inputs(x[None]))
         self.reference.step(x, t_s, bool(p.touch[0]))
         return p
 
@@ -99,7 +131,9 @@ class Stream:
         """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes; the same
         output as :meth:`chirp` one at a time.  Boot chirps have ``calibrating`` set, no touch, location -1 and NaN
         position."""
-        X = band_rows(X_band, self.rig.n_band)[:, self.bins]
+        X = band_rows(X_band, self.rig.n_band)
+        if self.drift is None:
+            X = X[:, self.bins]
         time_s = np.asarray(time_s, np.float64)
         if time_s.shape != (len(X),):
             raise ArtifactError(f"time_s must hold one time per chirp ({len(X)},), got shape {time_s.shape}")
@@ -107,7 +141,10 @@ class Stream:
             raise ArtifactError("time_s must be finite and non-decreasing (the stream clock of each chirp, in order): "
                                 "replay one stream at a time, in recording order")
         parts, lo = [], None
-        for i, j, out in self.reference.replay(X, time_s, self.predict):
+        # OnlineReference.replay hands each block through its own inputs(): the bins minus the reference, or (drift
+        # tracking, a reference of band rows) the rows unchanged, mapped to model inputs here.
+        predict = self.predict if self.drift is None else (lambda x: self.predict(self._inputs(x)))
+        for i, j, out in self.reference.replay(X, time_s, predict):
             lo = i if lo is None else lo
             parts.append(out.take(slice(0, j - i)))
         n = len(X)
