@@ -405,11 +405,15 @@ def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, movin
 def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device="sim", resume: bool = False,
                    overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
-                   min_force_n: float = 0.5, passes: int = 1, expectations: bool = True, prompt=None, log=None) -> dict:
+                   min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
+                   report=None) -> dict:
     """``sonicskin record``: one guided session into the dataset ``out`` (see the module docstring).
 
     With ``resume`` only the requested locations without touch chirps yet are prompted (a
-    location whose prompt was interrupted, or that was prompted but never pressed).  Returns the
+    location whose prompt was interrupted, or that was prompted but never pressed).  ``artifact``: when every
+    marker of the layout has been pressed, the deployable SVM artifact trained on everything recorded so far is
+    written there (:func:`sonicskin.fit.build_svm_artifact`, what ``fit-svm`` writes, with its validated choices and
+    expected accuracy on ``report``), so ``record`` then ``live`` is the whole bring-up.  Returns the
     :meth:`Recorder.run` figures plus ``session`` and ``locations`` (what was recorded), or
     ``{"locations": []}`` when nothing is missing.
     """
@@ -486,11 +490,17 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
         if isinstance(exc, KeyboardInterrupt):
             log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
         raise
-    log(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
-    if expectations:  # what a skin trained on everything recorded so far can be expected to do
-        from .selection import expectations as expect
+    report = report or (lambda text: print(text, flush=True))
+    report(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
+    if artifact is not None:
+        missing = sorted(set(layout.ids) - recorded_locations(out, min_force_n=min_force_n))
+        if missing:
+            report(f"no artifact yet: location(s) {', '.join(map(str, missing[:12]))}{', ...' if len(missing) > 12 else ''} "
+                   f"of the layout were never pressed; `--resume` records them, then the artifact is written")
+        else:  # the skin trained on everything recorded so far, with what validation expects of it
+            from .fit import build_svm_artifact
 
-        for line in expect(out, min_force_n=min_force_n):
-            log(line)
+            build_svm_artifact(out, artifact, min_force_n=min_force_n, progress=False, log=report)
+            report(f"deploy it: sonicskin live --artifact {artifact}" + ("" if device == "sim" else f" --device {device}"))
     return {**res, "session": session, "locations": todo}
 

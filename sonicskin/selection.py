@@ -521,38 +521,6 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
     return sel
 
 
-def expectations(data, *, min_force_n: float = 0.5, mode: str = "relative", sessions=None) -> list[str]:
-    """What a skin trained on ``sessions`` (default: all) of a dataset can be expected to do: the validated
-    choice, its accuracy with an interval, the learning curve and the force error (``record`` prints this)."""
-    from .dataset import Dataset
-    from .features import FeatureSpec, load_features_cached, training_targets
-
-    ds = data if isinstance(data, Dataset) else Dataset(data)
-    t = load_features_cached(ds, progress=False)
-    sessions = list(sessions or sorted(set(t["session"])))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        msgs: list[str] = []
-        sel = {"svm": select_gamma_on_table(t, ds.rig, train_sessions=sessions, mode=mode, min_force_n=min_force_n,
-                                            log=msgs.append)}
-        if sel["svm"]["status"] != "validated":
-            return [f"expected accuracy: not measurable yet ({sel['svm']['reason'].split(';')[0]}); "
-                    f"record another pass over the markers (--passes 2, or --resume with a new session)"]
-        from .features import select_bins
-
-        tt = t.select(np.isin(t["session"], sessions))
-        bins = select_bins(tt, ds.rig, sel["svm"]["params"]["n_bins"], min_force_n)
-        spec = FeatureSpec(tuple(int(b) for b in bins), mode)
-        try:
-            X = spec.transform(tt, ds.rig.chirps_per_s)
-        except ValueError:
-            X = FeatureSpec(spec.bins, "absolute").transform(tt, ds.rig.chirps_per_s)
-        cls, usable = training_targets(tt, ds.layout, min_force_n)
-        sel = select_on_inputs(X, tt, cls=cls, train_mask=usable, val_mask=None, n_locations=len(ds.layout),
-                               location_ids=ds.layout.ids, selection=sel, min_force_n=min_force_n, log=msgs.append)
-    return format_selection({k: v for k, v in sel.items() if k != "detection"})
-
-
 def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
     """The learning curve of a selection as a PNG (accuracy vs presses per location); False without one."""
     lc = ((sel or {}).get("svm") or {}).get("learning_curve")

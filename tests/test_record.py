@@ -275,3 +275,28 @@ def test_a_run_that_records_nothing_leaves_nothing_behind(tmp_path, small, monke
     monkeypatch.undo()
     assert main(["record", "--out", str(out), "--scenario", small, "--locations", "1", *FAST]) == 0
     assert recorded_locations(out) == {1}
+
+
+def test_record_writes_the_deployable_artifact_then_live_runs_it(tmp_path, small, capsys):
+    """Issue 27.4: `record` then `live` is the whole bring-up: three passes by default, and once every marker is pressed
+    the artifact fit-svm would write, with the validated choices and the learning curve printed on stdout."""
+    from sonicskin.runtime import SkinRuntime
+
+    part = tmp_path / "part"
+    assert main(["record", "--out", str(part), "--scenario", small, "--locations", "1", *FAST]) == 0
+    out = capsys.readouterr().out
+    assert "no artifact yet: location(s) 0, 2, 3, 4, 5 of the layout were never pressed" in out
+    assert not (tmp_path / "part-artifact").exists()
+    rec = tmp_path / "rec"
+    assert main(["record", "--out", str(rec), "--scenario", small, *FAST]) == 0
+    out = capsys.readouterr().out
+    _, lab = Dataset(rec).read_session("s000")
+    presses = lab["location"][np.r_[True, lab["location"][1:] != lab["location"][:-1]]]
+    assert sorted(presses[presses >= 0].tolist()) == sorted([0, 1, 2, 3, 4, 5] * 3)  # three passes over six markers
+    art = tmp_path / "rec-artifact"
+    assert f"wrote {art}/svm.onnx" in out and "learning curve (presses per location: accuracy) 1:" in out
+    assert f"deploy it: sonicskin live --artifact {art}" in out and (art / "learning_curve.png").is_file()
+    rt = SkinRuntime(art, "svm")
+    assert rt.layout.ids == Dataset(rec).layout.ids and "drift" in rt.meta
+    assert main(["live", "--artifact", str(art), "--scenario", small, "--fast", "--duration", "8"]) == 0
+    assert '"kind": "touch"' in capsys.readouterr().out  # the scripted presses become touch events

@@ -54,7 +54,8 @@ def cmd_record(a: argparse.Namespace) -> int:
         record_session(out, Rig.load(a.rig), Scenario.load(a.scenario), locations=a.locations, device=a.device,
                        resume=a.resume, overwrite=a.overwrite, realtime=not a.fast, calibration_s=a.calibration_s,
                        moving_s=a.moving_s, touch_s=a.touch_s, gap_s=a.gap_s, force_csv=a.force_csv,
-                       force_serial=a.force_serial, tx=a.tx, rx=a.rx, passes=a.passes)
+                       force_serial=a.force_serial, tx=a.tx, rx=a.rx, passes=a.passes,
+                       artifact=None if a.no_artifact else Path(a.artifact or f"{out}-artifact"))
     return 0
 
 
@@ -107,9 +108,12 @@ def add_parsers(sub) -> None:
     rc.add_argument("--moving-s", type=nonneg_float, default=10.0, help="robot moving, hands off, seconds; 0 skips (default: 10)")
     rc.add_argument("--touch-s", type=positive_float, default=3.0, help="press per location, seconds (default: 3)")
     rc.add_argument("--gap-s", type=nonneg_float, default=1.0, help="pause between presses, seconds (default: 1)")
-    rc.add_argument("--passes", type=positive_int, default=1,
-                    help="passes over the markers (one press per location each); two or more let the training verbs "
-                         "validate their choices and print a learning curve (default: 1)")
+    rc.add_argument("--passes", type=positive_int, default=3,
+                    help="passes over the markers (one press per location each): validation of the model's choices and the "
+                         "learning curve need two, the third adds presses of every marker to learn from (default: 3)")
+    rc.add_argument("--artifact", help="when every marker is pressed, write the deployable SVM artifact here, as fit-svm "
+                                       "would (default: OUT-artifact beside the dataset)")
+    rc.add_argument("--no-artifact", action="store_true", help="record only; train later with fit-svm or compare")
     rc.add_argument("--force-csv", help="force log with columns t_s,force_n (real device; default: no force sensor)")
     rc.add_argument("--force-serial", help="serial port of a force sensor printing newtons per line (real device; default: none)")
     rc.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
