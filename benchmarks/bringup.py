@@ -1,11 +1,12 @@
-"""The bring-up sequence on the simulated device, with what each step printed: check, record, fit-svm, live.
+"""The bring-up sequence on the simulated device, with what each step printed: check, record (which writes the
+deployable artifact), live.
 
 In a temporary folder (the commands as the README shows them, run with this Python's ``sonicskin``):
 
 1. ``sonicskin check --out check``: the rig check's table (shown in full below the table);
-2. ``sonicskin record --out data/my-robot --device sim --scenario stationary --fast --moving-s 0``;
-3. ``sonicskin fit-svm --data data/my-robot --out artifacts/my-robot``;
-4. live: ``sonicskin.Listener("artifacts/my-robot", scenario="stationary", fast=True)`` on a new simulated
+2. ``sonicskin record --out data/my-robot --artifact artifacts/my-robot --device sim --scenario stationary --fast
+   --moving-s 0`` (three passes over the markers, then the artifact ``fit-svm`` would write);
+3. live: ``sonicskin.Listener("artifacts/my-robot", scenario="stationary", fast=True)`` on a new simulated
    session of the same link (seed + 1000, as ``sonicskin live``), every chirp scored against the
    session's script (:func:`sonicskin.sim.build_timeline`): localization of the touch events on pressed
    chirps (force >= 0.5 N), their mean position error against where the finger really was, false touches
@@ -105,12 +106,12 @@ def main(argv: list[str] | None = None) -> int:
         steps = []
         wall, check_out, _ = sonicskin_cmd(f"check --out check{opt}{chk}", cwd)
         steps.append(("1. check", f"sonicskin check --out check{opt}{chk}", wall, last_line(check_out, "rig check:")))
-        cmd = f"record --out data/my-robot --device sim --scenario {scenario}{opt} --fast --moving-s 0{rec}"
+        cmd = (f"record --out data/my-robot --artifact artifacts/my-robot --device sim --scenario {scenario}{opt} --fast "
+               f"--moving-s 0{rec}")
         wall, out, err = sonicskin_cmd(cmd, cwd)
-        steps.append(("2. record", f"sonicskin {cmd}", wall, last_line(out + err, "wrote ")))
-        cmd = "fit-svm --data data/my-robot --out artifacts/my-robot"
-        wall, out, err = sonicskin_cmd(cmd, cwd)
-        steps.append(("3. fit-svm", f"sonicskin {cmd}", wall, last_line(out + err, "svm.onnx").replace(tmp + "/", "")))
+        steps.append(("2. record", f"sonicskin {cmd}", wall,
+                      f"{last_line(out, ' chirps in ')}; {last_line(out, 'chose gamma')}; {last_line(out, 'svm.onnx')}"
+                      .replace(tmp + "/", "")))
         print(f"live: Listener on {scenario}, scored against the script", file=sys.stderr)
         wall, s = score_live(cwd / "artifacts" / "my-robot", str(cwd / scenario) if a.small else scenario,
                              str(cwd / rig) if rig else None)
@@ -120,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
             f"error {s['position_error_cm']:.2f} cm; false touches {s['false_touch']:.1%} of the {s['rest_chirps']} hands-off chirps; "
             f"missed {s['missed']:.1%} of the {s['pressed_chirps']} pressed chirps (>= {PRESSED_N:g} N); latency median "
             f"{s['latency_ms_median']:.2f} ms per chirp")
-    steps.append(("4. live", f'sonicskin.Listener("artifacts/my-robot", scenario="{scenario}", '
+    steps.append(("3. live", f'sonicskin.Listener("artifacts/my-robot", scenario="{scenario}", '
                   f'fast=True), scored against the script', wall, live))
     out = ["| step | command | wall time | result |", "|---|---|---|---|"]
     out += [f"| {name} | `{cmd}` | {wall:.0f} s | {res.replace('|', chr(92) + '|')} |" for name, cmd, wall, res in steps]
