@@ -60,7 +60,7 @@ def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
-                 val_sessions=(), log=print) -> dict:
+                 val_sessions=(), artifact: str | Path | None = None, log=print) -> dict:
     """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
 
     The paper's SVM (OSPA's ``n_bins`` on the absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
@@ -73,7 +73,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant force) force is reported as
     absent.  Streams whose rest is shorter than Alg. 2's beta use the rest they have, down to
     :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the caller, not in ``table``) are only
-    named in the report.
+    named in the report.  ``artifact``: keep the paper's artifact there (default: a temporary folder).
     """
     import dataclasses
     import tempfile
@@ -118,8 +118,9 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
     with tempfile.TemporaryDirectory(prefix="sonicskin-evaluate-") as tmp:
         data = paper_data(n_bins=gamma)
-        skin = fit_artifact(data, Path(tmp) / "paper", select=False, detector="paper", log=quiet)
-        rt = SkinRuntime(Path(tmp) / "paper", "svm")
+        paper = Path(artifact) if artifact is not None else Path(tmp) / "paper"
+        skin = fit_artifact(data, paper, select=False, detector="paper", log=quiet)
+        rt = SkinRuntime(paper, "svm")
         # Alg. 2 from the model's own detection (boot: each stream's first beta chirps); no test labels.
         p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative"
              else rt.predict_inputs(rt.inputs(te.X)))

@@ -105,7 +105,8 @@ def test_live_loop_and_offline_replay_agree_chirp_by_chirp(rig, artifact, tmp_pa
 
     # Written as a writer writes it: the models' bindings and the digest record the new settings (an edit is refused).
     skin_json(art, rig=meta["rig"], layout=meta["layout"], spec=FeatureSpec.from_dict(meta["features"]),
-              min_force_n=meta["min_force_n"], training=meta["training"], models=meta["models"])
+              min_force_n=meta["min_force_n"], training=meta["training"], models=meta["models"], drift=meta.get("drift"))
+    assert "drift" in meta  # drift tracking on: every reference estimates the stretch, every chirp is mapped back
     ds = Dataset(artifact.parent / "data")
     t = ds.features(progress=False)
     for model in ("svm", "net") if "net" in meta["models"] else ("svm",):
@@ -132,6 +133,7 @@ def test_live_loop_and_offline_replay_agree_chirp_by_chirp(rig, artifact, tmp_pa
         np.testing.assert_allclose([p.force_n[0] for p in live], offline.force_n[run], atol=1e-4)
         np.testing.assert_allclose(np.concatenate([p.xy_cm for p in live]), offline.xy_cm[run], atol=1e-4)
         assert loop.refreshes >= 3 and offline.touch.any() and (~offline.touch[run]).any()
+        assert loop.stream.drift is not None and loop.stream.drift.updates == loop.refreshes
 
 
 def test_dropouts_are_counted_and_survived(rig, artifact):
