@@ -22,7 +22,7 @@ def live_predictions(rt: SkinRuntime, ds: Dataset, sessions: list[str]) -> Predi
     for s in sessions:
         got: dict = {}
         src = acquire.RecordingSource(ds, s)
-        loop = LiveLoop(rt, src, emit=lambda _: None, on_chirp=lambda t_s, p: got.__setitem__(round(t_s * ds.rig.fs_hz), p))
+        loop = LiveLoop(rt, src, emit=lambda _: None, on_chirp=lambda t_s, p, got=got: got.__setitem__(round(t_s * ds.rig.fs_hz), p))
         with src:
             loop.run(idle_timeout_s=0.2)
         first = min(got)
