@@ -75,7 +75,8 @@ def floors(ds, *, min_force_n: float = 0.5) -> dict:
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC, SVR
 
-    from sonicskin.features import FeatureSpec, load_features_cached, touch_mask
+    from sonicskin.feature_cache import load_features_cached
+    from sonicskin.features import FeatureSpec, touch_mask
 
     t = load_features_cached(ds, progress=False)
     beta = FeatureSpec((0,), "relative").reference(ds.rig.chirps_per_s).beta

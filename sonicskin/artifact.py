@@ -23,24 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .artifact_files import model_file
+from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, nonfinite_field, probe_widths, validate_skin
 from .dataset import write_file
+from .errors import ArtifactError
 from .head.heads import ovr_scores_from_ovo
 from .head.heads import pairwise as _pairwise
-from .schema import (
-    ARTIFACT_FORMAT,
-    ARTIFACT_VERSION,
-    ArtifactError,
-    artifact_digest,
-    binding,
-    canonical,
-    check_session,
-    model_file,
-    nonfinite_field,
-    probe_widths,
-    run_probe,
-    stamp_binding,
-    validate_skin,
-)
+from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
 
 __all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "sha256", "ort_session",
            "export_svm", "skin_json", "atomic_artifact", "json_safe"]
@@ -200,9 +189,9 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters); ``drift``:
     drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`).
 
-    The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
+    The document is checked against :mod:`sonicskin.artifact_schema` and every ONNX file against it (input
     width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
-    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.schema.check_integrity`
+    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.integrity.check_integrity`
     checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
     in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
     and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as

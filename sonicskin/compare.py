@@ -8,11 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .artifact_files import load_skin
 from .dataset import Dataset, FeatureTable, write_file
-from .features import load_features_cached, touch_mask
+from .feature_cache import load_features_cached
+from .features import touch_mask
+from .integrity import check_layout, check_rig
 from .metrics import force_report, localization_report, speed_ratio
 from .runtime import Predictions, SkinRuntime
-from .schema import check_layout, check_rig, load_skin
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
            "chirps_per_location", "coverage_note", "split_line", "counts_line", "leading_rest"]

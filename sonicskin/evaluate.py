@@ -80,9 +80,10 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
     from .calibration import OnlineReference
     from .compare import chirps_per_location, coverage_note, replay_sessions, stream_metrics
-    from .features import MIN_REST_CHIRPS, Split, rest_beta, usable_bins
+    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
     from .fit import fit_artifact, prepare
     from .runtime import SkinRuntime
+    from .split import Split
 
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")

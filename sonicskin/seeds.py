@@ -25,9 +25,11 @@ import numpy as np
 
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
-from .features import FeatureSpec, Split, load_features_cached
+from .feature_cache import load_features_cached
+from .features import FeatureSpec
 from .rig import Rig
 from .runtime import SkinRuntime
+from .split import Split
 
 __all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds"]
 

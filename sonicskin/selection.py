@@ -525,7 +525,8 @@ def expectations(data, *, min_force_n: float = 0.5, mode: str = "relative", sess
     """What a skin trained on ``sessions`` (default: all) of a dataset can be expected to do: the validated
     choice, its accuracy with an interval, the learning curve and the force error (``record`` prints this)."""
     from .dataset import Dataset
-    from .features import FeatureSpec, load_features_cached, training_targets
+    from .feature_cache import load_features_cached
+    from .features import FeatureSpec, training_targets
 
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = load_features_cached(ds, progress=False)

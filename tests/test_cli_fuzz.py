@@ -292,7 +292,6 @@ def _mutate_artifact(a: Path, kind: str, arg) -> None:
 @settings(FUZZ, max_examples=40)
 @given(artifact_mutations())
 def test_malformed_artifact_files(capsys, cli_files, case):
-    pytest.importorskip("sonicskin.schema", reason="the artifact schema of issue 9.2 (sonicskin/schema.py) is not merged yet")
     kind, arg = case
     with tempfile.TemporaryDirectory() as tmp:
         a = Path(tmp) / "art"

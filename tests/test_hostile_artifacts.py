@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from cli_helpers import assert_one_line_error, run
 
-from sonicskin.schema import artifact_digest
+from sonicskin.integrity import artifact_digest
 
 
 def _copy(src: Path, dst: Path) -> Path:
@@ -230,7 +230,7 @@ def _stream(cli_files):
     import numpy as np
 
     from sonicskin.dataset import Dataset
-    from sonicskin.features import load_features_cached
+    from sonicskin.feature_cache import load_features_cached
     from sonicskin.runtime import SkinRuntime
 
     t = load_features_cached(Dataset(cli_files["data"]), progress=False)

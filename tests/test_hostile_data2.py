@@ -17,8 +17,8 @@ import pytest
 from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run
 
 from sonicskin.dataset import Dataset
+from sonicskin.errors import ArtifactError
 from sonicskin.rig import Rig
-from sonicskin.schema import ArtifactError
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
 
@@ -231,7 +231,7 @@ def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
 # -- 27.7: a feature cache whose content was edited (its key kept) ---------------------------------------------------------
 def _rewrite_cache(path: Path, *, fix_digest: bool, **changes) -> None:
     from sonicskin.dataset import FeatureTable
-    from sonicskin.features import _content_digest
+    from sonicskin.feature_cache import _content_digest
 
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}

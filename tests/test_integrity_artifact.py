@@ -31,9 +31,9 @@ from cli_helpers import SMALL_RIG, assert_one_line_error, run
 from sonicskin.artifact import atomic_artifact, skin_json
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import build_svm_artifact
+from sonicskin.integrity import artifact_digest, binding, read_binding, stamp_binding
 from sonicskin.rig import Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
-from sonicskin.schema import artifact_digest, binding, read_binding, stamp_binding
 
 REPO = Path(__file__).resolve().parent.parent
 

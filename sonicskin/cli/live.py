@@ -108,8 +108,8 @@ def _stdout_sink(line: str) -> None:
 def _live_rig(a: argparse.Namespace):
     """``--rig``, else the artifact's own rig (as the Python API does), else the shipped jaco rig: an artifact of another
     rig was refused under the default jaco with no word of --rig."""
+    from ..artifact_files import load_skin
     from ..rig import Rig
-    from ..schema import load_skin
 
     if a.rig:
         return Rig.load(a.rig)

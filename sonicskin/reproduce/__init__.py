@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..features import load_features_cached
+from ..feature_cache import load_features_cached
 from ..rig import Rig
 from . import fig6b, fig11, fig12, fig13, fig16, table1
 from .aggregate import Spread, aggregate
