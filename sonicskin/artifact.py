@@ -30,9 +30,10 @@ from .errors import ArtifactError
 from .head.heads import ovr_scores_from_ovo
 from .head.heads import pairwise as _pairwise
 from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
+from .jsonio import json_safe
 
 __all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "sha256", "ort_session",
-           "export_svm", "skin_json", "atomic_artifact", "json_safe"]
+           "export_svm", "skin_json", "atomic_artifact"]
 
 #: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
 #: scikit-learn (float64): their outputs differ by rounding that grows with the size of the values (a network's
@@ -204,12 +205,12 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training,
             "models": {k: {kk: vv for kk, vv in e.items() if kk not in ("sha256", "probe")} for k, e in models.items()}}
     if selection:
-        skin["selection"] = _json_safe(selection)
+        skin["selection"] = json_safe(selection)
     if drift:
         skin["drift"] = drift
     old_probes = {k: e["probe"]["inputs"] for k, e in models.items() if isinstance(e.get("probe"), dict) and "inputs" in e["probe"]}
     where = str(out / "skin.json (being written)")
-    skin = json.loads(json.dumps(skin, default=_plain))
+    skin = json.loads(json.dumps(json_safe(skin, keep_nonfinite=True)))  # NaN kept: refused below, naming the field
     # NaN/Infinity are not JSON: refuse rather than write them, naming the field.  The free-form fields (a training
     # option, a time, a parity figure) here; every checked field gets its own message from validate_skin.
     bad = nonfinite_field({"training": skin["training"], "models": {k: {f: e[f] for f in ("hparams", "parity") if f in e}
@@ -242,36 +243,6 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     write_file(tmp, text)  # a full disk names the file
     tmp.replace(out / "skin.json")
     return skin
-
-
-def _plain(v):
-    """numpy scalars and arrays in a document as JSON numbers and lists."""
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    raise TypeError(f"{type(v).__name__} is not JSON")
-
-
-def json_safe(o):
-    """Plain, strict JSON data: numpy scalars and arrays as numbers and lists, NaN/inf (an interval from one fold, a
-    median of nothing) as null.  ``json.dumps(json_safe(o), allow_nan=False)`` never writes a ``NaN`` literal."""
-    if isinstance(o, dict):
-        return {str(k): json_safe(v) for k, v in o.items()}
-    if isinstance(o, np.ndarray):
-        return json_safe(o.tolist())
-    if isinstance(o, (list, tuple)):
-        return [json_safe(v) for v in o]
-    if isinstance(o, (bool, np.bool_)):
-        return bool(o)
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    return o
-
-
-_json_safe = json_safe  # the earlier private name (sonicskin.seeds)
 
 
 ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.png)")

@@ -297,7 +297,7 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .artifact import json_safe
+    from .jsonio import json_safe
 
     # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
     write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))

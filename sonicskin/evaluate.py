@@ -273,7 +273,7 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .artifact import json_safe
+    from .jsonio import json_safe
 
     write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
