@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch")
 from sonicskin.models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
 from sonicskin.training.quick import fit_net  # noqa: E402
 
-from sonicskin.baseline import ovr_scores_from_ovo  # noqa: E402
+from sonicskin.head.heads import ovr_scores_from_ovo  # noqa: E402
 
 
 def _toy(n_per=30, K=4, d=12, seed=0):

@@ -41,10 +41,6 @@ def nonneg_float(text: str) -> float:
     return v
 
 
-def finite_float(text: str) -> float:
-    return _number(float, text, "a number")
-
-
 def positive_int(text: str) -> int:
     v = _number(int, text, "a whole number > 0")
     if v <= 0:
