@@ -32,7 +32,8 @@ from .head.heads import pairwise as _pairwise
 from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
 from .jsonio import json_safe
 
-__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "sha256", "ort_session",
+__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "require_parity", "sha256",
+           "ort_session",
            "export_svm", "skin_json", "atomic_artifact"]
 
 #: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
@@ -129,6 +130,17 @@ def parity_failure(what: str, original: str, parity: dict, n_checked: int, fix: 
             f"({'; '.join(parts)}): {fix}")
 
 
+def require_parity(parity: dict, what: str, original: str, n_checked: int, how: str) -> dict:
+    """``parity`` (of :func:`decisions_parity`) without its verdict, or :class:`ParityError`: one line
+    (:func:`parity_failure`) ending "onnxruntime <version> runs the graph ``how``"."""
+    if not parity.pop("ok"):
+        import onnxruntime
+
+        raise ParityError(parity_failure(what, original, parity, n_checked,
+                                         f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
+    return parity
+
+
 def sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -169,15 +181,11 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     tie = (np.abs(d_ref) < parity_bound(d_ref)).any(axis=1)
     parity = decisions_parity({"scores": S, "decision": d}, {"scores": S_ref, "decision": d_ref}, label="scores",
                               vote_tie=tie, every_chirp=("decision",))
-    if not parity.pop("ok"):
-        import onnxruntime
-        import sklearn
+    import sklearn
 
-        raise ParityError(parity_failure("svm.onnx", "scikit-learn's SVM", parity, len(X_check),
-                                         f"onnxruntime {onnxruntime.__version__} runs the graph skl2onnx wrote differently "
-                                         f"from scikit-learn {sklearn.__version__}; reinstall the package's dependencies "
-                                         f"(pip install -c constraints.txt -e .) and fit again"))
-    return parity
+    return require_parity(parity, "svm.onnx", "scikit-learn's SVM", len(X_check),
+                          f"skl2onnx wrote differently from scikit-learn {sklearn.__version__}; reinstall the package's "
+                          f"dependencies (pip install -c constraints.txt -e .) and fit again")
 
 
 def _default_probe(n_in: int) -> np.ndarray:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run
+from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, press_rows, run, session_audio
 
 from sonicskin.dataset import Dataset
 from sonicskin.errors import ArtifactError
@@ -326,13 +326,8 @@ def test_a_last_chirp_cut_short_is_dropped_with_a_warning(five, tmp_path, capsys
     (tmp_path / "rec").mkdir()
     rows = [["file", "start_s", "end_s", "location", "x_cm", "y_cm", "force_n"]]
     for s in ("s000", "s001"):
-        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
-        _, lab = ds.read_session(s)
-        for v in ds.layout.ids:
-            k = np.flatnonzero(lab["location"] == v)
-            x, y = ds.layout.coords(np.array([v]))[0]
-            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
-                         f"{y:g}", "2.5"])
+        audio = session_audio(ds, s)
+        rows += press_rows(ds, s)
         if s == "s000":  # the last sweep labelled a touch, and the recording stopped 200 samples before its end
             frames, offset = frame_stream(audio, rig_chirp(rig))  # where the importer finds the sweeps (received)
             start = offset + (frames.shape[0] - 1) * rig.n_chirp
