@@ -54,6 +54,21 @@ def assert_one_line_error(code: int, err: str, verb: str | None = None) -> str:
     return lines[0]
 
 
+def refusals(table):
+    """``(argv, message)`` cases as pytest parameters named by their argv."""
+    import pytest
+
+    return [pytest.param(argv, message, id=" ".join(map(str, argv))) for argv, message in table]
+
+
+def refusal(capsys, argv) -> str:
+    """The one line ``sonicskin argv`` refuses with (exit 2, no traceback; :func:`assert_one_line_error`), after its
+    ``sonicskin <verb>: error: ``."""
+    code, _, err = run(capsys, argv)
+    verb = str(argv[0])
+    return assert_one_line_error(code, err, verb).removeprefix(f"sonicskin {verb}: error: ")
+
+
 def session_audio(ds, session: str):
     """A simulated session's whole recording (its FLAC parts joined), float32."""
     import numpy as np

@@ -13,13 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import MAX_ABS_CM, MAX_FORCE_N
-from ..rig import Layout
+from ..rig import MAX_LOCATIONS, Layout
 from ._common import ImportDataError
 
 _LABEL_COLS = ("file", "start_s", "end_s", "location")
 _OPTIONAL_COLS = ("x_cm", "y_cm", "force_n", "moving", "subject")
 NO_TOUCH_LABELS = frozenset({"", "-1", "nan", "none", "no-touch", "no_touch", "notouch", "rest", "quiet", "idle"})
-MAX_LOCATIONS = 100_000  # markers of one layout (dataset.json's bound)
 MARKER_SPREAD_CM = 1.0  # rows of one location whose x_cm/y_cm differ by more than this name two places
 
 
