@@ -136,11 +136,11 @@ class Models:
         from sklearn.pipeline import make_pipeline
         from sklearn.preprocessing import Normalizer, StandardScaler
         from sklearn.svm import SVC
+        from sonicskin.skin import SkinSVM
+        from sonicskin.svm_head import fit_svm_head
 
         from sonicskin.calibration import OnlineReference
         from sonicskin.features import quiet_mask, relative_features, touch_mask, training_targets
-        from sonicskin.skin import SkinSVM
-        from sonicskin.svm_head import fit_svm_head
 
         rig, layout = ds.rig, ds.layout
         self.n = len(layout)
@@ -181,9 +181,10 @@ class Models:
     # -- scores that Alg. 2 references (S_c) -------------------------------------------------
     def paper_raw(self, xa: np.ndarray) -> np.ndarray:
         """SkinSVM's raw [S_1..S_K, E^O] of absolute OSPA bins."""
-        from sonicskin.baseline import ovr_scores_from_ovo
-        from sonicskin.force import energy_db
         from sonicskin.svm_head import ovo_decision
+
+        from sonicskin.force import energy_db
+        from sonicskin.head.heads import ovr_scores_from_ovo
 
         S = ovr_scores_from_ovo(ovo_decision(self.paper_pipe, xa), self.n)
         return np.column_stack([S, energy_db(xa, np.arange(xa.shape[1]))])
@@ -276,7 +277,8 @@ def _acc(pred: np.ndarray, t, rows: np.ndarray) -> float:
 def run_seed(path: Path, *, net: bool, fig12: bool, log=print) -> dict:
     from sonicskin.dataset import Dataset
     from sonicskin.drift import DriftTracker, estimate_stretch
-    from sonicskin.features import load_features_cached, quiet_mask, touch_mask
+    from sonicskin.feature_cache import load_features_cached
+    from sonicskin.features import quiet_mask, touch_mask
 
     ds = Dataset(path)
     t = load_features_cached(ds, progress=False)

@@ -17,40 +17,15 @@ import argparse
 import contextlib
 import csv
 import io
+import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-SMALL_RIG = """\
-name: small
-fs_hz: 192000
-f_lo_hz: 20000
-f_hi_hz: 80000
-n_chirp: 1024
-pwm_hz: [30000, 60000]
-pwm_halfwidth_hz: 3250
-amplitude: 0.5
-"""
-
-TINY_SCENARIO = """\
-name: tiny
-material: abs
-geometry: {kind: plate, width_cm: 20.0, length_cm: 25.0}
-tx_cm: [4.0, 2.5]
-rx_cm: [9.0, 22.5]
-layout: {kind: grid, nx: 3, ny: 1, spacing_cm: 1.2, x0_cm: 9.4, y0_cm: 12.5}
-sessions: 2
-repeats: 1
-touch_s: 0.5
-gap_s: 0.2
-calibration_s: 3.5
-moving_s: 0.0
-subjects: [0]
-motion: {enabled: false}
-seed: 4
-"""
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from cli_helpers import SMALL_RIG, TINY_SCENARIO, write_recordings  # noqa: E402  (the tests' small rig, tiny scenario)
 
 
 def _timed(fn) -> tuple[float, str]:
@@ -68,8 +43,6 @@ def _timed(fn) -> tuple[float, str]:
 
 def _recordings(work: Path) -> tuple[Path, Path, list[list[str]], object]:
     """The tiny scenario as WAV recordings and an interval CSV (one row per press), as tests/test_hostile_data.py makes."""
-    import soundfile as sf
-
     from sonicskin.dataset import Dataset
     from sonicskin.rig import Rig
     from sonicskin.sim.generate import simulate_dataset
@@ -78,19 +51,10 @@ def _recordings(work: Path) -> tuple[Path, Path, list[list[str]], object]:
     (work / "small.yaml").write_text(SMALL_RIG)
     (work / "tiny.yaml").write_text(TINY_SCENARIO)
     rig = Rig.load(work / "small.yaml")
-    simulate_dataset(Scenario.load(work / "tiny.yaml"), rig, work / "data", progress=False, log=lambda *_: None)
+    simulate_dataset(Scenario.load(work / "tiny.yaml").replace(sessions=2), rig, work / "data", progress=False,
+                     log=lambda *_: None)
     ds = Dataset(work / "data")
-    (work / "rec").mkdir()
-    rows = [["file", "start_s", "end_s", "location", "x_cm", "y_cm", "force_n"]]
-    for s in ds.sessions:
-        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
-        sf.write(work / "rec" / f"{s}.wav", audio, int(rig.fs_hz), subtype="FLOAT")
-        _, lab = ds.read_session(s)
-        for v in ds.layout.ids:
-            k = np.flatnonzero(lab["location"] == v)
-            x, y = ds.layout.coords(np.array([v]))[0]
-            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
-                         f"{y:g}", "2.5"])
+    rows = [["file", "start_s", "end_s", "location", "x_cm", "y_cm", "force_n"], *write_recordings(ds, work / "rec")]
     return work / "rec", work / "labels.csv", rows, (rig, ds)
 
 

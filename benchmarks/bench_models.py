@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         for i in range(beta):
             st.frame(frames[i], t_s[i])
     rows = np.arange(beta, len(frames))
-    inputs = {k: st.reference.inputs(np.stack([st.rt.band_features(frames[r:r + 1])[0][st.bins] for r in rows[:64]]))
+    inputs = {k: st.reference.inputs(np.stack([rts[k].band_features(frames[r:r + 1])[0][st.bins] for r in rows[:64]]))
               for k, st in streams.items()}
     n, warm = a.chirps, 30
     path = {k: np.empty(n) for k in rts}

@@ -75,7 +75,8 @@ def floors(ds, *, min_force_n: float = 0.5) -> dict:
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC, SVR
 
-    from sonicskin.features import FeatureSpec, load_features_cached, touch_mask
+    from sonicskin.feature_cache import load_features_cached
+    from sonicskin.features import FeatureSpec, touch_mask
 
     t = load_features_cached(ds, progress=False)
     beta = FeatureSpec((0,), "relative").reference(ds.rig.chirps_per_s).beta
@@ -149,18 +150,10 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     return row
 
 
-def _t_interval(d: np.ndarray) -> tuple[float, float]:
-    from scipy import stats
-
-    d = d[np.isfinite(d)]
-    if d.size < 2:
-        return float("nan"), float("nan")
-    half = stats.t.ppf(0.975, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size)
-    return float(d.mean() - half), float(d.mean() + half)
-
-
 def summarize(rows: list[dict]) -> dict:
     """Per quantity: mean and std over seeds; per pair: mean difference and 95 % t interval over seeds."""
+    from sonicskin.stats import t_interval
+
     def col(get):
         return np.array([get(r) for r in rows], float)
 
@@ -176,7 +169,7 @@ def summarize(rows: list[dict]) -> dict:
         ("force_rmse_n/svm", "force_rmse_n/mean_floor"), ("force_rmse_n/net", "force_rmse_n/mean_floor")]
     for a, b in pairs:
         d = q[a] - q[b]
-        lo, hi = _t_interval(d)
+        lo, hi = t_interval(d[np.isfinite(d)])
         out["pairs"][f"{a} - {b}"] = {"mean": float(np.nanmean(d)), "ci95": [lo, hi], "n": int(np.isfinite(d).sum())}
     return out
 

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 
 from sonicskin.compare import stream_metrics  # noqa: E402
 from sonicskin.dataset import Dataset  # noqa: E402
-from sonicskin.features import load_features_cached  # noqa: E402
+from sonicskin.feature_cache import load_features_cached  # noqa: E402
 from sonicskin.runtime import Predictions, SkinRuntime  # noqa: E402
 from sonicskin.seeds import METRICS  # noqa: E402
 

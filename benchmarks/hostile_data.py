@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from cli_helpers import SMALL_RIG, TINY_SCENARIO  # noqa: E402  (the tests' small rig and tiny scenario)
+from cli_helpers import SMALL_RIG, TINY_SCENARIO, write_recordings  # noqa: E402  (the tests' small rig, tiny scenario)
 
 BASE = Path("reports/hostile-data/base")  # set by main()
 EXE = str(Path(sys.executable).parent / "sonicskin")
@@ -57,17 +57,7 @@ def build_base(root: Path) -> None:
     rig = Rig.load(root / "small.yaml")
     simulate_dataset(Scenario.load(root / "tiny.yaml"), rig, root / "data", **quiet)
     ds = Dataset(root / "data")
-    (root / "rec").mkdir()
-    rows = [HEADER]
-    for s in ds.sessions:
-        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
-        sf.write(root / "rec" / f"{s}.wav", audio, int(rig.fs_hz), subtype="FLOAT")
-        _, lab = ds.read_session(s)
-        for v in ds.layout.ids:
-            k = np.flatnonzero(lab["location"] == v)
-            x, y = ds.layout.coords(np.array([v]))[0]
-            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
-                         f"{y:g}", "2.5", "0", "0"])
+    rows = [HEADER, *write_recordings(ds, root / "rec", tail=("2.5", "0", "0"))]
     with open(root / "labels.csv", "w", newline="") as fh:
         csv.writer(fh, lineterminator="\n").writerows(rows)
     sf.write(root / "sweep.wav", rig_chirp(rig).astype(np.float32), int(rig.fs_hz), subtype="FLOAT")

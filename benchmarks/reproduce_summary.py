@@ -20,12 +20,16 @@ KINDS = (("svm", "SVM"), ("net", "network"))
 CHECKPOINTS_MIN = (30, 60, 90, 120)  # Fig. 12's time axis
 
 
+def _num(v) -> float:
+    return float("nan") if v is None else float(v)  # report.json is strict JSON: a number not measured is null
+
+
 def _mean(x) -> float:
-    return float(x["mean"]) if isinstance(x, dict) else float(np.mean(x))
+    return _num(x["mean"]) if isinstance(x, dict) else float(np.mean([_num(v) for v in np.ravel(x)]))
 
 
 def _std(x) -> float:
-    return float(x["std"]) if isinstance(x, dict) else float(np.std(x))
+    return _num(x["std"]) if isinstance(x, dict) else float(np.std([_num(v) for v in np.ravel(x)]))
 
 
 def pct(x) -> str:

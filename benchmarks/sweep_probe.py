@@ -39,7 +39,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_latency import run_rig  # noqa: E402
 
-from sonicskin.features import load_features_cached, select_bins  # noqa: E402
+from sonicskin.feature_cache import load_features_cached  # noqa: E402
+from sonicskin.features import select_bins  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.seeds import METRICS, _one_seed, _split, scenario_dataset  # noqa: E402
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from sonicskin.artifact import ParityError, decisions_parity, ort_session, parity_bound, parity_failure
+from sonicskin.artifact import decisions_parity, ort_session, parity_bound, require_parity
 
 __all__ = ["export_net"]
 
@@ -55,11 +55,6 @@ def export_net(model: torch.nn.Module, path: Path, X_check: np.ndarray) -> dict:
     parity = decisions_parity({"logits": logits, "force_n": force}, {"logits": ref_logits, "force_n": ref_force},
                               label="logits", label_cols=slice(0, -1), touch=(touch_margin(logits), touch_margin(ref_logits)),
                               vote_tie=tie, every_chirp=("force_n",))
-    if not parity.pop("ok"):
-        import onnxruntime
-
-        raise ParityError(parity_failure("net.onnx", "the torch network", parity, len(X_check),
-                                         f"onnxruntime {onnxruntime.__version__} runs the graph torch {torch.__version__} "
-                                         f"exported differently; reinstall the tested versions (pip install -c "
-                                         f"constraints.txt -e '.[train]') and export again"))
-    return parity
+    return require_parity(parity, "net.onnx", "the torch network", len(X_check),
+                          f"torch {torch.__version__} exported differently; reinstall the tested versions (pip install -c "
+                          f"constraints.txt -e '.[train]') and export again")

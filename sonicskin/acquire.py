@@ -358,10 +358,6 @@ class SimulatedSource(_QueueSource):
         self._thread = threading.Thread(target=self._run_producer, name="sonicskin-sim-audio", daemon=True)
         self.finished = threading.Event()
 
-    def chirp_start(self, k: int) -> int:
-        """Stream sample index where chirp ``k`` of the timeline starts."""
-        return k * self.rig.n_chirp - self.offset
-
     def _produce(self) -> None:
         L, B = self.rig.n_chirp, self.blocksize
         pending = np.zeros(0, np.float32)

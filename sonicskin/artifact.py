@@ -23,27 +23,18 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .artifact_files import model_file
+from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, nonfinite_field, probe_widths, validate_skin
 from .dataset import write_file
+from .errors import ArtifactError
 from .head.heads import ovr_scores_from_ovo
 from .head.heads import pairwise as _pairwise
-from .schema import (
-    ARTIFACT_FORMAT,
-    ARTIFACT_VERSION,
-    ArtifactError,
-    artifact_digest,
-    binding,
-    canonical,
-    check_session,
-    model_file,
-    nonfinite_field,
-    probe_widths,
-    run_probe,
-    stamp_binding,
-    validate_skin,
-)
+from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
+from .jsonio import json_safe
 
-__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "sha256", "ort_session",
-           "export_svm", "skin_json", "atomic_artifact", "json_safe"]
+__all__ = ["ARTIFACT_FORMAT", "PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "require_parity", "sha256",
+           "ort_session",
+           "export_svm", "skin_json", "atomic_artifact"]
 
 #: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
 #: scikit-learn (float64): their outputs differ by rounding that grows with the size of the values (a network's
@@ -139,6 +130,17 @@ def parity_failure(what: str, original: str, parity: dict, n_checked: int, fix: 
             f"({'; '.join(parts)}): {fix}")
 
 
+def require_parity(parity: dict, what: str, original: str, n_checked: int, how: str) -> dict:
+    """``parity`` (of :func:`decisions_parity`) without its verdict, or :class:`ParityError`: one line
+    (:func:`parity_failure`) ending "onnxruntime <version> runs the graph ``how``"."""
+    if not parity.pop("ok"):
+        import onnxruntime
+
+        raise ParityError(parity_failure(what, original, parity, n_checked,
+                                         f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
+    return parity
+
+
 def sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
@@ -179,15 +181,11 @@ def export_svm(pipe, n_locations: int, path: Path, X_check: np.ndarray) -> dict:
     tie = (np.abs(d_ref) < parity_bound(d_ref)).any(axis=1)
     parity = decisions_parity({"scores": S, "decision": d}, {"scores": S_ref, "decision": d_ref}, label="scores",
                               vote_tie=tie, every_chirp=("decision",))
-    if not parity.pop("ok"):
-        import onnxruntime
-        import sklearn
+    import sklearn
 
-        raise ParityError(parity_failure("svm.onnx", "scikit-learn's SVM", parity, len(X_check),
-                                         f"onnxruntime {onnxruntime.__version__} runs the graph skl2onnx wrote differently "
-                                         f"from scikit-learn {sklearn.__version__}; reinstall the package's dependencies "
-                                         f"(pip install -c constraints.txt -e .) and fit again"))
-    return parity
+    return require_parity(parity, "svm.onnx", "scikit-learn's SVM", len(X_check),
+                          f"skl2onnx wrote differently from scikit-learn {sklearn.__version__}; reinstall the package's "
+                          f"dependencies (pip install -c constraints.txt -e .) and fit again")
 
 
 def _default_probe(n_in: int) -> np.ndarray:
@@ -200,9 +198,9 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters); ``drift``:
     drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`).
 
-    The document is checked against :mod:`sonicskin.schema` and every ONNX file against it (input
+    The document is checked against :mod:`sonicskin.artifact_schema` and every ONNX file against it (input
     width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
-    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.schema.check_integrity`
+    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.integrity.check_integrity`
     checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
     in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
     and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as
@@ -215,12 +213,12 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
             "calibration": {"beta_s": spec.beta_s, "alpha_s": spec.alpha_s}, "training": training,
             "models": {k: {kk: vv for kk, vv in e.items() if kk not in ("sha256", "probe")} for k, e in models.items()}}
     if selection:
-        skin["selection"] = _json_safe(selection)
+        skin["selection"] = json_safe(selection)
     if drift:
         skin["drift"] = drift
     old_probes = {k: e["probe"]["inputs"] for k, e in models.items() if isinstance(e.get("probe"), dict) and "inputs" in e["probe"]}
     where = str(out / "skin.json (being written)")
-    skin = json.loads(json.dumps(skin, default=_plain))
+    skin = json.loads(json.dumps(json_safe(skin, keep_nonfinite=True)))  # NaN kept: refused below, naming the field
     # NaN/Infinity are not JSON: refuse rather than write them, naming the field.  The free-form fields (a training
     # option, a time, a parity figure) here; every checked field gets its own message from validate_skin.
     bad = nonfinite_field({"training": skin["training"], "models": {k: {f: e[f] for f in ("hparams", "parity") if f in e}
@@ -253,36 +251,6 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
     write_file(tmp, text)  # a full disk names the file
     tmp.replace(out / "skin.json")
     return skin
-
-
-def _plain(v):
-    """numpy scalars and arrays in a document as JSON numbers and lists."""
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    raise TypeError(f"{type(v).__name__} is not JSON")
-
-
-def json_safe(o):
-    """Plain, strict JSON data: numpy scalars and arrays as numbers and lists, NaN/inf (an interval from one fold, a
-    median of nothing) as null.  ``json.dumps(json_safe(o), allow_nan=False)`` never writes a ``NaN`` literal."""
-    if isinstance(o, dict):
-        return {str(k): json_safe(v) for k, v in o.items()}
-    if isinstance(o, np.ndarray):
-        return json_safe(o.tolist())
-    if isinstance(o, (list, tuple)):
-        return [json_safe(v) for v in o]
-    if isinstance(o, (bool, np.bool_)):
-        return bool(o)
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    return o
-
-
-_json_safe = json_safe  # the earlier private name (sonicskin.seeds)
 
 
 ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.png)")

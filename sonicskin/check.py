@@ -38,6 +38,7 @@ import scipy.signal
 
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
 from .errors import SonicskinError
+from .jsonio import json_safe
 from .rig import Rig
 
 __all__ = ["Capture", "CheckLine", "CheckReport", "SimulatedDevice", "simulated_capture", "device_capture", "analyse",
@@ -129,8 +130,6 @@ class CheckReport:
         return "\n".join(out)
 
     def to_json(self) -> str:
-        from .cli.live import json_safe
-
         doc = {"ok": self.ok, "rig": self.rig.to_dict(), "lines": [dataclasses.asdict(x) for x in self.lines],
                "measurements": self.measurements}
         doc["rig"].pop("sweep_b64", None)

@@ -8,11 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .artifact_files import load_skin
 from .dataset import Dataset, FeatureTable, write_file
-from .features import load_features_cached, touch_mask
+from .feature_cache import load_features_cached
+from .features import touch_mask
+from .integrity import check_layout, check_rig
 from .metrics import force_report, localization_report, speed_ratio
 from .runtime import Predictions, SkinRuntime
-from .schema import check_layout, check_rig, load_skin
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
            "chirps_per_location", "coverage_note", "split_line", "counts_line", "leading_rest"]
@@ -295,7 +297,7 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .artifact import json_safe
+    from .jsonio import json_safe
 
     # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
     write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))

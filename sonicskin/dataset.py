@@ -46,7 +46,7 @@ import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
 from .errors import SonicskinError
-from .rig import Layout, Rig
+from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
            "writer_lock", "swap_folders", "write_file", "named_os_error", "enclosing_dataset", "refuse_inside_dataset",
@@ -527,10 +527,8 @@ class FeatureTable:
         return cls(X, labels)
 
 
-# Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time.
-_MAX_N_CHIRP = 1 << 22
-_MAX_FS_HZ = 10e6
-_MAX_LOCATIONS = 100_000
+# Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time: the rig's
+# (sonicskin.rig.MAX_N_CHIRP, MAX_FS_HZ, MAX_LOCATIONS).
 
 
 def _is_number(v) -> bool:
@@ -560,10 +558,10 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
         if k in r and not _is_number(r[k]):
             raise DatasetError(f"{path}: rig.{k} must be a finite number, got {r[k]!r}")
     if "n_chirp" in r and not (isinstance(r["n_chirp"], int) and not isinstance(r["n_chirp"], bool)
-                               and 64 <= r["n_chirp"] <= _MAX_N_CHIRP):
-        raise DatasetError(f"{path}: rig.n_chirp must be a whole number of samples in 64..{_MAX_N_CHIRP}, got {r['n_chirp']!r}")
-    if "fs_hz" in r and not 0 < r["fs_hz"] <= _MAX_FS_HZ:
-        raise DatasetError(f"{path}: rig.fs_hz must be in (0, {_MAX_FS_HZ:g}] Hz, got {r['fs_hz']!r}")
+                               and 64 <= r["n_chirp"] <= MAX_N_CHIRP):
+        raise DatasetError(f"{path}: rig.n_chirp must be a whole number of samples in 64..{MAX_N_CHIRP}, got {r['n_chirp']!r}")
+    if "fs_hz" in r and not 0 < r["fs_hz"] <= MAX_FS_HZ:
+        raise DatasetError(f"{path}: rig.fs_hz must be in (0, {MAX_FS_HZ:g}] Hz, got {r['fs_hz']!r}")
     if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(_is_number, r["pwm_hz"]))):
         raise DatasetError(f"{path}: rig.pwm_hz must be a list of frequencies in Hz, got {r['pwm_hz']!r}")
     for k in ("name", "sweep_b64"):
@@ -571,7 +569,7 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
             raise DatasetError(f"{path}: rig.{k} must be a text, got {r[k]!r}")
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
-    if not (isinstance(ids, list) and 0 < len(ids) <= _MAX_LOCATIONS
+    if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS
             and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in ids)):
         raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
     if not (isinstance(xy, list) and len(xy) == len(ids)

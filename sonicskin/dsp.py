@@ -17,7 +17,7 @@ from .rig import Rig
 
 __all__ = [
     "chirp", "chirp_spectrum", "find_chirp_offset", "frame_stream", "frame_faults", "check_frames",
-    "band_response", "log_magnitude_db", "FrameError",
+    "log_magnitude_db", "FrameError",
 ]
 
 _EPS = 1e-12
@@ -210,18 +210,6 @@ def _inv_power_s(rig: Rig) -> np.ndarray:
     return out
 
 
-def band_response(frames: np.ndarray, rig: Rig, *, chunk: int = 512) -> np.ndarray:
-    """Channel response H(f) = R(f) / S(f) on the band bins, shape (n, rig.n_band), complex64."""
-    x = np.asarray(frames, dtype=np.float32)
-    S = chirp_spectrum(rig)[rig.band_bins]
-    out = np.empty((x.shape[0], rig.n_band), dtype=np.complex64)
-    lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
-    for i in range(0, x.shape[0], chunk):  # bounded memory; each chunk is one batched FFT
-        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=threads.fft_workers())[:, lo:hi]
-        out[i : i + chunk] = R / S
-    return out
-
-
 def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.ndarray:
     """Features of a batch of chirp frames: ``20 log10 |H(f)|`` on the band bins, float32.
 
@@ -258,11 +246,3 @@ def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.
     return out
 
 
-def relative_db(X: np.ndarray, X_ref: np.ndarray) -> np.ndarray:
-    """Delta H in dB: features minus a no-touch reference (mean of reference chirps)."""
-    ref = np.asarray(X_ref, dtype=np.float32)
-    if ref.ndim == 2:
-        ref = ref.mean(axis=0)
-    if ref.shape[-1] != X.shape[-1]:
-        raise ValueError(f"reference has {ref.shape[-1]} bins, features have {X.shape[-1]}")
-    return X - ref

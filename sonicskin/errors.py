@@ -10,7 +10,7 @@ type they replaced (``except FileNotFoundError`` still catches a config that is 
 
 from __future__ import annotations
 
-__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError"]
+__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError"]
 
 
 class SonicskinError(ValueError):
@@ -23,3 +23,7 @@ class UsageError(SonicskinError):
 
 class ConfigNotFoundError(SonicskinError, FileNotFoundError):
     """A rig, scenario or links config name (or YAML path) that names no config; the message lists the known names."""
+
+
+class ArtifactError(SonicskinError):
+    """An artifact that cannot run here; the message names the field, what does not fit and what to do."""

@@ -80,9 +80,10 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
     from .calibration import OnlineReference
     from .compare import chirps_per_location, coverage_note, replay_sessions, stream_metrics
-    from .features import MIN_REST_CHIRPS, Split, rest_beta, usable_bins
+    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
     from .fit import fit_artifact, prepare
     from .runtime import SkinRuntime
+    from .split import Split
 
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
@@ -273,7 +274,7 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .artifact import json_safe
+    from .jsonio import json_safe
 
     write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]

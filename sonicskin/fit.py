@@ -27,16 +27,9 @@ from typing import Any
 import numpy as np
 
 from .dataset import Dataset, FeatureTable
-from .features import (
-    MIN_REST_CHIRPS,
-    FeatureSpec,
-    Split,
-    load_features_cached,
-    quiet_mask,
-    rest_beta,
-    select_bins,
-    training_targets,
-)
+from .feature_cache import load_features_cached
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, select_bins, training_targets
+from .split import Split
 
 __all__ = ["TrainingData", "SVMFit", "prepare", "fit_svm", "fit_svm_head", "ovo_decision", "write_artifact",
            "fit_artifact", "build_svm_artifact", "summary_lines"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import SonicskinError
 
-__all__ = ["Rig", "Layout", "ConfigError", "MAX_N_CHIRP", "MAX_FS_HZ",
+__all__ = ["Rig", "Layout", "ConfigError", "MAX_N_CHIRP", "MAX_FS_HZ", "MAX_LOCATIONS",
            "load_yaml", "config_dir", "config_names", "resolve_config", "CONFIG_KINDS"]
 
 class ConfigError(SonicskinError):
@@ -30,6 +30,8 @@ class ConfigError(SonicskinError):
 #: beyond any audio interface; larger values are corrupt files or typos that would ask for terabytes.
 MAX_N_CHIRP = 1 << 22
 MAX_FS_HZ = 10e6
+#: Markers of one layout (a scenario's, a dataset's, an import's): more is a corrupt file or a column that is no location.
+MAX_LOCATIONS = 100_000
 
 #: The config folders (``configs/<kind>/<name>.yaml``) a bare name can refer to.
 CONFIG_KINDS = ("rigs", "scenarios", "links", "train")

@@ -4,7 +4,7 @@ An artifact is a folder with ``skin.json`` (rig, layout, OSPA bins, feature mode
 detector threshold, per-location force curves, checksums) and the ONNX models it names
 (``net.onnx``, ``svm.onnx``).  :class:`SkinRuntime` checks the artifact against the rig it is
 asked to run on, against its checksums, the binding inside each model file (bins, mode, rig, layout,
-parameters), its digest and its probe outputs before anything runs (:func:`sonicskin.schema.check_integrity`).
+parameters), its digest and its probe outputs before anything runs (:func:`sonicskin.integrity.check_integrity`).
 """
 
 from __future__ import annotations
@@ -13,21 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .artifact_files import load_skin, read_model_file
+from .artifact_schema import ARTIFACT_FORMAT
 from .dsp import log_magnitude_db
+from .errors import ArtifactError
 from .features import FeatureSpec
 from .head import Predictions, Stream, make_head
 from .head.stream import band_rows, finite_rows
+from .integrity import check_integrity, check_layout, check_rig, check_session
 from .rig import Layout, Rig
-from .schema import (
-    ARTIFACT_FORMAT,
-    ArtifactError,
-    check_integrity,
-    check_layout,
-    check_rig,
-    check_session,
-    load_skin,
-    read_model_file,
-)
 
 __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FORMAT"]
 
@@ -62,7 +56,7 @@ class SkinRuntime:
         if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 1024:
             raise ArtifactError(f"threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got {threads!r}")
         self.folder = Path(folder)
-        self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.schema)
+        self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.artifact_schema)
         self.rig = Rig.from_dict(self.meta["rig"])
         if rig is not None:
             check_rig(self.meta, rig)

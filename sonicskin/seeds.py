@@ -25,9 +25,13 @@ import numpy as np
 
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
-from .features import FeatureSpec, Split, load_features_cached
+from .feature_cache import load_features_cached
+from .features import FeatureSpec
+from .jsonio import json_safe
 from .rig import Rig
 from .runtime import SkinRuntime
+from .split import Split
+from .stats import t_interval
 
 __all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds"]
 
@@ -153,15 +157,6 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
     return out
 
 
-def _t_interval(d: np.ndarray, level: float = 0.95) -> tuple[float, float]:
-    from scipy import stats
-
-    if d.size < 2:
-        return float("nan"), float("nan")
-    half = stats.t.ppf(0.5 + level / 2, d.size - 1) * d.std(ddof=1) / np.sqrt(d.size)
-    return float(d.mean() - half), float(d.mean() + half)
-
-
 def summarize(runs: dict[int, list[dict]]) -> dict:
     """Mean and std per model (std over every run), and the paired net - SVM difference with its 95 % t
     interval over simulator seeds (the network averaged over its training seeds within a seed)."""
@@ -170,7 +165,7 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
         net = np.array([r["net"][m] for rows in runs.values() for r in rows], float)
         svm = np.array([rows[0]["svm"][m] for rows in runs.values()], float)
         d = np.array([np.mean([r["net"][m] for r in rows]) - rows[0]["svm"][m] for rows in runs.values()], float)
-        lo, hi = _t_interval(d)
+        lo, hi = t_interval(d)
         out[m] = {"net_mean": float(net.mean()), "net_std": float(net.std(ddof=1)) if net.size > 1 else 0.0,
                   "svm_mean": float(svm.mean()), "svm_std": float(svm.std(ddof=1)) if svm.size > 1 else 0.0,
                   "diff_mean": float(d.mean()), "diff_ci95": [lo, hi], "n_sim_seeds": int(d.size), "n_net_runs": int(net.size)}
@@ -250,7 +245,7 @@ def save_seeds(res: dict, out: str | Path) -> list[Path]:
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "seeds.json").write_text(json.dumps(res, indent=1, default=float))
+    (out / "seeds.json").write_text(json.dumps(json_safe(res), indent=1, allow_nan=False))  # a NaN (no force sensor) as null
     (out / "seeds.md").write_text(format_markdown(res) + "\n")
     names = list(res["scenarios"])
     fig, axes = plt.subplots(1, len(METRICS), figsize=(3.2 * len(METRICS), 0.6 * len(names) + 2.2), sharey=True)

@@ -36,6 +36,7 @@ from sklearn.svm import SVC
 
 from .force import PerLocationForce, PooledForce
 from .ospa import OSPA
+from .stats import t_interval
 
 __all__ = ["PAPER", "press_ids", "press_passes", "gamma_grid", "make_cv", "select_localizer", "select_force",
            "select_threshold", "learning_curve_by_pass", "format_selection", "MovingVarOSPA", "KernelWidth"]
@@ -186,17 +187,6 @@ def _subsample(press: np.ndarray, max_chirps: int) -> np.ndarray:
     return np.sort(np.concatenate(keep)) if keep else np.zeros(0, int)
 
 
-def _t_interval(x: np.ndarray, bounds: tuple[float, float] = (-np.inf, np.inf)) -> list[float]:
-    """95 % t interval of the mean of ``x``, cut to the ``bounds`` the quantity cannot leave (NaN below 2 values)."""
-    from scipy import stats
-
-    x = np.asarray(x, float)
-    if x.size < 2:
-        return [float("nan"), float("nan")]
-    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
-    return [float(np.clip(v, *bounds)) for v in (x.mean() - half, x.mean() + half)]
-
-
 def _oof(est, X, y, cv) -> tuple[np.ndarray, np.ndarray]:
     """Out-of-fold predictions of ``est`` on the rows each split tests (rows never tested: NaN mask)."""
     pred = np.full(len(y), np.nan if np.issubdtype(np.asarray(y).dtype, np.floating) else -1, dtype=np.asarray(y).dtype)
@@ -267,7 +257,7 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
     pr = (press[rows] if val is None else np.where(val[rows], press[rows], -1))[tested]
     ok = (pred[tested] == ys[tested])
     per_press = np.array([ok[pr == p].mean() for p in np.unique(pr)])
-    ci = _t_interval(per_press, (0.0, 1.0))  # an accuracy stays in [0, 1]
+    ci = t_interval(per_press, (0.0, 1.0))  # an accuracy stays in [0, 1]
     est = {"accuracy": float(ok.mean()), "press_accuracy_mean": float(per_press.mean()), "ci95": ci,
            "n_presses": int(per_press.size), "n_chirps": int(ok.size)}
     # the paper's point of the grid, for comparison
@@ -352,7 +342,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     fourier_rmse = float(-np.nanmax([s for p, s in zip(res["params"], res["mean_test_score"])
                                      if isinstance(p["model"], FourierPerLocation)]))
     return {"status": "validated", "how": how, "model": model, "alpha": float(bp.get("model__alpha", 0.0)) or None,
-            "estimate": {"rmse_n": float(np.sqrt(np.mean(err ** 2))), "press_rmse_ci95": _t_interval(per_press, (0.0, np.inf)),
+            "estimate": {"rmse_n": float(np.sqrt(np.mean(err ** 2))), "press_rmse_ci95": t_interval(per_press, (0.0, np.inf)),
                          "n_presses": int(per_press.size)},
             "fourier1_rmse_n": fourier_rmse, "constant_rmse_n": float(np.std(F[tested])),
             "cv": _compact(search, ["model", "model__alpha"], "rmse_n", sign=-1.0)}

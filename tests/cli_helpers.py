@@ -54,6 +54,59 @@ def assert_one_line_error(code: int, err: str, verb: str | None = None) -> str:
     return lines[0]
 
 
+def refusals(table):
+    """``(argv, message)`` cases as pytest parameters named by their argv."""
+    import pytest
+
+    return [pytest.param(argv, message, id=" ".join(map(str, argv))) for argv, message in table]
+
+
+def refusal(capsys, argv) -> str:
+    """The one line ``sonicskin argv`` refuses with (exit 2, no traceback; :func:`assert_one_line_error`), after its
+    ``sonicskin <verb>: error: ``."""
+    code, _, err = run(capsys, argv)
+    verb = str(argv[0])
+    return assert_one_line_error(code, err, verb).removeprefix(f"sonicskin {verb}: error: ")
+
+
+def session_audio(ds, session: str):
+    """A simulated session's whole recording (its FLAC parts joined), float32."""
+    import numpy as np
+    import soundfile as sf
+
+    return np.concatenate([sf.read(ds.root / session / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(session)])
+
+
+def press_rows(ds, session: str, tail=("2.5",)) -> list[list[str]]:
+    """One label-CSV row per press of a simulated session, as another lab writes them: ``<session>.wav``, the interval
+    2 ms around the press's chirps, the location, its x/y in cm, then ``tail`` (force_n, ...)."""
+    import numpy as np
+
+    _, lab = ds.read_session(session)
+    rows = []
+    for v in ds.layout.ids:
+        k = np.flatnonzero(lab["location"] == v)
+        x, y = ds.layout.coords(np.array([v]))[0]
+        rows.append([f"{session}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v),
+                     f"{x:g}", f"{y:g}", *tail])
+    return rows
+
+
+def write_recordings(ds, folder, tail=("2.5",)) -> list[list[str]]:
+    """Every session of a simulated dataset as a float WAV in ``folder`` (made here); returns their press rows
+    (:func:`press_rows`)."""
+    from pathlib import Path
+
+    import soundfile as sf
+
+    Path(folder).mkdir()
+    rows = []
+    for s in ds.sessions:
+        sf.write(Path(folder) / f"{s}.wav", session_audio(ds, s), int(ds.rig.fs_hz), subtype="FLOAT")
+        rows += press_rows(ds, s, tail)
+    return rows
+
+
 def reseal(session_dir) -> None:
     """Recompute a session's manifest hashes after a test deliberately rewrote its parts (a different
     recording, not damage): the reader otherwise refuses the edited files."""

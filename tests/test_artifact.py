@@ -1,4 +1,4 @@
-"""Deployment artifacts are validated completely before anything runs (sonicskin.schema), and nothing
+"""Deployment artifacts are validated completely before anything runs (sonicskin.artifact_schema), and nothing
 in a file is ever executed (checkpoints load with weights_only=True; no pickle anywhere in the package).
 
 One real artifact is built per module (``fit-svm`` on a tiny simulated recording, plus a network
@@ -22,13 +22,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sonicskin.artifact import skin_json
+from sonicskin.artifact_files import load_skin
+from sonicskin.artifact_schema import validate_skin
 from sonicskin.compare import replay_sessions
 from sonicskin.dataset import Dataset
-from sonicskin.features import FeatureSpec, load_features_cached, quiet_mask
+from sonicskin.feature_cache import load_features_cached
+from sonicskin.features import FeatureSpec, quiet_mask
 from sonicskin.fit import build_svm_artifact
+from sonicskin.integrity import artifact_digest, binding, check_layout, stamp_binding
 from sonicskin.rig import Layout, Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
-from sonicskin.schema import artifact_digest, binding, check_layout, load_skin, stamp_binding, validate_skin
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
 

@@ -225,6 +225,16 @@ def _mutate_dataset(d: Path, kind: str, arg) -> None:
     csv_path.write_text("\n".join(",".join(r) for r in [header, *body]) + "\n")
 
 
+def _two_sessions(cli_files, tmp: Path) -> Path:
+    """A copy of the CLI tests' dataset with its first two sessions, to mutate."""
+    d = tmp / "data"
+    d.mkdir()
+    shutil.copy(cli_files["data"] / "dataset.json", d)
+    for s in ("s000", "s001"):
+        shutil.copytree(cli_files["data"] / s, d / s)
+    return d
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind, field", DATASET_CASES)
 @settings(FUZZ, max_examples=4)
@@ -232,11 +242,7 @@ def _mutate_dataset(d: Path, kind: str, arg) -> None:
 def test_malformed_dataset_files(capsys, cli_files, kind, field, data):
     arg = data.draw(dataset_mutation(kind, field), label="mutation")
     with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp) / "data"
-        d.mkdir()
-        shutil.copy(cli_files["data"] / "dataset.json", d)
-        for s in ("s000", "s001"):
-            shutil.copytree(cli_files["data"] / s, d / s)
+        d = _two_sessions(cli_files, Path(tmp))
         _mutate_dataset(d, kind, arg)
         out = Path(tmp) / "art"
         code, err = _run(["fit-svm", "--data", d, "--out", out, "--mode", "absolute", "--n-bins", "20"], capsys)
@@ -292,7 +298,6 @@ def _mutate_artifact(a: Path, kind: str, arg) -> None:
 @settings(FUZZ, max_examples=40)
 @given(artifact_mutations())
 def test_malformed_artifact_files(capsys, cli_files, case):
-    pytest.importorskip("sonicskin.schema", reason="the artifact schema of issue 9.2 (sonicskin/schema.py) is not merged yet")
     kind, arg = case
     with tempfile.TemporaryDirectory() as tmp:
         a = Path(tmp) / "art"
@@ -310,11 +315,7 @@ def test_malformed_artifact_files(capsys, cli_files, case):
 def test_dataset_mutations_are_malformed_for_the_reader(cli_files):
     """The fuzzer's own sanity: the unmutated copy is accepted by the same command."""
     with tempfile.TemporaryDirectory() as tmp:
-        d = Path(tmp) / "data"
-        d.mkdir()
-        shutil.copy(cli_files["data"] / "dataset.json", d)
-        for s in ("s000", "s001"):
-            shutil.copytree(cli_files["data"] / s, d / s)
+        d = _two_sessions(cli_files, Path(tmp))
         assert main(["fit-svm", "--data", str(d), "--out", str(Path(tmp) / "art"), "--mode", "absolute",
                      "--n-bins", "20"]) == 0
         assert np.isfinite(json.loads((Path(tmp) / "art" / "skin.json").read_text())["min_force_n"])

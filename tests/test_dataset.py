@@ -83,7 +83,7 @@ def test_bad_datasets_are_named(tiny, tmp_path, rig):
 
 
 def _cached_features(root: str, barrier) -> tuple[int, float]:
-    from sonicskin.features import load_features_cached
+    from sonicskin.feature_cache import load_features_cached
 
     barrier.wait()  # every process computes and writes the cache at the same moment
     t = load_features_cached(Dataset(root), progress=False)
@@ -115,7 +115,7 @@ def test_feature_cache_survives_concurrent_builders(tiny, tmp_path):
 def test_damaged_feature_cache_is_rebuilt(tiny, tmp_path):
     import shutil
 
-    from sonicskin.features import load_features_cached
+    from sonicskin.feature_cache import load_features_cached
 
     root = tmp_path / "ds"
     shutil.copytree(tiny, root, ignore=shutil.ignore_patterns(".cache"))

@@ -61,10 +61,3 @@ def test_bad_frames_are_named(rig):
     with pytest.raises(FrameError, match="fewer than one chirp period"):
         dsp.frame_stream(good[0, :100], dsp.rig_chirp(rig))
     assert list(dsp.frame_faults(np.stack([good[0], bad[1], np.zeros(20480), np.ones(20480)]))) == [0, 1, 2, 3]
-
-
-def test_relative_db_checks_bins():
-    X = np.ones((4, 10), np.float32)
-    assert np.all(dsp.relative_db(X, X[:2]) == 0)
-    with pytest.raises(ValueError, match="reference has 3 bins"):
-        dsp.relative_db(X, np.ones(3))

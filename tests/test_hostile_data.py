@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run
+from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run, write_recordings
 
 from sonicskin.dataset import Dataset
 from sonicskin.dsp import rig_chirp
@@ -38,17 +38,7 @@ def src(tmp_path_factory):
     rig = Rig.load(root / "small.yaml")
     simulate_dataset(Scenario.load(root / "tiny.yaml").replace(sessions=2), rig, root / "data", progress=False, log=lambda *_: None)
     ds = Dataset(root / "data")
-    (root / "rec").mkdir()
-    rows = [HEADER]
-    for s in ds.sessions:
-        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
-        sf.write(root / "rec" / f"{s}.wav", audio, int(rig.fs_hz), subtype="FLOAT")
-        _, lab = ds.read_session(s)
-        for v in ds.layout.ids:
-            k = np.flatnonzero(lab["location"] == v)
-            x, y = ds.layout.coords(np.array([v]))[0]
-            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
-                         f"{y:g}", "2.5", "0", "0"])
+    rows = [HEADER, *write_recordings(ds, root / "rec", tail=("2.5", "0", "0"))]
     _write(root / "labels.csv", rows)
     sf.write(root / "sweep.wav", rig_chirp(rig).astype(np.float32), int(rig.fs_hz), subtype="FLOAT")
     t = ds.features(progress=False)

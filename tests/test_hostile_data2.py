@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run
+from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, press_rows, run, session_audio
 
 from sonicskin.dataset import Dataset
+from sonicskin.errors import ArtifactError
 from sonicskin.rig import Rig
-from sonicskin.schema import ArtifactError
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
 
@@ -231,7 +231,7 @@ def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
 # -- 27.7: a feature cache whose content was edited (its key kept) ---------------------------------------------------------
 def _rewrite_cache(path: Path, *, fix_digest: bool, **changes) -> None:
     from sonicskin.dataset import FeatureTable
-    from sonicskin.features import _content_digest
+    from sonicskin.feature_cache import _content_digest
 
     with np.load(path, allow_pickle=False) as z:
         arrays = {k: z[k] for k in z.files}
@@ -326,13 +326,8 @@ def test_a_last_chirp_cut_short_is_dropped_with_a_warning(five, tmp_path, capsys
     (tmp_path / "rec").mkdir()
     rows = [["file", "start_s", "end_s", "location", "x_cm", "y_cm", "force_n"]]
     for s in ("s000", "s001"):
-        audio = np.concatenate([sf.read(ds.root / s / f"part-{p:05d}.flac", dtype="float32")[0] for p in ds.parts(s)])
-        _, lab = ds.read_session(s)
-        for v in ds.layout.ids:
-            k = np.flatnonzero(lab["location"] == v)
-            x, y = ds.layout.coords(np.array([v]))[0]
-            rows.append([f"{s}.wav", f"{lab['t_s'][k[0]] - 0.002:.6f}", f"{lab['t_s'][k[-1]] + 0.002:.6f}", str(v), f"{x:g}",
-                         f"{y:g}", "2.5"])
+        audio = session_audio(ds, s)
+        rows += press_rows(ds, s)
         if s == "s000":  # the last sweep labelled a touch, and the recording stopped 200 samples before its end
             frames, offset = frame_stream(audio, rig_chirp(rig))  # where the importer finds the sweeps (received)
             start = offset + (frames.shape[0] - 1) * rig.n_chirp

@@ -186,7 +186,7 @@ def test_spectra_import_is_all_or_nothing_and_resumes(tmp_path):
     with pytest.raises(ValueError, match="mode must be"):
         import_spectra(table, out, mode="append", **quiet)
     assert not out.exists() and not any(tmp_path.glob(".ds*"))
-    import sonicskin.importers as imp
+    import sonicskin.importers.spectra as imp
 
     calls = []
     real = imp._write_session

@@ -26,14 +26,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import SMALL_RIG, assert_one_line_error, run
+from cli_helpers import SMALL_RIG, assert_one_line_error, refusal, refusals, run
 
 from sonicskin.artifact import atomic_artifact, skin_json
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import build_svm_artifact
+from sonicskin.integrity import artifact_digest, binding, read_binding, stamp_binding
 from sonicskin.rig import Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
-from sonicskin.schema import artifact_digest, binding, read_binding, stamp_binding
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -709,12 +709,11 @@ RANGE_CASES = [
 ]
 
 
-@pytest.mark.parametrize("argv, message", RANGE_CASES, ids=[" ".join(c[0]) for c in RANGE_CASES])
+@pytest.mark.parametrize("argv, message", refusals(RANGE_CASES))
 def test_training_numbers_out_of_range_are_one_line(cli_files, capsys, argv, message):
     pytest.importorskip("lightning")
-    code, _, err = run(capsys, ["train", "--data", cli_files["data"], "--trainer.default_root_dir",
-                                str(cli_files["root"] / "never"), *argv])
-    assert message in assert_one_line_error(code, err, "train")
+    assert message in refusal(capsys, ["train", "--data", cli_files["data"], "--trainer.default_root_dir",
+                                       str(cli_files["root"] / "never"), *argv])
     assert not (cli_files["root"] / "never").exists()
 
 

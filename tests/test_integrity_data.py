@@ -24,7 +24,7 @@ from cli_helpers import SMALL_RIG, TINY_SCENARIO, assert_one_line_error, run
 
 from sonicskin.dataset import COLUMNS, Dataset, DatasetError, DatasetWriter, FeatureTable, check_name
 from sonicskin.errors import SonicskinError
-from sonicskin.features import load_features_cached
+from sonicskin.feature_cache import load_features_cached
 from sonicskin.importers import import_spectra, import_wav
 from sonicskin.rig import Rig, load_yaml
 from sonicskin.sim.generate import simulate_dataset

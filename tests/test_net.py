@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch")
 from sonicskin.models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
 from sonicskin.training.quick import fit_net  # noqa: E402
 
-from sonicskin.baseline import ovr_scores_from_ovo  # noqa: E402
+from sonicskin.head.heads import ovr_scores_from_ovo  # noqa: E402
 
 
 def _toy(n_per=30, K=4, d=12, seed=0):
@@ -59,12 +59,17 @@ def test_kernel_layer_rejects_what_it_cannot_copy():
         SkinNet(12, 3, n_centres=5).init_from_svm(pipe)
 
 
-def test_skinnet_starts_as_the_svm_on_raw_features():
+def _net_from_svm(query_seed: int):
+    """A SkinNet initialised from an SVM of the toy data, the SVM, and toy queries of another seed."""
     X, cls, _ = _toy()
     pipe = svm_pipeline().fit(X, cls)
     net = SkinNet(X.shape[1], 4, n_centres=pipe[-1].support_vectors_.shape[0]).eval()
     net.init_from_svm(pipe)
-    Xq, _, _ = _toy(seed=2)
+    return net, pipe, _toy(seed=query_seed)[0]
+
+
+def test_skinnet_starts_as_the_svm_on_raw_features():
+    net, pipe, Xq = _net_from_svm(2)
     with torch.no_grad():
         logits, force = net(torch.from_numpy(Xq))
     assert logits.shape == (len(Xq), 5) and force.shape == (len(Xq), 4)  # 4 locations + no touch
@@ -118,11 +123,7 @@ def _softmax(z):
 def test_touch_and_place_are_factorised_and_weigh_markers_as_the_svm_runtime():
     """p(no touch) is the trunk's sigmoid alone; the location distribution given a touch is the softmax of
     4 x the SVM's vote counts, the weights the SVM runtime gives the continuous-position centroid."""
-    X, cls, _ = _toy()
-    pipe = svm_pipeline().fit(X, cls)
-    net = SkinNet(X.shape[1], 4, n_centres=pipe[-1].support_vectors_.shape[0]).eval()
-    net.init_from_svm(pipe)
-    Xq, _, _ = _toy(seed=3)
+    net, pipe, Xq = _net_from_svm(3)
     with torch.no_grad():
         logits = net(torch.from_numpy(Xq))[0].numpy().astype(np.float64)
         t = net.location(net.trunk(net.standardize(torch.from_numpy(Xq))))[:, 0].numpy()

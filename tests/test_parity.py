@@ -112,15 +112,10 @@ def _toy_net():
     return X, fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
 
 
-def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
-    import onnxruntime
-    import torch
-    from sonicskin.export import onnx as ex
-
-    X, predict = _toy_net()
-    real = ex.ort_session
-
-    class Shifted:  # an onnxruntime whose force output is 0.5 N off on one location
+def _altered(real, change):
+    """A stand-in for ``ort_session``: the real session, its outputs passed through ``change`` (an onnxruntime that
+    computes otherwise than the exporter's original)."""
+    class Altered:
         def __init__(self, path):
             self.s = real(path)
 
@@ -128,11 +123,22 @@ def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch)
             return self.s.get_inputs()
 
         def run(self, names, feeds):
-            lg, f = self.s.run(names, feeds)
-            f[:, 2] += 0.5
-            return lg, f
+            return change(*self.s.run(names, feeds))
 
-    monkeypatch.setattr(ex, "ort_session", Shifted)
+    return Altered
+
+
+def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
+    import onnxruntime
+    import torch
+    from sonicskin.export import onnx as ex
+
+    X, predict = _toy_net()
+    def shifted(lg, f):  # an onnxruntime whose force output is 0.5 N off on one location
+        f[:, 2] += 0.5
+        return lg, f
+
+    monkeypatch.setattr(ex, "ort_session", _altered(ex.ort_session, shifted))
     tol = parity_bound(predict(X)[1])
     with pytest.raises(ParityError) as e:
         ex.export_net(predict.model, tmp_path / "net.onnx", X)
@@ -153,21 +159,9 @@ def test_a_real_svm_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
     cls = np.repeat(np.arange(3), 20)
     X = (rng.normal(0, 1, (3, 8))[cls] * 3 + rng.normal(0, 0.3, (60, 8))).astype(np.float32)
     pipe = svm_pipeline().fit(X, cls)
-    real = artifact.ort_session
-
-    class Swapped:  # an onnxruntime whose pairwise decisions come out negated
-        def __init__(self, path):
-            self.s = real(path)
-
-        def get_inputs(self):
-            return self.s.get_inputs()
-
-        def run(self, names, feeds):
-            label, ovo = self.s.run(names, feeds)
-            return label, -ovo
-
     assert artifact.export_svm(pipe, 3, tmp_path / "ok.onnx", X)["labels_equal"]
-    monkeypatch.setattr(artifact, "ort_session", Swapped)
+    # an onnxruntime whose pairwise decisions come out negated
+    monkeypatch.setattr(artifact, "ort_session", _altered(artifact.ort_session, lambda label, ovo: (label, -ovo)))
     with pytest.raises(ParityError, match=r"^the exported svm\.onnx does not decide as scikit-learn's SVM does on its 60 "
                        r"check chirps \(the location differs; max \|d scores\| [\d.]+ > [\d.e-]+; max \|d decision\| [\d.]+ > "
                        rf"[\d.e-]+\): onnxruntime {onnxruntime.__version__} runs the graph skl2onnx wrote differently from "

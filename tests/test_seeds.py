@@ -1,9 +1,11 @@
 """The multi-seed comparison's statistics: means, spreads and the paired interval over simulator seeds."""
 
+import json
+
 import numpy as np
 import pytest
 
-from sonicskin.seeds import METRICS, compare_seeds, format_markdown, summarize
+from sonicskin.seeds import METRICS, compare_seeds, format_markdown, save_seeds, summarize
 
 
 def _row(acc_net, acc_svm):
@@ -33,3 +35,18 @@ def test_bad_requests_say_what_to_do(tmp_path):
         compare_seeds(["mooving"], cache=tmp_path, out=tmp_path)
     with pytest.raises(ValueError, match="at least 2 simulator seeds"):
         compare_seeds(["moving"], sim_seeds=[0], cache=tmp_path, out=tmp_path)
+
+
+def test_seeds_json_is_strict_json(tmp_path):
+    # No force sensor in the test sessions: the force RMSE is NaN, and so is its interval. seeds.json wrote them as
+    # NaN literals, which strict JSON readers (jq, JavaScript's JSON.parse) refuse; they are null now.
+    runs = {s: [{k: {**_row(0.9, 0.8)[k], "force_rmse_n": float("nan")} for k in ("net", "svm")}] for s in (0, 1)}
+    save_seeds({"sim_seeds": [0, 1], "train_seeds": [0], "scenarios": {"moving": {"summary": summarize(runs)}}}, tmp_path)
+
+    def refuse(literal):
+        raise AssertionError(f"seeds.json holds {literal}, which is not JSON")
+
+    doc = json.loads((tmp_path / "seeds.json").read_text(), parse_constant=refuse)
+    force = doc["scenarios"]["moving"]["summary"]["force_rmse_n"]
+    assert force["diff_ci95"] == [None, None] and force["net_mean"] is None
+    assert doc["scenarios"]["moving"]["summary"]["accuracy"]["diff_mean"] == pytest.approx(0.1)  # numbers stay numbers

@@ -72,8 +72,9 @@ class SkinDataModule(L.LightningDataModule):
 
     def _select(self, data: str) -> int:
         from sonicskin.dataset import Dataset
-        from sonicskin.features import Split, load_features_cached
+        from sonicskin.feature_cache import load_features_cached
         from sonicskin.selection import select_gamma_on_table
+        from sonicskin.split import Split
 
         h = self.hparams
         ds = Dataset(data)
@@ -98,7 +99,7 @@ class SkinDataModule(L.LightningDataModule):
         # Lightning calls this once per machine before `setup` on every rank: the feature cache is built here,
         # so DDP ranks read it instead of all computing (and writing) it at once.
         from sonicskin.dataset import Dataset
-        from sonicskin.features import load_features_cached
+        from sonicskin.feature_cache import load_features_cached
 
         load_features_cached(Dataset(self.hparams.data), progress=False)
 

@@ -167,7 +167,7 @@ def check_same_sessions(meta: dict, ds, ckpt) -> None:
     """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
     the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
     layout and session names gave an artifact whose two models were trained on different recordings."""
-    from sonicskin.schema import ArtifactError
+    from sonicskin.errors import ArtifactError
 
     from .data import session_fingerprints
 
@@ -196,9 +196,11 @@ def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | P
     (:func:`finish_network`).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout
     and hold the very recordings it was trained on.  ``out`` is replaced as a whole at the end."""
     from sonicskin.dataset import Dataset
-    from sonicskin.features import FeatureSpec, Split
+    from sonicskin.errors import ArtifactError
+    from sonicskin.features import FeatureSpec
     from sonicskin.fit import fit_artifact, prepare, summary_lines
-    from sonicskin.schema import ArtifactError, check_layout, check_rig
+    from sonicskin.integrity import check_layout, check_rig
+    from sonicskin.split import Split
 
     from .checkpoint import load_checkpoint
 

@@ -27,36 +27,24 @@ def _number(kind, text: str, what: str):
     return v
 
 
-def positive_float(text: str) -> float:
-    v = _number(float, text, "a number > 0")
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
+def _bounded(kind, what: str, positive: bool):
+    """An argparse type: a ``kind`` (float or int) that is > 0 (``positive``) or >= 0."""
+    rule = "> 0" if positive else ">= 0"
+
+    def parse(text: str):
+        v = _number(kind, text, f"{what} {rule}")
+        if v < 0 or (positive and v == 0):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return v
+
+    parse.__name__ = f"{'positive' if positive else 'nonneg'}_{kind.__name__}"
+    return parse
 
 
-def nonneg_float(text: str) -> float:
-    v = _number(float, text, "a number >= 0")
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
-
-
-def finite_float(text: str) -> float:
-    return _number(float, text, "a number")
-
-
-def positive_int(text: str) -> int:
-    v = _number(int, text, "a whole number > 0")
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return v
-
-
-def nonneg_int(text: str) -> int:
-    v = _number(int, text, "a whole number >= 0")
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return v
+positive_float = _bounded(float, "a number", positive=True)
+nonneg_float = _bounded(float, "a number", positive=False)
+positive_int = _bounded(int, "a whole number", positive=True)
+nonneg_int = _bounded(int, "a whole number", positive=False)
 
 
 def udp_target(text: str) -> tuple[str, int]:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
 from .. import __version__
 from ..errors import UsageError
+from ..jsonio import json_safe
 from ._common import nonneg_int, positive_float, positive_int, udp_target
 
 # One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
@@ -44,19 +44,6 @@ def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
                      log=lambda m: print(m, file=sys.stderr))
     build_svm_artifact(data, art, progress=False, log=lambda m: print(m, file=sys.stderr))
     return art
-
-
-def json_safe(obj):
-    """``obj`` with NaN/inf floats as ``None`` (strict JSON has no NaN)."""
-    if isinstance(obj, dict):
-        return {k: json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if hasattr(obj, "item") and getattr(obj, "ndim", 1) == 0:  # numpy scalar
-        return json_safe(obj.item())
-    return obj
 
 
 def _live_links(a: argparse.Namespace) -> int:
@@ -108,8 +95,8 @@ def _stdout_sink(line: str) -> None:
 def _live_rig(a: argparse.Namespace):
     """``--rig``, else the artifact's own rig (as the Python API does), else the shipped jaco rig: an artifact of another
     rig was refused under the default jaco with no word of --rig."""
+    from ..artifact_files import load_skin
     from ..rig import Rig
-    from ..schema import load_skin
 
     if a.rig:
         return Rig.load(a.rig)

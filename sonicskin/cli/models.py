@@ -158,24 +158,34 @@ def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> N
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
-    from ..compare import compare_artifact, format_comparison, save_comparison
+    """``compare``: one verb, three entry points: ``--scenario`` (simulated datasets over seeds), ``--data`` with
+    ``--artifact`` (score a trained artifact) and ``--data`` alone (train both models, export, score)."""
+    if a.scenario:
+        return _compare_scenarios(a)
+    _check_compare_data(a)
+    return _compare_artifact(a, extra) if a.artifact is not None else _compare_trained(a, extra)
+
+
+def _compare_scenarios(a: argparse.Namespace) -> int:
+    """``--scenario``: simulated scenarios over several simulator and training seeds, with the paired interval."""
+    if a.data or a.artifact:
+        raise UsageError("--scenario simulates its own datasets; drop --data/--artifact (or drop --scenario)")
+    need_train_extra("compare --scenario")
+    from ..rig import Rig
+    from ..seeds import compare_seeds, format_markdown
+
+    out = Path(a.out or "reports/compare-seeds")
+    res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
+                        epochs=a.epochs, rig=Rig.load(a.rig or "jaco"))
+    print(format_markdown(res))
+    print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
+    return 0
+
+
+def _check_compare_data(a: argparse.Namespace) -> None:
+    """What ``--data`` (with or without ``--artifact``) refuses before anything trains or loads."""
     from ..dataset import Dataset
-    from ..rig import Layout
 
-    if a.scenario:  # simulated scenarios over several simulator and training seeds, paired interval
-        if a.data or a.artifact:
-            raise UsageError("--scenario simulates its own datasets; drop --data/--artifact (or drop --scenario)")
-        need_train_extra("compare --scenario")
-        from ..seeds import compare_seeds, format_markdown
-
-        out = Path(a.out or "reports/compare-seeds")
-        from ..rig import Rig
-
-        res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
-                            epochs=a.epochs, rig=Rig.load(a.rig or "jaco"))
-        print(format_markdown(res))
-        print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
-        return 0
     if a.rig:
         raise UsageError("--rig chooses the simulated rig of --scenario; a dataset (--data) carries its own rig")
     if a.epochs is not None:  # was ignored: the network trained for the config's epochs
@@ -185,38 +195,50 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
         raise UsageError("give --data DATASET (one dataset) or --scenario NAME... (simulated, several seeds)")
     check_split_options(a)  # --val none -> no validation session
     Dataset(a.data)  # a bad dataset is refused before anything trains
-    artifact = a.artifact
-    sessions = None
-    if artifact is not None:
-        artifact = Path(artifact)
-        if not (artifact / "skin.json").is_file():
-            raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
-                                    f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-        if (extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None
-                or a.config != "moving"):
-            raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
-                             "compare on (drop the training options or --artifact)")
-        sessions = a.test
-    else:  # train and export both models on the same split first
-        need_train_extra("compare")
-        from sonicskin.training.cli import main as train_main
 
-        name = Path(a.data).name
-        run = Path(a.runs) / f"compare-{name}"
-        args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
-                                       "--trainer.logger.init_args.save_dir", str(run)] + extra)
-        cli = train_main(args)
-        if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
-            return 0
-        _report_training(cli, selection=False)  # the export below prints the whole selection
-        artifact = run / "artifact"
-        export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
-        sessions = a.test  # exactly those (the split tests every session it does not train or validate on)
-    res = compare_artifact(artifact, a.data, sessions=sessions)
+
+def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
+    """``--data --artifact``: score a trained artifact on the test sessions (``--test``, default its split's)."""
+    artifact = Path(a.artifact)
+    if not (artifact / "skin.json").is_file():
+        raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
+                                f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
+    if (extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None
+            or a.config != "moving"):
+        raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
+                         "compare on (drop the training options or --artifact)")
+    return _score_artifact(a, artifact, expected=True)
+
+
+def _compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
+    """``--data``: train and export both models on the same split, then score the artifact."""
+    need_train_extra("compare")
+    from sonicskin.training.cli import main as train_main
+
+    run = Path(a.runs) / f"compare-{Path(a.data).name}"
+    args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
+                                   "--trainer.logger.init_args.save_dir", str(run)] + extra)
+    cli = train_main(args)
+    if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
+        return 0
+    _report_training(cli, selection=False)  # the export below prints the whole selection
+    artifact = run / "artifact"
+    export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
+    return _score_artifact(a, artifact, expected=False)
+
+
+def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) -> int:
+    """Replay the test sessions (exactly ``--test`` when given: the split tests every session it does not train or
+    validate on) through ``artifact``; print and write the comparison.  ``expected``: print what model selection
+    expected at training beside it."""
+    from ..compare import compare_artifact, format_comparison, save_comparison
+    from ..rig import Layout
+
+    res = compare_artifact(artifact, a.data, sessions=a.test)
     title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
     print(format_comparison(res, title))
-    meta = json.loads((Path(artifact) / "skin.json").read_text())
-    if a.artifact and meta.get("selection"):  # what the validation expected, next to what the test sessions gave
+    meta = json.loads((artifact / "skin.json").read_text())
+    if expected and meta.get("selection"):  # what the validation expected, next to what the test sessions gave
         from ..selection import format_selection
 
         print("\n".join(f"  expected at training: {line}" for line in format_selection(meta["selection"])))

@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..schema import ArtifactError
+from ..errors import ArtifactError
 from .heads import NetHead, SVMHead
 from .predictions import Predictions
 

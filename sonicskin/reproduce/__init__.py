@@ -17,9 +17,8 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
-
-from ..features import load_features_cached
+from ..feature_cache import load_features_cached
+from ..jsonio import OMIT, json_safe
 from ..rig import Rig
 from . import fig6b, fig11, fig12, fig13, fig16, table1
 from .aggregate import Spread, aggregate
@@ -165,23 +164,13 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
     runtime = time.perf_counter() - t0
     (out / "report.md").write_text(report(res, ctx, runtime, seeds))
 
-    def plain(o):
-        if isinstance(o, Spread):
-            return {"mean": float(o), "std": o.std, "values": o.values}
-        if isinstance(o, dict):
-            return {str(k): plain(v) for k, v in o.items() if not callable(v)}
-        if isinstance(o, (list, tuple)):
-            return [plain(v) for v in o]
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, (np.floating, np.integer)):
-            return o.item()
-        return o
+    def spread(o):  # a mean over seeds keeps its spread; callables are left out
+        return {"mean": float(o), "std": o.std, "values": o.values} if isinstance(o, Spread) else OMIT if callable(o) else o
 
-    (out / "report.json").write_text(json.dumps(plain({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds),
+    (out / "report.json").write_text(json.dumps(json_safe({**res, "runtime_s": runtime, "quick": quick, "seeds": list(seeds),
                                                        "experiments": names, "jobs": jobs,
                                                        "experiment_seconds": {f"{n} seed {s}": {"wall": w, "cpu": c}
-                                                                              for (s, n), (w, c) in timing.items()}}),
-                                                indent=1))
+                                                                              for (s, n), (w, c) in timing.items()}},
+                                                          convert=spread), indent=1, allow_nan=False))
     log(f"wrote {out / 'report.md'}, report.json and {len(ctx.figs)} figures in {runtime / 60:.1f} min")
     return res

@@ -18,11 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import Dataset, FeatureTable
-from ..features import Split, load_features_cached, select_bins
+from ..feature_cache import load_features_cached
+from ..features import select_bins
 from ..head import Predictions
 from ..rig import Rig
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
+from ..split import Split
 
 __all__ = ["Context", "datasets", "MATERIALS", "USES", "QUICK_SIZE", "MODEL", "net_available", "plt", "first_session_split"]
 

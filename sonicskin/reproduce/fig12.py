@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import touch_mask
-from .context import MODEL, NEVER_S, Context, plt
+from .context import MODEL, NEVER_S, Context, first_session_split, plt
 
 ALPHAS = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
 
@@ -22,23 +22,28 @@ def _per_session(ctx: Context, k: str, d, train: np.ndarray, sessions: list[str]
     return out
 
 
-def run(ctx: Context) -> dict:
-    ds = ctx.dataset("drift-2h")
-    t = ctx.table(ds)
-    sessions = sorted(set(t["session"]))
-    train = t["session"] == sessions[0]
-    bins = ctx.bins(ds, t, train, 300)
-    res: dict = {"minutes": [], "temperature_c": []}
-    for s in sessions[1:]:
-        m = (t["session"] == s) & touch_mask(t)
-        res["minutes"].append(float(t["time_s"][m].mean() / 60))
+def _drift_run(ctx: Context, name: str, axis: str, unit_s: float, rows):
+    """A drift dataset trained on its first session: the dataset, its later sessions, the training mask, OSPA's bins and
+    a dict of each later session's mean time (``axis``, in units of ``unit_s`` seconds) and temperature over its
+    ``rows(table)``."""
+    ds, t, train, _, bins = first_session_split(ctx, name)
+    later = sorted(set(t["session"]))[1:]
+    res: dict = {axis: [], "temperature_c": []}
+    for s in later:
+        m = (t["session"] == s) & rows(t)
+        res[axis].append(float(t["time_s"][m].mean() / unit_s))
         res["temperature_c"].append(float(t["temperature_c"][m].mean()))
+    return ds, later, train, bins, res
+
+
+def run(ctx: Context) -> dict:
+    ds, later, train, bins, res = _drift_run(ctx, "drift-2h", "minutes", 60, touch_mask)
     for name, alpha in ALPHAS.items():
         d = ctx.data(ds, train=train, bins=bins, alpha_s=NEVER_S if alpha is None else alpha)
         for k in ctx.kinds:
             if name not in ("20 min", "never") and k == "net":
                 continue
-            res[f"{k} alpha={name}"] = _per_session(ctx, k, d, train, sessions[1:])
+            res[f"{k} alpha={name}"] = _per_session(ctx, k, d, train, later)
     out = ctx.save(draw(res), "fig12.png", res)
     out["two_months"] = two_months(ctx)
     return out
@@ -69,18 +74,9 @@ def draw(res: dict):
 
 
 def two_months(ctx: Context) -> dict:
-    ds = ctx.dataset("drift-2months")
-    t = ctx.table(ds)
-    sessions = sorted(set(t["session"]))
-    train = t["session"] == sessions[0]
-    bins = ctx.bins(ds, t, train, 300)
-    out: dict = {"days": [], "temperature_c": []}
-    for s in sessions[1:]:
-        m = t["session"] == s
-        out["days"].append(float(t["time_s"][m].mean() / 86400))
-        out["temperature_c"].append(float(t["temperature_c"][m].mean()))
+    ds, later, train, bins, out = _drift_run(ctx, "drift-2months", "days", 86400, lambda t: np.ones(len(t["session"]), bool))
     for name, alpha in (("with updating", 1200.0), ("without", NEVER_S)):
         d = ctx.data(ds, train=train, bins=bins, alpha_s=alpha)
         for k in ctx.kinds:
-            out[f"{k} {name}"] = _per_session(ctx, k, d, train, sessions[1:])
+            out[f"{k} {name}"] = _per_session(ctx, k, d, train, later)
     return out

@@ -63,11 +63,6 @@ class Material:
     def mass_per_area(self) -> float:
         return self.density * self.thickness_m
 
-    @property
-    def point_impedance(self) -> float:
-        """Drive-point impedance of the infinite plate, ``8 sqrt(D rho h)`` in N s / m."""
-        return 8.0 * np.sqrt(self.bending_stiffness * self.mass_per_area)
-
     def wavenumber(self, f_hz: np.ndarray) -> np.ndarray:
         """Mindlin flexural wavenumber at ``f_hz`` (inverse of :func:`mindlin_omega`)."""
         w = 2 * np.pi * np.asarray(f_hz, float)
@@ -261,24 +256,6 @@ class ChannelModel:
         phi = self.mode_shapes(pts_m) * disc_average(self.k, sub_radius_m)  # (P, n)
         iu, ju = np.triu_indices(phi.shape[0])
         return np.concatenate([phi * self.phi_rx, phi * self.phi_tx, phi[iu] * phi[ju]])
-
-    @staticmethod
-    def unpack_patch(G: np.ndarray, P: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Split projected patch weights into ``g_r`` (P, n_f), ``g_s`` (P, n_f), ``G_pp`` (P, P, n_f)."""
-        iu, ju = np.triu_indices(P)
-        G_pp = np.empty((P, P, G.shape[1]), np.complex64)
-        G_pp[iu, ju] = G[2 * P:]
-        G_pp[ju, iu] = G[2 * P:]
-        return G[:P], G[P:2 * P], G_pp
-
-    def patch_greens(self, pts_m: np.ndarray, sub_radius_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Green's functions of P sub-contacts (discs of ``sub_radius_m``) at ``pts_m`` (P, 2).
-
-        Returns ``g_r`` (P, n_f) contact->RX, ``g_s`` (P, n_f) TX->contact and ``G_pp`` (P, P, n_f)
-        between sub-contacts, for the rank-P (Woodbury) update of a distributed contact.
-        """
-        G = self._project(self.patch_weights(pts_m, sub_radius_m)).astype(np.complex64)
-        return self.unpack_patch(G, len(pts_m))
 
     def gradient_greens(self, order: int = 1, *, n_y: int = 400) -> np.ndarray:
         """First-order change of ``G_rs`` (n_f,) per unit of a stiffness profile along the link.

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..rig import Layout, Rig, _resolve_config, check_keys, load_yaml
+from ..rig import MAX_LOCATIONS, Layout, Rig, _resolve_config, check_keys, load_yaml
 from .finger import make_subjects, press_profile
 
 __all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS", "RandomFamily", "family_seeds", "is_family"]
@@ -279,7 +279,6 @@ def _check_types(cls, d: dict) -> None:
             raise ValueError(f"scenario {f.name} must be a mapping {{key: value}}, got {v!r}")
 
 
-MAX_LOCATIONS = 100_000
 #: The keys of a scenario's mappings: name -> (required, optional).  Anything else is a typo that would
 #: silently fall back to a default (``lenght_cm``, ``spacing``, ``ambient``).
 _GEOMETRY_KEYS = {"tube": (("radius_cm", "length_cm"), ()), "plate": (("width_cm", "length_cm"), ())}

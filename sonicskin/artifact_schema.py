@@ -1,11 +1,11 @@
 """The one schema of a deployment artifact's ``skin.json``, checked completely before anything runs.
 
 Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
-:func:`load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it writes with
-:func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
-naming the field (``models.svm.threshold``), what is wrong and what to do.
+:func:`sonicskin.artifact_files.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
+writes with :func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
+naming the field (``models.svm.threshold``), what is wrong and what to do.  Reading the files of an artifact folder
+is :mod:`sonicskin.artifact_files`; binding the model files to this document, :mod:`sonicskin.integrity`.
 
-The schema, field by field (``N`` locations, ``B`` selected bins)::
 
     format              "sonicskin-artifact"
     version             1
@@ -52,46 +52,32 @@ The schema, field by field (``N`` locations, ``B`` selected bins)::
                           or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
                           per layout id, intercept}
 
-and the ONNX graphs (:func:`check_session`): one float input ``(batch, B)``; the net outputs logits
-``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
+and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, B)``; the net outputs
+logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
 (2 columns when ``N = 2``).
-
-Integrity (:func:`check_integrity`): every ONNX file carries, in its ``metadata_props`` under
-``sonicskin.binding``, what it was trained with: the model's name and kind, the rig, the layout (ids and
-coordinates), the features (bins in their order, mode, Alg. 2's beta/alpha), ``min_force_n``, the
-training split and the sha256 of its ``skin.json`` entry's parameters (threshold, reference scores, force curves, hparams).
-Loading compares that binding with ``skin.json`` field by field, then the document's digest, then
-re-runs the probe inputs.  Each step names what differs in one line.
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import re
 from collections import Counter
 from pathlib import Path
 from typing import Any
 
-from .errors import SonicskinError
+from .errors import ArtifactError
 
-__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "MODEL_KINDS", "load_skin", "validate_skin",
-           "model_file", "read_model_file", "check_session", "check_rig", "check_layout", "canonical", "artifact_digest",
-           "binding", "check_integrity"]
+__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "MODEL_KINDS", "REEXPORT",
+           "validate_skin", "nonfinite_field", "probe_widths"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
 ARTIFACT_VERSION = 3
 #: Versions this sonicskin reads: 2 (before the network's touch decision moved out of its graph into the head,
 #: sonicskin.head; such a graph decides touches itself, so its entry has no detector) and 3.
 READABLE_VERSIONS = (2, 3)
-BINDING_KEY = "sonicskin.binding"
-MAX_MODEL_BYTES = 256 * 2**20  # an SVM of 31 locations x 300 bins is a few MB; a net < 1 MB
 MAX_PROBES = 64
-PROBE_RTOL = PROBE_ATOL = 1e-3  # onnxruntime on another CPU may round differently; another model differs by far more
 MODEL_KINDS = {"net": "skinnet", "svm": "svc-ovo"}
 REEXPORT = "export the artifact again (`sonicskin export --run DIR` or `sonicskin fit-svm`)"
-MAX_SKIN_JSON_BYTES = 64 * 2**20
 MAX_ABS_SCORE = 1e4       # per-location SVM scores are votes (< N) and relative dB inputs
 MAX_THRESHOLD_DB = 1e3
 MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned but stay finite
@@ -102,17 +88,12 @@ _SELECTION_KEYS = {"svm", "force", "detection", "net"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
-_UNBOUND = {"file", "sha256", "parity", "probe"}  # entry keys written after the model file (not in its binding)
 _MODEL_KEYS = {"net": _COMMON | {"hparams", "detector"},
                "svm": _COMMON | {"reference_scores", "threshold", "detector", "detector_bins", "detection", "energy_ref_db",
                                  "train_false_touch_rate",
                                  "train_missed_touch_rate", "force"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
-
-
-class ArtifactError(SonicskinError):
-    """An artifact that cannot run here; the message names the field, what does not fit and what to do."""
 
 
 def _short(v: Any, n: int = 60) -> str:
@@ -451,9 +432,14 @@ def _check_training(doc: _Doc, tr: Any) -> None:
             doc.str(s, f"training.split.{k}[{i}]")
 
 
+def probe_widths(model: str, n_loc: int) -> list[int | None]:
+    """Width of each graph output compared on the probes (``None``: not compared, the SVM's label)."""
+    return [n_loc + 1, n_loc] if model == "net" else [None, n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2]
+
+
 def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
     """The first field of a JSON-like document holding NaN or +-Infinity (``"models.net.hparams.lr"``, the value),
-    or ``None``: Python's json reads and writes them, strict JSON (and :func:`canonical`) has no such numbers."""
+    or ``None``: Python's json reads and writes them, strict JSON (and :func:`sonicskin.integrity.canonical`) has no such numbers."""
     if isinstance(obj, dict):
         items = obj.items()
     elif isinstance(obj, (list, tuple)):
@@ -523,350 +509,3 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
     if not _SHA.fullmatch(digest):
         doc.fail("digest", f"must be 64 lowercase hex digits, got {_short(digest)}")
     return meta
-
-
-def _no_duplicates(pairs):
-    keys = [k for k, _ in pairs]
-    if len(set(keys)) != len(keys):
-        raise ValueError(f"duplicate key {sorted({k for k in keys if keys.count(k) > 1})[0]!r}")
-    return dict(pairs)
-
-
-def load_skin(folder: str | Path) -> dict:
-    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
-    that holds it)."""
-    folder = Path(folder)
-    path = folder / "skin.json"
-    if not path.is_file():
-        raise ArtifactError(f"{folder} is not a sonicskin artifact (skin.json missing); create one with "
-                            f"`sonicskin export` or `sonicskin fit-svm`")
-    raw = _read_bounded(path, MAX_SKIN_JSON_BYTES, "an artifact's metadata")
-    try:
-        meta = json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicates)
-    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        raise ArtifactError(f"{path} is corrupt ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
-    return validate_skin(meta, source=str(path))
-
-
-def _read_bounded(path: Path, limit: int, what: str) -> bytes:
-    """The bytes of ``path``, refused by its size before reading (and never more than ``limit`` read)."""
-    size = path.stat().st_size
-    if size > limit:
-        raise ArtifactError(f"{path} is {size / 2**20:,.0f} MB, more than {what} can be ({limit / 2**20:.0f} MB at most); "
-                            f"{REEXPORT}")
-    with open(path, "rb") as fh:
-        data = fh.read(limit + 1)
-    if len(data) > limit:  # grew while being read
-        raise ArtifactError(f"{path} is larger than {what} can be ({limit / 2**20:.0f} MB at most); {REEXPORT}")
-    return data
-
-
-def model_file(folder: str | Path, meta: dict, model: str) -> Path:
-    """Path of ``model``'s ONNX file, confined to ``folder`` (a symlink may not lead out of it)."""
-    folder = Path(folder)
-    models = meta["models"]
-    if model not in models:
-        raise ArtifactError(f"model {model!r} is not in the artifact (it has {sorted(models)}); choose one of those "
-                            f"with --model")
-    doc = _Doc(str(folder / "skin.json"))
-    name = _check_file_name(doc, models[model]["file"], f"models.{model}.file")
-    path = folder / name
-    if path.is_symlink() or path.exists():
-        try:
-            real, root = path.resolve(strict=True), folder.resolve()
-        except (OSError, RuntimeError) as e:  # a symlink loop (RuntimeError before Python 3.13), a dangling link
-            doc.fail(f"models.{model}.file", f"({name}) is a link that leads nowhere ({type(e).__name__}: "
-                                             f"{' '.join(str(e).split())[:80]})",
-                     "copy the model file into the artifact folder instead of linking it")
-        if real.parent != root:
-            doc.fail(f"models.{model}.file", f"({name}) is a link to {real}, outside the artifact folder",
-                     "copy the model file into the artifact folder instead of linking it")
-    if not path.exists():
-        raise ArtifactError(f"{path} is missing; copy the whole artifact folder or {REEXPORT}")
-    if not path.is_file():
-        raise ArtifactError(f"{path} is not a regular file (a folder, FIFO or device); copy the whole artifact folder or "
-                            f"{REEXPORT}")
-    return path
-
-
-def read_model_file(folder: str | Path, meta: dict, model: str) -> bytes:
-    """The bytes of ``model``'s ONNX file after the confinement and checksum checks."""
-    path = model_file(folder, meta, model)
-    data = _read_bounded(path, MAX_MODEL_BYTES, "a model file")
-    if hashlib.sha256(data).hexdigest() != meta["models"][model]["sha256"]:
-        raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
-                            f"replaced; {REEXPORT}")
-    _no_external_data(data, path)
-    return data
-
-
-def _no_external_data(data: bytes, path: Path) -> None:
-    """An ONNX file must carry its weights: external data would be read from outside the artifact folder."""
-    import onnx
-
-    m = onnx.ModelProto()
-    try:
-        m.ParseFromString(data)  # the protobuf only: nothing outside the file is read
-    except Exception:  # not parseable: onnxruntime reports it when loading
-        return
-    graphs, ext = [m.graph], []
-    while graphs:
-        g = graphs.pop()
-        ext += [t.name for t in g.initializer if t.data_location == onnx.TensorProto.EXTERNAL]
-        for node in g.node:
-            for a in node.attribute:
-                graphs += ([a.g] if a.HasField("g") else []) + list(a.graphs)
-                if a.HasField("t") and a.t.data_location == onnx.TensorProto.EXTERNAL:
-                    ext.append(node.name or node.op_type)
-    if ext:
-        raise ArtifactError(f"{path} keeps weights in external files ({ext[:3]}); an artifact's ONNX files must be "
-                            f"self-contained; {REEXPORT}")
-
-
-def _last_dim(shape) -> int | None:
-    return shape[-1] if shape and isinstance(shape[-1], int) else None
-
-
-def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
-    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths.
-
-    Declared shapes are checked where they are fixed, and one probe batch of zeros is run to check the
-    shapes the graph really produces.
-    """
-    import numpy as np
-
-    n_in = len(meta["features"]["bins"])
-    n_loc = len(meta["layout"]["ids"])
-    where = source or f"the {model} model"
-    ins, outs = session.get_inputs(), session.get_outputs()
-    if len(ins) != 1 or ins[0].type != "tensor(float)" or len(ins[0].shape) != 2:
-        raise ArtifactError(f"{where} must take one float input (batch, {n_in}), it takes "
-                            f"{[(i.type, i.shape) for i in ins]}; {REEXPORT}")
-    if ins[0].shape[-1] != n_in:
-        raise ArtifactError(f"{where} takes {ins[0].shape[-1]} features but skin.json lists {n_in} bins; {REEXPORT}")
-    if model == "net":
-        want = {0: n_loc + 1, 1: n_loc}
-        what = f"logits (batch, {n_loc + 1}) and force (batch, {n_loc})"
-    else:
-        want = {1: n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2}
-        what = f"a label and {want[1]} pairwise decision values for {n_loc} locations"
-    if len(outs) != 2:
-        raise ArtifactError(f"{where} has {len(outs)} outputs, expected {what}; {REEXPORT}")
-    declared = {k: _last_dim(outs[k].shape) for k in want}
-    # skl2onnx declares the SVC's score output as (batch, n_classes) even with decision_function_shape="ovo",
-    # which really yields the K (K - 1) / 2 pairwise values: the probe run below is what counts there.
-    allowed = {k: (None, n, n_loc) if model == "svm" else (None, n) for k, n in want.items()}
-    try:
-        got = session.run(None, {ins[0].name: np.zeros((2, n_in), np.float32)})
-    except Exception as e:  # onnxruntime raises its own exception types
-        raise ArtifactError(f"{where} fails on a probe input ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
-    for k, n in want.items():
-        shape = np.shape(got[k])
-        if declared[k] not in allowed[k] or len(shape) != 2 or shape != (2, n):
-            raise ArtifactError(f"{where} output {outs[k].name!r} has shape {shape} (declared {outs[k].shape}), "
-                                f"expected {what}: the model does not fit layout.ids; {REEXPORT}")
-
-
-def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") -> None:
-    """Refuse to run an artifact on a rig it was not trained for (sample rate, chirp, bands)."""
-    from .rig import Rig
-
-    diffs = Rig.from_dict(meta["rig"]).mismatch(rig)
-    if diffs:
-        raise ArtifactError(f"{what} was trained for another rig ({'; '.join(diffs)}){f' than {here}' if here else ''}; "
-                            f"record and train on this rig, or run with {what}'s rig")
-
-
-def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = "the surface here") -> None:
-    """Refuse to run an artifact on a marker layout it was not trained for.
-
-    ``layout`` is the :class:`sonicskin.rig.Layout` of the surface it will run on (e.g. a scenario's
-    ``make_layout()`` or a dataset's layout).  Different ids or count is an error; the same ids at other
-    positions too (the model's locations would be reported at the wrong places).
-    """
-    import numpy as np
-
-    from .rig import Layout
-
-    mine = Layout.from_dict(meta["layout"])
-    if mine.ids != layout.ids:
-        def span(ids):
-            return f"{len(ids)} locations (ids {ids[0]}..{ids[-1]})" if ids else "no locations"
-        order = " in another order" if sorted(mine.ids) == sorted(layout.ids) else ""
-        raise ArtifactError(f"{what} was trained for {span(mine.ids)} but {here} has {span(layout.ids)}{order}; "
-                            f"record and train on this layout, or use data of {what}'s layout")
-    if mine != layout:
-        d = float(np.max(np.abs(mine.xy_cm - np.asarray(layout.xy_cm, float)))) if mine.xy_cm.shape == np.shape(layout.xy_cm) \
-            else float("nan")
-        raise ArtifactError(f"{what}'s markers sit elsewhere than those of {here} (up to {d:.2g} cm apart, or another "
-                            f"circumference); record and train on this layout, or use data of {what}'s layout")
-
-
-# -- integrity: one digest over the document, a binding inside every model, probes re-run at load -----------------
-RESTORE = "restore the artifact folder as it was exported, or " + REEXPORT
-
-
-def probe_widths(model: str, n_loc: int) -> list[int | None]:
-    """Width of each graph output compared on the probes (``None``: not compared, the SVM's label)."""
-    return [n_loc + 1, n_loc] if model == "net" else [None, n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2]
-
-
-def canonical(obj: Any) -> bytes:
-    """One byte string per JSON value: sorted keys, no spaces, ASCII, no NaN (a ``ValueError``)."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False).encode("ascii")
-
-
-def artifact_digest(meta: dict) -> str:
-    """sha256 of the canonical document without ``digest`` and of every model file's sha256: one value covers
-    ``skin.json`` and the model files together."""
-    body = {k: v for k, v in meta.items() if k != "digest"}
-    models = body.get("models") if isinstance(body.get("models"), dict) else {}
-    files = b"".join(f"{k}={m.get('sha256') if isinstance(m, dict) else None}\n".encode() for k, m in sorted(models.items()))
-    return hashlib.sha256(b"sonicskin-artifact/2\0" + canonical(body) + b"\0" + files).hexdigest()
-
-
-def binding(meta: dict, model: str) -> dict:
-    """What ``model`` was trained and exported with, as stored inside its ONNX file (``metadata_props``)."""
-    entry = {k: v for k, v in meta["models"][model].items() if k not in _UNBOUND}
-    return {"model": model, "kind": MODEL_KINDS[model], "rig": meta["rig"], "layout": meta["layout"],
-            "features": meta["features"], "min_force_n": meta["min_force_n"], "split": meta["training"]["split"],
-            "entry_sha256": hashlib.sha256(canonical(entry)).hexdigest()}
-
-
-def _describe_order(have: list, want: list, what: str) -> str:
-    """How the list in skin.json (``have``) differs from the model's (``want``)."""
-    if len(have) != len(want):
-        return f"{len(have)} {what} listed, the model has {len(want)}"
-    def order(v):  # numbers by value (bins, ids), anything else after them by its text
-        return (0, v, "") if isinstance(v, (int, float)) and not isinstance(v, bool) else (1, 0, repr(v))
-    if sorted(have, key=order) == sorted(want, key=order):
-        if have == sorted(want, key=order) and have != want:
-            return f"the model's {what} sorted"
-        if have == want[::-1]:
-            return f"the model's {what} reversed"
-        diff = [i for i, (a, b) in enumerate(zip(have, want)) if a != b]
-        return (f"the model's {what} in another order: {len(diff)} positions differ, first index {diff[0]} "
-                f"({have[diff[0]]} where the model has {want[diff[0]]})")
-    extra = [(i, a) for i, a in enumerate(have) if a not in want]
-    i, a = extra[0]
-    return f"{len(extra)} not among the model's, first {a} at index {i} where the model has {want[i]}"
-
-
-def _binding_diff(have: dict, want: dict, file: str) -> tuple[str, str] | None:
-    """The first field where skin.json (``want``, from the document) and the model's binding (``have``) differ."""
-    if have.get("model") != want["model"] or have.get("kind") != want["kind"]:
-        return (f"models.{want['model']}.file", f"({file}) is the {have.get('model')!r} model of an artifact "
-                                                f"({have.get('kind')}), not its {want['model']!r} ({want['kind']})")
-    hf = have.get("features") if isinstance(have.get("features"), dict) else {}
-    wf = want["features"]
-    if hf.get("bins") != wf["bins"]:
-        return "features.bins", (f"are not the bins {file} was trained with "
-                                 f"({_describe_order(wf['bins'], list(hf.get('bins') or []), 'bins')})")
-    for k in ("mode", "beta_s", "alpha_s"):
-        if hf.get(k) != wf.get(k):
-            return f"features.{k}", f"is {wf.get(k)!r} but {file} was trained with {hf.get(k)!r}"
-    if hf != wf:
-        return "features", f"has other keys than {file} was trained with"
-    if have.get("rig") != want["rig"]:
-        hr = have.get("rig") if isinstance(have.get("rig"), dict) else {}
-        wr = want["rig"]
-        keys = sorted(k for k in set(hr) | set(wr) if hr.get(k) != wr.get(k))
-        what = ", ".join(f"{k}: {_short(wr.get(k), 24)} vs {_short(hr.get(k), 24)}" for k in keys[:3])
-        return "rig", f"differs from the rig {file} was trained on ({what})"
-    hl = have.get("layout") if isinstance(have.get("layout"), dict) else {}
-    wl = want["layout"]
-    if hl.get("ids") != wl["ids"]:
-        return "layout.ids", (f"are not the location ids {file} was trained with "
-                              f"({_describe_order(wl['ids'], list(hl.get('ids') or []), 'ids')})")
-    if hl.get("xy_cm") != wl["xy_cm"]:
-        hxy = hl.get("xy_cm") if isinstance(hl.get("xy_cm"), list) else []
-        bad = [i for i, a in enumerate(wl["xy_cm"]) if i >= len(hxy) or a != hxy[i]] or [0]
-        return "layout.xy_cm", (f"differs from the marker positions {file} was trained with (first at location "
-                                f"{wl['ids'][bad[0]]}: {wl['xy_cm'][bad[0]]} vs {hxy[bad[0]] if bad[0] < len(hxy) else None} cm)")
-    if hl != wl:
-        return "layout", f"differs from the layout {file} was trained with (circumference)"
-    if have.get("min_force_n") != want["min_force_n"]:
-        return "min_force_n", f"is {want['min_force_n']!r} but {file} was trained with {have.get('min_force_n')!r}"
-    if have.get("split") != want["split"]:
-        return "training.split", f"is not the split {file} was trained on (the test sessions would include training ones)"
-    if have.get("entry_sha256") != want["entry_sha256"]:
-        return (f"models.{want['model']}", f"holds other parameters than were exported with {file} (threshold, reference "
-                                           f"scores, force curves, hparams, n_in or n_locations changed)")
-    if have != want:
-        return "the document", f"does not match the binding inside {file}"
-    return None
-
-
-def read_binding(data: bytes) -> dict | None:
-    """The binding stored in an ONNX file's ``metadata_props`` (``None``: none, or not parseable)."""
-    import onnx
-
-    m = onnx.ModelProto()
-    try:
-        m.ParseFromString(data)
-    except Exception:  # protobuf's DecodeError and friends
-        return None
-    props = {p.key: p.value for p in m.metadata_props}
-    if BINDING_KEY not in props:
-        return None
-    try:
-        b = json.loads(props[BINDING_KEY])
-    except (ValueError, RecursionError):
-        return None
-    return b if isinstance(b, dict) else None
-
-
-def stamp_binding(path: Path, b: dict) -> None:
-    """Store binding ``b`` in the ONNX file at ``path`` (replacing an older one); the graph is unchanged."""
-    import onnx
-
-    m = onnx.ModelProto()
-    m.ParseFromString(Path(path).read_bytes())
-    keep = [(p.key, p.value) for p in m.metadata_props if p.key != BINDING_KEY]
-    del m.metadata_props[:]
-    for k, v in [*keep, (BINDING_KEY, canonical(b).decode("ascii"))]:
-        m.metadata_props.add(key=k, value=v)
-    Path(path).write_bytes(m.SerializeToString())
-
-
-def run_probe(session, inputs) -> list:
-    import numpy as np
-
-    return session.run(None, {session.get_inputs()[0].name: np.asarray(inputs, np.float32)})
-
-
-def check_integrity(session, meta: dict, model: str, data: bytes, *, folder: str | Path) -> None:
-    """The model file belongs to this ``skin.json``, and the document is the one exported.
-
-    1. the binding inside the ONNX file equals what ``skin.json`` says (features, rig, layout, parameters);
-    2. the document's digest matches its content (every model file's sha256 included);
-    3. the probe inputs give the export-time outputs (finite, within 1e-3).
-    """
-    import numpy as np
-
-    folder = Path(folder)
-    src = str(folder / "skin.json")
-    file = meta["models"][model]["file"]
-    have = read_binding(data)
-    if have is None:
-        raise ArtifactError(f"{folder / file} carries no sonicskin binding (the bins, layout and rig it was trained with): "
-                            f"it is not a model this sonicskin exported; {REEXPORT}")
-    diff = _binding_diff(have, binding(meta, model), file)
-    if diff:
-        raise ArtifactError(f"{src}: {diff[0]} {diff[1]}; {RESTORE}")
-    if artifact_digest(meta) != meta["digest"]:
-        raise ArtifactError(f"{src} was changed after export: its digest does not match its content; {RESTORE}")
-    probe = meta["models"][model]["probe"]
-    try:
-        got = run_probe(session, probe["inputs"])
-    except Exception as e:  # onnxruntime raises its own exception types
-        raise ArtifactError(f"{folder / file} fails on its probe inputs ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
-    for k, want in enumerate(probe["outputs"]):
-        if want is None:
-            continue
-        g, w = np.asarray(got[k], np.float64), np.asarray(want, np.float64)
-        if g.shape != w.shape or not np.isfinite(g).all() or not np.allclose(g, w, rtol=PROBE_RTOL, atol=PROBE_ATOL):
-            why = (f"shape {g.shape} vs {w.shape}" if g.shape != w.shape else "non-finite outputs" if not np.isfinite(g).all()
-                   else f"max |difference| {np.abs(g - w).max():.3g}")
-            raise ArtifactError(f"{folder / file} does not reproduce the outputs it gave at export on the probe inputs in "
-                                f"skin.json (output {k}: {why}): it is not the model this artifact was exported with; {RESTORE}")

@@ -1,0 +1,138 @@
+"""A dataset's feature table, cached as plain arrays in ``<dataset>/.cache`` and keyed by content
+(:func:`load_features_cached`)."""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import uuid
+import warnings
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import Dataset, FeatureTable
+
+__all__ = ["load_features_cached"]
+
+
+def _code_version() -> bytes:
+    """What the cached values depend on in the code: the package version and the bytes of the modules
+    that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
+    from . import __version__, dataset, dsp
+
+    h = hashlib.sha256(f"sonicskin {__version__}".encode())
+    for mod in (dataset, dsp):
+        try:
+            h.update(Path(mod.__file__).read_bytes())
+        except (OSError, TypeError):  # a frozen build without sources: the version alone
+            h.update(mod.__name__.encode())
+    return h.digest()
+
+
+def _signature(ds: Dataset) -> str:
+    """Cache key of a dataset's features: the sha256 of everything that changes their values: the code
+    (:func:`_code_version`), ``dataset.json`` (rig, layout), and per session the bytes of every part's
+    FLAC and CSV and of ``session.json`` (which parts count)."""
+    h = hashlib.sha256(_code_version())
+    h.update(ds.meta_sha256.encode())
+    ds.check_distinct()  # a copied session: refused before a cache could hide it
+    for s in ds.sessions:
+        d = ds.root / s
+        info = d / "session.json"
+        h.update(f"session {s} {len(ds.parts(s))}\n".encode())
+        if info.is_file():
+            h.update(hashlib.sha256(info.read_bytes()).digest())
+        for p in ds.parts(s):
+            for ext in ("flac", "csv"):
+                f = d / f"part-{p:05d}.{ext}"
+                fh = hashlib.sha256()
+                with open(f, "rb") as stream:
+                    for block in iter(lambda: stream.read(1 << 20), b""):
+                        fh.update(block)
+                h.update(f"{p}.{ext}".encode() + fh.digest())
+    return h.hexdigest()
+
+
+def _content_digest(t: FeatureTable) -> str:
+    """sha256 of a feature table's arrays (features and every label column), in a fixed order."""
+    h = hashlib.sha256(np.ascontiguousarray(t.X).tobytes())
+    for k in sorted(t.labels):
+        v = np.asarray(t.labels[k])
+        h.update(k.encode() + str(v.dtype).encode() + np.ascontiguousarray(v).tobytes())
+    return h.hexdigest()
+
+
+def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
+    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``.
+
+    The key binds the cache to the recordings' bytes, not the cache's own content: a cache whose labels were edited
+    with its key kept was trusted (``fit-svm`` then wrote another ``svm.onnx`` from the same recordings).  Here the
+    label rows are checked against the label CSVs (a session's last one or two rows may be missing: a recording that
+    stops inside its last chirp), and the whole content against the digest stored when the cache was written."""
+    from .dataset import COLUMNS
+
+    stored = FeatureTable.stored_content(cache)
+    if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
+        return ""
+    if stored != _content_digest(t):
+        return "its content does not match the digest stored with it"
+    for s in ds.sessions:
+        rows = t["session"] == s
+        parts = [ds._read_labels(ds.root / s / f"part-{p:05d}.csv") for p in ds.parts(s)]
+        if not parts:
+            continue
+        n, n_csv = int(rows.sum()), sum(len(q["chirp"]) for q in parts)
+        if not n_csv - 2 <= n <= n_csv:
+            return f"it holds {n} chirps of session {s}, whose labels list {n_csv}"
+        for c in COLUMNS:
+            want = np.concatenate([q[c] for q in parts])[:n]
+            got = t[c][rows]
+            same = (np.array_equal(got, want, equal_nan=True) if want.dtype.kind == "f" else
+                    np.array_equal(got.astype(want.dtype), want))
+            if not same:
+                return f"its column {c!r} of session {s} differs from the session's label CSVs"
+    return None
+
+
+def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
+    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``.
+
+    The cache is keyed by content (:func:`_signature`: code, dataset.json, the bytes of every part's
+    audio and labels), so editing a label or replacing a part rebuilds it; a cache file that is
+    damaged, of other data or inconsistent (a label column one short) is rebuilt, never trusted; one whose
+    content was edited (its key kept) is rebuilt with a warning (:func:`_cache_differs`).
+    """
+    key = _signature(ds)
+    cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
+    if cache.is_file():
+        try:
+            t = FeatureTable.load_npz(cache, key=key, n_features=ds.rig.n_band)
+        except (OSError, ValueError, KeyError, zipfile.BadZipFile):  # damaged or stale cache: rebuilt from the audio below
+            pass
+        else:
+            why = _cache_differs(ds, t, cache)
+            if why is None:
+                return t
+            if why:
+                warnings.warn(f"{cache}: {why}; the cache was edited (its key kept): rebuilt from the recordings",
+                              stacklevel=2)
+    t = ds.features(progress=progress)
+    # Several processes may build the cache at once (DDP ranks, parallel `compare` runs): each writes its
+    # own temporary file and renames it atomically; stale caches of other signatures are removed after.
+    tmp = cache.parent / f".{cache.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz"
+    try:
+        cache.parent.mkdir(exist_ok=True)
+        t.save_npz(tmp, key=key, content=_content_digest(t))
+        os.replace(tmp, cache)
+    except OSError:  # a read-only dataset, a full disk, a file named .cache: features are simply not cached
+        return t
+    finally:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+    for old in cache.parent.glob("features-*.npz"):
+        if old.name != cache.name:
+            old.unlink(missing_ok=True)
+    return t
