@@ -1,0 +1,336 @@
+"""One press per marker: the package's SVM, the plain floors and nuisance-aware candidates, fast (issue 26).
+
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py                      # design seeds 0-9 of `random`
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --seeds design 100-139
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --scenario moving --seeds 0 1 2
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --net               # also the torch candidates
+
+Per rig (a simulated dataset, cached under ``--cache``): the features of every usable bin, relative to each
+session's boot reference (the mean of its first ``beta`` chirps, Alg. 2's hands-off calibration, the same
+reference the live loop boots on; no label is read to form it), then every model is trained on the touch
+chirps of the training session, scored on the validation session (s001) and on every touch chirp of the test
+sessions (s002, s003; they are given the touch decision, as the benchmarks' floors are):
+
+- ``package SVM``: the package's own path (gamma, C and kernel width validated on s001 by
+  :func:`sonicskin.selection.select_gamma_on_table`; OSPA bins on s000; scaler + RBF SVC);
+- the plain floors of issue 26: SVC on every usable bin (defaults), shrinkage LDA (1000 OSPA bins and every
+  usable bin), Normalizer + scaler + SVC(C=10) on 300 OSPA bins and on every bin, and LDA / SVC after
+  per-chirp mean-level removal;
+- the candidates of :mod:`sonicskin.nuisance` (and with ``--net`` the network of ``training.augment``).
+
+A *validated pick* takes, per rig, the candidate of a list (``PICK_SETS``) with the best accuracy on s001
+(ties: the first in the list) and reports its test accuracy: what the product would do.  The best candidate
+in hindsight is not a result.  Printed: mean +- std over rigs, and paired differences against the package
+SVM with 95 % Student t intervals (the unit is the rig).
+
+The held-out seeds of issue 26 (7001-7032, 7101-7103) are refused: this is a development tool.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+
+SPLITS = {  # scenario -> (train, val, test) sessions; multi-person: leave-subjects-out (Split.make)
+    "random": (["s000"], ["s001"], ["s002", "s003"]),
+    "moving": (["s000"], ["s001"], ["s002"]),
+    "stationary": (["s000"], ["s001"], ["s002"]),
+    "plate-aluminium": (["s000"], ["s001"], ["s002"]),
+    "two-points": (["s000"], ["s001"], ["s002"]),
+    "multi-person": None,
+}
+MULTI_PERSON_TEST = [8, 9, 10, 11]
+FORBIDDEN = (range(7000, 8000),)  # issue 26's held-out seeds live here: never simulated or scored by this probe
+
+
+# -- data ------------------------------------------------------------------------------------------------------
+def load_rig(path, split=None) -> dict:
+    """Everything the models need of one dataset: relative inputs over every usable bin (boot reference per
+    session), the OSPA order on the training sessions, labels and masks of train / val / test touch chirps."""
+    from sonicskin.dataset import Dataset
+    from sonicskin.features import FeatureSpec, Split, load_features_cached, select_bins, touch_mask
+    from sonicskin.selection import press_ids
+
+    ds = Dataset(path)
+    t = load_features_cached(ds, progress=False)
+    rig = ds.rig
+    if split is None:
+        sp = Split.make(t, test_subjects=MULTI_PERSON_TEST)
+        split = (list(sp.train), list(sp.val), list(sp.test))
+    train, val, test = split
+    allowed = np.flatnonzero(rig.allowed_mask)
+    beta = FeatureSpec((0,), "relative").reference(rig.chirps_per_s).beta
+    A = t.X[:, allowed].astype(np.float64)
+    R = np.empty_like(A)
+    sess = t["session"]
+    for s in np.unique(sess):
+        idx = np.flatnonzero(sess == s)
+        touched = t["location"][idx] >= 0
+        lead = int(np.argmax(touched)) if touched.any() else idx.size
+        if lead < beta:
+            raise ValueError(f"{path} session {s}: {lead} leading hands-off chirps, fewer than beta = {beta}")
+        R[idx] = A[idx] - A[idx[:beta]].mean(axis=0)  # the boot reference: the stream's first beta chirps, no label
+    tr_t = t.select(np.isin(sess, train))
+    order_band = select_bins(tr_t, rig, int(allowed.size))  # every usable bin, best (OSPA) first
+    pos = np.full(rig.n_band, -1)
+    pos[allowed] = np.arange(allowed.size)
+    touch = touch_mask(t)
+    no_touch_tr = (t["location"] < 0) & np.isin(sess, train)
+    moving = no_touch_tr & (t["moving"] > 0)
+    lay = ds.layout
+    seg = t["segment"] if "segment" in t.labels else None
+    return {"path": str(path), "table": t, "rig": rig, "layout": lay, "split": split, "allowed": allowed, "R": R,
+            "order": pos[order_band], "y": t["location"], "force": t["force_n"], "session": sess,
+            "press": press_ids(t["location"], sess, seg),
+            "tr": touch & np.isin(sess, train), "va": touch & np.isin(sess, val), "te": touch & np.isin(sess, test),
+            "rest": moving if moving.sum() >= 10 else no_touch_tr & ~np.isin(np.arange(len(sess)), _leading(sess, beta)),
+            "rest_is_moving": bool(moving.sum() >= 10), "freqs_hz": rig.freqs_hz[rig.band_bins][allowed], "beta": beta}
+
+
+def _leading(sess, beta) -> np.ndarray:
+    """Row indices of each session's first ``beta`` chirps (the boot reference, zero by construction)."""
+    out = []
+    for s in np.unique(sess):
+        out.extend(np.flatnonzero(sess == s)[:beta])
+    return np.asarray(out, int)
+
+
+# -- models ----------------------------------------------------------------------------------------------------
+def package_svm(d: dict) -> dict:
+    """The package's SVM as ``compare`` trains it: gamma, C, width validated on the validation session."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVC
+
+    from sonicskin.features import select_bins
+    from sonicskin.selection import select_gamma_on_table
+
+    t, rig = d["table"], d["rig"]
+    train, val, _ = d["split"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sel = select_gamma_on_table(t, rig, train_sessions=train, val_sessions=val, log=lambda m: None)
+    p = sel["params"]
+    bins = select_bins(t.select(np.isin(t["session"], train)), rig, p["n_bins"])
+    pos = np.full(rig.n_band, -1)
+    pos[d["allowed"]] = np.arange(d["allowed"].size)
+    cols = pos[bins]
+    model = make_pipeline(StandardScaler(), SVC(C=p["C"], gamma=p["kernel_width"] / len(cols)))
+    return {"model": model, "cols": cols, "params": p}
+
+
+def directions(d: dict, cols: np.ndarray, **kw) -> np.ndarray:
+    """Nuisance rows (:func:`sonicskin.nuisance.nuisance_directions`) measured on every usable bin of the
+    training session, then restricted to ``cols`` (stacked over kinds)."""
+    from sonicskin.nuisance import nuisance_directions
+
+    key = tuple(sorted(kw.items()))
+    cache = d.setdefault("_dirs", {})
+    if key not in cache:
+        R, y, tr = d["R"], d["y"], d["tr"]
+        lay = d["layout"]
+        labels = np.unique(y[tr])
+        cache[key] = nuisance_directions(R[tr], y[tr], X_rest=R[d["rest"]], freqs_hz=d["freqs_hz"],
+                                         positions_cm=lay.coords(labels), circumference_cm=lay.circumference_cm, **kw)
+    return np.vstack([v[:, cols] for v in cache[key].values()])
+
+
+def candidates(d: dict, names=None) -> dict:
+    """name -> (unfitted estimator, input columns).  Floors first, then the nuisance-aware candidates."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import Normalizer, StandardScaler
+    from sklearn.svm import SVC
+
+    from sonicskin.nuisance import LevelRemoval, ShrinkageLDA
+
+    o = d["order"]
+    n = o.size
+    every = np.arange(n)
+    g = {300: o[:min(300, n)], 1000: o[:min(1000, n)], "all": every}
+    f = d["freqs_hz"]
+
+    def lvl(cols, tilt=False):
+        return LevelRemoval(tilt=tilt, freqs_hz=f[cols] if tilt else None)
+
+    c = {
+        "floor SVC (all bins)": (make_pipeline(StandardScaler(), SVC()), every),
+        "floor shrinkage LDA (OSPA 1000)": (ShrinkageLDA(), g[1000]),
+        "floor shrinkage LDA (all bins)": (ShrinkageLDA(), every),
+        "floor normalized SVC (OSPA 300)": (make_pipeline(Normalizer(), StandardScaler(), SVC(C=10)), g[300]),
+        "floor normalized SVC (all bins)": (make_pipeline(Normalizer(), StandardScaler(), SVC(C=10)), every),
+        "floor level-removed LDA (all bins)": (make_pipeline(lvl(every), ShrinkageLDA()), every),
+        "floor level-removed SVC (all bins)": (make_pipeline(lvl(every), StandardScaler(), SVC(C=10)), every),
+    }
+    for k in (300, 1000):
+        c[f"level-removed LDA (OSPA {k})"] = (make_pipeline(lvl(g[k]), ShrinkageLDA()), g[k])
+        c[f"level+tilt LDA (OSPA {k})"] = (make_pipeline(lvl(g[k], True), ShrinkageLDA()), g[k])
+    c["level+tilt LDA (all bins)"] = (make_pipeline(lvl(every, True), ShrinkageLDA()), every)
+    for k in (300, 1000, "all"):
+        cols = g[k]
+        lab = f"OSPA {k}" if k != "all" else "all bins"
+        c[f"metric head ({lab})"] = (make_pipeline(lvl(cols, True), ShrinkageLDA(nuisance=directions(d, cols))), cols)
+    if names:
+        c = {k: v for k, v in c.items() if any(s in k for s in names)}
+    return c
+
+
+def score_rig(d: dict, *, names=None, net: bool = False, log=print) -> dict:
+    """Validation (s001) and test accuracy of the package SVM, every floor and candidate, on one rig."""
+    R, y = d["R"], d["y"]
+    tr, va, te = d["tr"], d["va"], d["te"]
+    out: dict = {}
+    t0 = time.perf_counter()
+    pk = package_svm(d)
+    cands = {"package SVM": (pk["model"], pk["cols"])}
+    cands.update(candidates(d, names))
+    for name, (model, cols) in cands.items():
+        t1 = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model.fit(R[tr][:, cols], y[tr])
+        out[name] = {"val": float(np.mean(model.predict(R[va][:, cols]) == y[va])),
+                     "test": float(np.mean(model.predict(R[te][:, cols]) == y[te])), "fit_s": time.perf_counter() - t1}
+    if net:
+        from training.augment import net_candidates  # torch: only with --net
+
+        out.update(net_candidates(d, pk, log=log))
+    out["_meta"] = {"svm_params": pk["params"], "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
+                    "n_test": int(te.sum()), "n_bins": int(R.shape[1]), "rest_is_moving": d["rest_is_moving"],
+                    "seconds": time.perf_counter() - t0}
+    return out
+
+
+# -- validated picks -------------------------------------------------------------------------------------------
+#: candidate lists validation chooses among (ties: the first listed).
+PICK_SETS = {
+    "pick: SVM or floors": ["package SVM", "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)",
+                            "floor level-removed LDA (all bins)"],
+    "pick: nuisance set": ["metric head (all bins)", "level+tilt LDA (all bins)", "floor level-removed LDA (all bins)",
+                           "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)", "package SVM"],
+}
+
+
+def add_picks(res: dict, sets: dict | None = None) -> dict:
+    for pname, names in (sets or PICK_SETS).items():
+        have = [n for n in names if n in res]
+        if not have:
+            continue
+        best = max(have, key=lambda n: (res[n]["val"], -have.index(n)))
+        res[pname] = {"val": res[best]["val"], "test": res[best]["test"], "chose": best}
+    return res
+
+
+# -- summaries ---------------------------------------------------------------------------------------------------
+def t_interval(x: np.ndarray) -> tuple[float, float]:
+    from scipy import stats
+
+    x = np.asarray(x, float)
+    if x.size < 2:
+        return float("nan"), float("nan")
+    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
+    return float(x.mean() - half), float(x.mean() + half)
+
+
+def summarize(rows: dict, ref: str = "package SVM") -> list[dict]:
+    names = [k for k in next(iter(rows.values())) if not k.startswith("_")]
+    out = []
+    for n in names:
+        have = [s for s in rows if n in rows[s]]
+        te = np.array([rows[s][n]["test"] for s in have])
+        va = np.array([rows[s][n]["val"] for s in have])
+        dif = te - np.array([rows[s][ref]["test"] for s in have])
+        lo, hi = t_interval(dif)
+        chose = {}
+        for s in have:
+            c = rows[s][n].get("chose")
+            if c:
+                chose[c] = chose.get(c, 0) + 1
+        out.append({"name": n, "n": len(have), "test_mean": float(te.mean()), "test_std": float(te.std(ddof=1)) if te.size > 1 else 0.0,
+                    "val_mean": float(va.mean()), "diff_mean": float(dif.mean()), "diff_ci95": [lo, hi], "chose": chose})
+    return out
+
+
+def format_table(summary: list[dict], title: str) -> str:
+    lines = [title, "", "| model | test accuracy (mean ± std) | s001 (validation) | − package SVM [95 % CI] |", "|---|---|---|---|"]
+    for r in summary:
+        lo, hi = r["diff_ci95"]
+        ch = ("; chose " + ", ".join(f"{k} {v}x" for k, v in sorted(r["chose"].items(), key=lambda kv: -kv[1]))) if r["chose"] else ""
+        lines.append(f"| {r['name']}{ch} | {100 * r['test_mean']:.1f} ± {100 * r['test_std']:.1f} % | {100 * r['val_mean']:.1f} % | "
+                     f"{100 * r['diff_mean']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}] |")
+    return "\n".join(lines)
+
+
+def parse_seeds(items: list[str], scenario: str) -> list[int]:
+    from sonicskin.sim.scenario import family_seeds
+
+    seeds: list[int] = []
+    for it in items:
+        if it == "design":
+            seeds += list(family_seeds("random")["design"]) if scenario == "random" else [0, 1, 2]
+        elif it in ("heldout", "previous"):
+            raise SystemExit(f"oneshot_probe: error: the {it} seeds are for the final evaluation only "
+                             f"(benchmarks/bench_random_rigs.py); develop on 'design' or seeds outside 7000-7999")
+        elif "-" in it:
+            a, b = (int(v) for v in it.split("-"))
+            seeds += list(range(a, b + 1))
+        else:
+            seeds.append(int(it))
+    bad = [s for s in seeds if any(s in r for r in FORBIDDEN)]
+    if bad:
+        raise SystemExit(f"oneshot_probe: error: seeds {bad} are in 7000-7999, where issue 26's held-out seeds live; "
+                         f"develop on 'design' (0-9) or seeds like 100-139")
+    return list(dict.fromkeys(seeds))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", nargs="+", default=["design"], help="'design', seed numbers or ranges like 100-139")
+    p.add_argument("--scenario", default="random", choices=sorted(SPLITS), help="scenario (default: the random family)")
+    p.add_argument("--cache", default=None, help="simulated datasets (default: data/random, or data/seeds for a scenario)")
+    p.add_argument("--out", default="reports/oneshot-probe", help="report folder (default: reports/oneshot-probe)")
+    p.add_argument("--only", nargs="*", help="only candidates whose name contains one of these")
+    p.add_argument("--net", action="store_true", help="also the network candidates (torch; training.augment)")
+    p.add_argument("--resume", action="store_true", help="keep per-rig results already in OUT/rows")
+    a = p.parse_args(argv)
+    from sonicskin.seeds import scenario_dataset
+
+    seeds = parse_seeds(a.seeds, a.scenario)
+    cache = Path(a.cache or ("data/random" if a.scenario == "random" else "data/seeds"))
+    out = Path(a.out) / a.scenario
+    (out / "rows").mkdir(parents=True, exist_ok=True)
+    rows: dict[int, dict] = {}
+    t0 = time.perf_counter()
+    for s in seeds:
+        f = out / "rows" / f"{s}.json"
+        if a.resume and f.is_file():
+            rows[s] = json.loads(f.read_text())
+            continue
+        ds = scenario_dataset(a.scenario, s, cache, log=lambda *_: None)
+        d = load_rig(ds.root, SPLITS[a.scenario])
+        res = add_picks(score_rig(d, names=a.only, net=a.net))
+        f.write_text(json.dumps(res, indent=1))
+        rows[s] = res
+        best = ", ".join(f"{k} {100 * v['test']:.1f}" for k, v in res.items() if not k.startswith("_"))
+        print(f"seed {s} ({res['_meta']['n_markers']} markers, {res['_meta']['seconds']:.0f} s): {best}", flush=True)
+    summ = summarize(rows)
+    md = format_table(summ, f"{a.scenario}: seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} rigs); split {SPLITS[a.scenario] or 'leave-subjects-out'}; "
+                            f"accuracy on every touch chirp of the test sessions; wall {time.perf_counter() - t0:.0f} s")
+    (out / "summary.json").write_text(json.dumps({"seeds": seeds, "summary": summ}, indent=1))
+    (out / "summary.md").write_text(md + "\n")
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    raise SystemExit(main())

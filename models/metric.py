@@ -1,0 +1,102 @@
+"""A metric location layer for the network: class prototypes under a learned within-marker metric (issue 26).
+
+:class:`MetricVotes` is a linear layer ``z -> z W' + b`` (one score per location) that starts as a fitted
+:class:`sonicskin.nuisance.ShrinkageLDA`: LDA's discriminant is the nearest class mean under the Mahalanobis
+metric of the pooled within-marker (and nuisance) covariance, which with equal covariances is exactly linear.
+Training then moves it with the network's augmented chirps (:mod:`training.augment`).
+
+:class:`MetricSkinNet` is :class:`models.SkinNet` with that layer in place of the SVM's kernel machine: the trunk
+gives the touch probability and the force, the metric layer the place (the same factorisation as the kernel
+layer: ``p(location k) = p(touch) softmax(scores)_k``), so detection, the force head, the validated detector and
+force hooks (:meth:`SkinNet.set_detector`, :meth:`SkinNet.set_force`) and the ONNX export are unchanged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from .net import SkinNet
+
+__all__ = ["MetricVotes", "MetricSkinNet"]
+
+
+class MetricVotes(nn.Module):
+    """Per-location scores ``scale * (z W' + b)`` of standardised inputs ``z``.
+
+    Parameters
+    ----------
+    n_in : input width.
+    n_locations : K.
+    """
+
+    def __init__(self, n_in: int, n_locations: int):
+        super().__init__()
+        if n_in < 1 or n_locations < 2:
+            raise ValueError(f"need n_in >= 1 and n_locations >= 2, got {n_in}, {n_locations}")
+        self.linear = nn.Linear(n_in, n_locations)
+        self.log_scale = nn.Parameter(torch.zeros(()))
+
+    @classmethod
+    def from_lda(cls, lda, mean, std, *, target_margin: float | None = 8.0) -> MetricVotes:
+        """The layer of a fitted LDA (``coef_`` (K, d), ``intercept_`` (K,), classes ``0..K-1``; binary LDAs with one
+        row are expanded) trained on *raw* inputs, for standardised inputs ``z = (x - mean) / std``.
+
+        ``target_margin``: the scores are scaled so that the median gap between the best and second-best score of the
+        class means is this many logits (a softmax that is confident but not saturated, so training can move it);
+        ``None`` keeps LDA's own scale.  The argmax is LDA's either way.
+        """
+        coef, icpt = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
+        if coef.shape[0] == 1:  # scikit-learn's binary convention: row for classes_[1]; scores (-s/2, s/2)
+            coef, icpt = np.vstack([-coef / 2, coef / 2]), np.r_[-icpt / 2, icpt / 2]
+        K, d = coef.shape
+        mean, std = np.asarray(mean, np.float64), np.asarray(std, np.float64)
+        W = coef * std[None, :]
+        b = icpt + coef @ mean
+        layer = cls(d, K)
+        scale = 1.0
+        if target_margin is not None and getattr(lda, "means_", None) is not None:
+            S = np.asarray(lda.means_, np.float64) @ coef.T + icpt
+            top2 = np.sort(S, axis=1)[:, -2:]
+            gap = float(np.median(top2[:, 1] - top2[:, 0]))
+            scale = target_margin / gap if gap > 0 else 1.0
+        with torch.no_grad():
+            layer.linear.weight.copy_(torch.from_numpy(W))
+            layer.linear.bias.copy_(torch.from_numpy(b))
+            layer.log_scale.fill_(float(np.log(scale)))
+        return layer
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.log_scale.exp() * self.linear(z)
+
+
+class MetricSkinNet(SkinNet):
+    """:class:`SkinNet` whose location layer is :class:`MetricVotes` (``n_in -> (N + 1 logits, N forces)``).
+
+    The force head reads the trunk and the (softmaxed) location scores, as the kernel layer's reads its RBF units.
+    Call :meth:`init_from_lda` before training so the place starts as the LDA's.
+    """
+
+    def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
+                 dropout: float = 0.1, input_dropout: float = 0.0):
+        super().__init__(n_in, n_locations, hidden, dropout, input_dropout, n_centres=0)
+        width = hidden[-1] if hidden else n_in
+        self.metric = MetricVotes(n_in, n_locations)
+        self.location = nn.Linear(width, 1)              # the touch logit
+        self.force = nn.Linear(width + n_locations, n_locations)
+
+    def init_from_lda(self, lda, mean, std, **kw) -> None:
+        """Set the normalisation to ``mean``/``std`` and the metric layer to ``lda`` (fitted on raw inputs)."""
+        self.set_normalization(mean, std)
+        self.metric.load_state_dict(MetricVotes.from_lda(lda, self.mean.numpy(), self.std.numpy(), **kw).state_dict())
+
+    def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        z = self.standardize(x)
+        h = self.trunk(z)
+        scores = self.metric(z)
+        t = self.location(h)
+        soft = torch.log(1.0 + torch.exp(-t.abs()))
+        place = torch.log_softmax(scores, 1)
+        loc = (torch.clamp(t, max=0.0) - soft) + place
+        return torch.cat([loc, torch.clamp(-t, max=0.0) - soft], 1), self.force(torch.cat([h, place.exp()], 1))
