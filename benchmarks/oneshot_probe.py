@@ -106,8 +106,9 @@ def _leading(sess, beta) -> np.ndarray:
 
 
 # -- models ----------------------------------------------------------------------------------------------------
-def package_svm(d: dict) -> dict:
-    """The package's SVM as ``compare`` trains it: gamma, C, width validated on the validation session."""
+def package_svm(d: dict, params: dict | None = None) -> dict:
+    """The package's SVM as ``compare`` trains it: gamma, C, width validated on the validation session
+    (``params``: that choice, made before on the same rig)."""
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC
@@ -117,10 +118,11 @@ def package_svm(d: dict) -> dict:
 
     t, rig = d["table"], d["rig"]
     train, val, _ = d["split"]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        sel = select_gamma_on_table(t, rig, train_sessions=train, val_sessions=val, log=lambda m: None)
-    p = sel["params"]
+    if params is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            params = select_gamma_on_table(t, rig, train_sessions=train, val_sessions=val, log=lambda m: None)["params"]
+    p = params
     bins = select_bins(t.select(np.isin(t["session"], train)), rig, p["n_bins"])
     pos = np.full(rig.n_band, -1)
     pos[d["allowed"]] = np.arange(d["allowed"].size)
@@ -171,42 +173,180 @@ def candidates(d: dict, names=None) -> dict:
         "floor level-removed LDA (all bins)": (make_pipeline(lvl(every), ShrinkageLDA()), every),
         "floor level-removed SVC (all bins)": (make_pipeline(lvl(every), StandardScaler(), SVC(C=10)), every),
     }
-    for k in (300, 1000):
-        c[f"level-removed LDA (OSPA {k})"] = (make_pipeline(lvl(g[k]), ShrinkageLDA()), g[k])
-        c[f"level+tilt LDA (OSPA {k})"] = (make_pipeline(lvl(g[k], True), ShrinkageLDA()), g[k])
     c["level+tilt LDA (all bins)"] = (make_pipeline(lvl(every, True), ShrinkageLDA()), every)
-    for k in (300, 1000, "all"):
-        cols = g[k]
-        lab = f"OSPA {k}" if k != "all" else "all bins"
-        c[f"metric head ({lab})"] = (make_pipeline(lvl(cols, True), ShrinkageLDA(nuisance=directions(d, cols))), cols)
+    c["normalized LDA (all bins)"] = (make_pipeline(Normalizer(), ShrinkageLDA()), every)
+    c["normalized LDA (OSPA 3000)"] = (make_pipeline(Normalizer(), ShrinkageLDA()), o[:min(3000, n)])
+    c["level-removed normalized LDA (all bins)"] = (make_pipeline(lvl(every), Normalizer(), ShrinkageLDA()), every)
+    c["normalized SVC C=1 (all bins)"] = (make_pipeline(Normalizer(), StandardScaler(), SVC(C=1)), every)
+    c["metric head: gain (all bins)"] = (ShrinkageLDA(nuisance=directions(d, every, kinds=("gain",))), every)
+    c["metric head: gain+tilt (all bins)"] = (ShrinkageLDA(nuisance=directions(d, every, kinds=("gain", "tilt"))), every)
+    c["metric head: all kinds (all bins)"] = (ShrinkageLDA(nuisance=directions(d, every)), every)
     if names:
         c = {k: v for k, v in c.items() if any(s in k for s in names)}
     return c
 
 
-def score_rig(d: dict, *, names=None, net: bool = False, log=print) -> dict:
-    """Validation (s001) and test accuracy of the package SVM, every floor and candidate, on one rig."""
+def score_rig(d: dict, *, names=None, net: bool = False, swap_val: bool = True, have: dict | None = None,
+              log=print) -> dict:
+    """Validation (s001) and test accuracy of the package SVM, every floor and candidate, on one rig.  ``have``: an
+    earlier result of this rig; what it holds (with its swapped fold, when asked for) is kept, not computed again."""
+    from sklearn.base import clone
+
     R, y = d["R"], d["y"]
     tr, va, te = d["tr"], d["va"], d["te"]
-    out: dict = {}
+    out: dict = {k: v for k, v in (have or {}).items() if not k.startswith(("_", "pick"))
+                 and (not swap_val or "val_swap" in v)}
     t0 = time.perf_counter()
-    pk = package_svm(d)
-    cands = {"package SVM": (pk["model"], pk["cols"])}
-    cands.update(candidates(d, names))
+    pk = package_svm(d, (have or {}).get("_meta", {}).get("svm_params")) if "package SVM" not in out or net else None
+    cands = {"package SVM": (pk["model"], pk["cols"])} if pk is not None and "package SVM" not in out else {}
+    cands.update({k: v for k, v in candidates(d, names).items() if k not in out})
     for name, (model, cols) in cands.items():
         t1 = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
+            swap = clone(model).fit(R[va][:, cols], y[va]) if swap_val else None
             model.fit(R[tr][:, cols], y[tr])
         out[name] = {"val": float(np.mean(model.predict(R[va][:, cols]) == y[va])),
                      "test": float(np.mean(model.predict(R[te][:, cols]) == y[te])), "fit_s": time.perf_counter() - t1}
+        if swap is not None:  # the other fold of a two-session cross-validation: train on s001, score s000
+            out[name]["val_swap"] = float(np.mean(swap.predict(R[tr][:, cols]) == y[tr]))
     if net:
-        from training.augment import net_candidates  # torch: only with --net
-
         out.update(net_candidates(d, pk, log=log))
-    out["_meta"] = {"svm_params": pk["params"], "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
+    out["_meta"] = {"svm_params": (pk or {}).get("params") or (have or {}).get("_meta", {}).get("svm_params"), "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
                     "n_test": int(te.sum()), "n_bins": int(R.shape[1]), "rest_is_moving": d["rest_is_moving"],
                     "seconds": time.perf_counter() - t0}
+    return out
+
+
+# -- the networks (torch; --net) ---------------------------------------------------------------------------------
+def _detected(p_touch_logit: np.ndarray) -> np.ndarray:
+    return p_touch_logit >= 0.0
+
+
+def stream_rows(d: dict) -> dict:
+    """Masks for chirp-by-chirp scoring as the live loop sees a test stream: every chirp after each session's boot
+    calibration (the boot reference is the mean of those first beta chirps, so relative inputs are as replayed)."""
+    from sonicskin.features import training_targets
+
+    t, lay, sess = d["table"], d["layout"], d["session"]
+    train_s, val_s, test_s = d["split"]
+    boot = np.zeros(len(sess), bool)
+    boot[_leading(sess, d["beta"])] = True
+    cls, usable = training_targets(t, lay)
+    TE = np.isin(sess, test_s) & ~boot
+    return {"cls": cls, "TR": usable & np.isin(sess, train_s), "VA": usable & np.isin(sess, val_s), "TE": TE,
+            "touch_te": TE & d["te"], "quiet_te": TE & (d["y"] < 0), "n": len(lay), "ids": np.asarray(lay.ids)}
+
+
+def svm_head_metrics(d: dict, pk: dict, S: dict) -> dict:
+    """The package SVM with its detector and validated force model, chirp by chirp on the test streams."""
+    from sonicskin.features import quiet_mask
+    from sonicskin.force import energy_db, force_from_dict
+    from sonicskin.selection import select_on_inputs
+    from sonicskin.svm_head import fit_svm_head, ovo_decision, score_vector, touch_statistic
+
+    X = d["R"][:, pk["cols"]]
+    t, n, ids, cls, TR, VA = d["table"], S["n"], S["ids"], S["cls"], S["TR"], S["VA"]
+    p = pk["params"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sel = select_on_inputs(X, t, cls=cls, train_mask=TR, val_mask=VA, n_locations=n, location_ids=ids,
+                               selection={"svm": {"params": p}}, log=lambda m: None)
+    fs = sel.get("force") or {}
+    S["force_alpha"] = fs.get("alpha") or 10.0
+    pipe, prm = fit_svm_head(X[TR], cls[TR], d["force"][TR].astype(np.float32), quiet_mask(t)[TR], n_locations=n,
+                             location_ids=ids, C=p["C"], kernel_gamma=p["kernel_width"] / X.shape[1],
+                             force_model=fs.get("model", "fourier1"), force_alpha=fs.get("alpha") or 10.0)
+    V = score_vector(ovo_decision(pipe, X), n, X)
+    Vb = np.zeros_like(V)
+    sess = d["session"]
+    for s_ in np.unique(sess):  # each stream's boot reference of the score vector (Alg. 2's S_c)
+        idx = np.flatnonzero(sess == s_)
+        Vb[idx] = V[idx[:d["beta"]]].mean(axis=0)
+    stat = touch_statistic(V - Vb, n, prm["detector_bins"])
+    det = stat >= prm["threshold"]
+    loc = ids[np.argmax(V[:, :n], axis=1)]
+    fm = force_from_dict(prm["force"])
+    E = energy_db(X, np.arange(X.shape[1])) - prm["energy_ref_db"]
+    f = np.clip(fm.predict(E, loc, inputs=X), 0, None)
+    return _stream_scores(d, S, loc, det, f, val_loc=loc)
+
+
+def _stream_scores(d, S, loc, det, f, *, val_loc) -> dict:
+    y, F = d["y"], d["force"]
+    tt, qt = S["touch_te"], S["quiet_te"]
+    fsel = tt & det & np.isfinite(F)
+    va = d["va"]
+    return {"val": float(np.mean(val_loc[va] == y[va])), "test": float(np.mean(loc[d["te"]] == y[d["te"]])),
+            "missed": float(np.mean(~det[tt])), "false": float(np.mean(det[qt])),
+            "force_rmse_n": float(np.sqrt(np.mean((f[fsel] - F[fsel]) ** 2))) if fsel.any() else float("nan")}
+
+
+def net_metrics(d: dict, S: dict, predict, X: np.ndarray, *, threshold: float, force_alpha: float = 10.0,
+                force_first: tuple = (None, 300)) -> dict:
+    """A trained network (``predict``) on inputs ``X`` (every chirp): its touch decision chosen on the validation
+    session as ``compare`` chooses it (:func:`training.quick.choose_detector`), then scored on the test streams."""
+    from sonicskin.svm_head import DETECTOR_BINS
+    from sonicskin.training.augment import choose_force
+    from sonicskin.training.quick import choose_detector, touch_logit
+
+    n, ids, cls, VA = S["n"], S["ids"], S["cls"], S["VA"]
+    # its head or a pooled ridge (over every input or the first 300), chosen on validation as compare chooses
+    fc = choose_force(predict.model, X, cls, d["force"], fit_rows=S["TR"], val_rows=VA, location_ids=ids,
+                      alpha=force_alpha, first=force_first)
+    logits, f_all = predict(X)
+    ref = np.zeros(min(DETECTOR_BINS, X.shape[1]))
+    dch = choose_detector(logits[VA], X[VA], (cls < n)[VA], (d["y"] < 0)[VA], threshold=threshold, reference=ref,
+                          how="validation")
+    cfg = dch["config"]
+    tl = touch_logit(logits) + cfg["bias"]
+    rms = np.sqrt(np.mean((X[:, :ref.size] - ref) ** 2, axis=1))
+    det = {"head": tl >= 0, "input-rms": rms >= threshold, "either": (tl >= 0) | (rms >= threshold)}[cfg["mode"]]
+    k = np.argmax(logits[:, :n], axis=1)
+    f = np.clip(f_all[np.arange(len(k)), k], 0, None)
+    out = _stream_scores(d, S, ids[k], det, f, val_loc=ids[k])
+    out["detector"], out["force"] = dch["detector"], fc.get("force")
+    return out
+
+
+def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trunk: int = 300, layers=None, log=print) -> dict:
+    """The package's network (frozen SVM kernel, as ``compare`` trains it) and the augmented networks of
+    :mod:`training.augment`, each with its validated touch decision; plus the package SVM's own detector and force."""
+    from sonicskin.nuisance import ShrinkageLDA
+    from sonicskin.svm_head import fit_svm_head
+    from sonicskin.features import quiet_mask
+    from sonicskin.training.augment import Augmenter, fit_augmented_net, net_layers
+    from sonicskin.training.quick import fit_net
+
+    S = stream_rows(d)
+    n, cls, TR = S["n"], S["cls"], S["TR"]
+    F = d["force"].astype(np.float32)
+    out = {"svm head": svm_head_metrics(d, pk, S)}
+    Xs = d["R"][:, pk["cols"]]
+    _, prm = fit_svm_head(Xs[TR], cls[TR], F[TR], quiet_mask(d["table"])[TR], n_locations=n, location_ids=S["ids"])
+    thr = prm["threshold"]
+    t0 = time.perf_counter()
+    pred = fit_net(Xs[TR], cls[TR], F[TR], n_locations=n, epochs=epochs, seed=seed, kernel=True, kernel_lr=0.0)
+    out["net: SVM kernel (frozen)"] = {**net_metrics(d, S, pred, Xs, threshold=thr, force_alpha=S["force_alpha"]), "fit_s": time.perf_counter() - t0}
+    Xa = d["R"][:, d["order"]]  # every usable bin, OSPA order: the trunk reads the first n_trunk
+    from sklearn.preprocessing import normalize
+
+    lda = ShrinkageLDA().fit(Xa[d["tr"]], d["y"][d["tr"]])
+    lda_unit = ShrinkageLDA().fit(normalize(Xa[d["tr"]]), d["y"][d["tr"]])
+    lab = d["layout"].coords(np.unique(d["y"][d["tr"]]))
+    aug = Augmenter(d["R"][d["tr"]], d["y"][d["tr"]], d["press"][d["tr"]], cols=d["order"], freqs_hz=d["freqs_hz"],
+                    X_rest=d["R"][d["rest"]], positions_cm=lab, circumference_cm=d["layout"].circumference_cm)
+    rows = np.flatnonzero(TR)
+    pos = np.full(len(TR), -1)
+    pos[rows] = np.arange(rows.size)
+    touch_rows = pos[np.flatnonzero(d["tr"])]
+    for name, opts in (layers or net_layers()).items():
+        t0 = time.perf_counter()
+        pred = fit_augmented_net(Xa[rows], cls[rows], F[rows], n_locations=n, augmenter=aug, touch_rows=touch_rows,
+                                 lda=lda_unit if opts.get("unit_norm") else lda, epochs=epochs, seed=seed, n_trunk=n_trunk,
+                                 **opts)
+        out[f"net: {name}"] = {**net_metrics(d, S, pred, Xa, threshold=thr, force_alpha=S["force_alpha"]), "fit_s": time.perf_counter() - t0}
+        log(f"  net: {name}: {out[f'net: {name}']}")
     return out
 
 
@@ -215,18 +355,29 @@ def score_rig(d: dict, *, names=None, net: bool = False, log=print) -> dict:
 PICK_SETS = {
     "pick: SVM or floors": ["package SVM", "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)",
                             "floor level-removed LDA (all bins)"],
-    "pick: nuisance set": ["metric head (all bins)", "level+tilt LDA (all bins)", "floor level-removed LDA (all bins)",
-                           "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)", "package SVM"],
+    "pick: recommended set": ["normalized LDA (all bins)", "floor shrinkage LDA (all bins)",
+                              "floor normalized SVC (all bins)", "package SVM"],
+    "pick: wide set": ["normalized LDA (all bins)", "normalized LDA (OSPA 3000)", "level-removed normalized LDA (all bins)",
+                       "metric head: all kinds (all bins)", "level+tilt LDA (all bins)", "floor level-removed LDA (all bins)",
+                       "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)", "package SVM"],
 }
 
 
-def add_picks(res: dict, sets: dict | None = None) -> dict:
+def val_score(r: dict, how: str = "swap") -> float:
+    """What validation ranks by: accuracy on s001 (``"val"``), or its mean with the swapped fold (train on s001,
+    score s000; ``"swap"``), which halves the ties at 100 % of one session."""
+    if how == "swap" and "val_swap" in r:
+        return 0.5 * (r["val"] + r["val_swap"])
+    return r["val"]
+
+
+def add_picks(res: dict, sets: dict | None = None, how: str = "swap") -> dict:
     for pname, names in (sets or PICK_SETS).items():
         have = [n for n in names if n in res]
         if not have:
             continue
-        best = max(have, key=lambda n: (res[n]["val"], -have.index(n)))
-        res[pname] = {"val": res[best]["val"], "test": res[best]["test"], "chose": best}
+        best = max(have, key=lambda n: (val_score(res[n], how), -have.index(n)))
+        res[pname] = {"val": val_score(res[best], how), "test": res[best]["test"], "chose": best}
     return res
 
 
@@ -301,6 +452,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", nargs="*", help="only candidates whose name contains one of these")
     p.add_argument("--net", action="store_true", help="also the network candidates (torch; training.augment)")
     p.add_argument("--resume", action="store_true", help="keep per-rig results already in OUT/rows")
+    p.add_argument("--merge", action="store_true", help="keep the models already scored in OUT/rows, score only new ones")
     a = p.parse_args(argv)
     from sonicskin.seeds import scenario_dataset
 
@@ -312,12 +464,13 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for s in seeds:
         f = out / "rows" / f"{s}.json"
-        if a.resume and f.is_file():
-            rows[s] = json.loads(f.read_text())
+        old = json.loads(f.read_text()) if f.is_file() else None
+        if a.resume and old is not None:
+            rows[s] = old
             continue
         ds = scenario_dataset(a.scenario, s, cache, log=lambda *_: None)
         d = load_rig(ds.root, SPLITS[a.scenario])
-        res = add_picks(score_rig(d, names=a.only, net=a.net))
+        res = add_picks(score_rig(d, names=a.only, net=a.net, have=old if a.merge else None))
         f.write_text(json.dumps(res, indent=1))
         rows[s] = res
         best = ", ".join(f"{k} {100 * v['test']:.1f}" for k, v in res.items() if not k.startswith("_"))

@@ -76,25 +76,51 @@ class MetricSkinNet(SkinNet):
 
     The force head reads the trunk and the (softmaxed) location scores, as the kernel layer's reads its RBF units.
     Call :meth:`init_from_lda` before training so the place starts as the LDA's.
+
+    ``n_trunk``: the trunk (touch and force) reads only the first ``n_trunk`` inputs (the best OSPA bins, as the
+    SVM's input-RMS detector does, :data:`sonicskin.svm_head.DETECTOR_BINS`) while the metric layer reads all of
+    them; ``None``: every input.
+
+    ``unit_norm``: the metric layer reads each chirp's relative spectrum scaled to unit length (the *shape* of the
+    touch; scikit-learn's ``Normalizer`` before the LDA), the trunk the raw inputs (touch and force need the
+    *strength*).  Initialise it from an LDA fitted on unit-length inputs.
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
-                 dropout: float = 0.1, input_dropout: float = 0.0):
+                 dropout: float = 0.1, input_dropout: float = 0.0, n_trunk: int | None = None, unit_norm: bool = False):
         super().__init__(n_in, n_locations, hidden, dropout, input_dropout, n_centres=0)
-        width = hidden[-1] if hidden else n_in
+        self.unit_norm = bool(unit_norm)
+        self.n_trunk = n_in if n_trunk is None else int(min(max(n_trunk, 1), n_in))
+        if self.n_trunk != n_in:  # the trunk again, over the first n_trunk inputs
+            layers: list[nn.Module] = [nn.Dropout(input_dropout)] if input_dropout > 0 else []
+            width = self.n_trunk
+            for h in hidden:
+                layers += [nn.Linear(width, h), nn.GELU(), nn.Dropout(dropout)]
+                width = h
+            self.trunk = nn.Sequential(*layers)
+        width = hidden[-1] if hidden else self.n_trunk
         self.metric = MetricVotes(n_in, n_locations)
         self.location = nn.Linear(width, 1)              # the touch logit
         self.force = nn.Linear(width + n_locations, n_locations)
 
     def init_from_lda(self, lda, mean, std, **kw) -> None:
-        """Set the normalisation to ``mean``/``std`` and the metric layer to ``lda`` (fitted on raw inputs)."""
+        """Set the normalisation to ``mean``/``std`` and the metric layer to ``lda`` (fitted on the raw inputs, or on
+        unit-length inputs with ``unit_norm``)."""
         self.set_normalization(mean, std)
-        self.metric.load_state_dict(MetricVotes.from_lda(lda, self.mean.numpy(), self.std.numpy(), **kw).state_dict())
+        if self.unit_norm:  # the layer reads unit-length chirps directly (no standardisation)
+            layer = MetricVotes.from_lda(lda, np.zeros(self.n_in), np.ones(self.n_in), **kw)
+        else:
+            layer = MetricVotes.from_lda(lda, self.mean.numpy(), self.std.numpy(), **kw)
+        self.metric.load_state_dict(layer.state_dict())
+
+    def shape(self, x: torch.Tensor) -> torch.Tensor:
+        """Each chirp scaled to unit length (its touch's shape), as scikit-learn's ``Normalizer``."""
+        return x / torch.sqrt(torch.sum(x * x, 1, keepdim=True)).clamp_min(1e-12)
 
     def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         z = self.standardize(x)
-        h = self.trunk(z)
-        scores = self.metric(z)
+        h = self.trunk(z[:, :self.n_trunk])
+        scores = self.metric(self.shape(x) if self.unit_norm else z)
         t = self.location(h)
         soft = torch.log(1.0 + torch.exp(-t.abs()))
         place = torch.log_softmax(scores, 1)

@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-__all__ = ["AUGMENTATIONS", "Augmenter", "fit_augmented_net", "net_layers"]
+__all__ = ["AUGMENTATIONS", "Augmenter", "fit_augmented_net", "net_layers", "choose_force", "choose_net_layer"]
 
 #: augmentations and their default size (see the module notes)
 AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "gain": 0.3, "tilt": 0.3, "motion": 1.0}
@@ -143,6 +143,8 @@ def net_layers() -> dict:
     """The location layers the augmented network can have: name -> options of :func:`fit_augmented_net`."""
     return {"metric (LDA init, frozen)": {"layer": "metric", "metric_lr": 0.0},
             "metric (LDA init, fine-tuned)": {"layer": "metric", "metric_lr": 1e-3},
+            "metric (normalized LDA init, frozen)": {"layer": "metric", "metric_lr": 0.0, "unit_norm": True},
+            "metric (normalized LDA init, fine-tuned)": {"layer": "metric", "metric_lr": 1e-3, "unit_norm": True},
             "MLP": {"layer": "mlp"}}
 
 
@@ -150,7 +152,7 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
                       layer: str = "metric", lda=None, metric_lr: float = 1e-3, epochs: int = 40, seed: int = 0,
                       batch_size: int = 128, hidden=(128, 128), dropout: float = 0.3, lr: float = 2e-3,
                       weight_decay: float = 1e-2, force_weight: float = 0.1, noise_db: float = 0.3, aug_share: float = 0.5,
-                      target_margin: float | None = 8.0, log=None):
+                      target_margin: float | None = 8.0, n_trunk: int | None = None, unit_norm: bool = False, log=None):
     """Train a network on (X, cls, force) with augmented touch chirps; returns ``predict(X) -> (logits, force)``
     with ``predict.model`` the torch module (a :class:`models.SkinNet` / :class:`models.metric.MetricSkinNet`,
     exported as any SkinNet).
@@ -160,7 +162,9 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
     rows are joined by one augmented copy of ``aug_share`` of them (labels and forces of their originals).
     ``layer``: ``"metric"`` (:class:`~models.metric.MetricVotes` initialised from ``lda``, a fitted
     :class:`sonicskin.nuisance.ShrinkageLDA` on the same inputs' touch chirps; ``metric_lr`` 0 keeps it frozen) or
-    ``"mlp"`` (SkinNet without a kernel layer).
+    ``"mlp"`` (SkinNet without a kernel layer).  ``n_trunk``: the metric network's trunk (touch, force) reads the
+    first ``n_trunk`` inputs only, and with ``unit_norm`` its metric layer reads unit-length chirps (``lda`` then fitted
+    on ``Normalizer()``-ed touch chirps) (:class:`~models.metric.MetricSkinNet`).
     """
     import torch
     import torch.nn.functional as F
@@ -180,7 +184,7 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
     if layer == "metric":
         if lda is None:
             raise ValueError("the metric layer starts from a fitted ShrinkageLDA on the same inputs (lda=...)")
-        model = MetricSkinNet(n_in, n_locations, tuple(hidden), dropout)
+        model = MetricSkinNet(n_in, n_locations, tuple(hidden), dropout, n_trunk=n_trunk, unit_norm=unit_norm)
         model.init_from_lda(lda, mean, std, target_margin=target_margin)
     elif layer == "mlp":
         model = SkinNet(n_in, n_locations, tuple(hidden), dropout)
@@ -235,3 +239,81 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
 
     predict.model = model
     return predict
+
+
+def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
+                 first: tuple = (None, 300), how: str = "validation") -> dict:
+    """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
+    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
+    (the best OSPA bins; zero weight on the rest, so :meth:`models.SkinNet.set_force` takes it unchanged).
+    :func:`training.quick.choose_net_force` with the choice of inputs added: a ridge over thousands of bins fits
+    one session's presses more loosely than over the few hundred the SVM's force reads.  Sets the model's force."""
+    import torch
+
+    from sonicskin.force import PooledForce
+
+    ids = np.asarray(location_ids)
+    n_loc, n_in = len(ids), X.shape[1]
+    f = np.asarray(force, np.float64)
+    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
+    vr = val_rows & (cls < n_loc) & np.isfinite(f)
+    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
+        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
+    model.set_force(None)
+    with torch.no_grad():
+        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
+    cand = {"head": (np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None), None)}
+    for k in first:
+        k = n_in if k is None else min(int(k), n_in)
+        name = "pooled-ridge" if k == n_in else f"pooled-ridge (first {k} inputs)"
+        if name in cand:
+            continue
+        pf = PooledForce(alpha).fit(X[fr][:, :k], f[fr], ids[cls[fr]])
+        coef = np.zeros(n_in)
+        coef[:k] = pf.coef_
+        pred = np.clip(X[vr] @ coef + np.array([pf.loc_coef_.get(int(i), 0.0) for i in ids[cls[vr]]]) + pf.intercept_, 0, None)
+        cand[name] = (pred, {"coef": coef, "loc": [pf.loc_coef_[int(i)] + pf.intercept_ for i in ids]})
+    rmse = {k: float(np.sqrt(np.mean((p - f[vr]) ** 2))) for k, (p, _) in cand.items()}
+    best = min(rmse, key=rmse.get)
+    if cand[best][1] is not None:
+        model.set_force(cand[best][1])
+    return {"force": best, "force_how": f"{how}: " + ", ".join(f"{k} {v:.2f} N" for k, v in rmse.items()), "force_rmse": rmse}
+
+
+def choose_net_layer(X, cls, force, *, n_locations: int, train, val, augmenter: Augmenter | None, touch_rows,
+                     lda=None, lda_unit=None, kernel_fit=None, layers: dict | None = None, seed: int = 0,
+                     epochs: int = 40, n_trunk: int = 300, log=None) -> dict:
+    """Train each candidate location layer on the ``train`` rows and keep the one with the best touch accuracy on
+    the ``val`` rows (ties: the first of ``layers``, default :func:`net_layers`).
+
+    ``X`` (n, n_in): every chirp's inputs (every usable bin, OSPA order, so the trunk reads the best ``n_trunk``);
+    ``touch_rows``: positions *within the train rows* of the augmenter's chirps; ``lda`` / ``lda_unit``: fitted
+    :class:`sonicskin.nuisance.ShrinkageLDA` on the training touch chirps (raw / unit-length) for the metric
+    layers; ``kernel_fit``: a callable ``() -> predict`` training the package's kernel network (the SVM copy) to
+    compete as ``"SVM kernel (frozen)"``.  Returns ``{"location_layer", "scores", "predict"}`` (the winner's
+    ``predict``, trained on the train rows).
+    """
+    layers = dict(net_layers() if layers is None else layers)
+    train, val = np.asarray(train, bool), np.asarray(val, bool)
+    rows = np.flatnonzero(train)
+    vt = val & (np.asarray(cls) < n_locations)
+    scores, preds = {}, {}
+    for name, opts in layers.items():
+        opts = dict(opts)
+        model_lda = lda_unit if opts.get("unit_norm") else lda
+        if opts.get("layer") == "metric" and model_lda is None:
+            continue
+        pred = fit_augmented_net(X[rows], cls[rows], force[rows], n_locations=n_locations, augmenter=augmenter,
+                                 touch_rows=touch_rows, lda=model_lda, seed=seed, epochs=epochs, n_trunk=n_trunk, **opts)
+        lg, _ = pred(X[vt])
+        scores[name] = float(np.mean(lg[:, :n_locations].argmax(1) == cls[vt]))
+        preds[name] = pred
+    if kernel_fit is not None:
+        pred = kernel_fit()
+        lg, _ = pred(X[vt][:, :pred.model.n_in]) if pred.model.n_in < X.shape[1] else pred(X[vt])
+        scores["SVM kernel (frozen)"] = float(np.mean(lg[:, :n_locations].argmax(1) == cls[vt]))
+        preds["SVM kernel (frozen)"] = pred
+    best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))
+    if log:
+        log("network location layer: " + best + " (validation: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()) + ")")
+    return {"location_layer": best, "scores": scores, "predict": preds[best]}
