@@ -342,10 +342,14 @@ def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trun
     touch_rows = pos[np.flatnonzero(d["tr"])]
     for name, opts in (layers or net_layers()).items():
         t0 = time.perf_counter()
-        pred = fit_augmented_net(Xa[rows], cls[rows], F[rows], n_locations=n, augmenter=aug, touch_rows=touch_rows,
+        opts = dict(opts)
+        k = opts.pop("n_inputs", None) or Xa.shape[1]
+        pred = fit_augmented_net(Xa[rows][:, :k], cls[rows], F[rows], n_locations=n,
+                                 augmenter=aug.restricted(k) if k < Xa.shape[1] else aug, touch_rows=touch_rows,
                                  lda=lda_unit if opts.get("unit_norm") else lda, epochs=epochs, seed=seed, n_trunk=n_trunk,
                                  **opts)
-        out[f"net: {name}"] = {**net_metrics(d, S, pred, Xa, threshold=thr, force_alpha=S["force_alpha"]), "fit_s": time.perf_counter() - t0}
+        out[f"net: {name}"] = {**net_metrics(d, S, pred, Xa[:, :k], threshold=thr, force_alpha=S["force_alpha"]),
+                               "fit_s": time.perf_counter() - t0}
         log(f"  net: {name}: {out[f'net: {name}']}")
     return out
 
@@ -360,6 +364,8 @@ PICK_SETS = {
     "pick: wide set": ["normalized LDA (all bins)", "normalized LDA (OSPA 3000)", "level-removed normalized LDA (all bins)",
                        "metric head: all kinds (all bins)", "level+tilt LDA (all bins)", "floor level-removed LDA (all bins)",
                        "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)", "package SVM"],
+    "pick: network": ["net: MLP, every bin (augmented)", "net: MLP, 1000 bins (augmented)", "net: metric (normalized LDA)",
+                      "net: SVM kernel (frozen)"],
 }
 
 

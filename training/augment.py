@@ -101,6 +101,14 @@ class Augmenter:
                 near = np.array([j for j in others if Dm[k, j] <= Dm[k, others[0]] * 1.5][:4], int)
                 self.neigh.append((near, Dm[k, near]))
 
+    def restricted(self, k: int) -> Augmenter:
+        """The same augmenter returning only the first ``k`` of its input columns."""
+        import copy
+
+        out = copy.copy(self)
+        out.cols = self.cols[:k]
+        return out
+
     def draw(self, rng: np.random.Generator, rows: np.ndarray | None = None) -> np.ndarray:
         """Augmented copies of the touch chirps ``rows`` (default: all), over the input columns."""
         rows = np.arange(len(self.X)) if rows is None else np.asarray(rows, int)
@@ -140,19 +148,19 @@ class Augmenter:
 
 # -- the network -----------------------------------------------------------------------------------------------
 def net_layers() -> dict:
-    """The location layers the augmented network can have: name -> options of :func:`fit_augmented_net`."""
-    return {"metric (LDA init, frozen)": {"layer": "metric", "metric_lr": 0.0},
-            "metric (LDA init, fine-tuned)": {"layer": "metric", "metric_lr": 1e-3},
-            "metric (normalized LDA init, frozen)": {"layer": "metric", "metric_lr": 0.0, "unit_norm": True},
-            "metric (normalized LDA init, fine-tuned)": {"layer": "metric", "metric_lr": 1e-3, "unit_norm": True},
-            "MLP": {"layer": "mlp"}}
+    """The location layers the augmented network can have: name -> options of :func:`fit_augmented_net`, plus
+    ``n_inputs``: the network reads only the first (best, OSPA order) that many inputs (``None``: all)."""
+    return {"MLP, every bin (augmented)": {"layer": "mlp"},
+            "MLP, 1000 bins (augmented)": {"layer": "mlp", "n_inputs": 1000},
+            "metric (normalized LDA)": {"layer": "metric", "metric_lr": 0.0, "unit_norm": True}}
 
 
 def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter | None = None, touch_rows=None,
                       layer: str = "metric", lda=None, metric_lr: float = 1e-3, epochs: int = 40, seed: int = 0,
                       batch_size: int = 128, hidden=(128, 128), dropout: float = 0.3, lr: float = 2e-3,
                       weight_decay: float = 1e-2, force_weight: float = 0.1, noise_db: float = 0.3, aug_share: float = 0.5,
-                      target_margin: float | None = 8.0, n_trunk: int | None = None, unit_norm: bool = False, log=None):
+                      target_margin: float | None = 8.0, n_trunk: int | None = None, unit_norm: bool = False,
+                      n_members: int = 1, log=None):
     """Train a network on (X, cls, force) with augmented touch chirps; returns ``predict(X) -> (logits, force)``
     with ``predict.model`` the torch module (a :class:`models.SkinNet` / :class:`models.metric.MetricSkinNet`,
     exported as any SkinNet).
@@ -162,7 +170,8 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
     rows are joined by one augmented copy of ``aug_share`` of them (labels and forces of their originals).
     ``layer``: ``"metric"`` (:class:`~models.metric.MetricVotes` initialised from ``lda``, a fitted
     :class:`sonicskin.nuisance.ShrinkageLDA` on the same inputs' touch chirps; ``metric_lr`` 0 keeps it frozen) or
-    ``"mlp"`` (SkinNet without a kernel layer).  ``n_trunk``: the metric network's trunk (touch, force) reads the
+    ``"mlp"`` (SkinNet without a kernel layer).  ``n_members`` > 1: that many networks trained with seeds ``seed``,
+    ``seed + 1``, ... averaged (:class:`~models.metric.SkinEnsemble`).  ``n_trunk``: the metric network's trunk (touch, force) reads the
     first ``n_trunk`` inputs only, and with ``unit_norm`` its metric layer reads unit-length chirps (``lda`` then fitted
     on ``Normalizer()``-ed touch chirps) (:class:`~models.metric.MetricSkinNet`).
     """
@@ -171,8 +180,23 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
 
     from sonicskin import threads
     from sonicskin.models import SkinNet
-    from sonicskin.models.metric import MetricSkinNet
+    from sonicskin.models.metric import MetricSkinNet, SkinEnsemble
 
+    if n_members > 1:
+        kw = dict(n_locations=n_locations, augmenter=augmenter, touch_rows=touch_rows, layer=layer, lda=lda,
+                  metric_lr=metric_lr, epochs=epochs, batch_size=batch_size, hidden=hidden, dropout=dropout, lr=lr,
+                  weight_decay=weight_decay, force_weight=force_weight, noise_db=noise_db, aug_share=aug_share,
+                  target_margin=target_margin, n_trunk=n_trunk, unit_norm=unit_norm)
+        members = [fit_augmented_net(X, cls, force, seed=seed + i, **kw).model for i in range(n_members)]
+        model = SkinEnsemble(members).eval()
+
+        def predict(Xq):
+            with torch.no_grad():
+                lg, f = model(torch.from_numpy(np.ascontiguousarray(Xq, np.float32)))
+            return lg.numpy(), f.numpy()
+
+        predict.model = model
+        return predict
     threads.apply_torch()
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -287,7 +311,8 @@ def choose_net_layer(X, cls, force, *, n_locations: int, train, val, augmenter: 
     the ``val`` rows (ties: the first of ``layers``, default :func:`net_layers`).
 
     ``X`` (n, n_in): every chirp's inputs (every usable bin, OSPA order, so the trunk reads the best ``n_trunk``);
-    ``touch_rows``: positions *within the train rows* of the augmenter's chirps; ``lda`` / ``lda_unit``: fitted
+    ``touch_rows``: positions *within the train rows* of the augmenter's chirps (its input columns are ``X``'s; a layer
+    with ``n_inputs`` reads the first that many, and ``predict.n_inputs`` says how many); ``lda`` / ``lda_unit``: fitted
     :class:`sonicskin.nuisance.ShrinkageLDA` on the training touch chirps (raw / unit-length) for the metric
     layers; ``kernel_fit``: a callable ``() -> predict`` training the package's kernel network (the SVM copy) to
     compete as ``"SVM kernel (frozen)"``.  Returns ``{"location_layer", "scores", "predict"}`` (the winner's
@@ -300,12 +325,15 @@ def choose_net_layer(X, cls, force, *, n_locations: int, train, val, augmenter: 
     scores, preds = {}, {}
     for name, opts in layers.items():
         opts = dict(opts)
+        k = opts.pop("n_inputs", None) or X.shape[1]
         model_lda = lda_unit if opts.get("unit_norm") else lda
-        if opts.get("layer") == "metric" and model_lda is None:
+        if opts.get("layer") == "metric" and (model_lda is None or model_lda.n_features_in_ != k):
             continue
-        pred = fit_augmented_net(X[rows], cls[rows], force[rows], n_locations=n_locations, augmenter=augmenter,
+        aug = augmenter.restricted(k) if augmenter is not None and k < X.shape[1] else augmenter
+        pred = fit_augmented_net(X[rows][:, :k], cls[rows], force[rows], n_locations=n_locations, augmenter=aug,
                                  touch_rows=touch_rows, lda=model_lda, seed=seed, epochs=epochs, n_trunk=n_trunk, **opts)
-        lg, _ = pred(X[vt])
+        pred.n_inputs = k
+        lg, _ = pred(X[vt][:, :k])
         scores[name] = float(np.mean(lg[:, :n_locations].argmax(1) == cls[vt]))
         preds[name] = pred
     if kernel_fit is not None:
