@@ -1,29 +1,35 @@
-"""One press per marker: the package's SVM, the plain floors and nuisance-aware candidates, fast (issue 26).
+"""One press per marker: the package's SVM, the plain floors, nuisance-aware candidates and networks (issue 26).
 
     nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py                      # design seeds 0-9 of `random`
-    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --seeds design 100-139
-    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --scenario moving --seeds 0 1 2
-    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --net               # also the torch candidates
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --seeds design 100-139 --net
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --scenario moving --seeds 0 1 2 --net
+    nice -n 10 .venv/bin/python benchmarks/oneshot_probe.py --merge --net         # add the networks to earlier rows
 
 Per rig (a simulated dataset, cached under ``--cache``): the features of every usable bin, relative to each
 session's boot reference (the mean of its first ``beta`` chirps, Alg. 2's hands-off calibration, the same
-reference the live loop boots on; no label is read to form it), then every model is trained on the touch
-chirps of the training session, scored on the validation session (s001) and on every touch chirp of the test
-sessions (s002, s003; they are given the touch decision, as the benchmarks' floors are):
+reference the live loop boots on; no label is read to form it).  Every model is trained on the touch chirps of
+the training session (s000), scored on the validation session (s001) and on every touch chirp of the test
+sessions (s002, s003; given the touch decision, as the benchmarks' floors are):
 
 - ``package SVM``: the package's own path (gamma, C and kernel width validated on s001 by
   :func:`sonicskin.selection.select_gamma_on_table`; OSPA bins on s000; scaler + RBF SVC);
-- the plain floors of issue 26: SVC on every usable bin (defaults), shrinkage LDA (1000 OSPA bins and every
-  usable bin), Normalizer + scaler + SVC(C=10) on 300 OSPA bins and on every bin, and LDA / SVC after
+- the plain floors of issue 26 (``floor ...``): SVC on every usable bin (defaults), shrinkage LDA (1000 OSPA bins
+  and every usable bin), Normalizer + scaler + SVC(C=10) on 300 OSPA bins and on every bin, LDA / SVC after
   per-chirp mean-level removal;
-- the candidates of :mod:`sonicskin.nuisance` (and with ``--net`` the network of ``training.augment``).
+- the candidates of :mod:`sonicskin.nuisance` (normalized LDA, level / tilt removal, metric heads);
+- with ``--net`` the networks, chirp by chirp on the test streams as the live loop sees them (the touch decision
+  chosen on s001 by :func:`training.quick.choose_detector`, and the alternative ``either`` = head or the SVM's
+  input-RMS detector; force: its head or a pooled ridge chosen on s001): the package's SVM-kernel network
+  (``net: SVM kernel (frozen)``, the copy of the SVM) and the augmented networks of :mod:`training.augment`;
+  ``svm head`` is the package SVM with its own detector and validated force model on the same streams.
 
-A *validated pick* takes, per rig, the candidate of a list (``PICK_SETS``) with the best accuracy on s001
-(ties: the first in the list) and reports its test accuracy: what the product would do.  The best candidate
-in hindsight is not a result.  Printed: mean +- std over rigs, and paired differences against the package
-SVM with 95 % Student t intervals (the unit is the rig).
+Validation: every sklearn candidate is also fitted on s001 and scored on s000 (``val_swap``); a *validated pick*
+(``PICK_SETS``) takes per rig the candidate with the best mean of the two folds (networks: s001 only; ties: the
+first listed) and reports its test accuracy: what the product would do.  The best candidate in hindsight is not a
+result.  Printed: mean +- std over rigs and paired differences against the package SVM with 95 % Student t
+intervals (the unit is the rig).  Rows go to ``OUT/<scenario>/rows/<seed>.json``, the table to ``summary.md``.
 
-The held-out seeds of issue 26 (7001-7032, 7101-7103) are refused: this is a development tool.
+The held-out seeds of issue 26 (7001-7032, 7101-7103; anything in 7000-7999) are refused: a development tool.
 """
 
 from __future__ import annotations
@@ -306,6 +312,10 @@ def net_metrics(d: dict, S: dict, predict, X: np.ndarray, *, threshold: float, f
     f = np.clip(f_all[np.arange(len(k)), k], 0, None)
     out = _stream_scores(d, S, ids[k], det, f, val_loc=ids[k])
     out["detector"], out["force"] = dch["detector"], fc.get("force")
+    # the alternative that cannot miss more than the SVM's detector: the head (recalibrated) or the input RMS
+    either = (tl >= 0) | (rms >= threshold)
+    out["missed_either"] = float(np.mean(~either[S["touch_te"]]))
+    out["false_either"] = float(np.mean(either[S["quiet_te"]]))
     return out
 
 
@@ -340,7 +350,9 @@ def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trun
     pos = np.full(len(TR), -1)
     pos[rows] = np.arange(rows.size)
     touch_rows = pos[np.flatnonzero(d["tr"])]
-    for name, opts in (layers or net_layers()).items():
+    layers = dict(layers or net_layers())
+    layers["MLP, the SVM's bins (augmented)"] = {"layer": "mlp", "n_inputs": len(pk["cols"])}  # its validated gamma
+    for name, opts in layers.items():
         t0 = time.perf_counter()
         opts = dict(opts)
         k = opts.pop("n_inputs", None) or Xa.shape[1]
@@ -365,8 +377,12 @@ PICK_SETS = {
                        "metric head: all kinds (all bins)", "level+tilt LDA (all bins)", "floor level-removed LDA (all bins)",
                        "floor shrinkage LDA (all bins)", "floor normalized SVC (all bins)", "package SVM"],
     "pick: network": ["net: MLP, every bin (augmented)", "net: MLP, 1000 bins (augmented)", "net: metric (normalized LDA)",
-                      "net: SVM kernel (frozen)"],
+                      "net: MLP, the SVM's bins (augmented)", "net: SVM kernel (frozen)"],
 }
+
+
+#: what the networks (and the SVM with its own detector, "svm head") report beside accuracy
+EXTRA = ("missed", "false", "missed_either", "false_either", "force_rmse_n")
 
 
 def val_score(r: dict, how: str = "swap") -> float:
@@ -383,7 +399,8 @@ def add_picks(res: dict, sets: dict | None = None, how: str = "swap") -> dict:
         if not have:
             continue
         best = max(have, key=lambda n: (val_score(res[n], how), -have.index(n)))
-        res[pname] = {"val": val_score(res[best], how), "test": res[best]["test"], "chose": best}
+        res[pname] = {**{k: v for k, v in res[best].items() if k in EXTRA}, "val": val_score(res[best], how),
+                      "test": res[best]["test"], "chose": best}
     return res
 
 
@@ -412,18 +429,23 @@ def summarize(rows: dict, ref: str = "package SVM") -> list[dict]:
             c = rows[s][n].get("chose")
             if c:
                 chose[c] = chose.get(c, 0) + 1
+        extra = {k: float(np.nanmean([rows[s][n][k] for s in have])) for k in EXTRA if all(k in rows[s][n] for s in have)}
         out.append({"name": n, "n": len(have), "test_mean": float(te.mean()), "test_std": float(te.std(ddof=1)) if te.size > 1 else 0.0,
-                    "val_mean": float(va.mean()), "diff_mean": float(dif.mean()), "diff_ci95": [lo, hi], "chose": chose})
+                    "val_mean": float(va.mean()), "diff_mean": float(dif.mean()), "diff_ci95": [lo, hi], "chose": chose, **extra})
     return out
 
 
 def format_table(summary: list[dict], title: str) -> str:
-    lines = [title, "", "| model | test accuracy (mean ± std) | s001 (validation) | − package SVM [95 % CI] |", "|---|---|---|---|"]
+    lines = [title, "", "| model | test accuracy (mean ± std) | s001 (validation) | − package SVM [95 % CI] | missed / false "
+             "touches (validated detector; 'either') | force RMSE |", "|---|---|---|---|---|---|"]
     for r in summary:
         lo, hi = r["diff_ci95"]
         ch = ("; chose " + ", ".join(f"{k} {v}x" for k, v in sorted(r["chose"].items(), key=lambda kv: -kv[1]))) if r["chose"] else ""
+        det = (f"{100 * r['missed']:.2f} / {100 * r['false']:.2f} %" if "missed" in r else "") + (
+            f"; {100 * r['missed_either']:.2f} / {100 * r['false_either']:.2f} %" if "missed_either" in r else "")
+        frc = f"{r['force_rmse_n']:.2f} N" if "force_rmse_n" in r else ""
         lines.append(f"| {r['name']}{ch} | {100 * r['test_mean']:.1f} ± {100 * r['test_std']:.1f} % | {100 * r['val_mean']:.1f} % | "
-                     f"{100 * r['diff_mean']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}] |")
+                     f"{100 * r['diff_mean']:+.1f} [{100 * lo:+.1f}, {100 * hi:+.1f}] | {det} | {frc} |")
     return "\n".join(lines)
 
 
