@@ -23,9 +23,8 @@ sessions (s002, s003; given the touch decision, as the benchmarks' floors are):
   (``net: SVM kernel (frozen)``, the copy of the SVM) and the augmented networks of :mod:`training.augment`;
   ``svm head`` is the package SVM with its own detector and validated force model on the same streams.
 
-Validation: every sklearn candidate is also fitted on s001 and scored on s000 (``val_swap``); a *validated pick*
-(``PICK_SETS``) takes per rig the candidate with the best mean of the two folds (networks: s001 only; ties: the
-first listed) and reports its test accuracy: what the product would do.  The best candidate in hindsight is not a
+Validation: every candidate (networks too) is also fitted on s001 and scored on s000 (``val_swap``); a *validated
+pick* (``PICK_SETS``) takes per rig the candidate with the best mean of the two folds (ties: the first listed) and reports its test accuracy: what the product would do.  The best candidate in hindsight is not a
 result.  Printed: mean +- std over rigs and paired differences against the package SVM with 95 % Student t
 intervals (the unit is the rig).  Rows go to ``OUT/<scenario>/rows/<seed>.json``, the table to ``summary.md``.
 
@@ -217,7 +216,7 @@ def score_rig(d: dict, *, names=None, net: bool = False, swap_val: bool = True, 
         if swap is not None:  # the other fold of a two-session cross-validation: train on s001, score s000
             out[name]["val_swap"] = float(np.mean(swap.predict(R[tr][:, cols]) == y[tr]))
     if net:
-        out.update(net_candidates(d, pk, log=log))
+        out.update(net_candidates(d, pk, swap_val=swap_val, log=log))
     out["_meta"] = {"svm_params": (pk or {}).get("params") or (have or {}).get("_meta", {}).get("svm_params"), "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
                     "n_test": int(te.sum()), "n_bins": int(R.shape[1]), "rest_is_moving": d["rest_is_moving"],
                     "seconds": time.perf_counter() - t0}
@@ -319,49 +318,76 @@ def net_metrics(d: dict, S: dict, predict, X: np.ndarray, *, threshold: float, f
     return out
 
 
-def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trunk: int = 300, layers=None, log=print) -> dict:
+def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trunk: int = 300, layers=None,
+                   swap_val: bool = True, log=print) -> dict:
     """The package's network (frozen SVM kernel, as ``compare`` trains it) and the augmented networks of
-    :mod:`training.augment`, each with its validated touch decision; plus the package SVM's own detector and force."""
+    :mod:`training.augment`, each with its validated touch decision; plus the package SVM's own detector and force.
+    ``swap_val``: each network is also trained on the validation session and scored on the training session's
+    touches (``val_swap``, the second fold of the validation, as for the sklearn candidates)."""
+    from sklearn.preprocessing import normalize
+
+    from sonicskin.features import quiet_mask
     from sonicskin.nuisance import ShrinkageLDA
     from sonicskin.svm_head import fit_svm_head
-    from sonicskin.features import quiet_mask
     from sonicskin.training.augment import Augmenter, fit_augmented_net, net_layers
     from sonicskin.training.quick import fit_net
 
     S = stream_rows(d)
-    n, cls, TR = S["n"], S["cls"], S["TR"]
+    n, cls, TR, VA = S["n"], S["cls"], S["TR"], S["VA"]
     F = d["force"].astype(np.float32)
+    y, sess = d["y"], d["session"]
     out = {"svm head": svm_head_metrics(d, pk, S)}
     Xs = d["R"][:, pk["cols"]]
     _, prm = fit_svm_head(Xs[TR], cls[TR], F[TR], quiet_mask(d["table"])[TR], n_locations=n, location_ids=S["ids"])
     thr = prm["threshold"]
+
+    def swap_acc(pred, X):  # trained on the validation session: accuracy on the training session's touches
+        lg, _ = pred(X[d["tr"]])
+        return float(np.mean(lg[:, :n].argmax(1) == cls[d["tr"]]))
+
     t0 = time.perf_counter()
     pred = fit_net(Xs[TR], cls[TR], F[TR], n_locations=n, epochs=epochs, seed=seed, kernel=True, kernel_lr=0.0)
-    out["net: SVM kernel (frozen)"] = {**net_metrics(d, S, pred, Xs, threshold=thr, force_alpha=S["force_alpha"]), "fit_s": time.perf_counter() - t0}
+    out["net: SVM kernel (frozen)"] = {**net_metrics(d, S, pred, Xs, threshold=thr, force_alpha=S["force_alpha"]),
+                                       "fit_s": time.perf_counter() - t0}
+    if swap_val:
+        out["net: SVM kernel (frozen)"]["val_swap"] = swap_acc(
+            fit_net(Xs[VA], cls[VA], F[VA], n_locations=n, epochs=epochs, seed=seed, kernel=True, kernel_lr=0.0), Xs)
     Xa = d["R"][:, d["order"]]  # every usable bin, OSPA order: the trunk reads the first n_trunk
-    from sklearn.preprocessing import normalize
+    lab = d["layout"].coords(np.unique(y[d["tr"]]))
 
-    lda = ShrinkageLDA().fit(Xa[d["tr"]], d["y"][d["tr"]])
-    lda_unit = ShrinkageLDA().fit(normalize(Xa[d["tr"]]), d["y"][d["tr"]])
-    lab = d["layout"].coords(np.unique(d["y"][d["tr"]]))
-    aug = Augmenter(d["R"][d["tr"]], d["y"][d["tr"]], d["press"][d["tr"]], cols=d["order"], freqs_hz=d["freqs_hz"],
-                    X_rest=d["R"][d["rest"]], positions_cm=lab, circumference_cm=d["layout"].circumference_cm)
-    rows = np.flatnonzero(TR)
-    pos = np.full(len(TR), -1)
-    pos[rows] = np.arange(rows.size)
-    touch_rows = pos[np.flatnonzero(d["tr"])]
+    def session_fit(fit_rows: np.ndarray, touch: np.ndarray, rest: np.ndarray):
+        """What a network needs of one session: its LDAs, its augmenter and the positions of its touches."""
+        lda = ShrinkageLDA().fit(Xa[touch], y[touch])
+        lda_unit = ShrinkageLDA().fit(normalize(Xa[touch]), y[touch])
+        aug = Augmenter(d["R"][touch], y[touch], d["press"][touch], cols=d["order"], freqs_hz=d["freqs_hz"],
+                        X_rest=d["R"][rest], positions_cm=lab, circumference_cm=d["layout"].circumference_cm)
+        rows = np.flatnonzero(fit_rows)
+        pos = np.full(len(fit_rows), -1)
+        pos[rows] = np.arange(rows.size)
+        return rows, lda, lda_unit, aug, pos[np.flatnonzero(touch)]
+
+    fits = {"train": session_fit(TR, d["tr"], d["rest"])}
+    if swap_val:
+        val_rest = (y < 0) & np.isin(sess, d["split"][1]) & (d["table"]["moving"] > 0)
+        if val_rest.sum() < 10:
+            val_rest = (y < 0) & np.isin(sess, d["split"][1])
+        fits["val"] = session_fit(VA, d["va"], val_rest)
     layers = dict(layers or net_layers())
     layers["MLP, the SVM's bins (augmented)"] = {"layer": "mlp", "n_inputs": len(pk["cols"])}  # its validated gamma
     for name, opts in layers.items():
         t0 = time.perf_counter()
         opts = dict(opts)
         k = opts.pop("n_inputs", None) or Xa.shape[1]
-        pred = fit_augmented_net(Xa[rows][:, :k], cls[rows], F[rows], n_locations=n,
-                                 augmenter=aug.restricted(k) if k < Xa.shape[1] else aug, touch_rows=touch_rows,
-                                 lda=lda_unit if opts.get("unit_norm") else lda, epochs=epochs, seed=seed, n_trunk=n_trunk,
-                                 **opts)
-        out[f"net: {name}"] = {**net_metrics(d, S, pred, Xa[:, :k], threshold=thr, force_alpha=S["force_alpha"]),
+        preds = {}
+        for part, (rows, lda, lda_unit, aug, touch_rows) in fits.items():
+            preds[part] = fit_augmented_net(Xa[rows][:, :k], cls[rows], F[rows], n_locations=n,
+                                            augmenter=aug.restricted(k) if k < Xa.shape[1] else aug, touch_rows=touch_rows,
+                                            lda=lda_unit if opts.get("unit_norm") else lda, epochs=epochs, seed=seed,
+                                            n_trunk=n_trunk, **opts)
+        out[f"net: {name}"] = {**net_metrics(d, S, preds["train"], Xa[:, :k], threshold=thr, force_alpha=S["force_alpha"]),
                                "fit_s": time.perf_counter() - t0}
+        if "val" in preds:
+            out[f"net: {name}"]["val_swap"] = swap_acc(preds["val"], Xa[:, :k])
         log(f"  net: {name}: {out[f'net: {name}']}")
     return out
 
