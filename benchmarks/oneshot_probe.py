@@ -24,9 +24,10 @@ sessions (s002, s003; given the touch decision, as the benchmarks' floors are):
   ``svm head`` is the package SVM with its own detector and validated force model on the same streams.
 
 Validation: every candidate (networks too) is also fitted on s001 and scored on s000 (``val_swap``); a *validated
-pick* (``PICK_SETS``) takes per rig the candidate with the best mean of the two folds (ties: the first listed) and reports its test accuracy: what the product would do.  The best candidate in hindsight is not a
-result.  Printed: mean +- std over rigs and paired differences against the package SVM with 95 % Student t
-intervals (the unit is the rig).  Rows go to ``OUT/<scenario>/rows/<seed>.json``, the table to ``summary.md``.
+pick* (``PICK_SETS``) takes per rig the candidate with the best mean of the two folds (ties: the first listed)
+and reports its test accuracy: what the product would do.  The best candidate in hindsight is not a result.
+Printed: mean +- std over rigs and paired differences against the package SVM with 95 % Student t intervals (the
+unit is the rig).  Rows go to ``OUT/<scenario>/rows/<seed>.json``, the table to ``summary.md``.
 
 The held-out seeds of issue 26 (7001-7032, 7101-7103; anything in 7000-7999) are refused: a development tool.
 """
@@ -217,7 +218,8 @@ def score_rig(d: dict, *, names=None, net: bool = False, swap_val: bool = True, 
             out[name]["val_swap"] = float(np.mean(swap.predict(R[tr][:, cols]) == y[tr]))
     if net:
         out.update(net_candidates(d, pk, swap_val=swap_val, log=log))
-    out["_meta"] = {"svm_params": (pk or {}).get("params") or (have or {}).get("_meta", {}).get("svm_params"), "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
+    out["_meta"] = {"svm_params": (pk or {}).get("params") or (have or {}).get("_meta", {}).get("svm_params"),
+                    "n_markers": int(np.unique(y[tr]).size), "n_train": int(tr.sum()),
                     "n_test": int(te.sum()), "n_bins": int(R.shape[1]), "rest_is_moving": d["rest_is_moving"],
                     "seconds": time.perf_counter() - t0}
     return out
@@ -291,9 +293,10 @@ def net_metrics(d: dict, S: dict, predict, X: np.ndarray, *, threshold: float, f
                 force_first: tuple = (None, 300)) -> dict:
     """A trained network (``predict``) on inputs ``X`` (every chirp): its touch decision chosen on the validation
     session as ``compare`` chooses it (:func:`training.quick.choose_detector`), then scored on the test streams."""
-    from sonicskin.svm_head import DETECTOR_BINS
     from sonicskin.training.augment import choose_force
     from sonicskin.training.quick import choose_detector, touch_logit
+
+    from sonicskin.svm_head import DETECTOR_BINS
 
     n, ids, cls, VA = S["n"], S["ids"], S["cls"], S["VA"]
     # its head or a pooled ridge (over every input or the first 300), chosen on validation as compare chooses
@@ -325,12 +328,12 @@ def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trun
     ``swap_val``: each network is also trained on the validation session and scored on the training session's
     touches (``val_swap``, the second fold of the validation, as for the sklearn candidates)."""
     from sklearn.preprocessing import normalize
+    from sonicskin.training.augment import Augmenter, fit_augmented_net, net_layers
+    from sonicskin.training.quick import fit_net
 
     from sonicskin.features import quiet_mask
     from sonicskin.nuisance import ShrinkageLDA
     from sonicskin.svm_head import fit_svm_head
-    from sonicskin.training.augment import Augmenter, fit_augmented_net, net_layers
-    from sonicskin.training.quick import fit_net
 
     S = stream_rows(d)
     n, cls, TR, VA = S["n"], S["cls"], S["TR"], S["VA"]
@@ -530,7 +533,8 @@ def main(argv: list[str] | None = None) -> int:
         best = ", ".join(f"{k} {100 * v['test']:.1f}" for k, v in res.items() if not k.startswith("_"))
         print(f"seed {s} ({res['_meta']['n_markers']} markers, {res['_meta']['seconds']:.0f} s): {best}", flush=True)
     summ = summarize(rows)
-    md = format_table(summ, f"{a.scenario}: seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} rigs); split {SPLITS[a.scenario] or 'leave-subjects-out'}; "
+    md = format_table(summ, f"{a.scenario}: seeds {seeds[0]}..{seeds[-1]} ({len(seeds)} rigs); "
+                            f"split {SPLITS[a.scenario] or 'leave-subjects-out'}; "
                             f"accuracy on every touch chirp of the test sessions; wall {time.perf_counter() - t0:.0f} s")
     (out / "summary.json").write_text(json.dumps({"seeds": seeds, "summary": summ}, indent=1))
     (out / "summary.md").write_text(md + "\n")

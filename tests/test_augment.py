@@ -111,6 +111,7 @@ def _with_rest(X, y, n_rest=20, seed=0):
 
 def test_metric_net_starts_as_its_lda_and_exports(tmp_path):
     from sonicskin.models.metric import MetricSkinNet
+
     from sonicskin.nuisance import ShrinkageLDA
 
     X, y, press, _ = _session(K=4, per=8, seed=1)
@@ -132,6 +133,7 @@ def test_metric_net_starts_as_its_lda_and_exports(tmp_path):
 
 def test_metric_layer_keeps_lda_argmax_under_standardisation():
     from sonicskin.models.metric import MetricVotes
+
     from sonicskin.nuisance import ShrinkageLDA
 
     for K in (2, 5):
@@ -205,8 +207,9 @@ def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_f
 
 
 def test_choose_net_layer_keeps_the_best_on_validation():
-    from sonicskin.nuisance import ShrinkageLDA
     from sonicskin.training.augment import choose_net_layer
+
+    from sonicskin.nuisance import ShrinkageLDA
 
     X, y, press, _ = _session(K=3, per=10, seed=6)
     X = X[:, ::20]

@@ -9,8 +9,7 @@ from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
 from sklearn.pipeline import make_pipeline
 from sklearn.utils.estimator_checks import parametrize_with_checks
 
-from sonicskin.nuisance import (LevelRemoval, ShrinkageLDA, ledoit_wolf_shrinkage_gram, make_candidates,
-                                nuisance_directions)
+from sonicskin.nuisance import LevelRemoval, ShrinkageLDA, ledoit_wolf_shrinkage_gram, make_candidates, nuisance_directions
 
 
 def _blobs(K=5, n=60, d=200, seed=0):

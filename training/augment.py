@@ -137,7 +137,8 @@ class Augmenter:
             X[:, self._order] = Xo
         if self.f is not None and (s.get("gain") or s.get("tilt")):
             u = (self.f - self.f.mean()) / max(np.ptp(self.f), 1e-12)
-            X += rng.normal(0.0, s.get("gain", 0.0) or 0.0, n)[:, None] + rng.normal(0.0, s.get("tilt", 0.0) or 0.0, n)[:, None] * u[None, :]
+            g, t = (rng.normal(0.0, s.get(k, 0.0) or 0.0, n)[:, None] for k in ("gain", "tilt"))
+            X += g + t * u[None, :]
         elif s.get("gain"):
             X += rng.normal(0.0, s["gain"], n)[:, None]
         if s.get("motion") and self.rest is not None:
@@ -177,10 +178,10 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
     """
     import torch
     import torch.nn.functional as F
-
-    from sonicskin import threads
     from sonicskin.models import SkinNet
     from sonicskin.models.metric import MetricSkinNet, SkinEnsemble
+
+    from sonicskin import threads
 
     if n_members > 1:
         kw = dict(n_locations=n_locations, augmenter=augmenter, touch_rows=touch_rows, layer=layer, lda=lda,
