@@ -1,0 +1,226 @@
+"""training.augment: each augmentation moves a chirp only along its own nuisance direction; the metric network
+starts as the LDA it is initialised from and exports to ONNX."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sonicskin.training.augment import AUGMENTATIONS, Augmenter, fit_augmented_net  # noqa: E402
+
+F = np.linspace(20e3, 80e3, 601)
+
+
+def _session(K=3, per=6, seed=0):
+    rng = np.random.default_rng(seed)
+    pat = rng.normal(size=(K, F.size))
+    y = np.repeat(np.arange(K), per)
+    press = y.copy()  # one press per marker
+    force = np.tile(np.linspace(0.5, 1.5, per), K)
+    X = pat[y] * force[:, None] + 0.01 * rng.normal(size=(K * per, F.size))
+    return X, y, press, pat
+
+
+def _only(kind, size):
+    return {k: (size if k == kind else 0.0) for k in AUGMENTATIONS}
+
+
+def test_press_draws_stay_on_the_press_line():
+    X, y, press, _ = _session()
+    aug = Augmenter(X[:2], y[:2], press[:2], sizes=_only("press", 0.5))  # a press of two chirps
+    out = aug.draw(np.random.default_rng(1), np.zeros(200, int))
+    lam = (out - X[0]) @ (X[1] - X[0]) / np.sum((X[1] - X[0]) ** 2)
+    np.testing.assert_allclose(out, X[0] + lam[:, None] * (X[1] - X[0]), atol=1e-9)
+    assert lam.min() >= -0.5 - 1e-12 and lam.max() <= 1.5 + 1e-12 and np.ptp(lam) > 1.0
+
+
+def test_strength_scales_the_whole_chirp():
+    X, y, press, _ = _session()
+    out = Augmenter(X, y, press, sizes=_only("strength", 0.3)).draw(np.random.default_rng(2))
+    ratio = out / X
+    np.testing.assert_allclose(ratio, ratio[:, :1].repeat(X.shape[1], axis=1), rtol=1e-9)
+    assert np.std(np.log(ratio[:, 0])) > 0.1
+
+
+def test_stretch_resamples_the_frequency_axis():
+    X = np.sin(2 * np.pi * F / 3e3)[None, :].repeat(4, axis=0)
+    y = np.arange(4) % 2
+    cols = np.random.default_rng(0).permutation(F.size)  # inputs in any order (OSPA's)
+    aug = Augmenter(X[:, cols], y, np.arange(4), freqs_hz=F[cols], sizes=_only("stretch", 2e-3))
+    out = aug.draw(np.random.default_rng(3))
+    back = np.empty_like(out)
+    back[:, cols] = out
+    for row in back:  # each row is sin(2 pi f (1 + s) / P) for one s in [-2e-3, 2e-3]
+        s = np.linspace(-2e-3, 2e-3, 4001)
+        err = [np.abs(row[1:-1] - np.sin(2 * np.pi * F[1:-1] * (1 + v) / 3e3)).max() for v in s]
+        bound = (2 * np.pi * (F[1] - F[0]) / 3e3) ** 2 / 8  # linear interpolation's error on this grid
+        assert min(err) < 1.05 * bound
+
+
+def test_gain_and_tilt_are_affine_in_frequency():
+    X, y, press, _ = _session()
+    out = Augmenter(X, y, press, freqs_hz=F, sizes={**_only("gain", 0.5), "tilt": 0.5}).draw(np.random.default_rng(4))
+    D = out - X
+    A = np.column_stack([np.ones_like(F), F])
+    coef, *_ = np.linalg.lstsq(A, D.T, rcond=None)
+    np.testing.assert_allclose(A @ coef, D.T, atol=1e-9)
+
+
+def test_aim_moves_toward_a_neighbouring_marker():
+    X, y, press, _ = _session(K=3)
+    pos = np.array([[0.0, 0.0], [1.5, 0.0], [3.0, 0.0]])
+    aug = Augmenter(X, y, press, positions_cm=pos, sizes=_only("aim", 0.3))
+    out = aug.draw(np.random.default_rng(5))
+    for i in np.flatnonzero(y == 0):  # marker 0's only neighbour ring is marker 1 (1.5 cm)
+        d = out[i] - X[i]
+        step = aug.means[1] - aug.means[0]
+        a = d @ step / (step @ step)
+        np.testing.assert_allclose(d, a * step, atol=1e-9)
+        assert 0 <= a <= 1
+
+
+def test_motion_adds_recorded_hands_off_deviations():
+    X, y, press, _ = _session()
+    rest = np.random.default_rng(6).normal(size=(5, F.size))
+    out = Augmenter(X, y, press, X_rest=rest, sizes=_only("motion", 1.0)).draw(np.random.default_rng(7))
+    dev = rest - rest.mean(0)
+    coef, *_ = np.linalg.lstsq(dev.T, (out - X).T, rcond=None)
+    np.testing.assert_allclose(dev.T @ coef, (out - X).T, atol=1e-8)
+
+
+def test_bad_configuration_one_line():
+    X, y, press, _ = _session()
+    with pytest.raises(ValueError, match=r"^unknown augmentations \['wind'\]; choose from"):
+        Augmenter(X, y, press, sizes={"wind": 1.0})
+    with pytest.raises(ValueError, match=r"^the stretch augmentation needs freqs_hz$"):
+        Augmenter(X, y, press, sizes=_only("stretch", 1e-3))
+    with pytest.raises(ValueError, match=r"^X has 18 chirps but y \(17,\) and press \(18,\); give one label and press id per chirp$"):
+        Augmenter(X, y[:-1], press)
+
+
+def _with_rest(X, y, n_rest=20, seed=0):
+    rng = np.random.default_rng(seed)
+    K = int(y.max()) + 1
+    Xa = np.vstack([X, 0.05 * rng.normal(size=(n_rest, X.shape[1]))])
+    cls = np.r_[y, np.full(n_rest, K)]
+    force = np.r_[np.ones(len(y)) * 3.0, np.zeros(n_rest)]
+    return Xa, cls, force, K
+
+
+def test_metric_net_starts_as_its_lda_and_exports(tmp_path):
+    from sonicskin.models.metric import MetricSkinNet
+
+    from sonicskin.nuisance import ShrinkageLDA
+
+    X, y, press, _ = _session(K=4, per=8, seed=1)
+    X = X[:, ::10]
+    Xa, cls, force, K = _with_rest(X, y)
+    lda = ShrinkageLDA().fit(X, y)
+    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="metric", lda=lda, metric_lr=0.0, epochs=3)
+    model = pred.model
+    assert isinstance(model, MetricSkinNet)
+    rng = np.random.default_rng(9)
+    Xq = X + 0.3 * rng.normal(size=X.shape)  # chirps the LDA is not certain of
+    logits, _ = pred(Xq)
+    np.testing.assert_array_equal(logits[:, :K].argmax(1), lda.predict(Xq))  # frozen: the place is the LDA's
+    from sonicskin.export.onnx import export_net
+
+    parity = export_net(model, X.shape[1], tmp_path / "net.onnx", Xa.astype(np.float32))
+    assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-3
+
+
+def test_metric_layer_keeps_lda_argmax_under_standardisation():
+    from sonicskin.models.metric import MetricVotes
+
+    from sonicskin.nuisance import ShrinkageLDA
+
+    for K in (2, 5):
+        rng = np.random.default_rng(K)
+        y = np.arange(60) % K
+        X = rng.normal(size=(60, 30)) + y[:, None] * 0.5
+        lda = ShrinkageLDA().fit(X, y)
+        mean, std = X.mean(0), X.std(0) + 0.1
+        layer = MetricVotes.from_lda(lda, mean, std)
+        with torch.no_grad():
+            s = layer(torch.from_numpy(((X - mean) / std).astype(np.float32))).numpy()
+        np.testing.assert_array_equal(s.argmax(1), lda.predict(X))
+
+
+def test_mlp_layer_learns_separable_markers():
+    X, y, press, _ = _session(K=3, per=10, seed=3)
+    X = X[:, ::20]
+    Xa, cls, force, K = _with_rest(X, y)
+    aug = Augmenter(X, y, press, freqs_hz=F[::20], sizes={"press": 0.3, "strength": 0.1})
+    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="mlp", augmenter=aug, touch_rows=np.arange(len(y)),
+                             epochs=30)
+    logits, _ = pred(X)
+    assert np.mean(logits[:, :K].argmax(1) == y) == 1.0
+    with pytest.raises(ValueError, match=r"^the metric layer starts from a fitted ShrinkageLDA on the same inputs \(lda=...\)$"):
+        fit_augmented_net(Xa, cls, force, n_locations=K, layer="metric")
+
+
+def test_ensemble_is_the_mean_probability_and_exports(tmp_path):
+    from sonicskin.models.metric import SkinEnsemble
+
+    X, y, press, _ = _session(K=3, per=8, seed=4)
+    X = X[:, ::20]
+    Xa, cls, force, K = _with_rest(X, y)
+    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="mlp", epochs=3, n_members=3)
+    ens = pred.model
+    assert isinstance(ens, SkinEnsemble) and len(ens.members) == 3
+    x = torch.from_numpy(Xa.astype(np.float32))
+    with torch.no_grad():
+        p = torch.stack([torch.softmax(m._forward(x)[0], 1) for m in ens.members]).mean(0)
+        f = torch.stack([m._forward(x)[1] for m in ens.members]).mean(0)
+        lg, fe = ens(x)
+    np.testing.assert_allclose(torch.softmax(lg, 1).numpy(), p.numpy(), atol=1e-6)
+    np.testing.assert_allclose(fe.numpy(), f.numpy(), atol=1e-5)
+    from sonicskin.export.onnx import export_net
+
+    parity = export_net(ens, X.shape[1], tmp_path / "net.onnx", Xa.astype(np.float32))
+    assert parity["labels_equal"] and parity["max_abs_force_n"] < 1e-3
+    with pytest.raises(ValueError, match=r"^an ensemble needs at least one trained network$"):
+        SkinEnsemble([])
+
+
+def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_force():
+    """Force is linear in the first 5 inputs; the other 200 are noise.  On presses the ridges were not fitted on,
+    the ridge over the first inputs only is the better one (a known answer), and it is set on the model."""
+    from sonicskin.training.augment import choose_force
+
+    rng = np.random.default_rng(5)
+    K, n = 3, 240
+    y = np.arange(n) % K
+    F_true = rng.uniform(1, 8, n)
+    X = np.column_stack([np.outer(F_true, [1.0, 0.5, -0.3, 0.8, 0.2]) + 0.05 * rng.normal(size=(n, 5)), 3.0 * rng.normal(size=(n, 200))])
+    fit, val = np.arange(n) < 40, np.arange(n) >= 120
+    Xa, cls, force, _ = _with_rest(X[:40], y[:40])
+    pred = fit_augmented_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=2)
+    res = choose_force(pred.model, X, y, F_true, fit_rows=fit, val_rows=val, location_ids=np.arange(K), alpha=1.0, first=(None, 5))
+    assert res["force"] == "pooled-ridge (first 5 inputs)"
+    assert res["force_rmse"]["pooled-ridge (first 5 inputs)"] < 0.5 * res["force_rmse"]["pooled-ridge"]
+    _, f = pred(X[val])
+    np.testing.assert_allclose(f[np.arange(val.sum()), y[val]], np.clip(f[np.arange(val.sum()), y[val]], 0, None))
+    assert np.sqrt(np.mean((f[np.arange(val.sum()), y[val]] - F_true[val]) ** 2)) < 0.5
+
+
+def test_choose_net_layer_keeps_the_best_on_validation():
+    from sonicskin.training.augment import choose_net_layer
+
+    from sonicskin.nuisance import ShrinkageLDA
+
+    X, y, press, _ = _session(K=3, per=10, seed=6)
+    X = X[:, ::20]
+    Xa, cls, force, K = _with_rest(X, y)
+    train = np.r_[np.arange(len(y)) % 2 == 0, np.ones(20, bool)]
+    val = ~train
+    lda = ShrinkageLDA().fit(X[train[:len(y)]], y[train[:len(y)]])
+    seen = []
+    res = choose_net_layer(Xa, cls, force, n_locations=K, train=train, val=val, augmenter=None,
+                           touch_rows=None, lda=lda, epochs=5, log=seen.append,
+                           layers={"metric": {"layer": "metric", "metric_lr": 0.0}, "MLP": {"layer": "mlp"}})
+    assert set(res["scores"]) == {"metric", "MLP"}
+    assert res["location_layer"] == max(res["scores"], key=lambda k: (res["scores"][k], -list(res["scores"]).index(k)))
+    assert seen and seen[0].startswith("network location layer: ")
