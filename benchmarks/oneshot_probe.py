@@ -247,10 +247,11 @@ def stream_rows(d: dict) -> dict:
 
 def svm_head_metrics(d: dict, pk: dict, S: dict) -> dict:
     """The package SVM with its detector and validated force model, chirp by chirp on the test streams."""
+    from sonicskin.svm_head import fit_svm_head, ovo_decision, score_vector, touch_statistic
+
     from sonicskin.features import quiet_mask
     from sonicskin.force import energy_db, force_from_dict
     from sonicskin.selection import select_on_inputs
-    from sonicskin.svm_head import fit_svm_head, ovo_decision, score_vector, touch_statistic
 
     X = d["R"][:, pk["cols"]]
     t, n, ids, cls, TR, VA = d["table"], S["n"], S["ids"], S["cls"], S["TR"], S["VA"]
@@ -293,10 +294,9 @@ def net_metrics(d: dict, S: dict, predict, X: np.ndarray, *, threshold: float, f
                 force_first: tuple = (None, 300)) -> dict:
     """A trained network (``predict``) on inputs ``X`` (every chirp): its touch decision chosen on the validation
     session as ``compare`` chooses it (:func:`training.quick.choose_detector`), then scored on the test streams."""
+    from sonicskin.svm_head import DETECTOR_BINS
     from sonicskin.training.augment import choose_force
     from sonicskin.training.quick import choose_detector, touch_logit
-
-    from sonicskin.svm_head import DETECTOR_BINS
 
     n, ids, cls, VA = S["n"], S["ids"], S["cls"], S["VA"]
     # its head or a pooled ridge (over every input or the first 300), chosen on validation as compare chooses
@@ -328,12 +328,12 @@ def net_candidates(d: dict, pk: dict, *, epochs: int = 40, seed: int = 0, n_trun
     ``swap_val``: each network is also trained on the validation session and scored on the training session's
     touches (``val_swap``, the second fold of the validation, as for the sklearn candidates)."""
     from sklearn.preprocessing import normalize
+    from sonicskin.svm_head import fit_svm_head
     from sonicskin.training.augment import Augmenter, fit_augmented_net, net_layers
     from sonicskin.training.quick import fit_net
 
     from sonicskin.features import quiet_mask
     from sonicskin.nuisance import ShrinkageLDA
-    from sonicskin.svm_head import fit_svm_head
 
     S = stream_rows(d)
     n, cls, TR, VA = S["n"], S["cls"], S["TR"], S["VA"]

@@ -127,7 +127,7 @@ def test_metric_net_starts_as_its_lda_and_exports(tmp_path):
     np.testing.assert_array_equal(logits[:, :K].argmax(1), lda.predict(Xq))  # frozen: the place is the LDA's
     from sonicskin.export.onnx import export_net
 
-    parity = export_net(model, X.shape[1], tmp_path / "net.onnx", Xa.astype(np.float32))
+    parity = export_net(model, tmp_path / "net.onnx", Xa.astype(np.float32))
     assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-3
 
 
@@ -179,7 +179,7 @@ def test_ensemble_is_the_mean_probability_and_exports(tmp_path):
     np.testing.assert_allclose(fe.numpy(), f.numpy(), atol=1e-5)
     from sonicskin.export.onnx import export_net
 
-    parity = export_net(ens, X.shape[1], tmp_path / "net.onnx", Xa.astype(np.float32))
+    parity = export_net(ens, tmp_path / "net.onnx", Xa.astype(np.float32))
     assert parity["labels_equal"] and parity["max_abs_force_n"] < 1e-3
     with pytest.raises(ValueError, match=r"^an ensemble needs at least one trained network$"):
         SkinEnsemble([])
