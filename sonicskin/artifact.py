@@ -236,6 +236,8 @@ def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, t
         check_session(sess, skin, name, source=str(path))
         x = probe_inputs if probe_inputs is not None else old_probes.get(name)  # resealed: keep its real probe rows
         x = np.asarray(x, np.float32)[:PROBE_ROWS] if x is not None else None
+        if x is not None and x.ndim == 2 and x.shape[1] > entry["n_in"]:  # a model reads the first n_in inputs
+            x = x[:, :entry["n_in"]]
         if x is None or x.ndim != 2 or x.shape[1] != entry["n_in"]:
             x = _default_probe(entry["n_in"])
         got = run_probe(sess, x)

@@ -33,7 +33,7 @@ is :mod:`sonicskin.artifact_files`; binding the model files to this document, :m
       probe             {inputs: 1..64 rows of B finite numbers, outputs: one entry per graph output, null or
                         the export-time output rows}: re-run at load, the model must reproduce them
       kind              "skinnet" (net) | "svc-ovo" (svm)
-      n_in              == B;  n_locations == N
+      n_in              <= B: the model reads the first n_in bins (OSPA order);  n_locations == N
       parity            optional dict of export parity figures;  hparams: optional dict (net)
       net only (version 3):
         detector          optional {mode: "head" | "input-rms" | "either", bias: finite, threshold: 0..1e3 (dB RMS),
@@ -324,7 +324,7 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
             doc.fail(f"{f}.sha256", f"must be 64 lowercase hex digits, got {_short(sha)}")
     doc.const(doc.get(m, "kind", f), f"{f}.kind", MODEL_KINDS[name])
     m_in = doc.int(doc.get(m, "n_in", f), f"{f}.n_in", lo=1)
-    if m_in != n_in:
+    if m_in > n_in:  # a model reads the first n_in bins of features.bins (OSPA order; version 3: the SVM a prefix)
         doc.fail(f"{f}.n_in", f"is {m_in}: the model takes {m_in} features but skin.json lists {n_in} bins in features.bins")
     n_loc = len(layout_ids)
     m_loc = doc.int(doc.get(m, "n_locations", f), f"{f}.n_locations", lo=1)
@@ -333,19 +333,19 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
     if "parity" in m:
         doc.obj(m["parity"], f"{f}.parity")
     if sealed:
-        _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", n_in, probe_widths(name, n_loc))
+        _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", m_in, probe_widths(name, n_loc))
     if name == "net":
         if "hparams" in m:
             doc.obj(m["hparams"], f"{f}.hparams")
         if "detector" in m:
-            _check_net_detector(doc, m["detector"], f"{f}.detector", n_in)
+            _check_net_detector(doc, m["detector"], f"{f}.detector", m_in)
         return
     if n_loc < 2:
         doc.fail(f"{f}.n_locations", "must be >= 2 for an SVM (it separates locations)")
     ref = doc.list(doc.get(m, "reference_scores", f), f"{f}.reference_scores")
-    if len(ref) != n_loc + n_in:
-        doc.fail(f"{f}.reference_scores", f"has {len(ref)} values, expected n_locations + n_in = {n_loc} + {n_in} = "
-                                          f"{n_loc + n_in}")
+    if len(ref) != n_loc + m_in:
+        doc.fail(f"{f}.reference_scores", f"has {len(ref)} values, expected n_locations + n_in = {n_loc} + {m_in} = "
+                                          f"{n_loc + m_in}")
     for i, v in enumerate(ref):
         doc.num(v, f"{f}.reference_scores[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     detection = m.get("detection", True)
@@ -357,12 +357,12 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
     doc.choice(doc.get(m, "detector", f), f"{f}.detector", ("input-rms", "paper"))
     if "detector_bins" in m:  # the detector reads the first detector_bins inputs (default: all)
-        doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=n_in)
+        doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=m_in)
     doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
     for k in ("train_false_touch_rate", "train_missed_touch_rate"):
         if k in m and not (m[k] is None and not detection):
             doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
-    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids, n_in)
+    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids, m_in)
 
 
 def _check_net_detector(doc: _Doc, d: Any, field: str, n_in: int) -> None:

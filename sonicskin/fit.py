@@ -55,10 +55,21 @@ class TrainingData:
     min_force_n: float = 0.5
     selection: dict = dataclasses.field(default_factory=dict)  # choices made so far (gamma: selection["svm"])
     rig: Any = None        # the rig the artifact declares (default: the dataset's)
+    n_svm: int | None = None  # the SVM reads the first n_svm bins (OSPA's gamma for it); default: every bin
 
     def __post_init__(self):
         if self.rig is None:
             self.rig = self.dataset.rig
+        if self.n_svm is None:
+            self.n_svm = len(self.spec.bins)
+
+    def narrow(self, k: int) -> TrainingData:
+        """The same chirps on the first ``k`` bins only (OSPA order: the best ``k``), e.g. the SVM's gamma."""
+        k = int(min(k, len(self.spec.bins)))
+        if k == len(self.spec.bins):
+            return self
+        return dataclasses.replace(self, spec=dataclasses.replace(self.spec, bins=self.spec.bins[:k]), X=self.X[:, :k],
+                                   n_svm=min(self.n_svm, k))
 
     @property
     def layout(self):
@@ -80,14 +91,16 @@ class TrainingData:
 def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
             val_sessions=None, test_subjects=None, split: Split | None = None, table: FeatureTable | None = None,
             bins=None, alpha_s: float = 1200.0, rig=None, min_force_n: float = 0.5, allow_no_test: bool = False,
-            progress: bool = True, log=None) -> TrainingData:
+            wide: bool = False, progress: bool = True, log=None) -> TrainingData:
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
     inputs of every chirp.
 
     ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, kept in ``selection["svm"]``) by validation
     on the training and validation sessions (:func:`sonicskin.selection.select_gamma_on_table`).  ``bins`` gives
     the band bins explicitly instead (e.g. every band bin, the paper's no-OSPA ablation).  ``split``/``table``:
-    given instead of made here.  ``alpha_s``: Alg. 2's refresh interval.  ``rig``: the rig the artifact declares
+    given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (what the network may read:
+    its location layer is validated on prefixes of them), and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``;
+    a prefix, since OSPA ranks the bins once).  ``alpha_s``: Alg. 2's refresh interval.  ``rig``: the rig the artifact declares
     (default: the dataset's; the paper's no-matched-filter ablation passes it without its PWM notches).  Relative
     inputs need Alg. 2's rest in every session: shorter rest is used down to
     :data:`~sonicskin.features.MIN_REST_CHIRPS` (with a warning), a table of touches only falls back to absolute
@@ -108,7 +121,11 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
                                                      val_sessions=list(split.val), mode=mode, min_force_n=min_force_n,
                                                      log=log or (lambda m: warnings.warn(m, stacklevel=2)))
             n_bins = selection["svm"]["params"]["n_bins"]
-        bins = select_bins(tr, ds.rig, n_bins, min_force_n)
+        n_usable = int(ds.rig.allowed_mask.sum())
+        bins = select_bins(tr, ds.rig, n_usable if wide else n_bins, min_force_n)
+        n_svm = min(int(n_bins or len(bins)), len(bins))
+    else:
+        n_svm = len(bins)
     spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=float(alpha_s))
     if mode == "relative":
         beta0 = spec.reference(ds.rig.chirps_per_s).beta
@@ -123,7 +140,7 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
     X = spec.transform(t, ds.rig.chirps_per_s)
     cls, usable = training_targets(t, ds.layout, min_force_n)
     return TrainingData(ds, t, split, spec, X, cls, t["force_n"].astype(np.float32), usable, min_force_n, selection,
-                        rig or ds.rig)
+                        rig or ds.rig, n_svm)
 
 
 # -- the SVM head --------------------------------------------------------------------------------------------------
@@ -225,6 +242,7 @@ def fit_svm(data: TrainingData, *, select: bool = True, C: float = 10.0, kernel_
     training chirps; with a validation session its missed and false touches there are reported in the selection."""
     from .selection import detection_on_validation, select_on_inputs
 
+    data = data.narrow(data.n_svm)  # the SVM's gamma (a prefix of the inputs in OSPA order)
     train, val = data.rows("train"), data.rows("val")
     sel = dict(data.selection)
     if select:
@@ -302,8 +320,9 @@ def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = 
     times = {}
     with atomic_artifact(out) as tmp:
         if svm is not None:
-            parity = export_svm(svm.pipe, data.n_locations, tmp / "svm.onnx", check)
-            models["svm"] = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": int(data.X.shape[1]),
+            n_svm = int(svm.pipe[0].n_features_in_)  # the first n_svm inputs (OSPA order)
+            parity = export_svm(svm.pipe, data.n_locations, tmp / "svm.onnx", check[:, :n_svm])
+            models["svm"] = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": n_svm,
                              "n_locations": data.n_locations, "parity": parity, **svm.params}
             times["svm_train_time_s"] = svm.fit_s
         if net is not None:
@@ -314,8 +333,8 @@ def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = 
             from sonicskin.training.cli import quiet_third_party
 
             with quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):  # torch.onnx's progress lines
-                parity = export_net(net.model, tmp / "net.onnx", check)
-            entry = {"file": "net.onnx", "kind": "skinnet", "n_in": int(data.X.shape[1]), "n_locations": data.n_locations,
+                parity = export_net(net.model, tmp / "net.onnx", check[:, :net.model.n_in])
+            entry = {"file": "net.onnx", "kind": "skinnet", "n_in": int(net.model.n_in), "n_locations": data.n_locations,
                      "parity": parity, "hparams": net.hparams}
             if net.detector is not None:
                 entry["detector"] = net.detector

@@ -201,7 +201,7 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
     """
     import numpy as np
 
-    n_in = len(meta["features"]["bins"])
+    n_in = int(meta["models"][model]["n_in"])  # the first n_in of features.bins
     n_loc = len(meta["layout"]["ids"])
     where = source or f"the {model} model"
     ins, outs = session.get_inputs(), session.get_outputs()
@@ -209,7 +209,7 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
         raise ArtifactError(f"{where} must take one float input (batch, {n_in}), it takes "
                             f"{[(i.type, i.shape) for i in ins]}; {REEXPORT}")
     if ins[0].shape[-1] != n_in:
-        raise ArtifactError(f"{where} takes {ins[0].shape[-1]} features but skin.json lists {n_in} bins; {REEXPORT}")
+        raise ArtifactError(f"{where} takes {ins[0].shape[-1]} features but skin.json lists {n_in} bins for it; {REEXPORT}")
     if model == "net":
         want = {0: n_loc + 1, 1: n_loc}
         what = f"logits (batch, {n_loc + 1}) and force (batch, {n_loc})"

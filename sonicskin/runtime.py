@@ -9,6 +9,7 @@ parameters), its digest and its probe outputs before anything runs (:func:`sonic
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,8 @@ class SkinRuntime:
         data = read_model_file(self.folder, self.meta, model)  # confined to the folder, checksum verified
         self.kind = model
         self.m = self.meta["models"][model]
+        # The model reads the first n_in of the artifact's bins (OSPA order): its inputs are those bins only.
+        self.spec = dataclasses.replace(self.spec, bins=self.spec.bins[:int(self.m["n_in"])])
         path = self.folder / self.m["file"]
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads

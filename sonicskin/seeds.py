@@ -123,7 +123,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
     # gamma chosen on the training sessions only (validation is on their presses: the split has no val session)
-    data = prepare(ds, table=t, split=split, n_bins=None if select else 300, log=quiet_log)
+    data = prepare(ds, table=t, split=split, n_bins=None if select else 300, wide=True, log=quiet_log)
     if train_stride > 1:
         data = dataclasses.replace(data, usable=data.usable & (np.arange(len(t)) % int(train_stride) == 0))
     svm = fit_svm(data, select=select, log=quiet_log)

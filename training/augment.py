@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-__all__ = ["AUGMENTATIONS", "Augmenter", "fit_augmented_net", "net_layers", "choose_force", "choose_net_layer"]
+__all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "fit_augmented_net", "net_layers", "choose_force", "choose_net_layer"]
 
 #: augmentations and their default size (see the module notes)
 AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "gain": 0.3, "tilt": 0.3, "motion": 1.0}
@@ -346,3 +346,32 @@ def choose_net_layer(X, cls, force, *, n_locations: int, train, val, augmenter: 
     if log:
         log("network location layer: " + best + " (validation: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()) + ")")
     return {"location_layer": best, "scores": scores, "predict": preds[best]}
+
+
+def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):
+    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``): every
+    nuisance measured there (its presses' force ramps, its hands-off chirps while the robot moves, or at rest after
+    the boot reference when it never moves, its markers' positions), over all of the data's inputs (OSPA order), drawn
+    over the first ``n_cols``.  Returns the augmenter and, for each of the ``rows``, its row in the augmenter (-1: not
+    a touch chirp)."""
+    from sonicskin.selection import press_ids
+
+    t = data.table
+    rows = np.asarray(rows, bool)
+    n_loc = data.n_locations
+    touch = rows & (data.cls < n_loc)
+    seg = t["segment"] if "segment" in t.labels else None
+    press = press_ids(t["location"], t["session"], seg)
+    sessions = np.isin(t["session"], sorted(set(t["session"][rows])))
+    hands_off = sessions & (data.cls == n_loc)
+    moving = hands_off & (t["moving"] > 0)
+    rest = moving if moving.sum() >= 10 else hands_off & data.usable
+    cls_touch = data.cls[touch]
+    freqs = data.rig.freqs_hz[data.rig.band_bins][list(data.spec.bins)]
+    aug = Augmenter(data.X[touch], cls_touch, press[touch], cols=np.arange(n_cols or data.X.shape[1]), freqs_hz=freqs,
+                    X_rest=data.X[rest] if rest.sum() >= 2 else None,
+                    positions_cm=data.layout.xy_cm[np.unique(cls_touch)], circumference_cm=data.layout.circumference_cm,
+                    sizes=sizes)
+    pos = np.full(len(rows), -1)
+    pos[np.flatnonzero(touch)] = np.arange(int(touch.sum()))
+    return aug, pos[np.flatnonzero(rows)]

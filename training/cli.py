@@ -279,6 +279,9 @@ def check_ranges(cfg) -> None:
     kernel = get("model.kernel")  # typed bool | str: any other word would have meant True (a kernel layer) silently
     if kernel is not None and not isinstance(kernel, bool) and kernel != "auto":
         bad("model.kernel", "true, false or auto", kernel)
+    layer = get("model.layer")
+    if layer is not None and layer not in ("kernel", "mlp", "metric", "auto"):
+        bad("model.layer", "kernel, mlp, metric or auto", layer)
     seed = get("seed_everything")
     if seed is not None and not isinstance(seed, bool) and (not isinstance(seed, int) or not 0 <= seed < 2**32):
         bad("seed_everything", "true, false or an integer from 0 to 2**32 - 1", seed)
@@ -314,7 +317,7 @@ class SkinCLI(LightningCLI):
             init.save_dir = root
 
     def before_fit(self) -> None:
-        if self.model.hparams.kernel == "auto":  # the location layer, chosen on data it does not train on
+        if self.model.hparams.layer == "auto":  # the location layer, chosen on data it does not train on
             from .fit import choose_auto_layer
 
             choose_auto_layer(self.model, self.datamodule, epochs=self.trainer.max_epochs or 40)

@@ -66,8 +66,11 @@ class SkinDataModule(L.LightningDataModule):
         self.selection: dict | None = None
         if n_bins is None:  # chosen by validation on the training/validation sessions (never the test sessions)
             n_bins = self._select(data)
-        # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning).
-        self._n_in = usable_bins(Rig.from_dict(meta["rig"]), n_bins)
+        # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning); the
+        # network's inputs are every usable bin in OSPA's order (its layer reads a validated prefix), the SVM the first n_bins.
+        rig = Rig.from_dict(meta["rig"])
+        self._n_svm = usable_bins(rig, n_bins)
+        self._n_in = int(rig.allowed_mask.sum())
         self.prepared = None  # sonicskin.fit.TrainingData, after setup
 
     def _select(self, data: str) -> int:
@@ -92,7 +95,7 @@ class SkinDataModule(L.LightningDataModule):
 
     @property
     def n_in(self) -> int:
-        """Model inputs: the bins OSPA will select (``n_bins`` clamped to the rig's band)."""
+        """Model inputs: every usable bin of the rig's band, in OSPA's order (the SVM reads the first ``n_bins``)."""
         return self._n_in
 
     def prepare_data(self) -> None:
@@ -107,7 +110,7 @@ class SkinDataModule(L.LightningDataModule):
         if self.prepared is not None:
             return
         h = self.hparams
-        p = prepare(h.data, n_bins=self._n_in, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
+        p = prepare(h.data, n_bins=self._n_svm, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
                     test_subjects=h.test_subjects, min_force_n=h.min_force_n)
         if self.selection:
             p.selection = dict(self.selection)
@@ -117,7 +120,7 @@ class SkinDataModule(L.LightningDataModule):
         self.std = p.X[tr].std(axis=0) + 1e-3
         ds, split = p.dataset, p.split
         self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
-                     "spec": p.spec.to_dict(), "split": split.to_dict(), "min_force_n": h.min_force_n,
+                     "spec": p.spec.to_dict(), "n_svm": int(p.n_svm), "split": split.to_dict(), "min_force_n": h.min_force_n,
                      "sessions_sha256": session_fingerprints(ds.root, [*split.train, *split.val, *split.test])}
         if self.selection:
             self.meta["selection"] = self.selection
@@ -126,6 +129,8 @@ class SkinDataModule(L.LightningDataModule):
         p = self.prepared
         m = p.rows(part)
         tensors = [torch.from_numpy(np.ascontiguousarray(getattr(p, k)[m])) for k in ("X", "cls", "force")]
+        if part == "train":  # each chirp's training row: the augmenter draws from the training touch chirps by row
+            tensors.append(torch.arange(int(m.sum())))
         return DataLoader(TensorDataset(*tensors), batch_size=self.hparams.batch_size, shuffle=shuffle)
 
     def train_dataloader(self) -> DataLoader:

@@ -37,64 +37,87 @@ def train_network(data, *, svm, select: bool = True, seed: int = 0, epochs: int 
                   **hparams) -> NetFit:
     """Train the network on the training chirps of ``data`` (a :class:`sonicskin.fit.TrainingData`) in-process.
 
-    ``select``: its location layer is chosen first (:func:`sonicskin.training.quick.choose_layer`) on the validation
-    session, or without one on the training session's last pass over the markers (trained on the others); with one
-    press per location and no validation session it stays the default (the SVM's kernel, ``svm.pipe``).  Then
+    ``select``: its location layer is chosen first (:func:`choose_network_layer`); without validation it is the SVM's
+    copy (:data:`training.quick.UNVALIDATED`).  ``layer``: that choice already made (several training seeds share
+    it).  The network reads the first inputs its layer asks for (OSPA order) and, unless it is the SVM's copy, trains
+    on augmented presses of its own training session (:func:`training.augment.make_augmenter`).  Then
     :func:`finish_network`."""
-
-    from .quick import DEFAULTS, fit_net
+    from .augment import make_augmenter
+    from .quick import DEFAULTS, UNVALIDATED, fit_net, layer_hparams
 
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     kw = {} if epochs is None else {"epochs": int(epochs)}
     if layer is None:
-        layer = choose_network_layer(data, svm=svm, seed=seed, epochs=epochs) if select else {}
-    hp = {**DEFAULTS, **hparams, **(layer.get("hparams") or {})}
+        layer = (choose_network_layer(data, svm=svm, seed=seed, epochs=epochs) if select else
+                 {"location_layer": UNVALIDATED, "layer_how": "not validated (model selection off)"})
+    hp = {**DEFAULTS, **hparams,
+          **(layer.get("hparams") or layer_hparams(layer["location_layer"], n_in=X.shape[1], n_svm=data.n_svm))}
+    aug = make_augmenter(data, train) if hp.get("augment") else None
+    svm_fits = svm is not None and hp.get("layer") == "kernel" and int(svm.pipe[0].n_features_in_) == hp.get("n_inputs")
     t0 = time.perf_counter()
-    predict = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed),
-                      kernel_svm=svm.pipe if (hp.get("kernel") and svm is not None) else None, **kw, **hp)
+    predict = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug,
+                      kernel_svm=svm.pipe if svm_fits else None, **kw, **hp)
     train_s = time.perf_counter() - t0
+    model = predict.model
     hparams_out = _plain_hparams({"n_in": int(X.shape[1]), "n_locations": n, **hp,
-                                  "n_centres": int(getattr(getattr(predict.model, "kernel", None), "centres", np.zeros((0,))).shape[0])})
-    return finish_network(predict.model, data, svm=svm, selection=layer, train_time_s=train_s, hparams=hparams_out,
-                          seed=seed)
+                                  "n_centres": int(model.kernel.centres.shape[0]) if model.kernel is not None else 0})
+    return finish_network(model, data, svm=svm, selection=layer, train_time_s=train_s, hparams=hparams_out, seed=seed)
 
 
-def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
-    """The network's location layer chosen on the validation session, or without one on the training session's last
-    pass over the markers (trained on the others): :func:`sonicskin.training.quick.choose_layer`."""
+def layer_folds(data):
+    """Where the network's location layer is validated: ``([(train rows, held-out rows, augmenter)], how)``.
+
+    With a validation session: trained on the training session and scored on the validation session, and the other
+    way round (the mean of both halves the ties at 100 % of one session).  Without one: the training session's last
+    pass over the markers held out (trained on the others).  ``[]`` when nothing can validate (one press per marker,
+    no validation session)."""
     from sonicskin.selection import press_ids, press_passes
 
-    from .quick import choose_layer
+    from .augment import make_augmenter
 
-    n, ids = data.n_locations, np.asarray(data.layout.ids)
-    X, cls, force, t = data.X, data.cls, data.force, data.table
+    t = data.table
     train, val = data.rows("train"), data.rows("val")
-    kw = {**hparams, **({} if epochs is None else {"epochs": int(epochs)})}
-    alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
     if val.any():
-        return choose_layer(X, cls, force, n_locations=n, train=train, val=val, seed=seed,
-                            how=f"validation on {', '.join(data.split.val)}", location_ids=ids, alpha=alpha, **kw)
+        return ([(train, val, make_augmenter(data, train)), (val, train, make_augmenter(data, val))],
+                f"validation on {', '.join(data.split.val)} (and trained there, scored on {', '.join(data.split.train)})")
     seg = t["segment"] if "segment" in t.labels else None
     passes = press_passes(np.where(train, press_ids(t["location"], t["session"], seg), -1), t["location"])
     if passes.max() >= 1:
         last = passes == passes.max()
-        return choose_layer(X, cls, force, n_locations=n, train=train & ~last, val=train & last, seed=seed,
-                            how="held-out last pass", location_ids=ids, alpha=alpha, **kw)
-    return {"location_layer": "frozen kernel", "layer_how": "one press per location: not validated", "hparams": {}}
+        return [(train & ~last, train & last, make_augmenter(data, train & ~last))], "held-out last pass"
+    return [], "one press per location and no validation session: not validated"
+
+
+def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
+    """The network's location layer chosen on presses it did not train on (:func:`layer_folds`,
+    :func:`sonicskin.training.quick.choose_layer`); the SVM's copy when nothing can validate."""
+    from .quick import UNVALIDATED, choose_layer
+
+    folds, how = layer_folds(data)
+    if not folds:
+        return {"location_layer": UNVALIDATED, "layer_how": how}
+    kw = {**hparams, **({} if epochs is None else {"epochs": int(epochs)})}
+    alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
+    return choose_layer(data.X, data.cls, data.force, n_locations=data.n_locations, folds=folds, how=how, seed=seed,
+                        location_ids=np.asarray(data.layout.ids), alpha=alpha, n_svm=data.n_svm, **kw)
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
-    """``sonicskin train`` with ``model.kernel: auto``: the Lightning module's location layer chosen as
-    :func:`choose_network_layer` chooses it for an in-process network, set on the module's hyperparameters and
-    recorded in its checkpoint's selection."""
+    """``sonicskin train`` with ``model.layer: auto``: the Lightning module's location layer chosen as
+    :func:`choose_network_layer` chooses it for an in-process network, set on the module (its hyperparameters, then
+    the network rebuilt) and recorded in its checkpoint's selection."""
+    from .quick import UNVALIDATED, layer_hparams
+
     datamodule.setup("fit")
     h = module.hparams
-    res = choose_network_layer(datamodule.prepared, svm=None, epochs=epochs, hidden=tuple(h.hidden), dropout=h.dropout,
+    data = datamodule.prepared
+    res = choose_network_layer(data, svm=None, epochs=epochs, hidden=tuple(h.hidden), dropout=h.dropout,
                                weight_decay=h.weight_decay)
-    hp = res.get("hparams") or {"kernel": True, "kernel_lr": 0.0}
-    h.kernel = bool(hp.get("kernel", True))
-    h.kernel_lr = float(hp.get("kernel_lr", h.kernel_lr))
+    hp = res.get("hparams") or layer_hparams(res.get("location_layer", UNVALIDATED), n_in=data.X.shape[1], n_svm=data.n_svm)
+    for k, v in hp.items():
+        h[k] = v
+    module.model = module._build()
     if datamodule.meta is not None:
         datamodule.meta.setdefault("selection", {})["net"] = {k: res[k] for k in ("location_layer", "layer_how")}
     print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
@@ -109,14 +132,14 @@ def finish_network(model, data, *, svm, selection: dict | None = None, train_tim
     recalibrated there, the SVM's input-RMS detector and either of them
     (:func:`sonicskin.training.quick.choose_detector`); without one its head cannot be judged on data it did not
     train on, so it is combined with the input-RMS detector (``either``: never more misses than the SVM's).  Force:
-    its own head or the SVM's pooled ridge, whichever has the lower RMSE on the validation presses
-    (:func:`sonicskin.training.quick.choose_net_force`), or the choice ``selection`` made on a held-out pass."""
+    its own head or a pooled ridge (over every input or the first 300), whichever has the lower RMSE on the validation
+    presses (:func:`sonicskin.training.quick.choose_force`), or the choice ``selection`` made on a held-out pass."""
     import torch
 
     from sonicskin.force import PooledForce
     from sonicskin.head import DETECTOR_BINS
 
-    from .quick import choose_detector, choose_net_force
+    from .quick import choose_detector, choose_force
 
     sel = dict(selection or {})
     sel.pop("hparams", None)
@@ -124,7 +147,7 @@ def finish_network(model, data, *, svm, selection: dict | None = None, train_tim
     if hasattr(model, "set_detector"):
         model.set_detector(None)  # a checkpoint of an older export may carry one: the head decides now
     n, ids = data.n_locations, np.asarray(data.layout.ids)
-    X, cls, force, t = data.X, data.cls, data.force, data.table
+    X, cls, force, t = data.X[:, :model.n_in], data.cls, data.force, data.table  # the network reads the first n_in
     train, val = data.rows("train"), data.rows("val")
     q = data.quiet
     n_det = min(DETECTOR_BINS, X.shape[1])  # the SVM's detector reads the first (best) inputs only
@@ -149,15 +172,17 @@ def finish_network(model, data, *, svm, selection: dict | None = None, train_tim
                     **({} if data.spec.mode == "relative" else {"reference": [float(v) for v in ref]})}
         if detector["mode"] == "head" and not detector["bias"]:
             detector = None  # the graph's own p(touch) >= 0.5: nothing for the head to add
+    alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
     if val.any():
-        alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
-        sel.update(choose_net_force(model, X, cls, force, fit_rows=train, val_rows=val, location_ids=ids, alpha=alpha,
-                                    how=f"validation on {', '.join(data.split.val)}"))
-    elif sel.get("force") == "pooled-ridge":  # validated on the held-out pass: the SVM's pooled model on every pass
+        sel.update(choose_force(model, X, cls, force, fit_rows=train, val_rows=val, location_ids=ids, alpha=alpha,
+                                how=f"validation on {', '.join(data.split.val)}"))
+    elif str(sel.get("force", "")).startswith("pooled-ridge"):  # chosen on the held-out pass: refitted on every pass
         fr = train & (cls < n) & np.isfinite(force)
-        alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
-        pf = PooledForce(alpha).fit(X[fr], force[fr], ids[cls[fr]])
-        model.set_force({"coef": pf.coef_, "loc": [pf.loc_coef_[int(k)] + pf.intercept_ for k in ids]})
+        k = 300 if "first 300" in sel["force"] else X.shape[1]
+        pf = PooledForce(alpha).fit(X[fr][:, :k], force[fr], ids[cls[fr]])
+        coef = np.zeros(X.shape[1])
+        coef[:k] = pf.coef_
+        model.set_force({"coef": coef, "loc": [pf.loc_coef_[int(i)] + pf.intercept_ for i in ids]})
     if seed is not None:
         sel["train_seed"] = int(seed)
     return NetFit(model, dict(hparams or {}), detector, sel, train_time_s)
@@ -220,6 +245,7 @@ def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | P
                             f"({d.spec.mode}, beta {d.spec.beta_s:g} s vs {spec.mode}, beta {spec.beta_s:g} s); pass the "
                             f"dataset it was trained on with --data")
     d.selection = dict(meta.get("selection") or {})
+    d.n_svm = int(meta.get("n_svm", len(spec.bins)))  # the SVM reads the first n_svm of the network's bins
     skin = fit_artifact(d, out, net=lit.model, training={"checkpoint": str(ckpt)}, log=log,
                         net_options={"hparams": _plain_hparams(lit.hparams), "train_time_s": meta.get("train_time_s"),
                                      "selection": (meta.get("selection") or {}).get("net")})

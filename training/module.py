@@ -10,7 +10,10 @@ import torch
 import torch.nn.functional as F
 from sonicskin.models import SkinNet, svm_pipeline
 
-__all__ = ["SkinLitModule", "fit_kernel_svm"]
+__all__ = ["SkinLitModule", "fit_kernel_svm", "LAYER_KINDS"]
+
+#: the network's location layers (``model.layer``)
+LAYER_KINDS = ("kernel", "mlp", "metric", "auto")
 
 
 def fit_kernel_svm(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float = 10.0):
@@ -59,10 +62,26 @@ class SkinLitModule(L.LightningModule):
     label_smoothing : float
         Label smoothing of the location cross-entropy (training only).
     kernel : bool or "auto"
-        Location layer = the SVM's kernel machine (RBF units at its support vectors), fitted on the training
-        split (scaler + RBF SVC, C = ``svm_c``) when training starts; ``False``: a plain MLP; ``"auto"``: chosen
-        when training starts among the frozen kernel, the fine-tuned kernel (``kernel_lr`` 1e-3) and the MLP by
-        accuracy on the validation session (or the training split's last pass over the markers).
+        The older name of ``layer``: ``True`` the SVM's kernel machine, ``False`` an MLP, ``"auto"`` chosen by
+        validation; ``layer`` wins when given.
+    layer : str
+        The location layer: ``"kernel"`` (the SVM's kernel machine, RBF units at its support vectors, fitted on the
+        training split when training starts: scaler + RBF SVC, C = ``svm_c``), ``"mlp"`` (the trunk's own location
+        logits), ``"metric"`` (class prototypes under a metric learned from every marker's presses:
+        :class:`models.metric.MetricSkinNet`, started as a shrinkage LDA on the unit-length touch chirps), or
+        ``"auto"``: chosen before training by validation (:func:`training.fit.choose_network_layer`).
+    n_inputs : int, optional
+        The network reads the first ``n_inputs`` inputs only (OSPA's best bins); ``None``: all ``n_in``.
+    n_trunk : int
+        Metric layer: the trunk (touch, force) reads the first ``n_trunk`` inputs, the metric layer all of them.
+    metric_lr : float
+        Learning rate of the metric layer; 0 keeps it the LDA's.
+    augment : bool
+        Train on augmented touch chirps too (:class:`training.augment.Augmenter`: the force ramp within each press, the
+        touch's strength, aim toward neighbouring markers, warm-up stretch, gain and tilt, the robot's motion, each
+        measured from the training session); the trainer sets the augmenter (:attr:`augmenter`).
+    aug_share : float
+        Augmented copies per batch, as a share of the batch's touch chirps.
     kernel_lr : float
         Learning rate of the kernel layer; 0 keeps it the SVM's (measured best one-shot).
     tau : float
@@ -81,35 +100,84 @@ class SkinLitModule(L.LightningModule):
                  dropout: float = 0.3, lr: float = 2e-3, weight_decay: float = 1e-2, force_weight: float = 0.1,
                  noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
                  kernel: bool | str = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0,
-                 rest_mix: float = 0.0):
+                 rest_mix: float = 0.0, layer: str | None = None, n_inputs: int | None = None, n_trunk: int = 300,
+                 metric_lr: float = 0.0, augment: bool = False, aug_share: float = 0.5):
         super().__init__()
         self.save_hyperparameters()
-        self.model = SkinNet(n_in, n_locations, tuple(hidden), dropout, input_dropout, n_centres=n_centres, tau=tau)
+        if layer is None:
+            self.hparams.layer = "auto" if kernel == "auto" else "kernel" if kernel else "mlp"
+        if self.hparams.layer not in LAYER_KINDS:
+            raise ValueError(f"model.layer must be one of {', '.join(LAYER_KINDS)}, got {self.hparams.layer!r}")
+        self.model = self._build()
         self.meta: dict | None = None
+        self.augmenter = None        # training.augment.Augmenter over the training touch chirps (set by the trainer)
+        self.aug_rows: np.ndarray | None = None  # training row -> the augmenter's row (-1: not a touch chirp)
+        self._aug_rng = np.random.default_rng(0)
+
+    @property
+    def n_model_in(self) -> int:
+        """How many of the inputs the network reads (the first ones)."""
+        h = self.hparams
+        return int(min(h.n_inputs or h.n_in, h.n_in))
+
+    def _build(self):
+        h = self.hparams
+        n = self.n_model_in
+        if h.layer == "metric":
+            from sonicskin.models.metric import MetricSkinNet
+
+            return MetricSkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk,
+                                 unit_norm=True)
+        centres = h.n_centres if h.layer == "kernel" else 0
+        return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
+
+    def init_metric(self, X: np.ndarray, cls: np.ndarray) -> None:
+        """Start the metric layer as a shrinkage LDA on the unit-length touch chirps of (X, cls) (training split)."""
+        from sklearn.preprocessing import normalize
+
+        from sonicskin.nuisance import ShrinkageLDA
+
+        n, K = self.n_model_in, self.hparams.n_locations
+        X = np.asarray(X, np.float64)[:, :n]
+        touch = np.asarray(cls) < K
+        if np.unique(cls[touch]).size != K:
+            raise ValueError(f"training data touches {np.unique(cls[touch]).size} of the {K} locations; "
+                             f"record every location at least once")
+        lda = ShrinkageLDA().fit(normalize(X[touch]), np.asarray(cls)[touch])
+        self.model.init_from_lda(lda, X.mean(0), X.std(0) + 1e-3)
 
     def init_kernel(self, X: np.ndarray, cls: np.ndarray, pipe=None) -> None:
         """Fit the SVM on (X, cls) of the training split and start the kernel layer (and normalisation) from it
         (``pipe``: that SVM, already fitted)."""
         if pipe is None:
-            pipe = fit_kernel_svm(X, cls, self.hparams.n_locations, C=self.hparams.svm_c)
+            pipe = fit_kernel_svm(np.asarray(X)[:, :self.n_model_in], cls, self.hparams.n_locations, C=self.hparams.svm_c)
         h = self.hparams
         h.n_centres = int(pipe[-1].support_vectors_.shape[0])
-        self.model = SkinNet(h.n_in, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=h.n_centres, tau=h.tau)
+        self.model = self._build()
         self.model.init_from_svm(pipe)
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None)
         if dm is not None and getattr(dm, "prepared", None) is not None:
-            self.model.set_normalization(dm.mean, dm.std)
+            n = self.n_model_in
+            self.model.set_normalization(dm.mean[:n], dm.std[:n])
             self.meta = dm.meta
-            if stage == "fit" and self.hparams.kernel == "auto":  # SkinCLI.before_fit chooses it (training.fit)
-                raise ValueError("model.kernel 'auto' must be resolved before training (training.fit.choose_auto_layer)")
-            if stage == "fit" and self.hparams.kernel and self.model.kernel is None:
-                p = dm.prepared
-                tr = p.rows("train")
+            if stage == "fit" and self.hparams.layer == "auto":  # SkinCLI.before_fit chooses it (training.fit)
+                raise ValueError("model.layer 'auto' must be resolved before training (training.fit.choose_auto_layer)")
+            p = dm.prepared
+            tr = p.rows("train")
+            if stage == "fit" and self.hparams.layer == "kernel" and self.model.kernel is None:
                 self.init_kernel(p.X[tr], p.cls[tr])
+            if stage == "fit" and self.hparams.layer == "metric":
+                self.init_metric(p.X[tr], p.cls[tr])
+            if stage == "fit" and self.hparams.augment and self.augmenter is None:
+                from .augment import make_augmenter
+
+                self.augmenter, self.aug_rows = make_augmenter(p, tr, n_cols=n)
             if self.model.kernel is not None:  # before DDP wraps the model: a frozen layer is no unused parameter
                 self.model.kernel.requires_grad_(self.hparams.kernel_lr > 0)
+            if getattr(self.model, "metric", None) is not None:
+                self.model.metric.requires_grad_(self.hparams.metric_lr > 0)
 
     def on_train_start(self) -> None:
         import time
@@ -130,8 +198,27 @@ class SkinLitModule(L.LightningModule):
     def forward(self, x):
         return self.model(x)
 
-    def loss_terms(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, *, train: bool) -> dict:
-        """The joint loss and its parts on one batch (``train`` adds the input noise and label smoothing)."""
+    def augmented(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, rows: torch.Tensor):
+        """The batch with augmented copies of ``aug_share`` of its touch chirps appended (their labels and forces);
+        ``rows``: each chirp's row among the training rows the augmenter knows."""
+        a = self.aug_rows[rows.cpu().numpy()]
+        touch = np.flatnonzero(a >= 0)
+        k = int(round(self.hparams.aug_share * touch.size))
+        if k == 0:
+            return x, cls, force
+        pick = self._aug_rng.choice(touch, size=k, replace=False)
+        xa = self.augmenter.draw(self._aug_rng, a[pick])[:, :x.shape[1]]
+        xa = torch.from_numpy(np.ascontiguousarray(xa, np.float32)).to(x.device)
+        idx = torch.from_numpy(pick).to(x.device)
+        return torch.cat([x, xa]), torch.cat([cls, cls[idx]]), torch.cat([force, force[idx]])
+
+    def loss_terms(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, *, train: bool,
+                   rows: torch.Tensor | None = None) -> dict:
+        """The joint loss and its parts on one batch (``train`` adds the input noise, label smoothing and, with an
+        augmenter and the batch's ``rows``, augmented touch chirps)."""
+        x = x[:, :self.n_model_in]
+        if train and self.augmenter is not None and rows is not None:
+            x, cls, force = self.augmented(x, cls, force, rows)
         if train and self.hparams.rest_mix > 0:
             # Physical noise: each touch chirp gets the deviation of a random no-touch chirp of the batch from their
             # mean (motion, drift and electrical noise as this rig records them), scaled by rest_mix.
@@ -157,8 +244,8 @@ class SkinLitModule(L.LightningModule):
         return {"loss": ce + self.hparams.force_weight * f_loss, "acc": acc, "force_rmse": f_loss.sqrt(), "detect": det}
 
     def _step(self, batch, stage: str):
-        x, cls, force = batch
-        terms = self.loss_terms(x, cls, force, train=stage == "train")
+        x, cls, force, *rows = batch  # the training loader also gives each chirp's training row (augmentation)
+        terms = self.loss_terms(x, cls, force, train=stage == "train", rows=rows[0] if rows else None)
         self.log_dict({f"{stage}_{k}": v for k, v in terms.items()}, prog_bar=stage != "train", on_epoch=True, on_step=False,
                       batch_size=x.shape[0], sync_dist=True)  # DDP: every rank logs (and checkpoints by) the same mean
         return terms["loss"]
@@ -173,15 +260,18 @@ class SkinLitModule(L.LightningModule):
         self._step(batch, "test")
 
     def make_optimizer(self, epochs: int):
-        """AdamW (the kernel layer at ``kernel_lr``, frozen at 0) with a cosine schedule over ``epochs``."""
+        """AdamW (the kernel layer at ``kernel_lr``, the metric layer at ``metric_lr``; frozen at 0) with a cosine
+        schedule over ``epochs``."""
         h = self.hparams
-        kern = list(self.model.kernel.parameters()) if self.model.kernel is not None else []
-        for q in kern:
-            q.requires_grad_(h.kernel_lr > 0)
-        ids = {id(q) for q in kern}
-        groups = [{"params": [q for q in self.parameters() if id(q) not in ids]}]
-        if kern and h.kernel_lr > 0:
-            groups.append({"params": kern, "lr": h.kernel_lr, "weight_decay": 0.0})
+        groups, ids = [], set()
+        for layer, lr in ((self.model.kernel, h.kernel_lr), (getattr(self.model, "metric", None), h.metric_lr)):
+            params = list(layer.parameters()) if layer is not None else []
+            for q in params:
+                q.requires_grad_(lr > 0)
+            ids |= {id(q) for q in params}
+            if params and lr > 0:
+                groups.append({"params": params, "lr": lr, "weight_decay": 0.0})
+        groups.insert(0, {"params": [q for q in self.parameters() if id(q) not in ids]})
         opt = torch.optim.AdamW(groups, lr=h.lr, weight_decay=h.weight_decay)
         return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
 

@@ -26,7 +26,8 @@ from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
 from ..split import Split
 
-__all__ = ["Context", "datasets", "MATERIALS", "USES", "QUICK_SIZE", "MODEL", "net_available", "plt", "first_session_split"]
+__all__ = ["Context", "datasets", "MATERIALS", "USES", "QUICK_SIZE", "MODEL", "net_available", "plt", "first_session_split",
+           "deployed_data"]
 
 MATERIALS = ("cfrp", "aluminium", "abs", "glass", "wood")
 # --quick: every press half as long (1.5 s of 3 s) and 5 s of moving no-touch (of 10 s), on top of each
@@ -156,21 +157,24 @@ class Context:
         return have[:n]
 
     def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = 1200.0, keep: np.ndarray | None = None,
-             notches: bool = True):
+             notches: bool = True, n_svm: int | None = None):
         """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``.  ``keep``: only
         these training chirps train (a resample).  ``notches=False``: the artifact's rig has no PWM notches (the
-        paper's no-matched-filter ablation: every band bin may be read)."""
+        paper's no-matched-filter ablation: every band bin may be read).  ``n_svm``: the SVM reads the first ``n_svm``
+        of ``bins`` (OSPA order), the network may read them all (default: both read every one)."""
         from ..fit import prepare
 
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
-        key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches)
+        key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)
         if key not in self._data:
             split = Split(sessions_of(t, train), (), sessions_of(t, ~train))
             rig = ds.rig if notches else Rig.from_dict({**ds.rig.to_dict(), "pwm_hz": []})
             d = prepare(ds, table=t, split=split, bins=bins, alpha_s=alpha_s, rig=rig, log=lambda m: None)
             if keep is not None:
                 d = dataclasses.replace(d, usable=d.usable & keep)
+            if n_svm is not None:
+                d.n_svm = int(min(n_svm, len(bins)))
             self._data[key] = (d, key)
         return self._data[key]
 
@@ -251,3 +255,10 @@ def first_session_split(ctx: Context, name: str):
     first = sorted(set(t["session"]))[0]
     train = t["session"] == first
     return ds, t, train, ~train, ctx.bins(ds, t, train, 300)
+
+
+def deployed_data(ctx: Context, ds: Dataset, train: np.ndarray, **kw):
+    """The training data of the two models as the package deploys them: the SVM on OSPA's first 300 bins (the
+    paper's gamma), the network on every usable bin in OSPA's order (its location layer reads a validated prefix)."""
+    t = ctx.table(ds)
+    return ctx.data(ds, train=train, bins=ctx.bins(ds, t, train, int(ds.rig.allowed_mask.sum())), n_svm=300, **kw)

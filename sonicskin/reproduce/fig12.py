@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import touch_mask
-from .context import MODEL, NEVER_S, Context, first_session_split, plt
+from .context import MODEL, NEVER_S, Context, deployed_data, first_session_split, plt
 
 ALPHAS = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
 
@@ -39,7 +39,10 @@ def _drift_run(ctx: Context, name: str, axis: str, unit_s: float, rows):
 def run(ctx: Context) -> dict:
     ds, later, train, bins, res = _drift_run(ctx, "drift-2h", "minutes", 60, touch_mask)
     for name, alpha in ALPHAS.items():
-        d = ctx.data(ds, train=train, bins=bins, alpha_s=NEVER_S if alpha is None else alpha)
+        a = NEVER_S if alpha is None else alpha
+        # the network (20 min and never) as deployed, on every usable bin; the SVM's bins are their first 300
+        d = (deployed_data(ctx, ds, train, alpha_s=a) if ctx.net and name in ("20 min", "never") else
+             ctx.data(ds, train=train, bins=bins, alpha_s=a))
         for k in ctx.kinds:
             if name not in ("20 min", "never") and k == "net":
                 continue
@@ -76,7 +79,7 @@ def draw(res: dict):
 def two_months(ctx: Context) -> dict:
     ds, later, train, bins, out = _drift_run(ctx, "drift-2months", "days", 86400, lambda t: np.ones(len(t["session"]), bool))
     for name, alpha in (("with updating", 1200.0), ("without", NEVER_S)):
-        d = ctx.data(ds, train=train, bins=bins, alpha_s=alpha)
+        d = deployed_data(ctx, ds, train, alpha_s=alpha) if ctx.net else ctx.data(ds, train=train, bins=bins, alpha_s=alpha)
         for k in ctx.kinds:
             out[f"{k} {name}"] = _per_session(ctx, k, d, train, later)
     return out

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..features import quiet_mask, touch_mask
 from ..force import MODELS, energy_db, fit_curve
-from .context import Context, first_session_split, plt
+from .context import Context, deployed_data, first_session_split, plt
 
 
 def run(ctx: Context) -> dict:
@@ -23,7 +23,7 @@ def run(ctx: Context) -> dict:
                   for k in ds.layout.ids if (touch & (tr["location"] == k)).sum() > 6]
             res[feat][model] = float(np.mean(r2))
     if ctx.net:  # the deployed network's force on its own training session (replayed as a stream)
-        p = ctx.predict("net", ctx.data(ds, train=train, bins=bins), train)
+        p = ctx.predict("net", deployed_data(ctx, ds, train), train)
         m = touch & p.touch
         g = tr["force_n"][m]
         res["network (training fit)"] = float(1 - np.sum((p.force_n[m] - g) ** 2) / np.sum((g - g.mean()) ** 2))

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .context import MATERIALS, MODEL, Context, first_session_split, plt
+from .context import MATERIALS, MODEL, Context, deployed_data, first_session_split, plt
 
 
 def run(ctx: Context) -> dict:
     res: dict = {}
     for name in [f"two-points-{m}" for m in MATERIALS] + ["plate-aluminium"]:
         ds, t, train, test, bins = first_session_split(ctx, name)
-        d = ctx.data(ds, train=train, bins=bins)
+        d = deployed_data(ctx, ds, train)
         key = "aluminium plate, 36 markers" if name == "plate-aluminium" else name.removeprefix("two-points-")
         res[key] = {k: ctx.evaluate(k, d, test) for k in ctx.kinds}
     return ctx.save(draw(res, ctx.kinds), "fig16.png", res)

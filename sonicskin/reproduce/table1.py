@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .context import MODEL, Context, first_session_split, plt
+from .context import MODEL, Context, deployed_data, first_session_split, plt
 
 
 def run(ctx: Context) -> dict:
     res: dict = {"table1": {}, "stationary": {}, "fig14": {}, "fig15": {}}
     for name in ("stationary", "moving"):
         ds, t, train, test, bins = first_session_split(ctx, name)
-        d = ctx.data(ds, train=train, bins=bins)
+        d = deployed_data(ctx, ds, train)
         for k in ctx.kinds:
             ev = ctx.evaluate(k, d, test)
             res["table1"][f"{name} {k}"] = ev["force"]
@@ -22,7 +22,7 @@ def run(ctx: Context) -> dict:
     test_subjects = list(range(n_people - (2 if ctx.quick else 4), n_people))
     test = np.isin(t["session"], sorted(set(t["session"][np.isin(t["subject"], test_subjects) & (t["location"] >= 0)])))
     train = ~test
-    d = ctx.data(ds, train=train, bins=ctx.bins(ds, t, train, 300))
+    d = deployed_data(ctx, ds, train)
     for k in ctx.kinds:
         res["fig15"][k] = ctx.evaluate(k, d, test)
     from ..plots import cdf_panel, confusion_panel
