@@ -41,11 +41,19 @@ def artifact(tmp_path_factory, rig):
     return root / "art", data, skin
 
 
+def data_rig_allowed(data) -> int:
+    from sonicskin.dataset import Dataset
+
+    return int(Dataset(data).rig.allowed_mask.sum())
+
+
 def test_fast_dev_run(tmp_path, artifact):
     _, data, _ = artifact
     cli = _train(data, tmp_path, "--trainer.fast_dev_run", "true")
     assert cli.trainer.state.finished
-    assert cli.model.model.n_in == 60 and cli.model.model.n_locations == 3  # linked from the data
+    # linked from the data: every usable bin in OSPA's order (the SVM reads the first 60, --data.n_bins)
+    assert cli.model.hparams.n_in == cli.datamodule.n_in == int(data_rig_allowed(data)) and cli.model.model.n_locations == 3
+    assert cli.model.model.n_in <= cli.model.hparams.n_in
 
 
 def test_export_parity_and_metadata(artifact):
@@ -55,8 +63,10 @@ def test_export_parity_and_metadata(artifact):
         assert par["labels_equal"] and par["near_ties"] < 10
         outs = [kk[8:] for kk in par if kk.startswith("max_abs_")]
         assert len(outs) == 2 and all(0 <= par[f"max_abs_{o}"] <= par[f"{o}_tol"] < 0.1 for o in outs)
-    assert len(skin["features"]["bins"]) == 60 and skin["rig"]["fs_hz"] == 192000
-    assert not list(art.glob("*.pkl")) and (art / "net.onnx").stat().st_size < 1_000_000
+    assert skin["models"]["svm"]["n_in"] == 60 and skin["rig"]["fs_hz"] == 192000
+    assert skin["models"]["net"]["n_in"] <= len(skin["features"]["bins"])  # a prefix of every usable bin, OSPA order
+    # an MLP on every usable bin of the jaco rig is 5014 x 128 float32 weights: 2.6 MB
+    assert not list(art.glob("*.pkl")) and (art / "net.onnx").stat().st_size < 4_000_000
     # The final config is saved beside the checkpoints.
     assert list((art.parent / "run").rglob("config.yaml"))
 

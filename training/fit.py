@@ -48,9 +48,10 @@ def train_network(data, *, svm, select: bool = True, seed: int = 0, epochs: int 
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     kw = {} if epochs is None else {"epochs": int(epochs)}
-    if layer is None:
-        layer = (choose_network_layer(data, svm=svm, seed=seed, epochs=epochs) if select else
-                 {"location_layer": UNVALIDATED, "layer_how": "not validated (model selection off)"})
+    if layer is None and select:
+        layer = choose_network_layer(data, svm=svm, seed=seed, epochs=epochs)
+    if not layer or "location_layer" not in layer:
+        layer = {"location_layer": UNVALIDATED, "layer_how": "not validated (model selection off)"}
     hp = {**DEFAULTS, **hparams,
           **(layer.get("hparams") or layer_hparams(layer["location_layer"], n_in=X.shape[1], n_svm=data.n_svm))}
     aug = make_augmenter(data, train) if hp.get("augment") else None
