@@ -70,33 +70,12 @@ def _model_metrics(r: dict) -> dict:
 
 
 def floors(ds, *, min_force_n: float = 0.5) -> dict:
-    """Plain scikit-learn on every usable bin minus each session's boot reference (first 3 s, no label)."""
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC, SVR
-
+    """The plain scikit-learn floors on this split (:func:`sonicskin.floors.plain_floors`)."""
     from sonicskin.feature_cache import load_features_cached
-    from sonicskin.features import FeatureSpec, touch_mask
+    from sonicskin.floors import plain_floors
 
-    t = load_features_cached(ds, progress=False)
-    beta = FeatureSpec((0,), "relative").reference(ds.rig.chirps_per_s).beta
-    X = t.X[:, ds.rig.allowed_mask].astype(np.float64)
-    for s in np.unique(t["session"]):
-        idx = np.flatnonzero(t["session"] == s)
-        X[idx] -= X[idx[:beta]].mean(axis=0)
-    touch = touch_mask(t, min_force_n)
-    tr = touch & np.isin(t["session"], SPLIT["train"])
-    te = touch & np.isin(t["session"], SPLIT["test"])
-    loc, f = t["location"], t["force_n"]
-    t0 = time.perf_counter()
-    svc = make_pipeline(StandardScaler(), SVC()).fit(X[tr], loc[tr])
-    acc = float(np.mean(svc.predict(X[te]) == loc[te]))
-    svr = make_pipeline(StandardScaler(), SVR()).fit(X[tr], f[tr])
-    rmse_svr = float(np.sqrt(np.mean((svr.predict(X[te]) - f[te]) ** 2)))
-    rmse_mean = float(np.sqrt(np.mean((f[tr].mean() - f[te]) ** 2)))
-    return {"svc_accuracy": acc, "svr_force_rmse_n": rmse_svr, "mean_force_rmse_n": rmse_mean,
-            "n_bins": int(X.shape[1]), "n_train_touch": int(tr.sum()), "n_test_touch": int(te.sum()),
-            "fit_s": time.perf_counter() - t0}
+    return plain_floors(load_features_cached(ds, progress=False), ds.rig, train=SPLIT["train"], test=SPLIT["test"],
+                        min_force_n=min_force_n)
 
 
 def describe(sc) -> dict:
@@ -141,12 +120,15 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     row = {"seed": int(seed), "rig": describe(Scenario.load("random", seed=seed)), "split": res["split"],
            "chirps_per_location": res["chirps_per_location"],
            "net": _model_metrics(res["models"]["net"]), "svm": _model_metrics(res["models"]["svm"]), "floor": fl,
+           "net_layer": ((json.loads((Path(res["artifact"]) / "skin.json").read_text()).get("selection") or {}).get("net")
+                         or {}).get("location_layer"),
            "seconds": {"simulate": sim_s, "models": models_s, "floors": time.perf_counter() - t2}}
     log(f"seed {seed} ({row['rig']['material']} {row['rig']['surface']}, {row['rig']['locations']} locations): accuracy "
-        f"net {row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} SVC floor {fl['svc_accuracy']:.1%}; force RMSE net "
-        f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR {fl['svr_force_rmse_n']:.2f} mean "
-        f"{fl['mean_force_rmse_n']:.2f} N; missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} "
-        f"({time.perf_counter() - t0:.0f} s)")
+        f"net {row['net']['accuracy']:.1%} ({row['net_layer']}) svm {row['svm']['accuracy']:.1%} floors SVC "
+        f"{fl['svc_accuracy']:.1%} LDA {fl['lda_accuracy']:.1%} normalized SVC {fl['normalized_svc_accuracy']:.1%}; force RMSE net "
+        f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR {fl.get('svr_force_rmse_n', np.nan):.2f} "
+        f"mean {fl.get('mean_force_rmse_n', np.nan):.2f} N; missed net {row['net']['missed_touch']:.1%} "
+        f"svm {row['svm']['missed_touch']:.1%} ({time.perf_counter() - t0:.0f} s)")
     return row
 
 
@@ -158,13 +140,16 @@ def summarize(rows: list[dict]) -> dict:
         return np.array([get(r) for r in rows], float)
 
     q = {f"{m}/{k}": col(lambda r, m=m, k=k: r[k][m]) for m in METRICS for k in ("net", "svm")}
-    q["accuracy/svc_floor"] = col(lambda r: r["floor"]["svc_accuracy"])
-    q["force_rmse_n/svr_floor"] = col(lambda r: r["floor"]["svr_force_rmse_n"])
-    q["force_rmse_n/mean_floor"] = col(lambda r: r["floor"]["mean_force_rmse_n"])
+    for k in ("svc", "lda", "normalized_svc"):
+        q[f"accuracy/{k}_floor"] = col(lambda r, k=k: r["floor"].get(f"{k}_accuracy", np.nan))
+    q["force_rmse_n/svr_floor"] = col(lambda r: r["floor"].get("svr_force_rmse_n", np.nan))
+    q["force_rmse_n/mean_floor"] = col(lambda r: r["floor"].get("mean_force_rmse_n", np.nan))
     out = {"values": {k: {"mean": float(np.nanmean(v)), "std": float(np.nanstd(v, ddof=1)) if np.isfinite(v).sum() > 1 else 0.0,
                           "n": int(np.isfinite(v).sum())} for k, v in q.items()}, "pairs": {}}
     pairs = [(f"{m}/net", f"{m}/svm") for m in METRICS] + [
         ("accuracy/svm", "accuracy/svc_floor"), ("accuracy/net", "accuracy/svc_floor"),
+        ("accuracy/svm", "accuracy/lda_floor"), ("accuracy/net", "accuracy/lda_floor"),
+        ("accuracy/svm", "accuracy/normalized_svc_floor"), ("accuracy/net", "accuracy/normalized_svc_floor"),
         ("force_rmse_n/svm", "force_rmse_n/svr_floor"), ("force_rmse_n/net", "force_rmse_n/svr_floor"),
         ("force_rmse_n/svm", "force_rmse_n/mean_floor"), ("force_rmse_n/net", "force_rmse_n/mean_floor")]
     for a, b in pairs:
@@ -174,13 +159,15 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+from sonicskin.floors import FLOOR_NAMES  # noqa: E402
+
+
 def _f(v: float, unit: str, signed: bool = False) -> str:
     s = "+" if signed else ""
     return f"{v * 100:{s}.1f}" if unit == "pct" else f"{v:{s}.2f}"
 
 
-NAMES = {"net": "network", "svm": "package SVM", "svc_floor": "SVC floor (all bins)", "svr_floor": "pooled SVR floor",
-         "mean_floor": "training-mean floor"}
+NAMES = {"net": "network", "svm": "package SVM", **{f"{k}_floor": v for k, v in FLOOR_NAMES.items()}}
 
 
 def format_markdown(res: dict) -> str:
@@ -204,14 +191,18 @@ def format_markdown(res: dict) -> str:
         lines.append(f"| {LABELS[m]}: {NAMES[a.split('/')[1]]} − {NAMES[b.split('/')[1]]} | {_f(v['mean'], unit, True)} "
                      f"[{_f(lo, unit, True)}, {_f(hi, unit, True)}]{u[unit]} |")
     lines += ["", "Per rig (F: force RMSE in N; missed / false: touch detection in %):", "",
-              "| seed | rig | locations | motion | net acc | SVM acc | SVC floor | net F | SVM F | SVR F | mean F | "
-              "net missed | SVM missed | net false | SVM false |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "| seed | rig | locations | motion | net acc | SVM acc | SVC floor | LDA floor | norm. SVC floor | net layer | "
+              "net F | SVM F | SVR F | mean F | net missed | SVM missed | net false | SVM false |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in res["rows"]:
         g, n, s, fl = r["rig"], r["net"], r["svm"], r["floor"]
         counts = np.array(list(r["chirps_per_location"].values()))
         lines.append(f"| {r['seed']} | {g['material']} {g['surface']} | {g['locations']} ({counts.min()}-{counts.max()} chirps each) | "
                      f"{g['motion']:.2f} | {n['accuracy']:.1%} | {s['accuracy']:.1%} | {fl['svc_accuracy']:.1%} | "
-                     f"{n['force_rmse_n']:.2f} | {s['force_rmse_n']:.2f} | {fl['svr_force_rmse_n']:.2f} | {fl['mean_force_rmse_n']:.2f} | "
+                     f"{fl.get('lda_accuracy', np.nan):.1%} | {fl.get('normalized_svc_accuracy', np.nan):.1%} | "
+                     f"{r.get('net_layer') or '-'} | "
+                     f"{n['force_rmse_n']:.2f} | {s['force_rmse_n']:.2f} | {fl.get('svr_force_rmse_n', np.nan):.2f} | "
+                     f"{fl.get('mean_force_rmse_n', np.nan):.2f} | "
                      f"{n['missed_touch']:.1%} | {s['missed_touch']:.1%} | {n['false_touch']:.1%} | {s['false_touch']:.1%} |")
     return "\n".join(lines)
 

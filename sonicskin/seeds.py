@@ -26,7 +26,6 @@ import numpy as np
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
 from .feature_cache import load_features_cached
-from .features import FeatureSpec
 from .jsonio import json_safe
 from .rig import Rig
 from .runtime import SkinRuntime
@@ -79,31 +78,17 @@ def _split(t, test_subjects=None) -> Split:
     return Split.make(t, val_sessions=[])
 
 
-def _floors(ds: Dataset, tr, te, split) -> dict:
-    """The plain scikit-learn floors on the same split: SVC (scaler + default RBF SVC) on every usable bin for
-    location, and SVR (scaler + default RBF SVR) on the touch's relative usable bins for force, chirp by chirp
-    (test inputs relative to each test session's labelled rest: the floor gets that much help)."""
-    from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC, SVR
+def _floors(ds: Dataset, t, split) -> dict:
+    """The plain scikit-learn floors on the same split (:func:`sonicskin.floors.plain_floors`): ``accuracy`` (SVC on
+    every usable bin), ``lda_accuracy``, ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR) and
+    ``force_rmse_constant_n`` (the training mean)."""
+    from .floors import plain_floors
 
-    from .features import touch_mask
-
-    allowed = np.flatnonzero(ds.rig.allowed_mask)
-    ttr, tte = touch_mask(tr), touch_mask(te)
-    out = {"accuracy": float(np.mean(make_pipeline(StandardScaler(), SVC()).fit(tr.X[ttr][:, allowed], tr["location"][ttr])
-                                     .predict(te.X[tte][:, allowed]) == te["location"][tte]))}
-    f_tr, f_te = tr["force_n"], te["force_n"]
-    if np.isfinite(f_tr[ttr]).any() and np.ptp(f_tr[ttr][np.isfinite(f_tr[ttr])]) > 0:
-        spec = FeatureSpec(tuple(int(b) for b in allowed), "relative")
-        try:
-            Rtr, Rte = spec.transform(tr, ds.rig.chirps_per_s), spec.transform(te, ds.rig.chirps_per_s)
-        except ValueError:
-            Rtr, Rte = tr.X[:, allowed], te.X[:, allowed]
-        a, b = ttr & np.isfinite(f_tr), tte & np.isfinite(f_te)
-        svr = make_pipeline(StandardScaler(), SVR()).fit(Rtr[a], f_tr[a])
-        out["force_rmse_n"] = float(np.sqrt(np.mean((np.clip(svr.predict(Rte[b]), 0, None) - f_te[b]) ** 2)))
-        out["force_rmse_constant_n"] = float(np.sqrt(np.mean((np.mean(f_tr[a]) - f_te[b]) ** 2)))
+    f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
+    out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
+           "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
+    if "svr_force_rmse_n" in f:
+        out.update(force_rmse_n=f["svr_force_rmse_n"], force_rmse_constant_n=f["mean_force_rmse_n"])
     return out
 
 
@@ -128,7 +113,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
         data = dataclasses.replace(data, usable=data.usable & (np.arange(len(t)) % int(train_stride) == 0))
     svm = fit_svm(data, select=select, log=quiet_log)
     te = t.select(split.mask(t, "test"))
-    floor = _floors(ds, t.select(split.mask(t, "train")), te, split)
+    floor = _floors(ds, t, split)
     with quiet_third_party():
         layer = choose_network_layer(data, svm=svm, epochs=epochs) if select else {}
     out, svm_metrics = [], None
@@ -228,6 +213,18 @@ def format_markdown(res: dict) -> str:
             lines.append(f"| {name} | {LABELS[m]} | {_fmt(r['net_mean'], unit)} ± {_fmt(r['net_std'], unit)}{u} | "
                          f"{_fmt(r['svm_mean'], unit)} ± {_fmt(r['svm_std'], unit)}{u} | {_fmt(r['diff_mean'], unit, True)} "
                          f"[{_fmt(lo, unit, True)}, {_fmt(hi, unit, True)}]{u} |")
+    floors = [("accuracy", "SVC (all bins)", "pct"), ("lda_accuracy", "shrinkage LDA (all bins)", "pct"),
+              ("normalized_svc_accuracy", "normalized SVC (OSPA 300)", "pct"), ("force_rmse_n", "pooled SVR force", "N")]
+    lines += ["", "Plain scikit-learn floors on the same splits (mean ± std over simulator seeds; a result below them is "
+              "not a result):", "", "| scenario | " + " | ".join(f for _, f, _ in floors) + " |", "|---|" + "---|" * len(floors)]
+    for name, sc in res["scenarios"].items():
+        cells = []
+        for key, _, unit in floors:
+            v = np.array([rows[0]["floor"].get(key, np.nan) for rows in sc.get("runs", {}).values() if rows], float)
+            v = v[np.isfinite(v)]
+            u = {"pct": " %", "N": " N"}[unit]
+            cells.append(f"{_fmt(v.mean(), unit)} ± {_fmt(v.std(ddof=1) if v.size > 1 else 0.0, unit)}{u}" if v.size else "n/a")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
     splits = {name: next((r["split"] for rows in sc.get("runs", {}).values() for r in rows if "split" in r), None)
               for name, sc in res["scenarios"].items()}
     if any(splits.values()):

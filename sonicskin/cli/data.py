@@ -113,7 +113,8 @@ def add_parsers(sub) -> None:
                          "learning curve need two, the third adds presses of every marker to learn from (default: 3)")
     rc.add_argument("--artifact", help="when every marker is pressed, write the deployable SVM artifact here, as fit-svm "
                                        "would (default: OUT-artifact beside the dataset)")
-    rc.add_argument("--no-artifact", action="store_true", help="record only; train later with fit-svm or compare")
+    rc.add_argument("--no-artifact", action="store_true",
+                    help="record only; train later with fit-svm or compare (default: write the artifact)")
     rc.add_argument("--force-csv", help="force log with columns t_s,force_n (real device; default: no force sensor)")
     rc.add_argument("--force-serial", help="serial port of a force sensor printing newtons per line (real device; default: none)")
     rc.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
