@@ -98,9 +98,10 @@ def test_choose_layer_breaks_ties_at_the_printed_percent_in_a_fixed_order(monkey
     X = np.zeros((n, 3), np.float32)
     acc = {}
 
-    def fake_fit(X_, cls_, force_, *, n_locations, seed=0, kernel=True, kernel_lr=0.0, **kw):
-        name = "MLP" if not kernel else "fine-tuned kernel" if kernel_lr else "frozen kernel"
-        right = int(round(acc[name] * n))
+    names = {"kernel": "SVM kernel (frozen)", "metric": "metric (normalized LDA)", "mlp": "MLP, every bin"}
+
+    def fake_fit(X_, cls_, force_, *, n_locations, seed=0, layer="kernel", **kw):
+        right = int(round(acc[names[layer]] * n))
 
         def predict(Xq):
             lg = np.zeros((len(Xq), K + 1), np.float32)
@@ -113,10 +114,14 @@ def test_choose_layer_breaks_ties_at_the_printed_percent_in_a_fixed_order(monkey
 
     monkeypatch.setattr(quick, "fit_net", fake_fit)
     rows = np.ones(n, bool)
-    for scores, want in (({"frozen kernel": 0.935, "fine-tuned kernel": 0.944, "MLP": 0.930}, "frozen kernel"),
-                         ({"frozen kernel": 0.930, "fine-tuned kernel": 0.944, "MLP": 0.941}, "fine-tuned kernel"),
-                         ({"frozen kernel": 0.930, "fine-tuned kernel": 0.936, "MLP": 0.951}, "MLP")):
+    order = ["MLP, every bin", "metric (normalized LDA)", "SVM kernel (frozen)"]  # LAYERS' order
+    for scores, want in (({"MLP, every bin": 0.935, "metric (normalized LDA)": 0.944, "SVM kernel (frozen)": 0.930},
+                          "MLP, every bin"),
+                         ({"MLP, every bin": 0.930, "metric (normalized LDA)": 0.944, "SVM kernel (frozen)": 0.941},
+                          "metric (normalized LDA)"),
+                         ({"MLP, every bin": 0.930, "metric (normalized LDA)": 0.936, "SVM kernel (frozen)": 0.951},
+                          "SVM kernel (frozen)")):
         acc.update(scores)
-        out = quick.choose_layer(X, cls, np.zeros(n), n_locations=K, train=rows, val=rows, how="test")
+        out = quick.choose_layer(X, cls, np.zeros(n), n_locations=K, folds=[(rows, rows, None)], how="test", layers=order)
         assert out["location_layer"] == want, out["layer_how"]
-    assert out["layer_how"] == "test: frozen kernel 93%, fine-tuned kernel 94%, MLP 95%"
+    assert out["layer_how"] == "test: MLP, every bin 93%, metric (normalized LDA) 94%, SVM kernel (frozen) 95%"
