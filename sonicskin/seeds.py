@@ -220,7 +220,8 @@ def format_markdown(res: dict) -> str:
     for name, sc in res["scenarios"].items():
         cells = []
         for key, _, unit in floors:
-            v = np.array([rows[0]["floor"].get(key, np.nan) for rows in sc.get("runs", {}).values() if rows], float)
+            v = np.array([rows[0].get("floor", {}).get(key, np.nan)  # results written before the floors: n/a
+                          for rows in sc.get("runs", {}).values() if rows], float)
             v = v[np.isfinite(v)]
             u = {"pct": " %", "N": " N"}[unit]
             cells.append(f"{_fmt(v.mean(), unit)} ± {_fmt(v.std(ddof=1) if v.size > 1 else 0.0, unit)}{u}" if v.size else "n/a")

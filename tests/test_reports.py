@@ -202,3 +202,22 @@ def test_seed_comparison_report_names_each_scenarios_split():
     md = format_markdown({"sim_seeds": [0, 1], "train_seeds": [0],
                           "scenarios": {"moving": {"summary": summarize(runs), "runs": {str(k): v for k, v in runs.items()}}}})
     assert "- moving: train s000 | validation none | test s001, s002" in md
+
+
+def test_seed_comparison_report_prints_the_plain_floors_and_tolerates_older_results():
+    from sonicskin.seeds import METRICS, format_markdown, summarize
+
+    def runs(floor):
+        return {s: [{"train_seed": 0, "split": {"train": ["s000"], "val": [], "test": ["s001"]},
+                     "net": {m: 0.5 for m in METRICS}, "svm": {m: 0.4 for m in METRICS},
+                     **({"floor": floor(s)} if floor else {})}] for s in (0, 1)}
+
+    with_floor = runs(lambda s: {"accuracy": 0.7 + 0.1 * s, "lda_accuracy": 0.9, "force_rmse_n": 1.5})
+    older = runs(None)  # a results file written before the floors existed
+    md = format_markdown({"sim_seeds": [0, 1], "train_seeds": [0], "scenarios": {
+        "moving": {"summary": summarize(with_floor), "runs": {str(k): v for k, v in with_floor.items()}},
+        "drift": {"summary": summarize(older), "runs": {str(k): v for k, v in older.items()}}}})
+    row = next(line for line in md.splitlines() if line.startswith("| moving |") and "n/a" in line)
+    # mean and sample std over the two seeds: SVC 75 ± 7.1 %, LDA 90 ± 0, no normalized SVC, SVR 1.50 N
+    assert "75" in row and "7.1" in row and "90" in row and "1.50" in row
+    assert "| drift | n/a | n/a | n/a | n/a |" in md
