@@ -301,21 +301,24 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
 
     # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
     write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))
-    from .plots import cdf_panel, confusion_panel, force_panel, location_names
+    from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names
 
     names = location_names(res.get("data"), layout)
     label = {"net": "network", "svm": "SVM"}
     models = [k for k in ("net", "svm") if k in res["models"]]
-    fig, ax = plt.subplots(2, 2, figsize=(13, 10.5))
-    for a, k in zip(ax[0], models):
+    fig, ax = plt.subplot_mosaic([["net", "svm"], ["cdf", "force"], ["detect", "detect"]], figsize=(13, 14),
+                                 height_ratios=[1, 1, 0.45])
+    for k in ("net", "svm"):
+        if k not in models:
+            ax[k].axis("off")
+            continue
         r = res["models"][k]
-        confusion_panel(fig, a, r["localization"]["confusion"], names, f"{label[k]}: accuracy {r['localization']['accuracy']:.1%}")
-    for a in ax[0][len(models):]:
-        a.axis("off")
-    cdf_panel(ax[1, 0], {label[k]: np.asarray(res["models"][k]["errors_cm"]) for k in models})
+        confusion_panel(fig, ax[k], r["localization"]["confusion"], names, f"{label[k]}: accuracy {r['localization']['accuracy']:.1%}")
+    cdf_panel(ax["cdf"], {label[k]: np.asarray(res["models"][k]["errors_cm"]) for k in models})
     pts = {label[k]: (lambda q: None if q is None else (q["true_n"], q["predicted_n"]))(res["models"][k].get("force_points"))
            for k in models}
-    force_panel(ax[1, 1], pts, res["models"][models[0]]["force"].get("reason", ""))
+    force_panel(ax["force"], pts, res["models"][models[0]]["force"].get("reason", ""))
+    detection_panel(ax["detect"], {label[k]: res["models"][k].get("detection") for k in models})
     if title:
         fig.suptitle(title)
     fig.tight_layout()

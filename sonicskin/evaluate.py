@@ -278,12 +278,13 @@ def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
 
     write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
-    from .plots import cdf_panel, confusion_panel, location_names
+    from .plots import cdf_panel, confusion_panel, detection_panel, location_names
 
-    fig, ax = plt.subplots(1, 2, figsize=(12.5, 5))
+    fig, ax = plt.subplots(1, 3, figsize=(17, 5), width_ratios=[1.1, 1, 0.8])
     confusion_panel(fig, ax[0], res["localization"]["confusion"], location_names(res.get("dataset"), layout),
                     f"SVM: accuracy {res['localization']['accuracy']:.1%}")
     cdf_panel(ax[1], {"SVM": np.asarray(res["errors_cm"])}, f"error CDF: < 2 cm {res['localization']['within_2cm']:.1%}")
+    detection_panel(ax[2], {"SVM": res.get("detection")})
     fig.tight_layout()
     fig.savefig(out / "localization.png", dpi=110)
     plt.close(fig)

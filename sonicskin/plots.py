@@ -13,7 +13,7 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
-__all__ = ["location_names", "confusion_panel", "cdf_panel", "force_panel", "MODEL_STYLE"]
+__all__ = ["location_names", "confusion_panel", "cdf_panel", "force_panel", "detection_panel", "MODEL_STYLE"]
 
 # How each model is drawn wherever both appear: colour, line style, width, marker.
 MODEL_STYLE = {
@@ -59,6 +59,7 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
     2 and 3 cm thresholds in the legend.  Identical curves are said so in the legend."""
     emax = 0.0
     first = None
+    lowest = 1.0  # the smallest share any curve shows past x = 0: the y-axis starts just below it
     # The thicker line first, so a thinner one on the same path stays visible on top of it.
     for name, err in sorted(errors.items(), key=lambda kv: -MODEL_STYLE.get(kv[0], {}).get("lw", 1.5)):
         e = np.sort(np.asarray(err, float))
@@ -69,10 +70,15 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
         ax.step(np.r_[0.0, e], np.r_[0.0, c], where="post", label=label, color=st.get("color"), ls=st.get("ls", "-"),
                 lw=st.get("lw", 1.5), alpha=st.get("alpha", 1.0))
         emax = max(emax, float(e.max()) if e.size else 0.0)
+        lowest = min(lowest, np.searchsorted(e, e[0], side="right") / e.size if e.size else 1.0)  # share at the first step
         first = first or (name, e)
     ax.axvline(2, color="gray", lw=0.8, ls=":", label="2 cm")
     ax.axvline(3, color="gray", lw=0.8, ls="-.", label="3 cm")
-    ax.set(xlabel="localization error (cm)", ylabel="share of touch chirps with error ≤ x", ylim=(0, 1.02),
+    # A y-axis from 0 to 1 draws a flat line at the top when every model is right on 95 % of chirps: the axis starts
+    # just below the lowest curve (in steps of 5 %; at 0 when a curve starts below 50 %), and the label says so when it does not start at 0.
+    y0 = np.floor((lowest - 0.03) * 20) / 20 if lowest >= 0.5 else 0.0
+    ylabel = "share of touch chirps with error ≤ x" + (f" (axis from {y0:.0%})" if y0 > 0 else "")
+    ax.set(xlabel="localization error (cm)", ylabel=ylabel, ylim=(y0, 1.0 + 0.02 * (1 - y0)),
            xlim=(-0.05 * max(emax, 4.0), 1.05 * max(emax, 4.0)), title=title)
     # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
@@ -105,7 +111,61 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
         return
     hi = 1.05 * hi or 1.0
     ax.plot([0, hi], [0, hi], color="gray", lw=0.8, label="predicted = true")
+    # The mean prediction per band of true force: a model that saturates (reads 13 N presses as 8 N) shows a bending
+    # line here and a sentence in the panel, which one RMSE figure hides.
+    notes = []
+    for name, pt in points.items():
+        if pt is None:
+            continue
+        g, p = (np.asarray(v, float) for v in pt)
+        ok = np.isfinite(g) & np.isfinite(p)
+        if ok.sum() < 20 or np.ptp(g[ok]) <= 0:
+            continue
+        g, p = g[ok], p[ok]
+        edges = np.unique(np.quantile(g, np.linspace(0, 1, 9)))
+        band = np.clip(np.searchsorted(edges, g, side="right") - 1, 0, len(edges) - 2)
+        gx = np.array([g[band == b].mean() for b in range(len(edges) - 1) if (band == b).any()])
+        py = np.array([p[band == b].mean() for b in range(len(edges) - 1) if (band == b).any()])
+        st = MODEL_STYLE.get(name, {})
+        ax.plot(gx, py, color=st.get("color"), ls=st.get("ls", "-"), lw=2.0, label=f"{name}: mean per force band")
+        top = g >= np.quantile(g, 0.9)
+        ratio = p[top].mean() / g[top].mean()
+        if ratio < 0.85:
+            notes.append(f"{name} under-reads the strongest tenth of presses: {g[top].mean():.1f} N read as "
+                         f"{p[top].mean():.1f} N")
+    if notes:
+        ax.text(0.02, 0.98, "\n".join(notes), transform=ax.transAxes, va="top", fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "0.7"})
     ax.set(xlim=(0, hi), ylim=(0, hi))
     # Below the axes, clear of the tick labels and the axis label whatever the panel's height: covers no data.
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, 0), borderaxespad=4.3, ncol=2, fontsize=8)
     ax.grid(alpha=0.3)
+
+
+def detection_panel(ax, detection: dict[str, dict], title: str = "touch detection") -> None:
+    """False touches (hands-off chirps called a touch) and missed touches (touch chirps not called one) of each model
+    as bars with their values; a model whose detection is not measurable on this data says why instead."""
+    kinds = [("false_touch_rate", "false touches\n(share of hands-off chirps)"),
+             ("missed_touch_rate", "missed touches\n(share of touch chirps)")]
+    ok = {n: d for n, d in detection.items() if d and "false_touch_rate" in d}
+    ax.set_title(title)
+    if not ok:
+        why = next((d.get("reason", "") for d in detection.values() if d), "") or "no hands-off chirps"
+        ax.text(0.5, 0.5, "n/a: " + why.removeprefix("not measurable on this data: ").replace(" (", "\n("),
+                ha="center", va="center", transform=ax.transAxes, fontsize=10, wrap=True)
+        ax.set_xticks([]); ax.set_yticks([])
+        return
+    x = np.arange(len(kinds))
+    w = 0.5 / len(ok)
+    top = 0.0
+    for i, (name, d) in enumerate(ok.items()):
+        v = np.array([100 * float(d[k]) for k, _ in kinds])
+        st = MODEL_STYLE.get(name, {})
+        bars = ax.bar(x + (i - (len(ok) - 1) / 2) * w, v, w, color=st.get("color"), label=name,
+                      hatch=None if i == 0 else "//", edgecolor="black", linewidth=0.5)
+        ax.bar_label(bars, [f"{u:.1f} %" for u in v], fontsize=8, padding=2)
+        top = max(top, float(v.max()))
+    ax.set_xticks(x, [lab for _, lab in kinds], fontsize=8)
+    ax.set(ylabel="rate (%)", ylim=(0, max(1.0, 1.6 * top)), xlim=(-0.6, len(kinds) - 0.4))
+    ax.legend(fontsize=8, loc="best")  # headroom above the bars: "best" finds a place that covers none
+    ax.grid(alpha=0.3, axis="y")

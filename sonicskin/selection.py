@@ -303,7 +303,10 @@ def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
                    if gain > 0.01 else f"the curve has flattened (the last pass added {gain * 100:+.1f} points)")
     else:
         verdict = "one point only: record one more pass over the markers to see the trend"
-    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict}
+    how = ("trained on the first k passes, scored on the validation session" if val is not None and np.any(val) else
+           f"{n_pass} passes recorded: each point trains on k of them and scores on one held out, so k stops at {n_pass - 1}")
+    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict,
+            "passes_recorded": n_pass, "how": how}
 
 
 # -- force ------------------------------------------------------------------------------------------------
@@ -521,12 +524,22 @@ def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5, 3.4))
+    import textwrap
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
     k, a, s = (np.asarray(lc[x], float) for x in ("presses_per_location", "accuracy", "std"))
-    ax.errorbar(k, 100 * a, yerr=100 * s, fmt="o-", capsize=3)
+    ax.errorbar(k, 100 * a, yerr=100 * s, fmt="o-", capsize=3, label="mean ± std over held-out passes")
+    for kk, aa in zip(k, a):  # every point labelled: two or three points are read as numbers
+        ax.annotate(f"{100 * aa:.0f} %", (kk, 100 * aa), textcoords="offset points", xytext=(0, 8), ha="center", fontsize=8)
+    n_pass = int(lc.get("passes_recorded") or (k.max() if k.size else 1))
+    lo = float(np.min(100 * (a - s))) if a.size else 0.0
     ax.set(xlabel="presses per location in training", ylabel="accuracy on held-out presses (%)",
-           xticks=k, ylim=(0, 101), title=title or "learning curve")
-    ax.text(0.02, 0.04, lc["verdict"], transform=ax.transAxes, fontsize=7, wrap=True)
+           xticks=np.arange(1, max(n_pass, int(k.max()) if k.size else 1) + 1), xlim=(0.5, max(n_pass, k.max() if k.size else 1) + 0.5),
+           ylim=(max(0.0, np.floor(lo / 10) * 10 - 25), 101), title=title or "learning curve")
+    # The note inside the frame, wrapped: the verdict and how the points were made (why a 3-pass recording has 2)
+    note = "\n".join(textwrap.wrap(lc["verdict"], 62) + textwrap.wrap(lc.get("how", ""), 62))
+    ax.text(0.03, 0.04, note, transform=ax.transAxes, fontsize=7.5, va="bottom",
+            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "0.7"})
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

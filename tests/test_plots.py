@@ -81,7 +81,7 @@ def test_compare_png_has_both_models_distinguishable_a_force_panel_and_names(tmp
     save_comparison(res, tmp_path / "cmp", LAYOUT, "t")
     fig = saved["compare.png"]
     panels = [a for a in fig.axes if a.get_label() != "<colorbar>"]
-    assert len(panels) == 4
+    assert len(panels) == 5  # two confusion matrices, error CDF, force, detection
     # Both confusion matrices: a labelled colourbar each, the user's names on both axes.
     cbs = _colourbars(fig)
     assert len(cbs) == 2 and all(cb.get_ylabel() for cb in cbs)
@@ -129,10 +129,83 @@ def test_localization_png_labels_colourbar_and_thresholds(tmp_path, saved, named
     fig = saved["localization.png"]
     cbs = _colourbars(fig)
     assert len(cbs) == 1 and cbs[0].get_ylabel()
-    conf, cdf = [a for a in fig.axes if a.get_label() != "<colorbar>"]
+    conf, cdf, det = [a for a in fig.axes if a.get_label() != "<colorbar>"]
+    assert det.get_title() == "touch detection" and any(t.get_text().startswith("n/a") for t in det.texts)
     assert [t.get_text() for t in conf.get_xticklabels()] == NAMES
     assert {"2 cm", "3 cm"} <= set(_legend_texts(cdf))
     assert cdf.get_xlim()[1] > 9.5
+
+
+def test_cdf_axis_starts_below_the_lowest_curve_not_at_zero():
+    import matplotlib.pyplot as plt
+
+    from sonicskin.plots import cdf_panel
+
+    fig, ax = plt.subplots()
+    # 96 % and 98 % of chirps exactly right: a 0-1 axis would draw two flat lines at the top
+    cdf_panel(ax, {"network": np.r_[np.zeros(96), [1.2, 2.4, 3.6, 9.0]], "SVM": np.r_[np.zeros(98), [1.2, 2.4]]})
+    lo, hi = ax.get_ylim()
+    assert lo == pytest.approx(0.90) and hi > 1.0 and "axis from 90%" in ax.get_ylabel()
+    fig2, ax2 = plt.subplots()
+    cdf_panel(ax2, {"SVM": np.r_[np.zeros(40), np.ones(60)]})  # 40 % right: the axis keeps its 0
+    assert ax2.get_ylim()[0] == 0 and "axis from" not in ax2.get_ylabel()
+    plt.close("all")
+
+
+def test_detection_panel_shows_each_models_rates_or_why_not():
+    import matplotlib.pyplot as plt
+
+    from sonicskin.plots import detection_panel
+
+    fig, ax = plt.subplots()
+    detection_panel(ax, {"network": {"false_touch_rate": 0.177, "missed_touch_rate": 0.004},
+                         "SVM": {"false_touch_rate": 0.02, "missed_touch_rate": 0.011}})
+    assert len(ax.patches) == 4 and _legend_texts(ax) == ["network", "SVM"]
+    heights = sorted(round(p.get_height(), 1) for p in ax.patches)
+    assert heights == [0.4, 1.1, 2.0, 17.7]
+    assert {"17.7 %", "0.4 %", "2.0 %", "1.1 %"} <= {t.get_text() for t in ax.texts}  # each bar labelled
+    fig2, ax2 = plt.subplots()
+    detection_panel(ax2, {"SVM": {"measurable": False, "reason": "not measurable on this data: no hands-off chirps"}})
+    assert not ax2.patches and [t.get_text() for t in ax2.texts] == ["n/a: no hands-off chirps"]
+    plt.close("all")
+
+
+def test_force_panel_names_a_model_that_saturates():
+    import matplotlib.pyplot as plt
+
+    from sonicskin.plots import force_panel
+
+    true = np.linspace(0.5, 15.0, 200)
+    fig, ax = plt.subplots()
+    force_panel(ax, {"network": (true, true * 1.02), "SVM": (true, np.minimum(true, 8.0))})  # the SVM reads <= 8 N
+    note = " ".join(t.get_text() for t in ax.texts)
+    assert "SVM under-reads the strongest tenth of presses" in note and "read as 8.0 N" in note
+    assert "network under-reads" not in note
+    means = [ln for ln in ax.get_lines() if ln.get_label() == "SVM: mean per force band"]
+    assert len(means) == 1 and means[0].get_ydata().max() == pytest.approx(8.0)
+    plt.close("all")
+
+
+def test_learning_curve_keeps_its_note_inside_and_says_why_three_passes_give_two_points(tmp_path, saved):
+    from sonicskin.selection import learning_curve_by_pass, save_learning_curve
+    from sklearn.neighbors import NearestCentroid
+
+    rng = np.random.default_rng(0)
+    y = np.tile(np.arange(4), 3)
+    passes = np.repeat(np.arange(3), 4)
+    X = y[:, None] * 3.0 + rng.normal(0, 1, (12, 2))
+    lc = learning_curve_by_pass(NearestCentroid(), X, y, passes, np.arange(12))
+    assert lc["presses_per_location"] == [1, 2] and lc["passes_recorded"] == 3
+    assert save_learning_curve({"svm": {"learning_curve": lc}}, tmp_path / "lc.png")
+    fig = saved["lc.png"]
+    ax = fig.axes[0]
+    assert [int(t) for t in ax.get_xticks()] == [1, 2, 3]
+    fig.canvas.draw()
+    (note,) = [t for t in ax.texts if "passes recorded" in t.get_text()]
+    assert "k stops at 2" in note.get_text()
+    box, frame = note.get_window_extent(), ax.get_window_extent()
+    assert frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+    assert sum(t.get_text().endswith("%") for t in ax.texts) == 2  # each point labelled with its accuracy
 
 
 def test_ids_when_the_user_gave_no_names(tmp_path):
@@ -152,15 +225,18 @@ def test_fig12_legend_names_only_visible_lines():
     ax = fig.axes[0]
     labels = _legend_texts(ax)
     assert len(labels) == len(ax.get_lines()) == 4  # the three identical SVM curves are one line, one entry
-    assert "SVM, every 5 min = SVM, every 20 min = SVM, every 60 min (identical)" in labels
-    # Identical across models too (the network's kernel layer is the SVM's): one line.
+    assert "every 5 min (SVM); every 20 min (SVM); every 60 min (SVM)" in labels
+    # Identical across models too (the network's kernel layer is the SVM's): one line, one short entry.
     res2 = {**res, "net alpha=20 min": same}
     labels2 = _legend_texts(_draw_fig12(res2).axes[0])
-    assert len(labels2) == 3 and "SVM, every 5 min = SVM, every 20 min = SVM, every 60 min = network, every 20 min (identical)" in labels2
-    # The legend is outside the data area: it covers no line.
+    assert len(labels2) == 3 and "every 5 min (SVM); every 20 min (both models); every 60 min (SVM)" in labels2
+    assert "no updating (network)" in labels2
+    # The legend is below the data area (covers no line) and inside the saved figure; it takes no plot width.
+    fig.tight_layout()
     fig.canvas.draw()
-    leg = ax.get_legend().get_window_extent()
-    assert leg.x0 >= ax.get_window_extent().x1
+    leg, box, page = ax.get_legend().get_window_extent(), ax.get_window_extent(), fig.bbox
+    assert leg.y1 <= box.y0 and leg.y0 >= page.y0 and leg.x0 >= page.x0 and leg.x1 <= page.x1
+    assert box.width > 0.8 * page.width
 
 
 def test_fig16_legend_covers_no_bar():

@@ -62,18 +62,28 @@ def draw(res: dict):
         if " alpha=" in key:
             k, alpha = key.split(" alpha=")
             groups.setdefault(tuple(np.round(np.asarray(v, float), 9)), []).append((k, alpha))
-    fig, ax = plt().subplots(figsize=(10, 3.8))
+    fig, ax = plt().subplots(figsize=(8, 5))
     # Shared curves first (underneath), so a single setting that differs only slightly stays visible on top.
     for i, (v, members) in enumerate(sorted(groups.items(), key=lambda g: -len(g[1]))):
         kinds = {k for k, _ in members}
         st = MODEL_STYLE[MODEL[kinds.pop()]] if len(kinds) == 1 else {"ls": "-", "lw": 2.0, "alpha": 1.0, "marker": "s"}
-        label = " = ".join(f"{MODEL[k]}, {'no updating' if a == 'never' else 'every ' + a}" for k, a in members)
         ax.plot(res["minutes"], v, color=f"C{i}", ls=st["ls"], lw=st["lw"], alpha=st["alpha"], marker=st["marker"], ms=5,
-                label=label + (" (identical)" if len(members) > 1 else ""))
+                label=_label(members))
     ax.set(xlabel="minutes since power-on", ylabel="accuracy (touch chirps)", title="Fig. 12: warm-up and online updating")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1), title="model, reference update", title_fontsize=7)
+    # Below the axes (covers no line), short entries: settings with identical curves share one line and one entry.
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2,
+              title="reference update (model); one line per distinct curve", title_fontsize=8)
     ax.grid(alpha=0.3)
     return fig
+
+
+def _label(members) -> str:
+    """One short legend entry for settings sharing a curve: 'every 5 min (SVM); every 20 min (both models)'."""
+    by: dict[str, list[str]] = {}
+    for k, a in members:
+        by.setdefault("no updating" if a == "never" else "every " + a, []).append(MODEL[k])
+    return "; ".join(f"{a} ({'both models' if len(set(ms)) == len(MODEL) else ', '.join(sorted(set(ms)))})"
+                     for a, ms in by.items())
 
 
 def two_months(ctx: Context) -> dict:

@@ -9,6 +9,7 @@ from .context import MODEL, Context, deployed_data, first_session_split, plt
 
 def run(ctx: Context) -> dict:
     res: dict = {"table1": {}, "stationary": {}, "fig14": {}, "fig15": {}}
+    layers: dict[str, str] = {}  # the network's location layer behind each figure
     for name in ("stationary", "moving"):
         ds, t, train, test, bins = first_session_split(ctx, name)
         d = deployed_data(ctx, ds, train)
@@ -16,6 +17,8 @@ def run(ctx: Context) -> dict:
             ev = ctx.evaluate(k, d, test)
             res["table1"][f"{name} {k}"] = ev["force"]
             res["fig14" if name == "moving" else "stationary"][k] = ev
+        if name == "moving":
+            layers["fig14"] = _net_layer(ctx, d)
     n_people = 6 if ctx.quick else 12
     ds = ctx.dataset("multi-person")
     t = ctx.table(ds)
@@ -25,6 +28,7 @@ def run(ctx: Context) -> dict:
     d = deployed_data(ctx, ds, train)
     for k in ctx.kinds:
         res["fig15"][k] = ctx.evaluate(k, d, test)
+    layers["fig15"] = _net_layer(ctx, d)
     from ..plots import cdf_panel, confusion_panel
 
     for fig_name in ("fig14", "fig15") if ctx.plots else ():
@@ -38,9 +42,22 @@ def run(ctx: Context) -> dict:
         cdf_panel(ax[-1], {MODEL[k]: res[fig_name][k]["errors_cm"] for k in kinds},
                   "moving robot" if fig_name == "fig14" else "unseen people (leave-subjects-out)")
         title = "Fig. 14" if fig_name == "fig14" else "Fig. 15"
-        fig.suptitle(title + (" (both models decide every chirp alike: identical panels)" if same else ""))
+        if same:  # say why: the network's validation chose the SVM's kernel as its location layer
+            title += (" (identical panels: both models decide every chirp alike; the network's location layer is "
+                      f"'{layers.get(fig_name, '?')}')")
+        fig.suptitle(title)
         fig.tight_layout()
         fig.savefig(ctx.out / f"{fig_name}.png", dpi=100)
         plt().close(fig)
         ctx.figs.append(ctx.out / f"{fig_name}.png")
     return res
+
+
+def _net_layer(ctx: Context, d) -> str:
+    """The location layer the deployed network uses (its artifact's ``selection.net``), '' without a network."""
+    import json
+
+    if "net" not in ctx.kinds:
+        return ""
+    sel = json.loads((ctx.artifact("net", d) / "skin.json").read_text()).get("selection", {}).get("net", {})
+    return str(sel.get("location_layer", ""))
