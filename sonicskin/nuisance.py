@@ -241,6 +241,24 @@ def _freq_derivative(M: np.ndarray, freqs_hz: np.ndarray) -> np.ndarray:
     return out
 
 
+def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances
+    in cm; around a tube of ``circumference_cm`` the distance along the circumference is the shorter way round."""
+    P = np.asarray(positions_cm, np.float64)
+    if P.shape != (K, 2):
+        raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
+    dx, dy = np.abs(P[:, None, 0] - P[None, :, 0]), np.abs(P[:, None, 1] - P[None, :, 1])
+    if circumference_cm:
+        dx = np.minimum(dx, circumference_cm - dx)
+    D = np.hypot(dx, dy)
+    rings = []
+    for k in range(K):
+        others = np.argsort(D[k])[1:]
+        near = np.array([j for j in others if D[k, j] <= D[k, others[0]] * 1.5][:4], int)
+        rings.append((near, D[k, near]))
+    return rings
+
+
 def nuisance_directions(X, y, *, X_rest=None, freqs_hz=None, positions_cm=None, circumference_cm: float | None = None,
                         stretch: float = 1e-3,
                         gain_db: float = 0.5, tilt_db: float = 0.5, aim_cm: float = 0.15, strength: float = 0.3,
@@ -296,19 +314,10 @@ def nuisance_directions(X, y, *, X_rest=None, freqs_hz=None, positions_cm=None, 
     if "strength" in want:
         out["strength"] = strength * means / np.sqrt(K)
     if "aim" in want and positions_cm is not None:
-        P = np.asarray(positions_cm, np.float64)
-        if P.shape != (K, 2):
-            raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
-        dx, dy = np.abs(P[:, None, 0] - P[None, :, 0]), np.abs(P[:, None, 1] - P[None, :, 1])
-        if circumference_cm:
-            dx = np.minimum(dx, circumference_cm - dx)
-        D = np.hypot(dx, dy)
         rows = []
-        for k in range(K):
-            others = np.argsort(D[k])[1:]
-            near = [j for j in others if D[k, j] <= D[k, others[0]] * 1.5][:4]  # the nearest ring of neighbours
-            for j in near:
-                rows.append((means[j] - means[k]) * min(1.0, aim_cm / D[k, j]) / np.sqrt(K * len(near)))
+        for k, (near, dist) in enumerate(neighbour_rings(positions_cm, K, circumference_cm)):
+            for j, dj in zip(near, dist):
+                rows.append((means[j] - means[k]) * min(1.0, aim_cm / dj) / np.sqrt(K * len(near)))
         if rows:
             out["aim"] = np.stack(rows)
     return out

@@ -89,17 +89,9 @@ class Augmenter:
             self.rest = R - R.mean(axis=0)
         self.neigh: list[tuple[np.ndarray, np.ndarray]] = []
         if positions_cm is not None:
-            P = np.asarray(positions_cm, np.float64)
-            if P.shape != (K, 2):
-                raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
-            dx, dy = np.abs(P[:, None, 0] - P[None, :, 0]), np.abs(P[:, None, 1] - P[None, :, 1])
-            if circumference_cm:
-                dx = np.minimum(dx, circumference_cm - dx)
-            Dm = np.hypot(dx, dy)
-            for k in range(K):
-                others = np.argsort(Dm[k])[1:]
-                near = np.array([j for j in others if Dm[k, j] <= Dm[k, others[0]] * 1.5][:4], int)
-                self.neigh.append((near, Dm[k, near]))
+            from sonicskin.nuisance import neighbour_rings
+
+            self.neigh = neighbour_rings(positions_cm, K, circumference_cm)
 
     def restricted(self, k: int) -> Augmenter:
         """The same augmenter returning only the first ``k`` of its input columns."""
@@ -189,15 +181,7 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
                   weight_decay=weight_decay, force_weight=force_weight, noise_db=noise_db, aug_share=aug_share,
                   target_margin=target_margin, n_trunk=n_trunk, unit_norm=unit_norm)
         members = [fit_augmented_net(X, cls, force, seed=seed + i, **kw).model for i in range(n_members)]
-        model = SkinEnsemble(members).eval()
-
-        def predict(Xq):
-            with torch.no_grad():
-                lg, f = model(torch.from_numpy(np.ascontiguousarray(Xq, np.float32)))
-            return lg.numpy(), f.numpy()
-
-        predict.model = model
-        return predict
+        return _predictor(SkinEnsemble(members).eval())
     threads.apply_torch()
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
@@ -256,6 +240,13 @@ def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter |
     model.eval()
     if log:
         log(f"trained {layer} network {epochs} epochs in {time.perf_counter() - t0:.1f} s")
+
+    return _predictor(model)
+
+
+def _predictor(model):
+    """``predict(X) -> (logits, force)`` of a trained torch model on float rows, the model at ``predict.model``."""
+    import torch
 
     def predict(Xq):
         with torch.no_grad():
