@@ -20,7 +20,7 @@ __all__ = ["KernelVotes", "svm_pipeline"]
 
 
 def svm_pipeline(C: float = 10.0):
-    """The baseline's classifier: scaler + RBF SVC (one-vs-one), as :func:`sonicskin.svm_head.fit_svm_head` fits it."""
+    """The baseline's classifier: scaler + RBF SVC (one-vs-one), as :func:`sonicskin.fit.fit_svm_head` fits it."""
     from sklearn.pipeline import Pipeline
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC

@@ -78,7 +78,7 @@ class MetricSkinNet(SkinNet):
     Call :meth:`init_from_lda` before training so the place starts as the LDA's.
 
     ``n_trunk``: the trunk (touch and force) reads only the first ``n_trunk`` inputs (the best OSPA bins, as the
-    SVM's input-RMS detector does, :data:`sonicskin.svm_head.DETECTOR_BINS`) while the metric layer reads all of
+    SVM's input-RMS detector does, :data:`sonicskin.head.DETECTOR_BINS`) while the metric layer reads all of
     them; ``None``: every input.
 
     ``unit_norm``: the metric layer reads each chirp's relative spectrum scaled to unit length (the *shape* of the

@@ -8,7 +8,7 @@ is :mod:`sonicskin.artifact_files`; binding the model files to this document, :m
 
 
     format              "sonicskin-artifact"
-    version             1
+    version             3 (2 still read; older refused with 'export again')
     sonicskin_version   string
     rig                 fs_hz, f_lo_hz, f_hi_hz, n_chirp, pwm_hz, pwm_halfwidth_hz (required),
                         amplitude, name, sweep_b64 (optional); finite, in range (see Rig)
@@ -52,7 +52,7 @@ is :mod:`sonicskin.artifact_files`; binding the model files to this document, :m
                           or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
                           per layout id, intercept}
 
-and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, B)``; the net outputs
+and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, n_in)`` (the model's ``n_in`` first bins of ``features.bins``); the net outputs
 logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
 (2 columns when ``N = 2``).
 """

@@ -125,7 +125,8 @@ def add_model_options(p: argparse.ArgumentParser, *, train_default: str = "the f
     model inputs and the split of sessions / people."""
     g = p.add_argument_group("model and split options (the same on evaluate, fit-svm, train, export, compare)")
     g.add_argument("--n-bins", type=positive_int, metavar="GAMMA",
-                   help=f"OSPA gamma, bins kept (default: {DEFAULT_N_BINS}, or every usable bin when the band has fewer)")
+                   help=f"OSPA gamma, the bins the SVM reads (default: chosen by validation in fit-svm, train, export and "
+                        f"compare; the paper's {DEFAULT_N_BINS} in evaluate; never more than the band's usable bins)")
     g.add_argument("--mode", choices=("relative", "absolute"),
                    help="model inputs: minus the no-touch reference (Alg. 2) or absolute (default: relative)")
     g.add_argument("--train", nargs="+", metavar="SESSION", help=f"training sessions (default: {train_default})")

@@ -127,8 +127,8 @@ def cmd_live(a: argparse.Namespace) -> int:
         raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
                          "--out DIR`, then --artifact DIR (only --model svm is trained on the spot)")
     if a.artifact is None and a.device != "sim":
-        raise UsageError("a real rig needs a model trained on it: `sonicskin record`, then `sonicskin fit-svm` "
-                         "(or train + export), then `sonicskin live --device ... --artifact DIR`")
+        raise UsageError("a real rig needs a model trained on it: `sonicskin record --out DIR` (it writes DIR-artifact "
+                         "when it finishes), then `sonicskin live --device ... --artifact DIR-artifact`")
     if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
         raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin fit-svm` or `sonicskin export`")
