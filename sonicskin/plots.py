@@ -127,7 +127,8 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
         gx = np.array([g[band == b].mean() for b in range(len(edges) - 1) if (band == b).any()])
         py = np.array([p[band == b].mean() for b in range(len(edges) - 1) if (band == b).any()])
         st = MODEL_STYLE.get(name, {})
-        ax.plot(gx, py, color=st.get("color"), ls=st.get("ls", "-"), lw=2.0, label=f"{name}: mean per force band")
+        ax.plot(gx, py, color=st.get("color"), ls=st.get("ls", "-"), lw=st.get("lw", 1.5), alpha=st.get("alpha", 1.0),
+                zorder=3 + (st.get("lw", 1.5) < 2), label=f"{name}: mean per force band")  # the thinner on top
         top = g >= np.quantile(g, 0.9)
         ratio = p[top].mean() / g[top].mean()
         if ratio < 0.85:
