@@ -197,7 +197,8 @@ def test_model_verbs_share_the_options(verb):
     for opt in ("--n-bins GAMMA", "--mode {relative,absolute}", "--train SESSION", "--val SESSION", "--test SESSION",
                 "--test-subjects ID"):
         assert opt in help_text, (verb, opt)
-    assert "(default: 300, or every usable bin when the band has fewer)" in help_text
+    assert ("(default: chosen by validation in fit-svm, train, export and compare; the paper's 300 in evaluate; "
+            "never more than the band's usable bins)") in help_text
 
 
 def test_every_option_has_help_with_its_default():
