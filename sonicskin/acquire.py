@@ -17,6 +17,8 @@ import os
 import queue
 import threading
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -70,6 +72,11 @@ class Link:
     n_slots: int = 1
     name: str = "link0"
     rig: Rig | None = None  # frequency duplexing: this link's own chirp band
+    # A link of an arm file (sonicskin.links): its frame on the robot, the simulated link, its trained artifact.
+    frame: str | None = None
+    surface: Any = dataclasses.field(default=None, compare=False, repr=False)   # sonicskin.surface.LinkSurface
+    scenario: Any = dataclasses.field(default=None, compare=False, repr=False)  # sonicskin.sim.Scenario
+    artifact: Path | None = None
 
     def tx_period(self, rig: Rig) -> np.ndarray:
         """What this link transmits over one duplex period (``n_slots`` chirps), float32."""
@@ -81,53 +88,10 @@ class Link:
 
 
 def load_links(name_or_path, rig: Rig) -> list[Link]:
-    """Links of a multi-link rig from YAML (``configs/links/<name>.yaml``)::
+    """The links of a links or arm file (``configs/links``, ``configs/arms``): see :func:`sonicskin.links.load_links`."""
+    from .links import load_links as _load
 
-        duplex: time            # or frequency
-        links:
-          - {name: upper-arm, tx: 0, rx: 0}
-          - {name: forearm, tx: 1, rx: 1}
-
-    ``time``: link k chirps in period k of every ``N`` (each link's rate drops to 1/N).
-    ``frequency``: the chirp band is split into ``N`` equal sub-bands, one per link, all chirping at
-    once (each link's rig has its sub-band; its models are trained on that rig).
-    """
-    from .rig import _resolve_config, load_yaml
-
-    where = _resolve_config(name_or_path, "links")
-    cfg = load_yaml(where)
-    items = cfg.get("links") or []
-    duplex = cfg.get("duplex", "time")
-    if duplex not in ("time", "frequency"):
-        raise ValueError(f"duplex must be 'time' or 'frequency', got {duplex!r}")
-    if not items or not isinstance(items, list):
-        raise ValueError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
-    n = len(items)
-    out = []
-    for i, d in enumerate(items):  # each link a mapping with 0-based integer channels (0.7 was channel 0, silently)
-        if not isinstance(d, dict):
-            raise ValueError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
-        bad = set(d) - {"name", "tx", "rx"}
-        if bad:
-            raise ValueError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has name, tx, rx")
-        for k in ("tx", "rx"):
-            v = d.get(k)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ValueError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
-                                 f"{'nothing' if k not in d else repr(v)}")
-        if "name" in d and not isinstance(d["name"], str):
-            raise ValueError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
-        if duplex == "time":
-            out.append(Link(int(d["tx"]), int(d["rx"]), i, n, d.get("name", f"link{i}")))
-        else:
-            step = (rig.f_hi_hz - rig.f_lo_hz) / n
-            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step,
-                                      name=f"{rig.name}/{d.get('name', f'link{i}')}")
-            out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, d.get("name", f"link{i}"), sub))
-    rx = [lk.rx for lk in out]
-    if len(set(rx)) != len(rx):
-        raise ValueError(f"links share receiver channels {rx}; each link needs its own RX channel")
-    return out
+    return _load(name_or_path, rig)
 
 
 def import_sounddevice():
@@ -341,8 +305,10 @@ class SimulatedSource(_QueueSource):
 
     Parameters
     ----------
-    simulator : :class:`sonicskin.sim.Simulator` of the link.
-    timeline : the chirps to play (one session of :func:`sonicskin.sim.build_timeline`).
+    simulator : :class:`sonicskin.sim.Simulator` of the link, or a list of them: a whole arm, one input channel per link
+        (links decoupled by the joints, each its own TX/RX pair, all chirping at once: blocks of shape (n, links)).
+    timeline : the chirps to play (one session of :func:`sonicskin.sim.build_timeline`), or one per simulator (the
+        stream ends with the shortest).
     realtime : pace the blocks at the rig's sample rate; otherwise deliver as fast as read.
     drop_every : drop one block in every ``drop_every`` (fault injection: the consumer must re-lock).
     offset : the stream starts this many samples into the first chirp (unknown to the consumer).
@@ -350,8 +316,16 @@ class SimulatedSource(_QueueSource):
 
     def __init__(self, simulator, timeline, *, blocksize: int = 1024, realtime: bool = True,
                  drop_every: int | None = None, offset: int = 4321, chunk_chirps: int = 64):
-        super().__init__(simulator.rig, blocksize)
-        self.sim, self.timeline = simulator, timeline
+        self.multi = isinstance(simulator, (list, tuple))
+        sims, tls = (list(simulator), list(timeline)) if self.multi else ([simulator], [timeline])
+        if len(sims) != len(tls) or not sims:
+            raise ValueError(f"a simulated arm needs one timeline per link: {len(sims)} simulators, {len(tls)} timelines")
+        if any(s.rig.mismatch(sims[0].rig) for s in sims):
+            raise ValueError("the simulated links of one interface must run one rig (one sample rate and chirp)")
+        super().__init__(sims[0].rig, blocksize)
+        n = min(len(t) for t in tls)
+        self.sims, self.timelines = sims, [t if len(t) == n else t.select(np.arange(n)) for t in tls]
+        self.sim, self.timeline = sims[0], self.timelines[0]
         self.realtime, self.drop_every = realtime, drop_every
         self.offset, self.chunk = int(offset) % simulator.rig.n_chirp, int(chunk_chirps)
         self._stop = threading.Event()
@@ -360,7 +334,7 @@ class SimulatedSource(_QueueSource):
 
     def _produce(self) -> None:
         L, B = self.rig.n_chirp, self.blocksize
-        pending = np.zeros(0, np.float32)
+        pending = np.zeros((0, len(self.sims)) if self.multi else 0, np.float32)
         t_next = time.perf_counter()
         n_block = 0
         last = None
@@ -369,12 +343,14 @@ class SimulatedSource(_QueueSource):
                 break
             final = a is None
             if not final:
-                frames = self.sim.render(self.timeline.select(np.arange(a, min(a + self.chunk, len(self.timeline)))))
-                last = frames[-1]
-                audio = frames.ravel()[self.offset:] if a == 0 else frames.ravel()
+                idx = np.arange(a, min(a + self.chunk, len(self.timeline)))
+                chans = [sim.render(tl.select(idx)).ravel() for sim, tl in zip(self.sims, self.timelines)]
+                audio = np.stack(chans, axis=1) if self.multi else chans[0]
+                last = audio[-L:]
+                audio = audio[self.offset:] if a == 0 else audio
             else:  # the stream goes on a little into the next chirp, as a recording would
-                audio = last[: L // 2] if last is not None else np.zeros(0, np.float32)
-            pending = np.concatenate([pending, audio])
+                audio = last[: L // 2] if last is not None else np.zeros((0, len(self.sims)) if self.multi else 0, np.float32)
+            pending = audio if not len(pending) else np.concatenate([pending, audio])
             while (len(pending) >= B or (final and len(pending))) and not self._stop.is_set():
                 block, pending = pending[:B], pending[B:]
                 n_block += 1

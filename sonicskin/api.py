@@ -90,7 +90,9 @@ class Listener:
 
     Parameters
     ----------
-    artifact : artifact folder (``sonicskin fit-svm`` / ``sonicskin export``).
+    artifact : artifact folder (``sonicskin fit-svm`` / ``sonicskin export``), or a whole arm: its arm file, or the folder
+        ``sonicskin fit-svm --links`` wrote (holding ``arm.yaml``); then one loop runs per link, each event names its
+        link and carries the contact in the link's frame, and :attr:`summary` is keyed by link.
     device : ``None`` or ``"sim"`` (the simulated rig), or an audio device index or name.
     model : ``"svm"`` or ``"net"``.
     duration_s : stop after this many seconds (wall clock); ``None``: until :meth:`stop`.
@@ -119,6 +121,23 @@ class Listener:
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
                          blocksize=blocksize, scenario=scenario, rig=rig, fast=fast, on_event=on_event)
+        self._queue: queue.Queue = queue.Queue()
+        self._user_cb = on_event
+        self.duration_s, self.watchdog_s = duration_s, watchdog_s
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        self.summary: dict | None = None
+        from .arm import arm_file_of, open_arm
+
+        arm_file = arm_file_of(artifact)
+        if arm_file is not None:  # a whole arm: one loop per link over one source, events carry their link
+            arm = open_arm(arm_file, device=device, model=model, rig=rig, fast=fast, blocksize=blocksize)
+            self.links, self.runtime, self.source = arm.links, arm.runtimes[0], arm.source
+            self.loops = arm.loops(emit=lambda line: None, on_event=self._on_event)
+            self.loop = self.loops[0]
+            return
+        self.links = None
         art = Path(artifact)
         if not (art / "skin.json").is_file():
             raise SonicskinError(f"{art} is not a sonicskin artifact (no skin.json there); create one with "
@@ -139,14 +158,8 @@ class Listener:
                                           blocksize=blocksize)
         else:
             self.source = SoundDeviceSource(the_rig or self.runtime.rig, device, link=Link(tx=tx, rx=rx), blocksize=blocksize)
-        self._queue: queue.Queue = queue.Queue()
-        self._user_cb = on_event
         self.loop = LiveLoop(self.runtime, self.source, emit=lambda line: None, on_event=self._on_event)
-        self.duration_s, self.watchdog_s = duration_s, watchdog_s
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self.error: BaseException | None = None
-        self.summary: dict | None = None
+        self.loops = [self.loop]
 
     def _on_event(self, ev: TouchEvent) -> None:
         self._queue.put(ev)
@@ -155,8 +168,12 @@ class Listener:
 
     def _run(self) -> None:
         try:
+            from .live import run_loops
+
             with self.source:
-                self.summary = self.loop.run(duration_s=self.duration_s, watchdog_s=self.watchdog_s, stop=self._stop)
+                sums = run_loops(self.loops, self.source, duration_s=self.duration_s, watchdog_s=self.watchdog_s,
+                                 stop=self._stop)
+                self.summary = sums[0] if self.links is None else {lk.name: x for lk, x in zip(self.links, sums)}
         except BaseException as e:  # handed to the caller's thread
             self.error = e
         finally:

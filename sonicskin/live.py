@@ -265,6 +265,7 @@ class LiveLoop:
         self.channel = channel
         self.slot = (link.slot, link.n_slots) if link is not None else (0, 1)
         self.link_name = link.name if link is not None else None  # each event names its link (live --links)
+        self.surface = getattr(link, "surface", None)  # an arm's link: events carry the contact in the link's frame
         self.framer = Framer(link.tx_period(source.rig) if link is not None else rig_chirp(self.rig))
         self.stream = runtime.stream()
         self.on_chirp = on_chirp
@@ -344,6 +345,8 @@ class LiveLoop:
             ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
                             float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
                             (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
+            if self.surface is not None:
+                ev = attach_surface(ev, self.surface)
         self.touching = touch
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
         return ev

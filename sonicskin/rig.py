@@ -34,7 +34,7 @@ MAX_FS_HZ = 10e6
 MAX_LOCATIONS = 100_000
 
 #: The config folders (``configs/<kind>/<name>.yaml``) a bare name can refer to.
-CONFIG_KINDS = ("rigs", "scenarios", "links", "train")
+CONFIG_KINDS = ("rigs", "scenarios", "links", "arms", "train")
 
 
 def config_dir() -> Path:

@@ -96,7 +96,7 @@ def test_config_names_resolve_from_the_package_and_paths_from_the_filesystem(tmp
         resolve_config("mine", "rigs")
     with pytest.raises(FileNotFoundError, match=r"rigs config file sub/jaco.yaml does not exist"):
         resolve_config("sub/jaco.yaml", "rigs")
-    with pytest.raises(ValueError, match="unknown config kind 'rig'; valid kinds: rigs, scenarios, links, train"):
+    with pytest.raises(ValueError, match="unknown config kind 'rig'; valid kinds: rigs, scenarios, links, arms, train"):
         config_names("rig")
 
 

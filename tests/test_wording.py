@@ -36,7 +36,8 @@ def test_info_lists_the_links_configs(capsys):
 
 def test_live_links_needs_a_device_and_one_artifact_per_link(capsys, cli_files):
     code, _, err = run(capsys, ["live", "--links", "two-links-time"])
-    assert code == 2 and "--links runs several links on one real audio interface; pass --device" in err
+    assert code == 2 and ("--links two-links-time lists links of a real audio interface (no simulated scenario per "
+                          "link); pass --device NAME|INDEX") in err
     code, _, err = run(capsys, ["live", "--links", "two-links-time", "--device", "0", "--link-artifact", cli_files["artifact"]])
     assert code == 2 and ("--links two-links-time has 2 links (upper-arm, forearm); pass --link-artifact DIR once per "
                           "link, in that order (got 1)") in err

@@ -7,8 +7,10 @@ hidden folder and move it into place when complete)."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from ..errors import UsageError
 from ._common import (
     add_writer_options,
     check_overrides,
@@ -27,18 +29,48 @@ def cmd_simulate(a: argparse.Namespace) -> int:
     from ..sim.generate import simulate_dataset
     from ..sim.scenario import Scenario
 
+    if a.links:
+        return _simulate_arm(a)
     sc = Scenario.load(a.scenario, seed=a.seed)  # a scenario family (random) draws the rig of that seed
     over = check_overrides(Scenario, a.set, "scenario")
     if a.sessions is not None:
         over["sessions"] = a.sessions
     if over:
         sc = Scenario.from_dict({**sc.to_dict(), **over})
-    rig = Rig.load(a.rig)
+    rig = Rig.load(a.rig or "jaco")
     out = Path(a.out or f"data/{sc.name}")
     mode = writer_mode(a)
     with clean_on_failure(out, mode):
         simulate_dataset(sc, rig, out, mode=mode, progress=not a.quiet)
     print(f"dataset written to {out}")
+    return 0
+
+
+def _simulate_arm(a: argparse.Namespace) -> int:
+    """``simulate --links ARM``: one dataset per simulated link of an arm file, ``OUT/<link>``."""
+    from ..links import file_rig, load_links
+    from ..rig import Rig
+    from ..sim.generate import simulate_dataset
+    from ..sim.scenario import Scenario
+
+    if a.seed is not None or a.set or a.scenario != "stationary":
+        raise UsageError("simulate --links takes each link's scenario from the arm file; --scenario, --seed and --set "
+                         "are for one link (edit the arm file's `scenario:` of a link instead)")
+    rig = Rig.load(a.rig) if a.rig else (file_rig(a.links) or Rig.load("jaco"))
+    links = load_links(a.links, rig)
+    missing = [lk.name for lk in links if lk.scenario is None]
+    if missing:
+        raise UsageError(f"--links {a.links}: links {missing} have no simulated scenario; give each link a `scenario:`")
+    root = Path(a.out or f"data/{Path(str(a.links)).stem}")
+    mode = writer_mode(a)
+    for lk in links:
+        sc = lk.scenario if a.sessions is None else Scenario.from_dict({**lk.scenario.to_dict(), "sessions": a.sessions})
+        out = root / lk.name
+        print(f"link {lk.name}: scenario {sc.name} ({sc.material}, {sc.geometry['kind']}, {len(sc.make_layout())} markers)",
+              file=sys.stderr)
+        with clean_on_failure(out, mode):
+            simulate_dataset(sc, lk.rig or rig, out, mode=mode, progress=not a.quiet)
+    print(f"{len(links)} link datasets written to {root}/<link> ({', '.join(lk.name for lk in links)})")
     return 0
 
 
@@ -82,8 +114,11 @@ def add_parsers(sub) -> None:
     s = sub.add_parser("simulate", help="render a scenario of the simulated rig into a dataset",
                        description="Render a scenario (configs/scenarios/<name>.yaml or a path) into the dataset format.")
     s.add_argument("--scenario", default="stationary", help="scenario name or YAML path (default: stationary)")
-    s.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
-    s.add_argument("--out", help="dataset folder (default: data/<scenario>)")
+    s.add_argument("--rig", help="rig name or YAML path (default: the --links arm file's rig, else jaco)")
+    s.add_argument("--out", help="dataset folder (default: data/<scenario>; --links: data/<arm>, one folder per link)")
+    s.add_argument("--links", metavar="ARM",
+                   help="simulate every link of an arm file (e.g. arm6; `sonicskin info` lists them) into OUT/<link> "
+                        "(default: one link, --scenario)")
     s.add_argument("--seed", type=nonneg_int,
                    help="override the scenario's seed; a family (random) draws another rig per seed (default: the scenario's)")
     s.add_argument("--sessions", type=positive_int, help="override the number of sessions (default: the scenario's)")

@@ -47,37 +47,32 @@ def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
 
 
 def _live_links(a: argparse.Namespace) -> int:
-    """``live --links NAME``: several links on one audio interface (configs/links), one model and one loop per link."""
-    from ..acquire import SoundDeviceSource, load_links
-    from ..live import LiveLoop, UdpSink, run_loops
-    from ..rig import Rig
-    from ..runtime import SkinRuntime
+    """``live --links FILE``: several links on one audio interface (a links or arm file), one model and one loop per
+    link; on the simulated device, an arm file's simulated links (each trained on the spot once when it has no
+    artifact, as ``live`` does for one link)."""
+    from ..arm import open_arm
+    from ..live import DeviceLost, UdpSink, run_loops
 
-    if a.device == "sim":
-        raise UsageError("--links runs several links on one real audio interface; pass --device NAME|INDEX "
-                         "(`sonicskin devices`); the simulated device has one link")
-    rig = Rig.load(a.rig or "jaco")
-    links = load_links(a.links, rig)
-    arts = a.link_artifact or []
-    if len(arts) != len(links):
-        raise UsageError(f"--links {a.links} has {len(links)} links ({', '.join(lk.name for lk in links)}); pass "
-                         f"--link-artifact DIR once per link, in that order (got {len(arts)})")
-    for art in arts:
-        if not (Path(art) / "skin.json").is_file():
-            raise FileNotFoundError(f"{art} is not a sonicskin artifact (no skin.json there); train one per link on "
-                                    f"that link's own recordings (`sonicskin record`, `sonicskin fit-svm`)")
-    sinks = [lambda line: print(line, flush=True)] + ([UdpSink(f"{a.udp[0]}:{a.udp[1]}")] if a.udp else [])
-    source = SoundDeviceSource(rig, a.device, links=links, blocksize=a.blocksize)
+    arm = open_arm(a.links, device=a.device, model=a.model, rig=a.rig, fast=a.fast, blocksize=a.blocksize,
+                   drop_every=a.drop_every, link_artifacts=a.link_artifact,
+                   train=lambda sc, rig: _sim_svm_artifact(sc, rig, Path(".")))
+    sinks = [_stdout_sink] + ([UdpSink(f"{a.udp[0]}:{a.udp[1]}")] if a.udp else [])
 
     def emit(line: str) -> None:  # each event names its link (LiveLoop's link=)
         for sink in sinks:
             sink(line)
 
-    loops = [LiveLoop(SkinRuntime(Path(art), a.model, rig=lk.rig or rig), source, emit=emit,
-                      status=not a.no_status, link=lk, channel=i) for i, (lk, art) in enumerate(zip(links, arts))]
-    with source:
-        summaries = run_loops(loops, source, duration_s=a.duration)
-    print(json.dumps({"summary": {lk.name: json_safe(s) for lk, s in zip(links, summaries)}}, allow_nan=False), file=sys.stderr)
+    loops = arm.loops(emit=emit, status=not a.no_status)
+    lost = None
+    with arm.source:
+        try:
+            summaries = run_loops(loops, arm.source, duration_s=a.duration, watchdog_s=a.watchdog)
+        except DeviceLost as e:
+            lost, summaries = e, [lp.summary(0.0, 0.0, 0.0) for lp in loops]
+    print(json.dumps({"summary": {lk.name: json_safe(s) for lk, s in zip(arm.links, summaries)}}, allow_nan=False),
+          file=sys.stderr)
+    if lost is not None:
+        raise lost
     return 0
 
 
@@ -224,7 +219,7 @@ def cmd_info(a: argparse.Namespace) -> int:
     print(f"rig {rig.name}: {rig.fs_hz:g} Hz, chirp {rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz, "
           f"{rig.n_chirp} samples = {rig.period_s * 1e3:.1f} ms ({rig.chirps_per_s:.3f} chirps/s), "
           f"{rig.n_band} band bins, {int(rig.allowed_mask.sum())} after the PWM notches")
-    for kind in ("rigs", "scenarios", "train", "links"):
+    for kind in ("rigs", "scenarios", "train", "links", "arms"):
         names = sorted(p.stem for p in (CONFIG_DIR / kind).glob("*.yaml"))
         if names:
             print(f"{kind}: {', '.join(names)}")
@@ -270,8 +265,10 @@ def add_parsers(sub) -> None:
                     help="simulated device: drop one audio block in N (N >= 2), fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
     lv.add_argument("--links", metavar="NAME",
-                    help="several links on one interface, a links config (`sonicskin info` lists them, e.g. "
-                         "two-links-time); with --device and one --link-artifact per link (default: one link, --tx/--rx)")
+                    help="several links on one interface: a links config with --device and one --link-artifact per link "
+                         "(e.g. two-links-time), or an arm file (e.g. arm6, or the ART/arm.yaml that `fit-svm --links` "
+                         "writes): its links simulated on the default device, events in each link's frame (`sonicskin "
+                         "info` lists them) (default: one link, --tx/--rx)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")
     lv.set_defaults(func=cmd_live)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import sys
 from pathlib import Path
 
 from ..errors import UsageError
@@ -80,9 +81,38 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
     if a.val or a.test or a.test_subjects:
         raise UsageError("fit-svm trains the deployment model on every session it is given, without validation or "
                          "test split; choose them with --train (test it with `sonicskin compare --artifact`)")
+    if a.links:
+        return _fit_svm_arm(a)
     n_bins = resolve_n_bins(a, a.data) if a.n_bins is not None else None  # None: chosen by validation
     with removed_on_failure(a.out):
         build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train)
+    return 0
+
+
+def _fit_svm_arm(a: argparse.Namespace) -> int:
+    """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml,
+    the arm file that lists them (``live --links ART/arm.yaml``)."""
+    from ..fit import build_svm_artifact
+    from ..links import file_rig, load_links, write_arm
+    from ..rig import Rig
+
+    rig = file_rig(a.links) or Rig.load("jaco")
+    links = load_links(a.links, rig)
+    data, out = Path(a.data), Path(a.out)
+    absent = [lk.name for lk in links if not (data / lk.name / "dataset.json").is_file()]
+    if absent:
+        raise UsageError(f"{data} has no dataset for links {absent} (expected {data}/<link>/dataset.json); record or "
+                         f"simulate every link first (`sonicskin simulate --links {a.links} --out {data}`)")
+    n_bins = None if a.n_bins is None else resolve_n_bins(a, data / links[0].name)
+    arts = {}
+    for lk in links:
+        print(f"link {lk.name}: training on {data / lk.name}", file=sys.stderr)
+        with removed_on_failure(out / lk.name):
+            build_svm_artifact(data / lk.name, out / lk.name, n_bins=n_bins, mode=a.mode or "relative",
+                               train_sessions=a.train)
+        arts[lk.name] = out / lk.name
+    path = write_arm(a.links, out, arts, rig)
+    print(f"arm file written to {path}: run it with `sonicskin live --links {path}`")
     return 0
 
 
@@ -272,8 +302,10 @@ def add_parsers(sub) -> None:
     f = sub.add_parser("fit-svm", help="SVM-only artifact from a recording, no torch needed",
                        description="The paper's system as a deployment artifact (svm.onnx + skin.json), trained on "
                                    "every session of a dataset (or --train) on a machine without torch.")
-    f.add_argument("--data", required=True, help="dataset folder")
-    f.add_argument("--out", required=True, help="artifact folder to write")
+    f.add_argument("--data", required=True, help="dataset folder (with --links: one dataset per link, DATA/<link>)")
+    f.add_argument("--out", required=True, help="artifact folder to write (with --links: OUT/<link> and OUT/arm.yaml)")
+    f.add_argument("--links", metavar="ARM", help="an arm file: one artifact per link and the arm file that lists them "
+                                                  "(default: one link)")
     add_model_options(f, train_default="all")
     f.set_defaults(func=cmd_fit_svm)
 

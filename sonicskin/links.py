@@ -1,0 +1,247 @@
+"""Links and arm files: several robot links, each with its own TX/RX pair, on one audio interface.
+
+A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp::
+
+    duplex: time            # time | frequency | none
+    links:
+      - {name: upper-arm, tx: 0, rx: 0}
+      - {name: forearm, tx: 1, rx: 1}
+
+``time``: link k chirps in period k of every ``N`` (each link's rate drops to 1/N).  ``frequency``: the band is split
+into ``N`` sub-bands, all chirping at once.  ``none``: every link has its own output *and* input channel and the full
+band, all chirping at once: the robot's joints decouple adjacent links acoustically (paper Sec. IV), so a whole arm
+senses at the full chirp rate on every link.
+
+An *arm file* (``configs/arms``) is a links file whose links also say where they are on the robot and, for the
+simulated arm, what they are made of::
+
+    name: arm6
+    rig: fast                    # the rig every link runs (one interface, one sample rate)
+    urdf: arm6.urdf              # optional, relative to this file: the links' frames and geometry
+    duplex: none
+    links:
+      - name: forearm
+        tx: 3
+        rx: 3
+        frame: forearm_link      # the URDF link (its collision cylinder or box is the touched surface)
+        surface: {...}           # instead of (or overriding) the URDF: sonicskin.surface.LinkSurface.from_dict
+        scenario: {base: moving, material: aluminium, seed: 41, ...}   # the simulated link (a scenario or overrides)
+        artifact: forearm        # the link's trained artifact, relative to this file (fit-svm --links writes it)
+
+A scenario without ``geometry`` takes the surface's (a URDF cylinder of radius r and length L is the simulated tube).
+:func:`write_arm` writes the arm file of a trained arm: the same links with their artifacts, next to them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .acquire import Link
+from .rig import Rig, load_yaml, resolve_config
+
+__all__ = ["load_links", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
+
+#: The arm file :func:`write_arm` writes next to the trained links' artifacts.
+ARM_FILE = "arm.yaml"
+
+_TOP_KEYS = {"name", "rig", "urdf", "duplex", "links"}
+_LINK_KEYS = {"name", "tx", "rx", "frame", "surface", "scenario", "artifact"}
+
+
+def _resolve(name_or_path) -> Path:
+    """A links file by name (configs/links, then configs/arms) or path."""
+    try:
+        return resolve_config(name_or_path, "links")
+    except FileNotFoundError:
+        return resolve_config(name_or_path, "arms")
+
+
+def is_arm(name_or_path) -> bool:
+    """True when the links file places its links on a robot (a frame, surface or simulated scenario per link)."""
+    cfg = load_yaml(_resolve(name_or_path))
+    return any(isinstance(d, dict) and ({"frame", "surface", "scenario"} & set(d)) for d in cfg.get("links") or [])
+
+
+def file_rig(name_or_path) -> Rig | None:
+    """The rig an arm file names (``rig:``), else ``None``."""
+    where = _resolve(name_or_path)
+    cfg = load_yaml(where)
+    r = cfg.get("rig")
+    if r is None:
+        return None
+    if isinstance(r, dict):
+        return Rig.from_dict(r)
+    p = where.parent / str(r)
+    return Rig.load(p if p.is_file() else r)
+
+
+def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
+    """The simulated link of a link: a scenario name, or a mapping ``{base: NAME, key: value, ...}`` (keys of
+    :class:`sonicskin.sim.Scenario`).  Without ``geometry`` the surface's shape is simulated."""
+    from .sim import Scenario
+
+    if isinstance(spec, str):
+        sc = Scenario.load(spec)
+        return sc.replace(name=name) if sc.name != name else sc
+    if not isinstance(spec, dict):
+        raise ValueError(f"{where}: scenario must be a scenario name or a mapping {{base: NAME, key: value}}, got {spec!r}")
+    spec = dict(spec)
+    base = spec.pop("base", "stationary")
+    d = {**Scenario.load(base).to_dict(), "name": name, **spec}
+    if "geometry" not in spec and surface is not None:
+        d["geometry"] = scenario_geometry(surface)
+    try:
+        return Scenario.from_dict(d)
+    except (ValueError, TypeError) as e:
+        raise ValueError(f"{where}: scenario: {e}") from None
+
+
+def scenario_geometry(surface) -> dict:
+    """The simulator's geometry (``Scenario.geometry``, cm) of a surface: a URDF cylinder is the simulated tube, a box
+    the simulated plate."""
+    if surface.kind == "tube":
+        return {"kind": "tube", "radius_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
+    return {"kind": "plate", "width_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
+
+
+def scenario_surface(scenario, frame: str):
+    """The surface of a simulated link placed by nothing else: its scenario's shape, centred in a frame of its own."""
+    from .surface import LinkSurface
+
+    g = scenario.geometry
+    if g.get("kind", "tube") == "tube":
+        return LinkSurface(frame, "tube", (g["radius_cm"] / 100, g["length_cm"] / 100))
+    return LinkSurface(frame, "plate", (g["width_cm"] / 100, g["length_cm"] / 100, 0.0))
+
+
+def load_links(name_or_path, rig: Rig) -> list[Link]:
+    """The links of a links or arm file (module docstring), checked: one-line errors naming the file and link."""
+    where = _resolve(name_or_path)
+    cfg = load_yaml(where)
+    bad = set(cfg) - _TOP_KEYS
+    if bad:
+        raise ValueError(f"{where}: unknown keys {sorted(map(str, bad))}; a links file has {', '.join(sorted(_TOP_KEYS))}")
+    items = cfg.get("links") or []
+    duplex = cfg.get("duplex", "time")
+    if duplex not in ("time", "frequency", "none"):
+        raise ValueError(f"{where}: duplex must be 'time', 'frequency' or 'none', got {duplex!r}")
+    if not items or not isinstance(items, list):
+        raise ValueError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
+    urdf = None
+    if cfg.get("urdf") is not None:
+        urdf = where.parent / str(cfg["urdf"])
+        if not urdf.is_file():
+            raise FileNotFoundError(f"{where}: urdf {cfg['urdf']!r} does not exist next to it ({urdf}); give its path "
+                                    f"relative to the arm file")
+    arm_name = str(cfg.get("name", where.stem))
+    n = len(items)
+    out = []
+    for i, d in enumerate(items):  # each link a mapping with 0-based integer channels (0.7 was channel 0, silently)
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
+        bad = set(d) - _LINK_KEYS
+        if bad:
+            raise ValueError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has "
+                             f"{', '.join(sorted(_LINK_KEYS))}")
+        for k in ("tx", "rx"):
+            v = d.get(k)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
+                                 f"{'nothing' if k not in d else repr(v)}")
+        if "name" in d and not isinstance(d["name"], str):
+            raise ValueError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
+        name = d.get("name", f"link{i}")
+        extra = _placement(d, where=f"{where}: link {name!r}", urdf=urdf, arm_name=arm_name, base=where.parent)
+        if duplex == "time":
+            out.append(Link(int(d["tx"]), int(d["rx"]), i, n, name, **extra))
+        elif duplex == "none":
+            out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, **extra))
+        else:
+            step = (rig.f_hi_hz - rig.f_lo_hz) / n
+            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step,
+                                      name=f"{rig.name}/{name}")
+            out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, sub, **extra))
+    rx = [lk.rx for lk in out]
+    if len(set(rx)) != len(rx):
+        raise ValueError(f"links share receiver channels {rx}; each link needs its own RX channel")
+    tx = [lk.tx for lk in out]
+    if duplex == "none" and len(set(tx)) != len(tx):
+        raise ValueError(f"{where}: duplex none: links share transmitter channels {tx}; each link needs its own TX "
+                         f"channel (or share the chirp with duplex: time or frequency)")
+    names = [lk.name for lk in out]
+    if len(set(names)) != len(names):
+        raise ValueError(f"{where}: link names {names} repeat; every link needs its own name (events carry it)")
+    return out
+
+
+def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: Path) -> dict[str, Any]:
+    """A link's frame, surface, simulated scenario and artifact (all optional)."""
+    frame = d.get("frame")
+    if frame is not None and not isinstance(frame, str):
+        raise ValueError(f"{where}: frame must be the name of the link's frame (a URDF link), got {frame!r}")
+    surface = None
+    if d.get("surface") is not None or (urdf is not None and frame is not None):
+        from .surface import LinkSurface
+
+        over = d.get("surface") or {}
+        if not isinstance(over, dict):
+            raise ValueError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {over!r}")
+        if urdf is not None and frame is not None:
+            surface = LinkSurface.from_urdf(urdf, frame, **over)
+        else:
+            surface = LinkSurface.from_dict({**({"frame": frame} if frame and "frame" not in over else {}), **over},
+                                            where=f"{where}: surface")
+        frame = surface.frame_id
+    scenario = None
+    if d.get("scenario") is not None:
+        scenario = link_scenario(d["scenario"], name=f"{arm_name}-{d.get('name', 'link')}", surface=surface, where=where)
+        if surface is None:  # a simulated link without a frame: its own shape, in a frame named after it
+            surface = scenario_surface(scenario, frame or f"{d.get('name', 'link')}_link")
+            frame = surface.frame_id
+    if surface is not None and scenario is not None:
+        try:
+            surface.check_layout(scenario.make_layout())
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from None
+    artifact = None
+    if d.get("artifact") is not None:
+        artifact = base / str(d["artifact"])
+    return {"frame": frame, "surface": surface, "scenario": scenario, "artifact": artifact}
+
+
+def write_arm(source, out: Path, artifacts: dict[str, Path], rig: Rig) -> Path:
+    """``out/arm.yaml``: the links of ``source`` (a links or arm file) with each link's trained artifact (paths relative to
+    ``out``), its rig written out, the URDF copied beside it: the one file ``live --links`` needs."""
+    where = _resolve(source)
+    cfg = load_yaml(where)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    new = {k: v for k, v in cfg.items() if k != "links"}
+    new["rig"] = rig.to_dict()
+    if cfg.get("urdf") is not None:
+        src = where.parent / str(cfg["urdf"])
+        shutil.copyfile(src, out / src.name)
+        new["urdf"] = src.name
+    links = []
+    for d in cfg["links"]:
+        d = dict(d)
+        name = d.get("name")
+        if name in artifacts:
+            p = Path(artifacts[name]).resolve()
+            try:
+                d["artifact"] = str(p.relative_to(out.resolve()))
+            except ValueError:
+                d["artifact"] = str(p)
+        links.append(d)
+    new["links"] = links
+    path = out / ARM_FILE
+    tmp = path.with_suffix(".yaml.tmp")
+    tmp.write_text(f"# written by sonicskin from {where.name}: the trained arm (`sonicskin live --links {path}`)\n"
+                   + yaml.safe_dump(new, sort_keys=False))
+    tmp.replace(path)
+    return path

@@ -1,0 +1,144 @@
+"""The whole arm: arm files (sonicskin.links), the simulated arm on one multi-channel source, and simulate / fit-svm /
+live / listen() over every link at once, with events in each link's URDF frame."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sonicskin.acquire import SimulatedSource
+from sonicskin.cli import main
+from sonicskin.links import load_links
+from sonicskin.rig import Rig
+from sonicskin.sim import Simulator, build_timeline
+
+FAST = Rig.load("fast")
+
+
+def test_arm6_places_six_links_in_their_urdf_frames():
+    links = load_links("arm6", FAST)
+    assert [lk.name for lk in links] == ["base", "shoulder", "upper-arm", "forearm", "wrist", "hand"]
+    assert [lk.frame for lk in links] == ["base_link", "shoulder_link", "upper_arm_link", "forearm_link", "wrist_link",
+                                          "hand_plate"]
+    assert len({lk.tx for lk in links}) == len({lk.rx for lk in links}) == 6  # own TX/RX pair each: all chirp at once
+    assert all(lk.n_slots == 1 and lk.rig is None for lk in links)
+    fore = links[3]
+    # The simulated tube is the URDF's cylinder (r 3.75 cm, 25 cm), so the layout's circumference is the surface's.
+    assert fore.scenario.geometry == {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0}
+    assert fore.scenario.make_layout().circumference_cm == pytest.approx(2 * math.pi * 3.75)
+    hand = links[5]
+    assert hand.surface.kind == "plate" and hand.scenario.geometry == {"kind": "plate", "width_cm": 20.0, "length_cm": 25.0}
+    assert len({lk.scenario.material for lk in links}) >= 3  # different materials
+    for lk in links:  # every marker lies on its link's surface, with a unit outward normal
+        p, n = lk.surface.point_normal(lk.scenario.make_layout().xy_cm)
+        assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+        if lk.surface.kind == "tube":  # radial: the point is r from the axis, the normal points away from it
+            axis_off = p - lk.surface.pose[:3, 3]
+            assert np.allclose(np.linalg.norm(axis_off[:, :2], axis=1), lk.surface.radius_m)
+            assert np.all(np.sum(axis_off[:, :2] * n[:, :2], axis=1) > 0)
+
+
+def _arm_file(tmp_path: Path, links: list[dict], **top) -> Path:
+    p = tmp_path / "arm.yaml"
+    p.write_text(yaml.safe_dump({"name": "t", "duplex": "none", **top, "links": links}, sort_keys=False))
+    return p
+
+
+TINY = {"base": "stationary", "layout": {"kind": "rings", "counts": [3, 2], "spacing_cm": 1.2, "x0_cm": 2.4, "y0_cm": 11.9},
+        "sessions": 1, "train_repeats": 2, "touch_s": 1.0, "gap_s": 0.5, "calibration_s": 3.0}
+
+
+@pytest.mark.parametrize("links, top, message", [
+    ([{"name": "a", "tx": 0, "rx": 0}, {"name": "b", "tx": 0, "rx": 1}], {},
+     "duplex none: links share transmitter channels [0, 0]; each link needs its own TX channel"),
+    ([{"name": "a", "tx": 0, "rx": 0, "colour": "red"}], {}, "link 0: unknown keys ['colour']; a link has artifact, frame"),
+    ([{"name": "a", "tx": 0, "rx": 0}, {"name": "a", "tx": 1, "rx": 1}], {}, "link names ['a', 'a'] repeat"),
+    ([{"name": "a", "tx": 0, "rx": 0, "frame": "forearm_link"}], {"urdf": "nowhere.urdf"},
+     "urdf 'nowhere.urdf' does not exist next to it"),
+    ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "layout": {"kind": "rings", "counts": [3, 2], "spacing_cm": 1.2,
+                                                                       "x0_cm": 2.4, "y0_cm": 40.0}}}], {},
+     "longer than the tube of a_link"),
+    ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "material": "cheese"}}], {}, "link 'a': scenario:"),
+], ids=["shared-tx", "unknown-key", "same-name", "no-urdf", "layout-off-link", "bad-scenario"])
+def test_arm_file_mistakes_are_one_line(tmp_path, capsys, links, top, message):
+    f = _arm_file(tmp_path, links, **top)
+    with pytest.raises(ValueError) as e:
+        load_links(f, FAST)
+    assert message in str(e.value) and "\n" not in str(e.value)
+    code = main(["simulate", "--links", str(f), "--out", str(tmp_path / "d"), "--quiet"])  # the CLI: one line, exit 2
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_simulated_arm_plays_each_link_on_its_own_channel(tmp_path):
+    """The arm's source carries link k on input channel k: each column is sample for sample that link played alone."""
+    links = load_links(_arm_file(tmp_path, [{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 1}},
+                                            {"name": "b", "tx": 1, "rx": 1, "scenario": {**TINY, "seed": 2,
+                                                                                        "material": "aluminium"}}]), FAST)
+    sims = [Simulator(lk.scenario, FAST) for lk in links]
+    tls = [build_timeline(lk.scenario, FAST).select(np.arange(60)) for lk in links]
+
+    def stream(src):
+        out = []
+        with src:
+            while not (src.finished.is_set() and src.queue.empty()):
+                b = src.read(timeout=0.5)
+                if b is not None:
+                    out.append(b.samples)
+        return np.concatenate(out)
+
+    both = stream(SimulatedSource(sims, tls, realtime=False, blocksize=1000))
+    assert both.ndim == 2 and both.shape[1] == 2
+    for k in range(2):
+        alone = stream(SimulatedSource(Simulator(links[k].scenario, FAST), tls[k], realtime=False, blocksize=1000))
+        assert np.array_equal(both[:, k], alone)
+    assert not np.allclose(both[:, 0], both[:, 1])  # two different walls
+
+
+@pytest.mark.slow
+def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, capsys):
+    """simulate --links, fit-svm --links (one artifact per link and the arm file), live --links ART/arm.yaml --fast: every
+    link reports its scripted touches in its own frame, contact points on the finger; listen() gives the same events."""
+    from sonicskin import listen
+
+    links = [{"name": "upper", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 11}},
+             {"name": "plate", "tx": 1, "rx": 1, "scenario": {**TINY, "base": "plate-aluminium", "seed": 12,
+                                                             "layout": {"kind": "grid", "nx": 3, "ny": 2, "spacing_cm": 3.0,
+                                                                        "x0_cm": 7.5, "y0_cm": 9.5}}}]
+    f = _arm_file(tmp_path, links, rig="fast")
+    assert main(["simulate", "--links", str(f), "--out", str(tmp_path / "data"), "--quiet"]) == 0
+    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "art")]) == 0
+    arm = tmp_path / "art" / "arm.yaml"
+    written = yaml.safe_load(arm.read_text())
+    assert [d["artifact"] for d in written["links"]] == ["upper", "plate"] and written["rig"]["name"] == "fast"
+    capsys.readouterr()
+    assert main(["live", "--links", str(arm), "--fast", "--duration", "14", "--no-status"]) == 0
+    out = capsys.readouterr()
+    events = [json.loads(x) for x in out.out.splitlines()]
+    summary = json.loads(out.err.strip().splitlines()[-1])["summary"]
+    assert set(summary) == {"upper", "plate"}
+    by_link = {n: [e for e in events if e["link"] == n and e["kind"] == "touch"] for n in ("upper", "plate")}
+    assert all(len(v) >= 10 for v in by_link.values())  # scripted touches on every link
+    assert {e["frame_id"] for e in by_link["upper"]} == {"upper_link"} and {e["frame_id"] for e in by_link["plate"]} == {"plate_link"}
+    loaded = {lk.name: lk for lk in load_links(arm, FAST)}
+    for name, evs in by_link.items():
+        lk = loaded[name]
+        tl = build_timeline(lk.scenario.replace(seed=lk.scenario.seed + 1000, sessions=1), FAST)
+        near = []
+        for e in evs:
+            k = int(round((e["t_s"] * FAST.fs_hz + 4321) / FAST.n_chirp))  # SimulatedSource's default offset
+            assert e["v"] == 2 and np.linalg.norm(e["normal"]) == pytest.approx(1.0, abs=1e-3)
+            assert np.allclose(e["force_vec_n"], -e["force_n"] * np.asarray(e["normal"]), atol=1e-3)
+            if tl.event[k] >= 0:
+                finger, _ = lk.surface.point_normal([[tl.x_cm[k], tl.y_cm[k]]])
+                near.append(np.linalg.norm(np.asarray(e["point_m"]) - finger[0]) <= 0.015)
+        assert np.mean(near) >= 0.8, (name, np.mean(near))
+    # The same arm through the Python API: the same touches, chirp for chirp.
+    api = [ev.to_dict() for ev in listen(tmp_path / "art", fast=True, duration_s=14)]
+    key = lambda e: (e["link"], e["t_s"], e["kind"], e["location"])  # noqa: E731
+    assert sorted(map(key, api)) == sorted(map(key, events))
