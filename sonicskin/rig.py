@@ -34,7 +34,7 @@ MAX_FS_HZ = 10e6
 MAX_LOCATIONS = 100_000
 
 #: The config folders (``configs/<kind>/<name>.yaml``) a bare name can refer to.
-CONFIG_KINDS = ("rigs", "scenarios", "links", "train")
+CONFIG_KINDS = ("rigs", "scenarios", "links", "train", "arms")
 
 
 def config_dir() -> Path:
@@ -52,7 +52,7 @@ def config_dir() -> Path:
 
 
 def config_names(kind: str) -> list[str]:
-    """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``), sorted."""
+    """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``, ``arms``), sorted."""
     if kind not in CONFIG_KINDS:
         raise ValueError(f"unknown config kind {kind!r}; valid kinds: {', '.join(CONFIG_KINDS)}")
     return sorted(p.stem for p in (config_dir() / kind).glob("*.yaml"))
