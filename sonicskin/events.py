@@ -2,13 +2,14 @@
 
 Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, UDP, LSL) is a
 :class:`TouchEvent`; its JSON form is described by :data:`EVENT_SCHEMA` (a JSON Schema, draft
-2020-12) and checked by :func:`validate_event`.  The schema carries a version, ``v``: a reader
-accepts the major version it knows; fields are only ever *added* within a version, so a reader of
-version 1 accepts an event with fields it does not know (a later 1.x writer's), ignores them and
-keeps them (:attr:`TouchEvent.extra`, written back by :meth:`TouchEvent.to_json`).
+2020-12) and checked by :func:`validate_event`.  The schema carries a version, ``v`` (now 2): a
+writer writes :data:`SCHEMA_VERSION`; this reader accepts versions 1 and 2 (:data:`READS`).  Fields
+are only ever *added* within a version, so a reader accepts an event with fields it does not know
+(a later writer's), ignores them and keeps them (:attr:`TouchEvent.extra`, written back by
+:meth:`TouchEvent.to_json`).
 
-Semantics (version 1)
----------------------
+Semantics (version 1, unchanged in version 2)
+---------------------------------------------
 - ``t_s``: stream time in seconds of the chirp's first sample, counted from the first sample the
   audio device delivered (one clock per run; not wall time).  Consecutive chirps are
   ``n_chirp / fs_hz`` apart (106.7 ms on the paper's rig).
@@ -30,6 +31,19 @@ Semantics (version 1)
 - ``latency_ms``: processing time from the chirp's last sample being available to the event.
 - ``link`` (optional): the name of the link that sensed it, on a multi-link rig (``sonicskin live
   --links``: the links config's ``name``); absent on a single link.
+
+Added in version 2: the robot's frame (optional; absent when the run places no surface)
+---------------------------------------------------------------------------------------
+When the link's skin is placed on its surface (:class:`sonicskin.surface.LinkSurface`, conventions
+in its module docstring and docs/robot-frame.md), :func:`attach_surface` adds:
+
+- ``frame_id``: the link's frame, the name its URDF gives the link.
+- ``point_m``: ``[x, y, z]``, the contact point (``x_cm``, ``y_cm`` on the surface) in metres in that frame.
+- ``normal``: ``[x, y, z]``, the unit outward surface normal there, in that frame.
+- ``force_vec_n``: ``[x, y, z]``, the force the finger exerts on the link, ``-force_n * normal``, in N in
+  that frame (``[0, 0, 0]`` on ``release``; ``null`` when ``force_n`` is null).
+
+``point_m`` and ``normal`` come together; ``force_vec_n`` only with them.
 """
 
 from __future__ import annotations
@@ -41,9 +55,12 @@ from typing import Any
 
 from .errors import SonicskinError
 
-__all__ = ["SCHEMA_VERSION", "EVENT_SCHEMA", "TouchEvent", "EventError", "validate_event", "parse_event"]
+__all__ = ["SCHEMA_VERSION", "READS", "EVENT_SCHEMA", "TouchEvent", "EventError", "validate_event", "parse_event",
+           "surface_fields", "attach_surface"]
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: the schema versions this reader accepts (version 2 only adds optional fields to version 1)
+READS = (1, 2)
 
 
 class EventError(SonicskinError):
@@ -51,16 +68,19 @@ class EventError(SonicskinError):
 
 
 _NUM_OR_NULL = {"type": ["number", "null"]}
+_VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
+_UNIT_TOL = 1e-3  # |normal| within 1 +- this (the JSON keeps 6 decimals)
+_OPTIONAL = ("link", "frame_id", "point_m", "normal", "force_vec_n")  # written only when set
 
 EVENT_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
-    "$id": "https://sonicskin.invalid/schemas/touch-event-1.json",
+    "$id": "https://sonicskin.invalid/schemas/touch-event-2.json",
     "title": "sonicskin touch event",
     "type": "object",
     "required": ["v", "t_s", "kind", "location", "x_cm", "y_cm", "force_n", "confidence", "model", "latency_ms"],
-    "additionalProperties": True,  # fields are only ever added within a version: a v1 reader ignores (and keeps) them
+    "additionalProperties": True,  # fields are only ever added within a version: a reader ignores (and keeps) them
     "properties": {
-        "v": {"const": SCHEMA_VERSION, "description": "schema version"},
+        "v": {"enum": list(READS), "description": "schema version; 2 adds the optional robot-frame fields"},
         "t_s": {"type": "number", "minimum": 0, "description": "stream time of the chirp's first sample, s"},
         "kind": {"enum": ["touch", "release"]},
         "location": {"type": "integer", "description": "marker id of the artifact's layout"},
@@ -71,6 +91,11 @@ EVENT_SCHEMA: dict[str, Any] = {
         "model": {"enum": ["svm", "net"]},
         "latency_ms": {"type": "number", "minimum": 0},
         "link": {"type": "string", "description": "the link that sensed it (live --links); absent on a single link"},
+        "frame_id": {"type": "string", "description": "v2: the link's frame (its URDF link name); absent without a surface"},
+        "point_m": {**_VEC3, "description": "v2: contact point [x, y, z] in the link frame, m"},
+        "normal": {**_VEC3, "description": "v2: unit outward surface normal [x, y, z] at the point, link frame"},
+        "force_vec_n": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
+                        "description": "v2: force of the finger on the link, -force_n * normal, N, link frame; null: no force model"},
     },
 }
 
@@ -90,11 +115,16 @@ class TouchEvent:
     latency_ms: float
     v: int = SCHEMA_VERSION
     link: str | None = None  # the link's name on a multi-link rig (not written when None)
+    # v2, the robot's frame (not written when None; see attach_surface)
+    frame_id: str | None = None
+    point_m: tuple[float, float, float] | None = None
+    normal: tuple[float, float, float] | None = None
+    force_vec_n: tuple[float, float, float] | None = None
     #: fields of the event this reader does not know (a later writer of the same major version), kept as read
     extra: dict[str, Any] = dataclasses.field(default_factory=dict, hash=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("extra", "link")}
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name not in ("extra", *_OPTIONAL)}
         for k in ("t_s", "x_cm", "y_cm", "force_n", "confidence", "latency_ms"):
             x = float(d[k])
             d[k] = round(x, 4) if math.isfinite(x) else None
@@ -102,6 +132,14 @@ class TouchEvent:
         out = {"v": d.pop("v"), **d}
         if self.link is not None:
             out["link"] = self.link
+        if self.frame_id is not None:
+            out["frame_id"] = self.frame_id
+        for k, nd in (("point_m", 6), ("normal", 6), ("force_vec_n", 4)):
+            vec = getattr(self, k)
+            if vec is not None:
+                out[k] = _vec(vec, nd)
+        if self.force_vec_n is None and self.normal is not None:
+            out["force_vec_n"] = None  # a surface but no force model
         return {**out, **{k: v for k, v in self.extra.items() if k not in out}}
 
     def to_json(self) -> str:
@@ -112,7 +150,15 @@ class TouchEvent:
         """A validated event; fields the schema does not know are kept in :attr:`extra`."""
         validate_event(d)
         known = {k: (math.nan if d[k] is None else d[k]) for k in d if k in EVENT_SCHEMA["properties"]}
+        for k in ("point_m", "normal", "force_vec_n"):
+            if k in known:
+                known[k] = None if d[k] is None else tuple(float(a) for a in d[k])
         return cls(**known, extra={k: v for k, v in d.items() if k not in EVENT_SCHEMA["properties"]})
+
+
+def _vec(v, nd: int) -> list[float] | None:
+    x = [float(a) for a in v]
+    return [round(a, nd) + 0.0 for a in x] if all(math.isfinite(a) for a in x) else None  # + 0.0: no "-0.0"
 
 
 def _type_ok(value, types) -> bool:
@@ -126,14 +172,17 @@ def _type_ok(value, types) -> bool:
             return True
         if t == "string" and isinstance(value, str):
             return True
+        if t == "array" and isinstance(value, list):
+            return True
     return False
 
 
 def validate_event(d: Any) -> None:
     """Check one decoded event against :data:`EVENT_SCHEMA`; raise :class:`EventError` naming the first problem.
 
-    (The subset of JSON Schema the event schema uses: type, const, enum, minimum, maximum,
-    required; no third-party validator needed at run time.)  Fields the schema does not declare are
+    (The subset of JSON Schema the event schema uses: type, enum, minimum, maximum, required, and
+    arrays of 3 numbers; no third-party validator needed at run time.)  Beyond the JSON Schema: ``normal``
+    is a unit vector, and ``point_m``/``normal`` come together.  Fields the schema does not declare are
     accepted (``additionalProperties``: within a version, fields are only ever added).
     """
     if not isinstance(d, dict):
@@ -145,8 +194,9 @@ def validate_event(d: Any) -> None:
         if k not in d:  # an optional field (required ones were checked above)
             continue
         x = d[k]
-        if "const" in rule and x != rule["const"]:
-            raise EventError(f"{k} must be {rule['const']!r}, got {x!r} (a reader for schema v{SCHEMA_VERSION})")
+        if k == "v" and (x not in READS or isinstance(x, bool)):
+            raise EventError(f"v must be one of {list(READS)}, got {x!r} (a reader for schema v{SCHEMA_VERSION}: "
+                             "a newer sonicskin reads newer events)")
         if "enum" in rule and x not in rule["enum"]:
             raise EventError(f"{k} must be one of {rule['enum']}, got {x!r}")
         if "type" in rule and not _type_ok(x, rule["type"]):
@@ -156,6 +206,13 @@ def validate_event(d: Any) -> None:
                 raise EventError(f"{k} must be >= {rule['minimum']}, got {x!r}")
             if "maximum" in rule and x > rule["maximum"]:
                 raise EventError(f"{k} must be <= {rule['maximum']}, got {x!r}")
+        if isinstance(x, list) and (len(x) != rule["minItems"] or not all(_type_ok(a, rule["items"]["type"]) for a in x)):
+            raise EventError(f"{k} must be {rule['minItems']} numbers, got {x!r}")
+    if ("point_m" in d) != ("normal" in d) or ("force_vec_n" in d and "normal" not in d):
+        raise EventError("point_m and normal come together, force_vec_n only with them (schema v2), got "
+                         f"{sorted(k for k in ('point_m', 'normal', 'force_vec_n') if k in d)}")
+    if "normal" in d and abs(math.hypot(*d["normal"]) - 1) > _UNIT_TOL:
+        raise EventError(f"normal must be a unit vector, got {d['normal']!r} (length {math.hypot(*d['normal']):.4g})")
 
 
 def parse_event(line: str | bytes) -> TouchEvent:
@@ -165,3 +222,25 @@ def parse_event(line: str | bytes) -> TouchEvent:
     except ValueError as e:
         raise EventError(f"not a JSON event ({e})") from None
     return TouchEvent.from_dict(d)
+
+
+def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[str, Any]:
+    """The version-2 fields of a contact at layout ``(x_cm, y_cm)`` with normal force ``force_n`` on ``surface`` (a
+    :class:`sonicskin.surface.LinkSurface`): ``frame_id``, ``point_m``, ``normal``, ``force_vec_n`` (as tuples; only
+    ``frame_id`` when the position is not finite; ``force_vec_n`` None when the force is not)."""
+    out: dict[str, Any] = {"frame_id": surface.frame_id}
+    if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
+        return out
+    p, n = surface.point_normal([[x_cm, y_cm]])
+    normal = tuple(float(a) for a in n[0])
+    f = float(force_n) if force_n is not None else math.nan
+    out |= {"point_m": tuple(float(a) for a in p[0]), "normal": normal,
+            "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
+    return out
+
+
+def attach_surface(ev: TouchEvent, surface) -> TouchEvent:
+    """``ev`` with the version-2 robot-frame fields of its contact on ``surface`` (``surface=None``: ``ev`` unchanged)."""
+    if surface is None:
+        return ev
+    return dataclasses.replace(ev, v=SCHEMA_VERSION, **surface_fields(surface, ev.x_cm, ev.y_cm, ev.force_n))

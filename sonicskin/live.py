@@ -43,7 +43,7 @@ import scipy.fft
 from .acquire import AudioError
 from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
 from .errors import SonicskinError
-from .events import TouchEvent
+from .events import TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
 __all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]

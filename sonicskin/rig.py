@@ -52,7 +52,7 @@ def config_dir() -> Path:
 
 
 def config_names(kind: str) -> list[str]:
-    """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``), sorted."""
+    """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``, ``arms``), sorted."""
     if kind not in CONFIG_KINDS:
         raise ValueError(f"unknown config kind {kind!r}; valid kinds: {', '.join(CONFIG_KINDS)}")
     return sorted(p.stem for p in (config_dir() / kind).glob("*.yaml"))

@@ -1,6 +1,7 @@
-"""The event stream is a contract: the schema (v1) and its validator, and `live`'s stdout, UDP and
+"""The event stream is a contract: the schema (v2, reading v1) and its validator, and `live`'s stdout, UDP and
 LSL output checked against it."""
 
+import dataclasses
 import json
 import math
 import socket
@@ -10,24 +11,34 @@ import time
 import pytest
 from cli_helpers import run
 
-from sonicskin.events import EVENT_SCHEMA, SCHEMA_VERSION, EventError, TouchEvent, parse_event, validate_event
+from sonicskin.events import (
+    EVENT_SCHEMA,
+    SCHEMA_VERSION,
+    EventError,
+    TouchEvent,
+    attach_surface,
+    parse_event,
+    surface_fields,
+    validate_event,
+)
 
-GOOD = {"v": 1, "t_s": 4.2667, "kind": "touch", "location": 3, "x_cm": 6.1, "y_cm": 12.0, "force_n": 2.5,
+GOOD = {"v": 2, "t_s": 4.2667, "kind": "touch", "location": 3, "x_cm": 6.1, "y_cm": 12.0, "force_n": 2.5,
         "confidence": 0.9, "model": "svm", "latency_ms": 0.8}
 
 
 def test_event_round_trip_and_nulls():
     ev = TouchEvent(4.26667, "touch", 3, 6.1, 12.0, math.nan, 0.9, "svm", 0.81234)
     d = json.loads(ev.to_json())
-    assert list(d)[0] == "v" and d["v"] == SCHEMA_VERSION == EVENT_SCHEMA["properties"]["v"]["const"]
+    assert list(d)[0] == "v" and d["v"] == SCHEMA_VERSION == 2 and EVENT_SCHEMA["properties"]["v"]["enum"] == [1, 2]
     assert d["force_n"] is None and d["t_s"] == 4.2667  # no force model: null; 4 decimals
     back = parse_event(ev.to_json())
     assert back.kind == "touch" and back.location == 3 and math.isnan(back.force_n)
-    assert set(EVENT_SCHEMA["required"]) == set(d) == set(EVENT_SCHEMA["properties"]) - {"link"}  # link: --links only
+    optional = {"link", "frame_id", "point_m", "normal", "force_vec_n"}  # link: --links only; the rest: a surface
+    assert set(EVENT_SCHEMA["required"]) == set(d) == set(EVENT_SCHEMA["properties"]) - optional
 
 
 @pytest.mark.parametrize("change, msg", [
-    ({"v": 2}, "v must be 1, got 2 (a reader for schema v1)"),
+    ({"v": 3}, "v must be one of [1, 2], got 3 (a reader for schema v2: a newer sonicskin reads newer events)"),
     ({"kind": "press"}, "kind must be one of ['touch', 'release'], got 'press'"),
     ({"confidence": 1.5}, "confidence must be <= 1, got 1.5"),
     ({"force_n": -0.1}, "force_n must be >= 0, got -0.1"),
@@ -35,6 +46,11 @@ def test_event_round_trip_and_nulls():
     ({"t_s": "now"}, "t_s must be number, got 'now'"),
     ({"model": "cnn"}, "model must be one of ['svm', 'net'], got 'cnn'"),
     ({"link": 1}, "link must be string, got 1"),  # unknown fields are kept, not refused (test_hostile_live.py)
+    ({"frame_id": "f", "point_m": [0, 0, 0.1], "normal": [0, 0, 2]}, "normal must be a unit vector, got [0, 0, 2] (length 2)"),
+    ({"point_m": [0, 0.1], "normal": [0, 0, 1]}, "point_m must be 3 numbers, got [0, 0.1]"),
+    ({"point_m": [0, 0, "a"], "normal": [0, 0, 1]}, "point_m must be 3 numbers, got [0, 0, 'a']"),
+    ({"point_m": [0, 0, 0.1]}, "point_m and normal come together, force_vec_n only with them (schema v2), got ['point_m']"),
+    ({"frame_id": ["f"]}, "frame_id must be string, got ['f']"),
 ])
 def test_validator_names_the_problem(change, msg):
     validate_event(GOOD)
@@ -45,6 +61,44 @@ def test_validator_names_the_problem(change, msg):
         validate_event({k: v for k, v in GOOD.items() if k != "x_cm"})
     with pytest.raises(EventError, match="not a JSON event"):
         parse_event("{nan")
+
+
+# A line `sonicskin live` wrote before schema v2 (commit 33f55f0): still read, and written back as read.
+V1_LINE = ('{"v": 1, "t_s": 4.2667, "kind": "touch", "location": 14, "x_cm": 9.6, "y_cm": 13.1, "force_n": 2.47, '
+           '"confidence": 0.93, "model": "svm", "latency_ms": 0.71, "link": "forearm"}')
+
+
+def test_a_v1_event_still_parses():
+    ev = parse_event(V1_LINE)
+    assert (ev.v, ev.location, ev.link, ev.frame_id, ev.point_m) == (1, 14, "forearm", None, None)
+    assert ev.to_json() == V1_LINE
+
+
+def test_v2_surface_fields_known_answer_and_round_trip():
+    from sonicskin.surface import LinkSurface
+
+    s = LinkSurface.from_dict({"frame": "forearm_link", "kind": "tube", "radius_m": 0.0375, "length_m": 0.25,
+                               "xyz": [0, 0, 0.125]})
+    quarter = 2 * math.pi * 3.75 / 4  # x a quarter of the way round: +90 deg, the normal is +y
+    f = surface_fields(s, quarter, 5.0, 2.0)
+    assert f["frame_id"] == "forearm_link"
+    assert f["point_m"] == pytest.approx((0, 0.0375, 0.05), abs=1e-12) and f["normal"] == pytest.approx((0, 1, 0), abs=1e-12)
+    assert f["force_vec_n"] == pytest.approx((0, -2, 0), abs=1e-12)  # the finger pushes into the link
+    ev = attach_surface(parse_event(V1_LINE), s)  # a v1 event gets the fields and becomes v2
+    d = json.loads(ev.to_json())
+    assert d["v"] == 2 and d["frame_id"] == "forearm_link" and d["link"] == "forearm"
+    assert list(d)[-4:] == ["frame_id", "point_m", "normal", "force_vec_n"]
+    assert all(isinstance(d[k], list) and len(d[k]) == 3 for k in ("point_m", "normal", "force_vec_n"))
+    back = parse_event(ev.to_json())
+    assert back.point_m == pytest.approx(ev.point_m, abs=1e-6) and back.force_vec_n == pytest.approx(ev.force_vec_n, abs=1e-4)
+    assert back.to_json() == ev.to_json()
+    # a release: force 0, vector 0 (no "-0.0"); no force model: null vector; no surface: no field at all
+    rel = json.loads(attach_surface(dataclasses.replace(ev, kind="release", force_n=0.0), s).to_json())
+    assert '"force_vec_n": [0.0, 0.0, 0.0]' in json.dumps(rel)
+    nof = json.loads(attach_surface(dataclasses.replace(ev, force_n=math.nan), s).to_json())
+    assert nof["force_n"] is None and nof["force_vec_n"] is None
+    validate_event(nof)
+    assert attach_surface(parse_event(V1_LINE), None).to_json() == V1_LINE
 
 
 def _check_stream(events, period_s):

@@ -244,8 +244,8 @@ def test_a_declared_field_is_still_checked():
         parse_event(json.dumps({**good, "link": 5}))
     assert str(e.value) == "link must be string, got 5"
     with pytest.raises(EventError) as e:
-        parse_event(json.dumps({**good, "v": 2, "pressure_kpa": 1}))
-    assert str(e.value) == "v must be 1, got 2 (a reader for schema v1)"
+        parse_event(json.dumps({**good, "v": 3, "pressure_kpa": 1}))
+    assert str(e.value) == "v must be one of [1, 2], got 3 (a reader for schema v2: a newer sonicskin reads newer events)"
 
 
 def test_everything_live_links_writes_parses(cli_files, monkeypatch, capsys):

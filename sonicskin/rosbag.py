@@ -1,0 +1,169 @@
+"""Touch events as ROS 2 messages in an MCAP file (``ros2 bag play FILE``, Foxglove), without ROS installed.
+
+:class:`McapEventWriter` writes each event that carries the robot-frame fields (schema v2,
+:func:`sonicskin.events.attach_surface`) as ROS 2 messages, CDR-encoded by ``mcap-ros2-support``:
+
+- ``/sonicskin/<frame>/contact_point``: ``geometry_msgs/msg/PointStamped``, the contact point in the link frame.
+- ``/sonicskin/<frame>/contact_wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact's wrench about the link
+  frame's origin: force ``F = -force_n * normal`` (the finger on the link), torque ``p x F`` (exact without a
+  contact frame).  Zero on a release (the contact ended); not written when the artifact has no force model.
+- ``/sonicskin/markers``: ``visualization_msgs/msg/MarkerArray``; on a touch an arrow (namespace
+  ``sonicskin/<frame>``, id 0) pushing on the point along the normal, 1 cm + 2 cm per N long, and a sphere
+  (id 1, 1 cm) at the point; on a release the DELETE of both.
+
+``<frame>`` is the event's ``frame_id`` (the URDF link name; a character a ROS name cannot hold becomes ``_``).
+Every header has ``frame_id`` = the link's frame and ``stamp`` = ``t0_unix_s + t_s`` (``builtin_interfaces/Time``);
+the MCAP log time is the same instant, so a player replays at the skin's pace.  Events without the robot-frame
+fields (schema v1, a run without a surface) are counted (:attr:`McapEventWriter.skipped`), not written, with one
+warning.  Each event's messages close their own MCAP chunk and are flushed to the file, so a process killed hard
+loses nothing written (``mcap recover`` restores the index); :meth:`McapEventWriter.close` (also on Ctrl-C, the
+context manager's exit) writes the summary that makes the file complete.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import threading
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+from .errors import SonicskinError
+from .events import TouchEvent
+from .ros2_msgs import DEFINITIONS
+
+__all__ = ["McapEventWriter", "MARKER_TOPIC", "topic_for"]
+
+MARKER_TOPIC = "/sonicskin/markers"
+ARROW, SPHERE, ADD, DELETE = 0, 2, 0, 2  # visualization_msgs/Marker constants
+ARROW_BASE_M, ARROW_M_PER_N, SPHERE_M = 0.01, 0.02, 0.01
+
+
+def topic_for(frame_id: str, what: str) -> str:
+    """``/sonicskin/<frame>/<what>``, the frame made a valid ROS name token."""
+    tok = re.sub(r"[^A-Za-z0-9_]", "_", frame_id) or "_"
+    if tok[0].isdigit():
+        tok = "_" + tok
+    return f"/sonicskin/{tok}/{what}"
+
+
+def _time(ns: int) -> dict:
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+class McapEventWriter:
+    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager; see the module docstring).
+
+    ``t0_unix_s``: the wall-clock time (UNIX seconds) of the stream's ``t_s = 0``.  ``log``: where the one warning
+    about events without a surface goes (default :func:`warnings.warn`).
+    """
+
+    def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None):
+        from mcap.writer import CompressionType
+        from mcap_ros2.writer import Writer
+
+        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
+            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {t0_unix_s!r}")
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "wb")
+        except OSError as e:
+            raise SonicskinError(f"{path}: cannot write the MCAP file ({e.strerror})") from None
+        self._t0_ns = round(float(t0_unix_s) * 1e9)
+        self._log = log or (lambda m: warnings.warn(m, stacklevel=3))
+        # chunk_size=0: every message closes its chunk; with the flush after each event the file holds all of it
+        self._w = Writer(self._file, chunk_size=0, compression=CompressionType.NONE)
+        self._schemas = {name: self._w.register_msgdef(name, text) for name, text in DEFINITIONS.items()}
+        self._seq: dict[str, int] = {}
+        self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
+        self.written = 0  # events written
+        self.skipped = 0  # events without the robot-frame fields
+        self.messages = 0
+        self._closed = False
+        self._lock = threading.Lock()  # one writer for the loops of all links
+
+    # -- messages ---------------------------------------------------------------------------------------------------
+    def _put(self, topic: str, schema: str, msg: dict, ns: int) -> None:
+        seq = self._seq.get(topic, 0)
+        self._w.write_message(topic, self._schemas[schema], msg, log_time=ns, publish_time=ns, sequence=seq)
+        self._seq[topic] = seq + 1
+        self.messages += 1
+
+    @staticmethod
+    def _markers(frame: str, header: dict, action: int, p=None, n=None, force_n: float = math.nan) -> dict:
+        ns = f"sonicskin/{frame}"
+        base = {"header": header, "ns": ns, "action": action, "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": True,
+                "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+        if action == DELETE:
+            return {"markers": [{**base, "id": 0, "type": ARROW}, {**base, "id": 1, "type": SPHERE}]}
+        length = ARROW_BASE_M + ARROW_M_PER_N * (force_n if math.isfinite(force_n) else 0.0)
+        tail = {"x": p[0] + length * n[0], "y": p[1] + length * n[1], "z": p[2] + length * n[2]}
+        tip = {"x": p[0], "y": p[1], "z": p[2]}
+        arrow = {**base, "id": 0, "type": ARROW, "points": [tail, tip], "scale": {"x": 0.003, "y": 0.006, "z": 0.006},
+                 "color": {"r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0}}
+        sphere = {**base, "id": 1, "type": SPHERE, "pose": {**base["pose"], "position": tip},
+                  "scale": {"x": SPHERE_M, "y": SPHERE_M, "z": SPHERE_M}, "color": {"r": 1.0, "g": 0.8, "b": 0.1, "a": 1.0}}
+        return {"markers": [arrow, sphere]}
+
+    def write(self, ev: TouchEvent) -> None:
+        """Write the messages of one event (nothing, counted in :attr:`skipped`, when it has no robot-frame fields).
+        Thread-safe: the loops of several links may share one writer."""
+        with self._lock:
+            self._write(ev)
+
+    def _write(self, ev: TouchEvent) -> None:
+        if self._closed:
+            raise SonicskinError(f"{self.path}: the MCAP writer is closed")
+        if ev.frame_id is None or ev.point_m is None or ev.normal is None:
+            self.skipped += 1
+            if self.skipped == 1:
+                self._log(f"warning: {self.path}: an event without the robot-frame fields (no surface for link "
+                          f"{ev.link or '(single link)'}) is not written to the MCAP file; give the link a surface "
+                          "(frame, URDF) to record it")
+            return
+        ns = self._t0_ns + round(ev.t_s * 1e9)
+        frame = ev.frame_id
+        header = {"stamp": _time(ns), "frame_id": frame}
+        p, n = [float(a) for a in ev.point_m], [float(a) for a in ev.normal]
+        self._put(topic_for(frame, "contact_point"), "geometry_msgs/msg/PointStamped",
+                  {"header": header, "point": dict(zip("xyz", p))}, ns)
+        if ev.force_vec_n is not None:
+            f = [float(a) for a in ev.force_vec_n]
+            tau = [p[1] * f[2] - p[2] * f[1], p[2] * f[0] - p[0] * f[2], p[0] * f[1] - p[1] * f[0]]
+            self._put(topic_for(frame, "contact_wrench"), "geometry_msgs/msg/WrenchStamped",
+                      {"header": header, "wrench": {"force": dict(zip("xyz", f)), "torque": dict(zip("xyz", tau))}}, ns)
+        if ev.kind == "release":
+            self._touching.pop(frame, None)
+            markers = self._markers(frame, header, DELETE)
+        else:
+            self._touching[frame] = ns
+            markers = self._markers(frame, header, ADD, p, n, ev.force_n)
+        self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", markers, ns)
+        self._file.flush()
+        self.written += 1
+
+    # -- life cycle -------------------------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Write the file's summary and close it (idempotent).  Links still touched get their markers deleted at their
+        last touch's stamp, so a viewer shows no stale contact after the recording ends."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._finish()
+
+    def _finish(self) -> None:
+        try:
+            for frame, ns in sorted(self._touching.items()):
+                self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray",
+                          self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
+            self._w.finish()
+        finally:
+            self._file.close()
+
+    def __enter__(self) -> McapEventWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,286 @@
+"""A link's skin placed on its real surface: layout coordinates (cm, unrolled) -> point and normal in the link's frame.
+
+A :class:`LinkSurface` names the robot frame (``frame_id``, the URDF link) and the shape the skin covers, a tube
+(URDF ``<cylinder>``) or a plate (URDF ``<box>``), with the shape's pose in that frame.  These conventions are the
+contract between a layout and the robot (docs/robot-frame.md):
+
+Tube (a cylinder of radius ``r`` and length ``L``, axis = the shape's local z, centred on its origin)
+    - ``y_cm`` (along the axis from the transmitter end) -> ``z = y/100 - L/2`` when the transmitter end is the
+      shape's ``-z`` end (``axis_from: -z``, the default), ``z = L/2 - y/100`` when it is the ``+z`` end.
+    - ``x_cm`` (arc length around the circumference) -> ``theta = theta0 + x/100/r`` (counter-clockwise about the
+      shape's +z; ``theta0`` is where ``x = 0`` lies, measured from the shape's +x axis).
+    - point ``(r cos theta, r sin theta, z)``, outward normal ``(cos theta, sin theta, 0)``.
+Plate (a box of size ``(W, L, h)``, centred on its origin)
+    - the touched face is ``+z`` (``face: +z``): point ``(x/100 - W/2, y/100 - L/2, h/2)``, normal ``(0, 0, 1)``;
+      with ``face: -z`` the point is ``(x/100 - W/2, y/100 - L/2, -h/2)`` and the normal ``(0, 0, -1)``.
+Then the shape's pose (``xyz`` in m, ``rpy`` in rad, URDF's fixed-axis roll-pitch-yaw, ``R = Rz(yaw) Ry(pitch)
+Rx(roll)``; from a URDF: the geometry's ``<origin>``) maps point and normal into the link frame.
+
+Built from a short YAML mapping (:meth:`LinkSurface.from_dict`) or from a URDF link's collision (else visual)
+geometry (:meth:`LinkSurface.from_urdf`, parsed with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one
+line naming the problem and the fix.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import SonicskinError
+
+__all__ = ["LinkSurface", "SurfaceError", "pose_matrix"]
+
+
+class SurfaceError(SonicskinError):
+    """A link surface description (YAML or URDF) that cannot place a layout; the message names the problem and the fix."""
+
+
+_COMMON = {"frame", "kind", "xyz", "rpy"}
+_KEYS = {"tube": _COMMON | {"radius_m", "length_m", "theta0_deg", "axis_from"},
+         "plate": _COMMON | {"width_m", "length_m", "thickness_m", "face"}}
+_OVERRIDES = {"tube": {"theta0_deg", "axis_from"}, "plate": {"face"}}
+_TOL_CM = 0.05  # a layout may reach this far past the surface's edge (rounding of hand-written coordinates)
+
+
+def pose_matrix(xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The 4x4 transform of URDF's ``<origin xyz rpy>``: ``R = Rz(yaw) Ry(pitch) Rx(roll)``, then the translation."""
+    r, p, y = (float(a) for a in rpy)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    T = np.eye(4)
+    T[:3, :3] = [[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                 [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                 [-sp, cp * sr, cp * cr]]
+    T[:3, 3] = [float(a) for a in xyz]
+    return T
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LinkSurface:
+    """The surface a link's skin covers, in the link's frame (conventions: module docstring).
+
+    ``dims_m``: ``(radius, length)`` for a tube, ``(width, length, thickness)`` for a plate.  ``pose``: the shape's
+    4x4 transform in the link frame.  ``theta0_deg``/``axis_from`` apply to a tube, ``face`` to a plate.
+    """
+
+    frame_id: str
+    kind: str  # "tube" | "plate"
+    dims_m: tuple[float, ...]
+    pose: np.ndarray = dataclasses.field(default_factory=lambda: np.eye(4))
+    theta0_deg: float = 0.0
+    axis_from: str = "-z"  # the shape's end that holds the transmitter (layout y = 0)
+    face: str = "+z"  # the plate's touched face
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.frame_id, str) or not self.frame_id.strip():
+            raise SurfaceError(f"frame must be the link's frame name (a non-empty string), got {self.frame_id!r}")
+        if self.kind not in _KEYS:
+            raise SurfaceError(f"kind must be 'tube' or 'plate', got {self.kind!r}")
+        n = 2 if self.kind == "tube" else 3
+        dims = tuple(float(d) for d in self.dims_m)
+        names = ("radius_m", "length_m") if self.kind == "tube" else ("width_m", "length_m", "thickness_m")
+        if len(dims) != n:
+            raise SurfaceError(f"a {self.kind} has {n} dimensions {names}, got {len(dims)}")
+        for k, d in zip(names, dims):
+            if not (math.isfinite(d) and (d > 0 or (k == "thickness_m" and d == 0))):
+                raise SurfaceError(f"{self.kind} {k} must be a positive number of metres, got {d!r}")
+        pose = np.array(self.pose, dtype=float)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
+                                                                                     atol=1e-6):
+            raise SurfaceError("pose must be a finite 4x4 rigid transform (a rotation and a translation)")
+        pose.setflags(write=False)
+        if self.axis_from not in ("-z", "+z"):
+            raise SurfaceError(f"axis_from must be '-z' or '+z' (the tube's end that holds the transmitter), got {self.axis_from!r}")
+        if self.face not in ("+z", "-z"):
+            raise SurfaceError(f"face must be '+z' or '-z' (the plate's touched face), got {self.face!r}")
+        t0 = self.theta0_deg
+        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
+            raise SurfaceError(f"theta0_deg must be a finite angle in degrees, got {self.theta0_deg!r}")
+        object.__setattr__(self, "dims_m", dims)
+        object.__setattr__(self, "pose", pose)
+        object.__setattr__(self, "theta0_deg", float(self.theta0_deg))
+
+    # -- geometry ---------------------------------------------------------------------------------------------------
+    @property
+    def radius_m(self) -> float:
+        return self.dims_m[0] if self.kind == "tube" else math.nan
+
+    @property
+    def length_m(self) -> float:
+        return self.dims_m[1]
+
+    @property
+    def width_cm(self) -> float:
+        """The unrolled surface's extent along layout x: the circumference (tube) or the width (plate), in cm."""
+        return 100 * (2 * math.pi * self.dims_m[0] if self.kind == "tube" else self.dims_m[0])
+
+    def point_normal(self, xy_cm) -> tuple[np.ndarray, np.ndarray]:
+        """Layout coordinates ``(n, 2)`` in cm -> contact points ``(n, 3)`` in m and unit outward normals ``(n, 3)``, both
+        in the link frame."""
+        xy = np.asarray(xy_cm, dtype=float)
+        if xy.ndim == 1:
+            xy = xy[None]
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise SurfaceError(f"xy_cm must have shape (n, 2), got {np.shape(xy_cm)}")
+        x, y = xy[:, 0] / 100, xy[:, 1] / 100
+        if self.kind == "tube":
+            r, L = self.dims_m
+            z = y - L / 2 if self.axis_from == "-z" else L / 2 - y
+            th = math.radians(self.theta0_deg) + x / r
+            c, s = np.cos(th), np.sin(th)
+            p = np.stack([r * c, r * s, z], axis=1)
+            nrm = np.stack([c, s, np.zeros_like(c)], axis=1)
+        else:
+            W, L, h = self.dims_m
+            sign = 1.0 if self.face == "+z" else -1.0
+            p = np.stack([x - W / 2, y - L / 2, np.full_like(x, sign * h / 2)], axis=1)
+            nrm = np.zeros_like(p)
+            nrm[:, 2] = sign
+        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        return p @ R.T + t, nrm @ R.T
+
+    def check_layout(self, layout) -> None:
+        """Raise :class:`SurfaceError` when ``layout`` (a :class:`sonicskin.rig.Layout`) does not fit on this surface: its
+        circumference is not the tube's, or a marker lies off the surface (wider than the circumference or the plate,
+        longer than the link)."""
+        xy = np.asarray(layout.xy_cm, dtype=float)
+        wid, length = self.width_cm, 100 * self.length_m
+        what = f"the {self.kind} of {self.frame_id}"
+        if self.kind == "tube":
+            circ = getattr(layout, "circumference_cm", None)
+            if circ is not None and abs(circ - wid) > max(_TOL_CM, 0.01 * wid):
+                raise SurfaceError(f"the layout's circumference {circ:g} cm is not that of {what} ({wid:.2f} cm = 2 pi x "
+                                   f"{100 * self.radius_m:g} cm): use the link's radius in the scenario's geometry or fix radius_m")
+        if len(xy) == 0:
+            return
+        x0, x1, y0, y1 = xy[:, 0].min(), xy[:, 0].max(), xy[:, 1].min(), xy[:, 1].max()
+        if x0 < -_TOL_CM or x1 > wid + _TOL_CM:
+            across = "circumference" if self.kind == "tube" else "width"
+            raise SurfaceError(f"the layout spans x {x0:g}..{x1:g} cm, wider than the {across} of {what} ({wid:.2f} cm): "
+                               "the layout is for another link, or its size in the URDF/YAML is wrong")
+        if y0 < -_TOL_CM or y1 > length + _TOL_CM:
+            raise SurfaceError(f"the layout spans y {y0:g}..{y1:g} cm, longer than {what} ({length:.2f} cm): "
+                               "the layout is for another link, or its length in the URDF/YAML is wrong")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping :meth:`from_dict` reads back (pose as xyz + rpy)."""
+        R, t = self.pose[:3, :3], self.pose[:3, 3]
+        pitch = math.asin(max(-1.0, min(1.0, -R[2, 0])))
+        if abs(math.cos(pitch)) > 1e-9:
+            roll, yaw = math.atan2(R[2, 1], R[2, 2]), math.atan2(R[1, 0], R[0, 0])
+        else:  # gimbal lock: put the whole rotation about z into yaw
+            roll, yaw = 0.0, math.atan2(-R[0, 1], R[1, 1])
+        d: dict[str, Any] = {"frame": self.frame_id, "kind": self.kind}
+        if self.kind == "tube":
+            d |= {"radius_m": self.dims_m[0], "length_m": self.dims_m[1], "theta0_deg": self.theta0_deg, "axis_from": self.axis_from}
+        else:
+            d |= {"width_m": self.dims_m[0], "length_m": self.dims_m[1], "thickness_m": self.dims_m[2], "face": self.face}
+        return d | {"xyz": [float(v) for v in t], "rpy": [roll, pitch, yaw]}
+
+    # -- constructors -----------------------------------------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
+        """A surface from a short YAML mapping, keys checked strictly (``where`` prefixes the error line).
+
+        Tube: ``{frame, kind: tube, radius_m, length_m, xyz, rpy, theta0_deg, axis_from}``; plate: ``{frame, kind:
+        plate, width_m, length_m, thickness_m, xyz, rpy, face}`` (``xyz``/``rpy`` default 0, ``thickness_m`` 0).  Or a
+        URDF link: ``{urdf: PATH, frame: LINK}`` plus ``theta0_deg``/``axis_from``/``face`` (PATH relative to
+        ``base_dir``).
+        """
+        if not isinstance(d, dict):
+            raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "
+                               f"length_m: 0.25}}, got {type(d).__name__}")
+        if "urdf" in d:
+            if "frame" not in d:
+                raise SurfaceError(f"{where}: a URDF surface needs frame: the link's name in the URDF")
+            path = Path(str(d["urdf"]))
+            if base_dir is not None and not path.is_absolute():
+                path = Path(base_dir) / path
+            over = {k: v for k, v in d.items() if k not in ("urdf", "frame")}
+            try:
+                return cls.from_urdf(path, str(d["frame"]), **over)
+            except SurfaceError as e:
+                raise SurfaceError(f"{where}: {e}") from None
+        kind = d.get("kind")
+        if kind not in _KEYS:
+            raise SurfaceError(f"{where}: kind must be 'tube' or 'plate' (or give urdf: PATH), got {kind!r}")
+        unknown = sorted(set(d) - _KEYS[kind])
+        if unknown:
+            raise SurfaceError(f"{where}: unknown key(s) {unknown} for a {kind}; the keys are {sorted(_KEYS[kind])}")
+        need = ["frame", "radius_m", "length_m"] if kind == "tube" else ["frame", "width_m", "length_m"]
+        missing = [k for k in need if k not in d]
+        if missing:
+            raise SurfaceError(f"{where}: a {kind} needs {missing}")
+
+        def num(k, default=None):
+            v = d.get(k, default)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise SurfaceError(f"{where}: {k} must be a finite number, got {v!r}")
+            return float(v)
+
+        def vec3(k):
+            v = d.get(k, [0.0, 0.0, 0.0])
+            if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(
+                    isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in v):
+                raise SurfaceError(f"{where}: {k} must be 3 finite numbers ({'m' if k == 'xyz' else 'rad'}), got {v!r}")
+            return [float(a) for a in v]
+
+        dims = (num("radius_m"), num("length_m")) if kind == "tube" else (num("width_m"), num("length_m"), num("thickness_m", 0.0))
+        pose, theta0 = pose_matrix(vec3("xyz"), vec3("rpy")), num("theta0_deg", 0.0)
+        try:
+            return cls(d["frame"], kind, dims, pose, theta0_deg=theta0, axis_from=d.get("axis_from", "-z"), face=d.get("face", "+z"))
+        except SurfaceError as e:
+            raise SurfaceError(f"{where}: {e}") from None
+
+    @classmethod
+    def from_urdf(cls, path: str | Path, link_name: str, **overrides) -> LinkSurface:
+        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's origin.
+
+        ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise SurfaceError(f"{path}: no such URDF file")
+        try:  # well-formed XML with a <robot> root, checked before yourdfpy (which logs and "recovers" from broken XML)
+            root = ET.parse(path).getroot()
+        except ET.ParseError as e:
+            raise SurfaceError(f"{path}: not a URDF file (XML error: {e})") from None
+        if root.tag != "robot":
+            raise SurfaceError(f"{path}: not a URDF file (the root element is <{root.tag}>, not <robot>)")
+        try:
+            import yourdfpy
+        except ImportError:  # the optional extra (pyproject: urdf)
+            raise SurfaceError("reading a URDF needs yourdfpy: pip install 'sonicskin[urdf]' (or give the link's surface "
+                               "in the arm file's YAML: docs/robot-frame.md)") from None
+        try:
+            urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False, load_meshes=False)
+        except Exception as e:  # yourdfpy raises its own URDFError types and ValueError on a bad document
+            raise SurfaceError(f"{path}: not a usable URDF ({type(e).__name__}: {e})") from None
+        links = urdf.link_map
+        if link_name not in links:
+            raise SurfaceError(f"{path}: no link named {link_name!r}; its links are {sorted(links)}")
+        link = links[link_name]
+        shapes = [(s, "collision") for s in link.collisions] or [(s, "visual") for s in link.visuals]
+        if not shapes:
+            raise SurfaceError(f"{path}: link {link_name!r} has no collision or visual geometry: give it a <cylinder> or <box>")
+        geo, which = shapes[0][0].geometry, shapes[0][1]
+        origin = shapes[0][0].origin
+        pose = np.eye(4) if origin is None else np.asarray(origin, dtype=float)
+        if geo is None or (geo.cylinder is None and geo.box is None):
+            got = "nothing" if geo is None else next((k for k in ("mesh", "sphere") if getattr(geo, k) is not None), "nothing")
+            raise SurfaceError(f"{path}: link {link_name!r} {which} geometry is a {got}, not a <cylinder> or <box>: a skin "
+                               "needs a tube or a plate (add a cylinder/box collision element for the skinned part)")
+        kind = "tube" if geo.cylinder is not None else "plate"
+        bad = sorted(set(overrides) - _OVERRIDES[kind])
+        if bad:
+            raise SurfaceError(f"{path}: link {link_name!r} is a {kind}: unknown option(s) {bad}; a {kind} takes "
+                               f"{sorted(_OVERRIDES[kind])}")
+        dims = (geo.cylinder.radius, geo.cylinder.length) if kind == "tube" else tuple(np.asarray(geo.box.size, dtype=float))
+        try:
+            return cls(link_name, kind, dims, pose, **overrides)
+        except SurfaceError as e:
+            raise SurfaceError(f"{path}: link {link_name!r}: {e}") from None

@@ -1,0 +1,197 @@
+"""Touch events as ROS 2 messages in MCAP (sonicskin.rosbag), decoded back with mcap-ros2-support's own reader and
+checked one for one against the events."""
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sonicskin.events import TouchEvent, attach_surface
+from sonicskin.rosbag import MARKER_TOPIC, McapEventWriter, topic_for
+from sonicskin.surface import LinkSurface
+
+ARM = Path(__file__).resolve().parents[1] / "configs" / "arms" / "arm6.urdf"
+T0 = 1_795_000_000.25  # the stream's t_s = 0 as UNIX seconds
+PERIOD = 0.10667
+
+
+def _events():
+    """Two links pressed in turn (forearm tube, hand plate), each press a few touches then one release."""
+    fore, hand = LinkSurface.from_urdf(ARM, "forearm_link"), LinkSurface.from_urdf(ARM, "hand_plate")
+    out, k = [], 0
+    for surf, link, xy in ((fore, "forearm", [(3.0, 5.0), (3.2, 5.1), (3.1, 5.0)]), (hand, "hand", [(10.0, 20.0), (11.0, 19.0)]),
+                           (fore, "forearm", [(20.0, 22.0)])):
+        for i, (x, y) in enumerate(xy):
+            out.append(attach_surface(TouchEvent(k * PERIOD, "touch", i, x, y, 1.0 + i, 0.9, "svm", 0.5, link=link), surf))
+            k += 1
+        out.append(attach_surface(TouchEvent(k * PERIOD, "release", 0, x, y, 0.0, 0.9, "svm", 0.5, link=link), surf))
+        k += 1
+    return out
+
+
+class _Msg:
+    def __init__(self, schema, channel, message, ros_msg):
+        self.schema, self.channel, self.log_time_ns, self.ros_msg = schema, channel, message.log_time, ros_msg
+
+
+def read_ros2_messages(path):
+    """Every message of the file, decoded by the library's own reader (mcap's reader with mcap-ros2's decoder)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with open(path, "rb") as f:
+        return [_Msg(*r) for r in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+
+
+def _stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def test_every_message_matches_its_event(tmp_path):
+    events = _events()
+    path = tmp_path / "arm.mcap"
+    with McapEventWriter(path, t0_unix_s=T0) as w:
+        for ev in events:
+            w.write(ev)
+    assert (w.written, w.skipped, w.messages) == (len(events), 0, 3 * len(events))
+    msgs = read_ros2_messages(path)
+    assert len(msgs) == 3 * len(events)  # every press ended in a release: no DELETE added on close
+    by_topic = {}
+    for m in msgs:
+        by_topic.setdefault(m.channel.topic, []).append(m)
+    assert set(by_topic) == {"/sonicskin/forearm_link/contact_point", "/sonicskin/forearm_link/contact_wrench",
+                             "/sonicskin/hand_plate/contact_point", "/sonicskin/hand_plate/contact_wrench", MARKER_TOPIC}
+    assert {m.schema.name for m in msgs} == {"geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
+                                            "visualization_msgs/msg/MarkerArray"}
+    seen = {t: 0 for t in by_topic}
+    for ev in events:
+        ns = round(T0 * 1e9) + round(ev.t_s * 1e9)
+        pt = by_topic[topic_for(ev.frame_id, "contact_point")][seen[topic_for(ev.frame_id, "contact_point")]]
+        wr = by_topic[topic_for(ev.frame_id, "contact_wrench")][seen[topic_for(ev.frame_id, "contact_wrench")]]
+        mk = by_topic[MARKER_TOPIC][seen[MARKER_TOPIC]]
+        for t in (topic_for(ev.frame_id, "contact_point"), topic_for(ev.frame_id, "contact_wrench"), MARKER_TOPIC):
+            seen[t] += 1
+        for m in (pt, wr, mk):
+            assert m.log_time_ns == ns
+        p = np.array([pt.ros_msg.point.x, pt.ros_msg.point.y, pt.ros_msg.point.z])
+        f = np.array([wr.ros_msg.wrench.force.x, wr.ros_msg.wrench.force.y, wr.ros_msg.wrench.force.z])
+        tau = np.array([wr.ros_msg.wrench.torque.x, wr.ros_msg.wrench.torque.y, wr.ros_msg.wrench.torque.z])
+        for msg in (pt.ros_msg, wr.ros_msg):
+            assert msg.header.frame_id == ev.frame_id and _stamp_ns(msg) == ns
+        assert p.tolist() == list(ev.point_m)  # float64 on both sides: exact
+        np.testing.assert_allclose(f, -ev.force_n * np.array(ev.normal), atol=1e-12)
+        np.testing.assert_allclose(tau, np.cross(p, f), atol=1e-12)  # the wrench about the link frame's origin
+        markers = mk.ros_msg.markers
+        assert len(markers) == 2 and [(k.ns, k.id) for k in markers] == [(f"sonicskin/{ev.frame_id}", 0), (f"sonicskin/{ev.frame_id}", 1)]
+        assert all(k.header.frame_id == ev.frame_id and _stamp_ns(k) == ns for k in markers)
+        if ev.kind == "release":
+            assert [k.action for k in markers] == [2, 2]  # DELETE that link's arrow and sphere
+            assert f.tolist() == [0.0, 0.0, 0.0]
+        else:
+            arrow, sphere = markers
+            assert (arrow.type, arrow.action, sphere.type, sphere.action) == (0, 0, 2, 0)
+            tail, tip = (np.array([q.x, q.y, q.z]) for q in arrow.points)
+            np.testing.assert_allclose(tip, p)
+            np.testing.assert_allclose(tail - tip, (0.01 + 0.02 * ev.force_n) * np.array(ev.normal), atol=1e-12)
+            np.testing.assert_allclose([sphere.pose.position.x, sphere.pose.position.y, sphere.pose.position.z], p)
+    assert seen == {t: len(v) for t, v in by_topic.items()}  # nothing left over
+
+
+def test_events_without_a_surface_are_counted_with_one_warning(tmp_path):
+    events = _events()
+    bare = [TouchEvent(9.0 + i, "touch", 0, 1.0, 1.0, 1.0, 0.9, "svm", 0.5) for i in range(3)]
+    logged = []
+    with McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0, log=logged.append) as w:
+        for ev in [events[0], *bare, events[1]]:
+            w.write(ev)
+    assert (w.written, w.skipped) == (2, 3)
+    assert logged == [f"warning: {tmp_path / 'a.mcap'}: an event without the robot-frame fields (no surface for link "
+                      "(single link)) is not written to the MCAP file; give the link a surface (frame, URDF) to record it"]
+    assert len(read_ros2_messages(tmp_path / "a.mcap")) == 6 + 1  # + the markers' DELETE on close (still pressed)
+
+
+def test_no_force_model_writes_no_wrench_and_a_short_arrow(tmp_path):
+    ev = _events()[0]
+    fore = LinkSurface.from_urdf(ARM, "forearm_link")
+    ev = attach_surface(TouchEvent(0.0, "touch", 0, ev.x_cm, ev.y_cm, math.nan, 0.9, "svm", 0.5), fore)
+    with McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0) as w:
+        w.write(ev)
+    topics = [m.channel.topic for m in read_ros2_messages(tmp_path / "a.mcap")]
+    assert topics == ["/sonicskin/forearm_link/contact_point", MARKER_TOPIC, MARKER_TOPIC]  # the second: DELETE on close
+
+
+def test_ctrl_c_finalises_the_file_and_clears_the_markers(tmp_path):
+    events = _events()[:5]  # the forearm pressed and released, the hand still pressed when Ctrl-C comes
+    path = tmp_path / "a.mcap"
+    with pytest.raises(KeyboardInterrupt):
+        with McapEventWriter(path, t0_unix_s=T0) as w:
+            for ev in events:
+                w.write(ev)
+            raise KeyboardInterrupt
+    msgs = read_ros2_messages(path)  # a complete file: the summary written on the way out
+    marker_arrays = [m for m in msgs if m.channel.topic == MARKER_TOPIC]
+    assert len(msgs) == 3 * 5 + 1 and len(marker_arrays) == 6
+    last = marker_arrays[-1]
+    assert [(k.ns, k.action) for k in last.ros_msg.markers] == [("sonicskin/hand_plate", 2)] * 2
+    assert last.log_time_ns == round(T0 * 1e9) + round(events[-1].t_s * 1e9)
+
+
+def test_a_process_killed_hard_loses_no_written_event(tmp_path):
+    """Each event is flushed as whole chunks: the file of a process that never closed it still holds every message."""
+    from mcap.exceptions import EndOfFile
+    from mcap.records import Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap_ros2.decoder import DecoderFactory
+
+    events = _events()[:5]
+    w = McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0)
+    for ev in events:
+        w.write(ev)
+    data = (tmp_path / "a.mcap").read_bytes()  # as a kill -9 leaves it: no summary, no footer
+    w.close()
+    schemas, channels, got = {}, {}, []
+    with pytest.raises(EndOfFile):
+        for r in StreamReader(io.BytesIO(data), skip_magic=False).records:
+            if isinstance(r, Schema):
+                schemas[r.id] = r
+            elif hasattr(r, "topic") and hasattr(r, "schema_id"):
+                channels[r.id] = r
+            elif isinstance(r, Message):
+                got.append((channels[r.channel_id].topic, r))
+    assert len(got) == 3 * len(events)
+    topic, rec = got[-3]
+    sch = schemas[channels[rec.channel_id].schema_id]
+    msg = DecoderFactory().decoder_for("cdr", sch)(rec.data)
+    assert topic == "/sonicskin/hand_plate/contact_point" and [msg.point.x, msg.point.y, msg.point.z] == list(events[-1].point_m)
+
+
+def test_bad_arguments_are_one_line(tmp_path):
+    from sonicskin.errors import SonicskinError
+
+    with pytest.raises(SonicskinError, match=r"t0_unix_s must be the stream start as UNIX seconds \(e.g. time.time\(\)\), got nan"):
+        McapEventWriter(tmp_path / "a.mcap", t0_unix_s=math.nan)
+    with pytest.raises(SonicskinError, match=r"a.mcap: cannot write the MCAP file \(No such file or directory\)"):
+        McapEventWriter(tmp_path / "no" / "a.mcap", t0_unix_s=T0)
+    assert topic_for("upper-arm", "contact_point") == "/sonicskin/upper_arm/contact_point"
+    assert topic_for("3rd", "x") == "/sonicskin/_3rd/x"
+
+
+@pytest.mark.parametrize("distro", ["ROS2_HUMBLE", "ROS2_JAZZY"])
+def test_the_bytes_are_what_ros2_itself_encodes(tmp_path, distro):
+    """An independent check of the message definitions: the ROS 2 distribution's own types (rosbags' typestore, the
+    .msg files of Humble and Jazzy) decode every message and encode it back to the same bytes."""
+    rosbags = pytest.importorskip("rosbags.typesys")
+    from mcap.reader import make_reader
+
+    ts = rosbags.get_typestore(getattr(rosbags.Stores, distro))
+    with McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0) as w:
+        for ev in _events():
+            w.write(ev)
+    n = 0
+    with open(tmp_path / "a.mcap", "rb") as f:
+        for schema, _, message in make_reader(f).iter_messages():
+            assert bytes(ts.serialize_cdr(ts.deserialize_cdr(message.data, schema.name), schema.name)) == message.data
+            n += 1
+    assert n == 3 * len(_events())
