@@ -327,7 +327,7 @@ class SimulatedSource(_QueueSource):
         self.sims, self.timelines = sims, [t if len(t) == n else t.select(np.arange(n)) for t in tls]
         self.sim, self.timeline = sims[0], self.timelines[0]
         self.realtime, self.drop_every = realtime, drop_every
-        self.offset, self.chunk = int(offset) % simulator.rig.n_chirp, int(chunk_chirps)
+        self.offset, self.chunk = int(offset) % self.rig.n_chirp, int(chunk_chirps)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run_producer, name="sonicskin-sim-audio", daemon=True)
         self.finished = threading.Event()

@@ -102,6 +102,8 @@ class Listener:
     tx, rx : output and input channel (0-based) of a real interface.
     fast : simulated device only: run faster than real time (``True`` or ``False``).
     on_event : a function called in the listener's thread with each :class:`TouchEvent`; keep it short.
+    mcap : with an arm: also write every touch as ROS 2 messages in the link frames into this MCAP file
+        (:class:`sonicskin.rosbag.McapEventWriter`; ``sonicskin live --links ARM --mcap FILE``).
     watchdog_s : a device (or the simulated one, at any pace) that delivers no audio for this long ends the run with
         :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`); so does a run
         whose input holds no usable chirp (:class:`sonicskin.live.InputUnusable`, a ``DeviceLost``).
@@ -113,7 +115,7 @@ class Listener:
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str = "svm",
                  duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
-                 watchdog_s: float = 3.0, blocksize: int = 1024):
+                 watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None):
         from .acquire import Link, SimulatedSource, SoundDeviceSource
         from .live import LiveLoop
         from .rig import Rig
@@ -123,6 +125,7 @@ class Listener:
                          blocksize=blocksize, scenario=scenario, rig=rig, fast=fast, on_event=on_event)
         self._queue: queue.Queue = queue.Queue()
         self._user_cb = on_event
+        self._mcap = None
         self.duration_s, self.watchdog_s = duration_s, watchdog_s
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -136,7 +139,15 @@ class Listener:
             self.links, self.runtime, self.source = arm.links, arm.runtimes[0], arm.source
             self.loops = arm.loops(emit=lambda line: None, on_event=self._on_event)
             self.loop = self.loops[0]
+            if mcap is not None and not all(lk.surface is not None for lk in self.links):
+                raise SonicskinError(f"mcap= writes touches in their links' frames; {arm_file} places no surface on links "
+                                     f"{[lk.name for lk in self.links if lk.surface is None]} (docs/robot-frame.md)")
+            self._mcap_path = mcap
             return
+        if mcap is not None:
+            raise SonicskinError("mcap= writes touches in the robot's frames, which an arm file gives its links: pass the "
+                                 "arm (its arm.yaml, or the folder `sonicskin fit-svm --links` wrote) as the artifact")
+        self._mcap_path = None
         self.links = None
         art = Path(artifact)
         if not (art / "skin.json").is_file():
@@ -162,6 +173,8 @@ class Listener:
         self.loops = [self.loop]
 
     def _on_event(self, ev: TouchEvent) -> None:
+        if self._mcap is not None:
+            self._mcap.write(ev)
         self._queue.put(ev)
         if self._user_cb is not None:
             self._user_cb(ev)
@@ -170,6 +183,12 @@ class Listener:
         try:
             from .live import run_loops
 
+            if self._mcap_path is not None:
+                import time
+
+                from .rosbag import McapEventWriter
+
+                self._mcap = McapEventWriter(self._mcap_path, t0_unix_s=time.time())
             with self.source:
                 sums = run_loops(self.loops, self.source, duration_s=self.duration_s, watchdog_s=self.watchdog_s,
                                  stop=self._stop)
@@ -177,6 +196,8 @@ class Listener:
         except BaseException as e:  # handed to the caller's thread
             self.error = e
         finally:
+            if self._mcap is not None:
+                self._mcap.close()  # complete however the run ended
             self._queue.put(_END)
 
     # -- control -------------------------------------------------------------------------

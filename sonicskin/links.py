@@ -42,7 +42,8 @@ from typing import Any
 import yaml
 
 from .acquire import Link
-from .rig import Rig, load_yaml, resolve_config
+from .errors import ConfigNotFoundError
+from .rig import ConfigError, Rig, load_yaml, resolve_config
 
 __all__ = ["load_links", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
 
@@ -89,16 +90,20 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
     if not isinstance(spec, dict):
-        raise ValueError(f"{where}: scenario must be a scenario name or a mapping {{base: NAME, key: value}}, got {spec!r}")
+        raise ConfigError(f"{where}: scenario must be a scenario name or a mapping {{base: NAME, key: value}}, got {spec!r}")
     spec = dict(spec)
     base = spec.pop("base", "stationary")
     d = {**Scenario.load(base).to_dict(), "name": name, **spec}
     if "geometry" not in spec and surface is not None:
         d["geometry"] = scenario_geometry(surface)
+    from .sim.channel import MATERIALS
+
+    if d.get("material") not in MATERIALS:  # checked here, not when the simulator first renders the link
+        raise ConfigError(f"{where}: scenario: unknown material {d.get('material')!r}; choose one of {sorted(MATERIALS)}")
     try:
         return Scenario.from_dict(d)
     except (ValueError, TypeError) as e:
-        raise ValueError(f"{where}: scenario: {e}") from None
+        raise ConfigError(f"{where}: scenario: {e}") from None
 
 
 def scenario_geometry(surface) -> dict:
@@ -125,36 +130,36 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
     cfg = load_yaml(where)
     bad = set(cfg) - _TOP_KEYS
     if bad:
-        raise ValueError(f"{where}: unknown keys {sorted(map(str, bad))}; a links file has {', '.join(sorted(_TOP_KEYS))}")
+        raise ConfigError(f"{where}: unknown keys {sorted(map(str, bad))}; a links file has {', '.join(sorted(_TOP_KEYS))}")
     items = cfg.get("links") or []
     duplex = cfg.get("duplex", "time")
     if duplex not in ("time", "frequency", "none"):
-        raise ValueError(f"{where}: duplex must be 'time', 'frequency' or 'none', got {duplex!r}")
+        raise ConfigError(f"{where}: duplex must be 'time', 'frequency' or 'none', got {duplex!r}")
     if not items or not isinstance(items, list):
-        raise ValueError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
+        raise ConfigError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
     urdf = None
     if cfg.get("urdf") is not None:
         urdf = where.parent / str(cfg["urdf"])
         if not urdf.is_file():
-            raise FileNotFoundError(f"{where}: urdf {cfg['urdf']!r} does not exist next to it ({urdf}); give its path "
+            raise ConfigNotFoundError(f"{where}: urdf {cfg['urdf']!r} does not exist next to it ({urdf}); give its path "
                                     f"relative to the arm file")
     arm_name = str(cfg.get("name", where.stem))
     n = len(items)
     out = []
     for i, d in enumerate(items):  # each link a mapping with 0-based integer channels (0.7 was channel 0, silently)
         if not isinstance(d, dict):
-            raise ValueError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
+            raise ConfigError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
         bad = set(d) - _LINK_KEYS
         if bad:
-            raise ValueError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has "
+            raise ConfigError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has "
                              f"{', '.join(sorted(_LINK_KEYS))}")
         for k in ("tx", "rx"):
             v = d.get(k)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise ValueError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
+                raise ConfigError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
                                  f"{'nothing' if k not in d else repr(v)}")
         if "name" in d and not isinstance(d["name"], str):
-            raise ValueError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
+            raise ConfigError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
         name = d.get("name", f"link{i}")
         extra = _placement(d, where=f"{where}: link {name!r}", urdf=urdf, arm_name=arm_name, base=where.parent)
         if duplex == "time":
@@ -168,14 +173,14 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
             out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, sub, **extra))
     rx = [lk.rx for lk in out]
     if len(set(rx)) != len(rx):
-        raise ValueError(f"links share receiver channels {rx}; each link needs its own RX channel")
+        raise ConfigError(f"links share receiver channels {rx}; each link needs its own RX channel")
     tx = [lk.tx for lk in out]
     if duplex == "none" and len(set(tx)) != len(tx):
-        raise ValueError(f"{where}: duplex none: links share transmitter channels {tx}; each link needs its own TX "
+        raise ConfigError(f"{where}: duplex none: links share transmitter channels {tx}; each link needs its own TX "
                          f"channel (or share the chirp with duplex: time or frequency)")
     names = [lk.name for lk in out]
     if len(set(names)) != len(names):
-        raise ValueError(f"{where}: link names {names} repeat; every link needs its own name (events carry it)")
+        raise ConfigError(f"{where}: link names {names} repeat; every link needs its own name (events carry it)")
     return out
 
 
@@ -183,14 +188,14 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
     """A link's frame, surface, simulated scenario and artifact (all optional)."""
     frame = d.get("frame")
     if frame is not None and not isinstance(frame, str):
-        raise ValueError(f"{where}: frame must be the name of the link's frame (a URDF link), got {frame!r}")
+        raise ConfigError(f"{where}: frame must be the name of the link's frame (a URDF link), got {frame!r}")
     surface = None
     if d.get("surface") is not None or (urdf is not None and frame is not None):
         from .surface import LinkSurface
 
         over = d.get("surface") or {}
         if not isinstance(over, dict):
-            raise ValueError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {over!r}")
+            raise ConfigError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {over!r}")
         if urdf is not None and frame is not None:
             surface = LinkSurface.from_urdf(urdf, frame, **over)
         else:
@@ -207,7 +212,7 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
         try:
             surface.check_layout(scenario.make_layout())
         except ValueError as e:
-            raise ValueError(f"{where}: {e}") from None
+            raise ConfigError(f"{where}: {e}") from None
     artifact = None
     if d.get("artifact") is not None:
         artifact = base / str(d["artifact"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ import yaml
 from sonicskin.acquire import SimulatedSource
 from sonicskin.cli import main
 from sonicskin.links import load_links
-from sonicskin.rig import Rig
+from sonicskin.rig import Rig, config_dir
 from sonicskin.sim import Simulator, build_timeline
 
 FAST = Rig.load("fast")
@@ -62,10 +63,15 @@ TINY = {"base": "stationary", "layout": {"kind": "rings", "counts": [3, 2], "spa
      "urdf 'nowhere.urdf' does not exist next to it"),
     ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "layout": {"kind": "rings", "counts": [3, 2], "spacing_cm": 1.2,
                                                                        "x0_cm": 2.4, "y0_cm": 40.0}}}], {},
-     "longer than the tube of a_link"),
+     "link 'a': scenario: layout marker 0 at (2.4, 40) cm lies outside the tube (y 0..25 cm)"),
+    ([{"name": "a", "tx": 0, "rx": 0, "frame": "wrist_link",
+       "scenario": {**TINY, "geometry": {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0}}}], {"urdf": "arm6.urdf"},
+     "link 'a': the layout's circumference 23.5619 cm is not that of the tube of wrist_link"),
     ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "material": "cheese"}}], {}, "link 'a': scenario:"),
-], ids=["shared-tx", "unknown-key", "same-name", "no-urdf", "layout-off-link", "bad-scenario"])
+], ids=["shared-tx", "unknown-key", "same-name", "no-urdf", "layout-off-link", "urdf-not-the-simulated-link",
+        "bad-scenario"])
 def test_arm_file_mistakes_are_one_line(tmp_path, capsys, links, top, message):
+    shutil.copyfile(config_dir() / "arms" / "arm6.urdf", tmp_path / "arm6.urdf")
     f = _arm_file(tmp_path, links, **top)
     with pytest.raises(ValueError) as e:
         load_links(f, FAST)

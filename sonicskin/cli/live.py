@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
 
 from .. import __version__
@@ -62,15 +63,30 @@ def _live_links(a: argparse.Namespace) -> int:
         for sink in sinks:
             sink(line)
 
-    loops = arm.loops(emit=emit, status=not a.no_status)
+    mcap = None
+    if a.mcap:
+        from ..rosbag import McapEventWriter
+
+        if not all(lk.surface is not None for lk in arm.links):
+            raise UsageError(f"--mcap writes each touch in its link's frame, and --links {a.links} places no surface on "
+                             f"links {[lk.name for lk in arm.links if lk.surface is None]}; give them a frame (an arm "
+                             f"file's `frame:` with `urdf:`, or `surface:`: docs/robot-frame.md)")
+        mcap = McapEventWriter(a.mcap, t0_unix_s=time.time())  # t_s = 0: the stream starts now
+    loops = arm.loops(emit=emit, status=not a.no_status, on_event=mcap.write if mcap else None)
     lost = None
-    with arm.source:
-        try:
-            summaries = run_loops(loops, arm.source, duration_s=a.duration, watchdog_s=a.watchdog)
-        except DeviceLost as e:
-            lost, summaries = e, [lp.summary(0.0, 0.0, 0.0) for lp in loops]
-    print(json.dumps({"summary": {lk.name: json_safe(s) for lk, s in zip(arm.links, summaries)}}, allow_nan=False),
-          file=sys.stderr)
+    try:
+        with arm.source:
+            try:
+                summaries = run_loops(loops, arm.source, duration_s=a.duration, watchdog_s=a.watchdog)
+            except DeviceLost as e:
+                lost, summaries = e, [lp.summary(0.0, 0.0, 0.0) for lp in loops]
+    finally:
+        if mcap is not None:
+            mcap.close()  # complete on every way out (Ctrl-C, a lost device): nothing recorded is lost
+    out = {"summary": {lk.name: json_safe(s) for lk, s in zip(arm.links, summaries)}}
+    if mcap is not None:
+        out["mcap"] = {"path": str(a.mcap), "events": mcap.written, "messages": mcap.messages}
+    print(json.dumps(out, allow_nan=False), file=sys.stderr)
     if lost is not None:
         raise lost
     return 0
@@ -117,6 +133,9 @@ def cmd_live(a: argparse.Namespace) -> int:
                          "(one block lost in N)")
     if getattr(a, "links", None):
         return _live_links(a)
+    if a.mcap:
+        raise UsageError("--mcap writes touches in the robot's frames, which an arm file gives its links; run it with "
+                         "--links ARM (e.g. --links arm6, or the ART/arm.yaml that `fit-svm --links` writes)")
 
     if a.artifact is None and a.model == "net":
         raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
@@ -269,6 +288,10 @@ def add_parsers(sub) -> None:
                          "(e.g. two-links-time), or an arm file (e.g. arm6, or the ART/arm.yaml that `fit-svm --links` "
                          "writes): its links simulated on the default device, events in each link's frame (`sonicskin "
                          "info` lists them) (default: one link, --tx/--rx)")
+    lv.add_argument("--mcap", metavar="FILE",
+                    help="with --links on an arm: also write every touch as ROS 2 messages (contact point and wrench in "
+                         "the link's frame, markers) into the MCAP file FILE, for `ros2 bag play` and Foxglove "
+                         "(docs/robot-frame.md) (default: off)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")
     lv.set_defaults(func=cmd_live)
