@@ -44,7 +44,8 @@ from .errors import SonicskinError
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
-__all__ = ["LinkView", "ViewServer", "make_view_hook", "loop_status", "attach_view", "STATUS_KEYS"]
+__all__ = ["LinkView", "ViewServer", "make_view_hook", "loop_status", "attach_view", "view_loops", "parse_view_port",
+           "STATUS_KEYS"]
 
 #: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
 STATUS_KEYS = {
@@ -402,3 +403,31 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
             view.set_status(name, loop_status(loop, t_s))
 
     loop.on_event, loop.on_chirp = on_event, on_chirp
+
+
+def view_loops(loops, *, links: list[LinkView] | None = None, host: str = "127.0.0.1", port: int = 0) -> ViewServer:
+    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`).
+
+    ``links``: how to draw them (e.g. :meth:`LinkView.from_scenario` on the simulated device, for the surface's size and
+    the transducers); default: each loop's artifact layout, named by its link (``"skin"`` for a single unnamed link).
+    """
+    loops = list(loops)
+    if links is None:
+        links = [LinkView(lp.link_name or "skin", lp.rt.layout) for lp in loops]
+    view = ViewServer(links, host=host, port=port)
+    for lp in loops:
+        attach_view(view, lp)
+    return view.start()
+
+
+def parse_view_port(text: str | int | None) -> int:
+    """``--view [PORT]``: 0 (any free port) when given without a port; one line naming the fix otherwise."""
+    if text is None or text is True:
+        return 0
+    try:
+        port = int(text)
+    except (TypeError, ValueError):
+        port = -1
+    if not 0 <= port <= 65535 or isinstance(text, bool):
+        raise SonicskinError(f"--view {text}: give a TCP port 1-65535 for the page (or 0, or --view alone, for any free one)")
+    return port

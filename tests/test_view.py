@@ -16,7 +16,7 @@ from sonicskin.errors import SonicskinError
 from sonicskin.events import TouchEvent
 from sonicskin.rig import Layout
 from sonicskin.sim import Scenario
-from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, make_view_hook
+from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, make_view_hook, parse_view_port, view_loops
 
 REPO = Path(__file__).resolve().parents[1]
 needs_chromium = pytest.mark.skipif(chromium_binary() is None, reason="no chromium binary (Debian: apt-get install chromium; "
@@ -128,6 +128,38 @@ def test_bad_input_is_one_line_naming_the_fix(make, message):
     with pytest.raises(SonicskinError, match=message) as e:
         make()
     assert "\n" not in str(e.value)
+
+
+def test_view_port_argument():
+    assert [parse_view_port(x) for x in (None, True, "0", "8765", 8765)] == [0, 0, 0, 8765, 8765]
+    for bad in ("http", "-1", "70000", False):
+        with pytest.raises(SonicskinError, match=rf"--view {bad}: give a TCP port 1-65535 for the page \(or 0, or --view "
+                                                 r"alone, for any free one\)"):
+            parse_view_port(bad)
+
+
+def test_attach_view_chains_the_loops_callbacks():
+    """attach_view keeps callbacks already set (a recorder's on_chirp, listen()'s on_event) and calls them first."""
+    from types import SimpleNamespace
+
+    calls = []
+    ref = SimpleNamespace(refreshes=0, t_set_s=None)
+    loop = SimpleNamespace(link_name=None, on_event=lambda ev: calls.append(("event", ev.kind)),
+                           on_chirp=lambda t, p: calls.append(("chirp", t)), events=[], n_chirps=0,
+                           stream=SimpleNamespace(calibrating=True, reference=ref, drift=None))
+    view = ViewServer([LinkView("only", Layout.grid(2, 1, 1.0))])
+    attach_view(view, loop, every_s=0.5)
+    for k in range(4):  # chirps 0.2 s apart: a status at 0.0, the next at 0.6 (every_s)
+        loop.n_chirps += 1
+        loop.on_chirp(0.2 * k, None)
+        assert view.state()["links"]["only"]["status"]["chirps"] == (1 if k < 3 else 4)
+    loop.stream.calibrating, ref.refreshes, ref.t_set_s = False, 1, 0.7  # the boot's reference: shown at once
+    loop.on_chirp(0.8, None)
+    st = view.state()["links"]["only"]["status"]
+    assert st == {"refreshes": 1, "reference_age_s": pytest.approx(0.1), "chirps": 4, "text": "running, no drift tracking"}
+    loop.on_event(TouchEvent(0.9, "touch", 1, 1.0, 0.0, 2.0, 0.9, "svm", 0.1))
+    assert calls[-1] == ("event", "touch") and [t for kind, t in calls[:-1]] == pytest.approx([0.0, 0.2, 0.4, 0.6, 0.8])
+    assert view.state()["links"]["only"]["touch"]["location"] == 1
 
 
 def test_endpoints_and_a_busy_port():
@@ -251,8 +283,9 @@ def test_a_live_loop_run_shows_its_touches_in_the_browser(rig, artifact):  # noq
     rt = SkinRuntime(artifact, "svm")
     loop = LiveLoop(rt, src, emit=lambda _: None, link=Link(name="forearm"))
     other = LinkView.from_scenario("upper-arm", Scenario.load("stationary"))
-    view = ViewServer([LinkView("forearm", rt.layout, length_cm=25.0), other])
-    attach_view(view, loop)
+    with pytest.raises(SonicskinError, match=r"the loop of link 'forearm' names link 'forearm', which the view does not show"):
+        view_loops([loop], links=[other])
+    view = view_loops([loop], links=[LinkView("forearm", rt.layout, length_cm=25.0), other])  # started, loop attached
     held, go, abort = threading.Event(), threading.Event(), threading.Event()
     seen: list[TouchEvent] = []
     attached = loop.on_event
