@@ -1,0 +1,433 @@
+"""A live view of the skin in a web browser: each link's surface unrolled, the touch, the last events, the drift state.
+
+:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: inline CSS, JS and SVG, no CDN, nothing
+from the internet) and two JSON endpoints from a :class:`http.server.ThreadingHTTPServer` on ``127.0.0.1`` (port 0:
+any free port)::
+
+    GET /            the page
+    GET /links.json  the links, once per page load: name, kind, surface size, markers (cm), spacing
+    GET /state.json  what changes: the touch on each link, each link's status, the last events, a sequence number
+
+The page polls ``/state.json`` every 100 ms rather than holding a Server-Sent Events stream: a poll is a short,
+stateless request, so ``stop()`` never waits on an open connection, a page survives a restart of the server (it
+reloads the links when their ``run`` id changes), and a state of a few kB every 100 ms on the loopback costs nothing;
+an event reaches the page within one poll period plus one render.
+
+The live loop calls :meth:`ViewServer.push_event` and :meth:`ViewServer.set_status` from its own thread; both copy
+into the shared state under a lock held for a few dict assignments, and the HTTP threads serialise a snapshot taken
+under the same lock, so the loop never waits on a browser.  :func:`attach_view` wires a
+:class:`~sonicskin.live.LiveLoop` to a view (its events, and its reference and drift state twice a second of stream
+time).
+
+Frames: ``x_cm`` around the circumference of the unrolled surface (wrapping at the circumference on a tube), ``y_cm``
+along the link's axis from the transmitter end, as in :mod:`sonicskin.events`; the page draws ``x`` to the right and
+``y`` up, every link at the same cm-per-pixel scale.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import http.server
+import ipaddress
+import json
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+from .errors import SonicskinError
+from .events import TouchEvent, parse_event
+from .rig import Layout
+
+__all__ = ["LinkView", "ViewServer", "make_view_hook", "loop_status", "attach_view", "view_loops", "parse_view_port",
+           "STATUS_KEYS"]
+
+#: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
+STATUS_KEYS = {
+    "refreshes": "references taken (Alg. 2), the boot's included",
+    "stretch": "the drift tracker's frequency stretch (None: no drift tracking)",
+    "reference_age_s": "stream seconds since the reference in use was taken",
+    "chirps": "chirps processed",
+    "text": "one short line (e.g. the drift tracker's status, 'calibrating')",
+}
+N_EVENTS = 10  # the events the page lists
+
+
+def _finite(x) -> float | None:
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+@dataclasses.dataclass(frozen=True)
+class LinkView:
+    """One link as the page draws it.
+
+    name : the link's name (the events' ``link``; any name for a single link).
+    layout : its markers (:class:`sonicskin.rig.Layout`, e.g. ``SkinRuntime(...).layout``).
+    kind : ``"tube"`` (``x`` wraps at ``layout.circumference_cm``) or ``"plate"``; ``None``: a tube when the layout
+        has a circumference, else a plate.
+    length_cm, width_cm : the surface along the axis, and across it on a plate (``None``: the markers' extent plus
+        one marker spacing on every side).
+    tx_cm, rx_cm : the transducers' positions ``(x, y)``, drawn when given.
+    """
+
+    name: str
+    layout: Layout
+    kind: str | None = None
+    length_cm: float | None = None
+    width_cm: float | None = None
+    tx_cm: tuple[float, float] | None = None
+    rx_cm: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise SonicskinError(f"a link's name must be a non-empty string, got {self.name!r}")
+        if not isinstance(self.layout, Layout):
+            raise SonicskinError(f"link {self.name!r}: layout must be a sonicskin.rig.Layout (e.g. SkinRuntime(...).layout), "
+                                 f"got {type(self.layout).__name__}")
+        kind = self.kind if self.kind is not None else ("tube" if self.layout.circumference_cm else "plate")
+        if kind not in ("tube", "plate"):
+            raise SonicskinError(f"link {self.name!r}: kind must be 'tube' or 'plate', got {kind!r}")
+        if kind == "tube" and not self.layout.circumference_cm:
+            raise SonicskinError(f"link {self.name!r} is a tube but its layout has no circumference_cm; give the layout "
+                                 f"its circumference or draw the link as kind='plate'")
+        object.__setattr__(self, "kind", kind)
+        for k in ("length_cm", "width_cm"):
+            v = getattr(self, k)
+            if v is not None and not (_finite(v) and v > 0):
+                raise SonicskinError(f"link {self.name!r}: {k} must be a positive number of cm or None, got {v!r}")
+        for k in ("tx_cm", "rx_cm"):
+            v = getattr(self, k)
+            if v is not None:
+                try:
+                    p = tuple(float(c) for c in v)
+                except (TypeError, ValueError):
+                    p = ()
+                if len(p) != 2 or not all(map(math.isfinite, p)):
+                    raise SonicskinError(f"link {self.name!r}: {k} must be (x_cm, y_cm), got {v!r}")
+                object.__setattr__(self, k, p)
+
+    @classmethod
+    def from_scenario(cls, name: str, scenario) -> LinkView:
+        """The link of a simulated scenario (:class:`sonicskin.sim.Scenario`): its layout, geometry and transducers."""
+        g = scenario.geometry
+        return cls(name, scenario.make_layout(), kind=g["kind"], length_cm=g.get("length_cm"), width_cm=g.get("width_cm"),
+                   tx_cm=getattr(scenario, "tx_cm", None), rx_cm=getattr(scenario, "rx_cm", None))
+
+    @property
+    def spacing_cm(self) -> float:
+        """The median distance from a marker to its nearest neighbour on the surface (1 cm for a single marker)."""
+        xy = self.layout.xy_cm
+        if len(xy) < 2:
+            return 1.0
+        d = self.layout.distance_cm(xy[:, None, :], xy[None, :, :])
+        np.fill_diagonal(d, np.inf)
+        return float(np.median(d.min(axis=1)))
+
+    def extent_cm(self) -> tuple[float, float, float, float]:
+        """``(x0, x1, y0, y1)`` of the drawn surface, cm."""
+        xy, s = self.layout.xy_cm, self.spacing_cm
+        pts = [xy] + [np.asarray([p]) for p in (self.tx_cm, self.rx_cm) if p is not None]
+        allp = np.concatenate(pts)
+        y0 = min(0.0, float(allp[:, 1].min()) - s)
+        y1 = self.length_cm if self.length_cm is not None else float(allp[:, 1].max()) + s
+        if self.kind == "tube":
+            x0, x1 = 0.0, float(self.layout.circumference_cm)
+        else:
+            x0 = min(0.0, float(allp[:, 0].min()) - s)
+            x1 = self.width_cm if self.width_cm is not None else float(allp[:, 0].max()) + s
+        return x0, max(x1, float(allp[:, 0].max())), y0, max(y1, float(allp[:, 1].max()))
+
+    def to_dict(self) -> dict[str, Any]:
+        x0, x1, y0, y1 = self.extent_cm()
+        return {"name": self.name, "kind": self.kind, "circumference_cm": self.layout.circumference_cm,
+                "length_cm": self.length_cm, "width_cm": self.width_cm, "extent_cm": [x0, x1, y0, y1],
+                "spacing_cm": round(self.spacing_cm, 4), "tx_cm": self.tx_cm, "rx_cm": self.rx_cm,
+                "markers": [{"id": i, "x_cm": round(float(x), 4), "y_cm": round(float(y), 4)}
+                            for i, (x, y) in zip(self.layout.ids, self.layout.xy_cm)]}
+
+
+def _page() -> bytes:
+    return resources.files("sonicskin").joinpath("view.html").read_bytes()
+
+
+class _Handler(http.server.BaseHTTPRequestHandler):
+    server_version = "sonicskin-view"
+    view: ViewServer  # set on the subclass made per server
+
+    def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
+        pass
+
+    def _send(self, code: int, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def do_GET(self) -> None:  # noqa: N802 (http.server's name)
+        if not self.view._host_ok(self.headers.get("Host", "")):
+            self._send(403, b"sonicskin view: open it by its own address (127.0.0.1 or localhost)\n", "text/plain; charset=utf-8")
+            return
+        path = self.path.split("?", 1)[0]
+        if path in ("/", "/index.html"):
+            self._send(200, self.view._page, "text/html; charset=utf-8")
+        elif path == "/links.json":
+            self._send(200, self.view._links_json, "application/json")
+        elif path == "/state.json":
+            self._send(200, json.dumps(self.view.state(), allow_nan=False).encode(), "application/json")
+        else:
+            self._send(404, b"not found: the view serves /, /links.json and /state.json\n", "text/plain; charset=utf-8")
+
+    do_HEAD = do_GET
+
+
+class ViewServer:
+    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free port; :attr:`url` once started).
+
+    Thread-safe: :meth:`push_event` and :meth:`set_status` may be called from any thread (the live loop's) and
+    never wait on a browser.  Use as a context manager, or :meth:`start` / :meth:`stop`.
+    """
+
+    def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS):
+        links = list(links)
+        if not links:
+            raise SonicskinError("the view needs at least one link (LinkView(name, layout))")
+        bad = [type(lk).__name__ for lk in links if not isinstance(lk, LinkView)]
+        if bad:
+            raise SonicskinError(f"links must be LinkView(name, layout, kind), got {bad[0]}")
+        names = [lk.name for lk in links]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise SonicskinError(f"link names must be unique, {dup} appear more than once")
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+            raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {port!r}")
+        self.links = {lk.name: lk for lk in links}
+        self.host, self.port = host, port
+        self._run_id = f"{time.time_ns():x}"  # a page that sees another run id reloads the links
+        self._links_json = json.dumps({"run": self._run_id, "links": [lk.to_dict() for lk in links]}).encode()
+        self._page = _page()
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._touch: dict[str, dict | None] = dict.fromkeys(self.links)
+        self._status: dict[str, dict | None] = dict.fromkeys(self.links)
+        self._counts: dict[str, int] = dict.fromkeys(self.links, 0)
+        self._events: deque = deque(maxlen=int(n_events))
+        self._server: http.server.ThreadingHTTPServer | None = None
+        self._thread: threading.Thread | None = None
+        self._loopback = False
+
+    # -- server ------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        """``http://host:port/`` (the port the system chose when it was 0); only once started."""
+        if self._server is None:
+            raise SonicskinError("the view is not serving: call start() first")
+        host, port = self._server.server_address[:2]
+        host = f"[{host}]" if ":" in host else host
+        return f"http://{host}:{port}/"
+
+    def start(self) -> ViewServer:
+        if self._server is not None:
+            return self
+        handler = type("Handler", (_Handler,), {"view": self})
+        family = http.server.ThreadingHTTPServer.address_family
+        try:
+            ip = ipaddress.ip_address(self.host)
+            self._loopback = ip.is_loopback
+            if ip.version == 6:
+                import socket
+
+                family = socket.AF_INET6
+        except ValueError:
+            self._loopback = self.host == "localhost"
+        server_cls = type("Server", (http.server.ThreadingHTTPServer,), {"address_family": family, "daemon_threads": True})
+        try:
+            self._server = server_cls((self.host, self.port), handler)
+        except OSError as e:
+            raise SonicskinError(f"cannot serve the view on {self.host}:{self.port} ({e.strerror or e}); pick another port, "
+                                 f"or 0 for any free one") from None
+        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.2},
+                                        name="sonicskin-view", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving (a page left open says it lost the connection)."""
+        if self._server is None:
+            return
+        self._server.shutdown()
+        self._server.server_close()
+        self._thread.join(timeout=5)
+        self._server = self._thread = None
+
+    def __enter__(self) -> ViewServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _host_ok(self, host_header: str) -> bool:
+        """On a loopback address only requests naming it or localhost (a page from elsewhere that renamed a host to
+        127.0.0.1, DNS rebinding, cannot read the events)."""
+        if not self._loopback:
+            return True
+        host = host_header.rsplit(":", 1)[0] if not host_header.endswith("]") else host_header
+        host = host.strip("[]").lower()
+        if host == "localhost":
+            return True
+        try:
+            return ipaddress.ip_address(host).is_loopback
+        except ValueError:
+            return False
+
+    # -- state -------------------------------------------------------------------------
+    def _link_of(self, name: str | None, what: str) -> str:
+        if name is None:
+            if len(self.links) == 1:
+                return next(iter(self.links))
+            raise SonicskinError(f"{what} names no link but the view shows {len(self.links)} ({', '.join(self.links)}); "
+                                 f"set the event's link (LiveLoop(link=...) does)")
+        if name not in self.links:
+            raise SonicskinError(f"{what} names link {name!r}, which the view does not show ({', '.join(self.links)}); "
+                                 f"list it in ViewServer(links=[LinkView({name!r}, layout), ...])")
+        return name
+
+    def push_event(self, ev: TouchEvent | dict | str) -> None:
+        """Show one event (a :class:`~sonicskin.events.TouchEvent`, its dict or its JSON line): a ``touch`` sets the
+        link's touch, a ``release`` clears it; both join the list of the last events."""
+        if isinstance(ev, (str, bytes)):
+            ev = parse_event(ev)
+        elif isinstance(ev, dict):
+            ev = TouchEvent.from_dict(ev)
+        elif not isinstance(ev, TouchEvent):
+            raise SonicskinError(f"push_event takes a TouchEvent (or its dict or JSON line), got {type(ev).__name__}")
+        link = self._link_of(ev.link, f"event at t={ev.t_s:.3f} s")
+        x, y = _finite(ev.x_cm), _finite(ev.y_cm)
+        lk = self.links[link]
+        if x is not None and lk.kind == "tube":
+            x = x % lk.layout.circumference_cm
+        if (x is None or y is None) and int(ev.location) in lk.layout.ids:  # no centroid: the marker's position
+            x, y = (float(c) for c in lk.layout.coords(np.asarray([int(ev.location)]))[0])
+        d = {"link": link, "kind": ev.kind, "t_s": round(float(ev.t_s), 4), "location": int(ev.location),
+             "x_cm": None if x is None else round(x, 3), "y_cm": None if y is None else round(y, 3),
+             "force_n": None if _finite(ev.force_n) is None else round(float(ev.force_n), 3),
+             "confidence": _finite(ev.confidence), "model": ev.model}
+        with self._lock:
+            self._touch[link] = d if ev.kind == "touch" else None
+            self._counts[link] += ev.kind == "touch"
+            self._events.appendleft(d)
+            self._seq += 1
+
+    def set_status(self, link_name: str | None, status: dict[str, Any]) -> None:
+        """Show a link's reference and drift state: any of :data:`STATUS_KEYS` (``link_name`` None: the only link)."""
+        link = self._link_of(link_name, "set_status")
+        if not isinstance(status, dict):
+            raise SonicskinError(f"set_status takes a dict of {sorted(STATUS_KEYS)}, got {type(status).__name__}")
+        unknown = sorted(set(status) - set(STATUS_KEYS))
+        if unknown:
+            raise SonicskinError(f"set_status: unknown key(s) {unknown}; the view shows {sorted(STATUS_KEYS)}")
+        s = {k: (str(v) if k == "text" else _finite(v)) for k, v in status.items() if v is not None}
+        with self._lock:
+            self._status[link] = s
+            self._seq += 1
+
+    def clear(self, link_name: str | None = None) -> None:
+        """Forget the touch on one link (``None``: on every link), e.g. when its loop stopped."""
+        names = [self._link_of(link_name, "clear")] if link_name is not None else list(self.links)
+        with self._lock:
+            for n in names:
+                self._touch[n] = None
+            self._seq += 1
+
+    def state(self) -> dict[str, Any]:
+        """The snapshot ``/state.json`` serves (JSON-able)."""
+        with self._lock:  # the dicts are replaced, never changed in place: shallow copies are a consistent snapshot
+            seq, touch, status, counts, events = self._seq, dict(self._touch), dict(self._status), dict(self._counts), list(self._events)
+        return {"run": self._run_id, "seq": seq, "events": events,
+                "links": {n: {"touch": touch[n], "status": status[n], "touches": counts[n]} for n in self.links}}
+
+
+# -- wiring to the live loop ------------------------------------------------------------------------------------------
+def make_view_hook(view: ViewServer) -> Callable[[TouchEvent], None]:
+    """A callable for ``LiveLoop(on_event=...)`` that shows each event in ``view``."""
+    return view.push_event
+
+
+def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
+    """The status :meth:`ViewServer.set_status` shows for a :class:`~sonicskin.live.LiveLoop` at stream time ``t_s``
+    (``None``: the last event's)."""
+    stream = loop.stream
+    ref = stream.reference
+    drift = stream.drift
+    if t_s is None:
+        t_s = loop.events[-1].t_s if loop.events else None
+    age = None if ref.t_set_s is None or t_s is None else max(0.0, float(t_s) - ref.t_set_s)
+    text = "calibrating (hands off)" if stream.calibrating else (drift.status() if drift is not None else "running, no drift tracking")
+    return {"refreshes": int(ref.refreshes), "stretch": None if drift is None else float(drift.stretch),
+            "reference_age_s": age, "chirps": int(loop.n_chirps), "text": text}
+
+
+def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
+    """Show ``loop``'s events and its status in ``view`` (every ``every_s`` of stream time, and at each new reference).
+
+    Chains the loop's ``on_event`` and ``on_chirp`` (callbacks already set keep being called first).  The loop's
+    link name (``LiveLoop(link=...)``) must be one of the view's links, or the view must show one link only."""
+    name = loop.link_name
+    view._link_of(name, f"the loop of link {name!r}" if name else "the loop")  # fails now, not at the first event
+    prev_event, prev_chirp = loop.on_event, loop.on_chirp
+    last = [-math.inf, None]  # stream time and (calibrating, refreshes) of the last status shown
+
+    def on_event(ev: TouchEvent) -> None:
+        if prev_event is not None:
+            prev_event(ev)
+        view.push_event(ev)
+
+    def on_chirp(t_s: float, p) -> None:
+        if prev_chirp is not None:
+            prev_chirp(t_s, p)
+        state = (loop.stream.calibrating, loop.stream.reference.refreshes)
+        if t_s - last[0] >= every_s or state != last[1]:  # a new reference is shown at once
+            last[0], last[1] = t_s, state
+            view.set_status(name, loop_status(loop, t_s))
+
+    loop.on_event, loop.on_chirp = on_event, on_chirp
+
+
+def view_loops(loops, *, links: list[LinkView] | None = None, host: str = "127.0.0.1", port: int = 0) -> ViewServer:
+    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`).
+
+    ``links``: how to draw them (e.g. :meth:`LinkView.from_scenario` on the simulated device, for the surface's size and
+    the transducers); default: each loop's artifact layout, named by its link (``"skin"`` for a single unnamed link).
+    """
+    loops = list(loops)
+    if links is None:
+        links = [LinkView(lp.link_name or "skin", lp.rt.layout) for lp in loops]
+    view = ViewServer(links, host=host, port=port)
+    for lp in loops:
+        attach_view(view, lp)
+    return view.start()
+
+
+def parse_view_port(text: str | int | None) -> int:
+    """``--view [PORT]``: 0 (any free port) when given without a port; one line naming the fix otherwise."""
+    if text is None or text is True:
+        return 0
+    try:
+        port = int(text)
+    except (TypeError, ValueError):
+        port = -1
+    if not 0 <= port <= 65535 or isinstance(text, bool):
+        raise SonicskinError(f"--view {text}: give a TCP port 1-65535 for the page (or 0, or --view alone, for any free one)")
+    return port
