@@ -104,6 +104,8 @@ class Listener:
     on_event : a function called in the listener's thread with each :class:`TouchEvent`; keep it short.
     mcap : with an arm: also write every touch as ROS 2 messages in the link frames into this MCAP file
         (:class:`sonicskin.rosbag.McapEventWriter`; ``sonicskin live --links ARM --mcap FILE``).
+    view : ``True`` or a port: show the skin live in a browser (``sonicskin live --view``); its address is
+        :attr:`view_url`, served until the run ends.
     watchdog_s : a device (or the simulated one, at any pace) that delivers no audio for this long ends the run with
         :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`); so does a run
         whose input holds no usable chirp (:class:`sonicskin.live.InputUnusable`, a ``DeviceLost``).
@@ -115,7 +117,8 @@ class Listener:
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str = "svm",
                  duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
-                 watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None):
+                 watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None,
+                 view: bool | int | None = None):
         from .acquire import Link, SimulatedSource, SoundDeviceSource
         from .live import LiveLoop
         from .rig import Rig
@@ -143,6 +146,7 @@ class Listener:
                 raise SonicskinError(f"mcap= writes touches in their links' frames; {arm_file} places no surface on links "
                                      f"{[lk.name for lk in self.links if lk.surface is None]} (docs/robot-frame.md)")
             self._mcap_path = mcap
+            self._start_view(view, [(lk.name, lk.scenario) for lk in self.links] if device in (None, "sim") else None)
             return
         if mcap is not None:
             raise SonicskinError("mcap= writes touches in the robot's frames, which an arm file gives its links: pass the "
@@ -171,6 +175,18 @@ class Listener:
             self.source = SoundDeviceSource(the_rig or self.runtime.rig, device, link=Link(tx=tx, rx=rx), blocksize=blocksize)
         self.loop = LiveLoop(self.runtime, self.source, emit=lambda line: None, on_event=self._on_event)
         self.loops = [self.loop]
+        self._start_view(view, [("skin", live_sc)] if device in (None, "sim") else None)
+
+    def _start_view(self, view, scenarios) -> None:
+        """``view``: ``True`` (any free port) or a port: serve the live page (:mod:`sonicskin.view`); :attr:`view_url`."""
+        self.view = self.view_url = None
+        if view is None or view is False:
+            return
+        from .view import LinkView, parse_view_port, view_loops
+
+        links = [LinkView.from_scenario(name, sc) for name, sc in scenarios] if scenarios else None
+        self.view = view_loops(self.loops, links=links, port=parse_view_port(view))
+        self.view_url = self.view.url
 
     def _on_event(self, ev: TouchEvent) -> None:
         if self._mcap is not None:
@@ -198,6 +214,8 @@ class Listener:
         finally:
             if self._mcap is not None:
                 self._mcap.close()  # complete however the run ended
+            if self.view is not None:
+                self.view.stop()
             self._queue.put(_END)
 
     # -- control -------------------------------------------------------------------------

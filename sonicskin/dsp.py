@@ -231,18 +231,24 @@ def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.
     # |H| in dB without the complex division: 10 log10 (|R|^2 / |S|^2 + eps^2), all in float32 on the
     # band bins only (the same numbers as 20 log10 (|R / S| + eps) to float32 rounding).
     lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
-    inv_s2 = _inv_power_s(rig)
     out = np.empty((x.shape[0], rig.n_band), dtype=np.float32)
     chunk = 64  # a chunk's spectra stay in cache
     for i in range(0, x.shape[0], chunk):
-        R = scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=threads.fft_workers())[:, lo:hi]
-        p = out[i : i + chunk]
-        np.multiply(R.real, R.real, out=p)
-        p += np.square(R.imag)
-        p *= inv_s2
-        p += np.float32(_EPS ** 2)
-        np.log10(p, out=p)
-        p *= np.float32(10.0)
+        band_db(scipy.fft.rfft(x[i : i + chunk], axis=-1, workers=threads.fft_workers())[:, lo:hi], rig, out=out[i : i + chunk])
     return out
+
+
+def band_db(R: np.ndarray, rig: Rig, *, out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`log_magnitude_db` of received spectra ``R`` (n, n_band) already on the band bins (the rfft's bins
+    ``rig.band_bins``): for a caller that has the rfft anyway (the live loop's chirp check), the same float32 numbers."""
+    R = np.asarray(R)
+    p = np.empty(R.shape, np.float32) if out is None else out
+    np.multiply(R.real, R.real, out=p)
+    p += np.square(R.imag)
+    p *= _inv_power_s(rig)
+    p += np.float32(_EPS ** 2)
+    np.log10(p, out=p)
+    p *= np.float32(10.0)
+    return p
 
 

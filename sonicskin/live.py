@@ -41,7 +41,7 @@ import numpy as np
 import scipy.fft
 
 from .acquire import AudioError
-from .dsp import find_chirp_offset, frame_faults, log_magnitude_db, rig_chirp
+from .dsp import _plainly_ok, band_db, find_chirp_offset, frame_faults, rig_chirp
 from .errors import SonicskinError
 from .events import TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
@@ -77,8 +77,14 @@ class InputUnusable(DeviceLost):
 
 def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
     """The frame's rfft on the rig's usable band bins (PWM notches dropped), complex64."""
-    X = scipy.fft.rfft(np.asarray(frame, np.float32), workers=1)
-    return X[rig.band_bins][rig.allowed_mask]
+    return band_rfft(frame, rig)[rig.allowed_mask]
+
+
+def band_rfft(frame: np.ndarray, rig) -> np.ndarray:
+    """The frame's rfft on the rig's band bins (``rig.band_bins``, contiguous), complex64: one FFT per chirp serves
+    both the chirp check (:func:`band_spectrum`) and the features (:func:`sonicskin.dsp.band_db`)."""
+    lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
+    return scipy.fft.rfft(np.asarray(frame, np.float32), workers=1)[lo:hi]
 
 
 def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
@@ -297,12 +303,13 @@ class LiveLoop:
     # -- per chirp ---------------------------------------------------------------------
 
     def process_frame(self, start: int, frame: np.ndarray, t_ready: float) -> TouchEvent | None:
-        fault = int(frame_faults(frame[None])[0])
+        fault = 0 if _plainly_ok(frame[None]) else int(frame_faults(frame[None])[0])  # one pass when nothing is wrong
         if not fault and dropout_frames(frame[None])[0]:
             fault = 4
         if not fault and float(np.std(frame)) < MIN_AC_RMS:  # a DC offset alone: its band features are all at the floor
             fault = 5
-        if not fault and self._no_chirp(frame):  # after the boot: no chirp in this frame (noise alone, a knock)
+        R = band_rfft(frame, self.rig) if not fault else None  # the one FFT of this chirp: its check and its features
+        if not fault and self._no_chirp(R[self.rig.allowed_mask]):  # after the boot: no chirp (noise alone, a knock)
             fault = 6
         if fault:  # never reaches the features or the model
             kind = {1: "nan", 2: "silent", 3: "clipped", 4: "dropout", 5: "constant", 6: "no_chirp"}[fault]
@@ -314,7 +321,7 @@ class LiveLoop:
         self.blind_s, self.blind_skipped, self.blind_relocks = 0.0, dict.fromkeys(self.skipped, 0), self.framer.relocks
         t_s = start / self.rig.fs_hz
         was_calibrating = self.stream.calibrating
-        x = log_magnitude_db(frame[None], self.rig, check=False)[0]  # the band features, computed once
+        x = band_db(R[None], self.rig)[0]  # the band features (log_magnitude_db's numbers), from the same FFT
         if was_calibrating and self.boot_spread_db is None:
             self._boot_add(x)
         refreshes = self.stream.reference.refreshes
@@ -399,7 +406,7 @@ class LiveLoop:
                                 f"repeats within ~0.1 dB, noise alone varies by 5.6 dB); is the transmitter playing on "
                                 f"output --tx and reaching the receiver? check it with `sonicskin check`")
 
-    def _no_chirp(self, frame: np.ndarray) -> bool:
+    def _no_chirp(self, X: np.ndarray) -> bool:
         """The chirp must stay in the input for the whole run, not only at boot: a transmitter that stopped, or an input
         that turned to noise after a good boot, gave about 9 touch events a second from noise, with no error.
 
@@ -407,8 +414,7 @@ class LiveLoop:
         After the boot (which has its own check, :meth:`_boot_check`), a frame below :data:`MIN_COHERENCE` is skipped
         (True: it never reaches the model, so noise gives no touch event), and a window in which more than half are
         below it stops the run (:class:`InputUnusable`: the chirp is gone, not one odd frame).  Costs an FFT and an
-        inverse FFT of one period per chirp."""
-        X = band_spectrum(frame, self.rig)
+        inverse FFT of one period per chirp.  ``X``: the frame's :func:`band_spectrum`."""
         prev, self._prev_spectrum = self._prev_spectrum, X
         if prev is None:
             return False

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -109,9 +110,7 @@ def test_simulated_arm_plays_each_link_on_its_own_channel(tmp_path):
 @pytest.mark.slow
 def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, capsys):
     """simulate --links, fit-svm --links (one artifact per link and the arm file), live --links ART/arm.yaml --fast: every
-    link reports its scripted touches in its own frame, contact points on the finger; listen() gives the same events."""
-    from sonicskin import listen
-
+    link reports its scripted touches in its own frame, contact points on the finger; a Listener gives the same events."""
     links = [{"name": "upper", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 11}},
              {"name": "plate", "tx": 1, "rx": 1, "scenario": {**TINY, "base": "plate-aluminium", "seed": 12,
                                                              "layout": {"kind": "grid", "nx": 3, "ny": 2, "spacing_cm": 3.0,
@@ -144,7 +143,23 @@ def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, cap
                 finger, _ = lk.surface.point_normal([[tl.x_cm[k], tl.y_cm[k]]])
                 near.append(np.linalg.norm(np.asarray(e["point_m"]) - finger[0]) <= 0.015)
         assert np.mean(near) >= 0.8, (name, np.mean(near))
-    # The same arm through the Python API: the same touches, chirp for chirp.
-    api = [ev.to_dict() for ev in listen(tmp_path / "art", fast=True, duration_s=14)]
+    # The same arm through the Python API: the same touches, chirp for chirp, into an MCAP file and a live page.
+    from sonicskin.api import Listener
+
+    lst = Listener(tmp_path / "art", fast=True, duration_s=14, mcap=tmp_path / "arm.mcap", view=True)
+    with urllib.request.urlopen(lst.view_url + "links.json", timeout=10) as r:  # the page draws both links to scale
+        drawn = json.loads(r.read())
+    assert [d["name"] for d in drawn["links"]] == ["upper", "plate"]
+    assert [d["kind"] for d in drawn["links"]] == ["tube", "plate"]
+    api = [ev.to_dict() for ev in lst]
     key = lambda e: (e["link"], e["t_s"], e["kind"], e["location"])  # noqa: E731
     assert sorted(map(key, api)) == sorted(map(key, events))
+    from mcap_ros2.reader import read_ros2_messages
+
+    points = [m for m in read_ros2_messages(str(tmp_path / "arm.mcap")) if m.channel.topic.endswith("/contact_point")]
+    assert len(points) == len(api)
+    for frame in ("upper_link", "plate_link"):  # one PointStamped per event, in the event's frame, at its point
+        msgs = [m.ros_msg for m in points if m.ros_msg.header.frame_id == frame]
+        evs = sorted((e for e in api if e["frame_id"] == frame), key=lambda e: e["t_s"])
+        assert len(msgs) == len(evs) > 10
+        assert np.allclose([[m.point.x, m.point.y, m.point.z] for m in msgs], [e["point_m"] for e in evs], atol=1e-6)

@@ -47,6 +47,20 @@ def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
     return art
 
 
+def _start_view(a: argparse.Namespace, loops, scenarios=None):
+    """``--view [PORT]``: the live page of the loops (each link drawn to scale: its scenario's surface on the simulated
+    device, else its artifact's layout), its address on stderr; ``None`` without --view."""
+    if a.view is None:
+        return None
+    from ..view import LinkView, parse_view_port, view_loops
+
+    links = [LinkView.from_scenario(name, sc) for name, sc in scenarios] if scenarios else None
+    view = view_loops(loops, links=links, port=parse_view_port(a.view))
+    print(f"sonicskin live: the live view is at {view.url} (open it in a browser on this machine)", file=sys.stderr,
+          flush=True)
+    return view
+
+
 def _live_links(a: argparse.Namespace) -> int:
     """``live --links FILE``: several links on one audio interface (a links or arm file), one model and one loop per
     link; on the simulated device, an arm file's simulated links (each trained on the spot once when it has no
@@ -73,6 +87,7 @@ def _live_links(a: argparse.Namespace) -> int:
                              f"file's `frame:` with `urdf:`, or `surface:`: docs/robot-frame.md)")
         mcap = McapEventWriter(a.mcap, t0_unix_s=time.time())  # t_s = 0: the stream starts now
     loops = arm.loops(emit=emit, status=not a.no_status, on_event=mcap.write if mcap else None)
+    view = _start_view(a, loops, [(lk.name, lk.scenario) for lk in arm.links] if a.device == "sim" else None)
     lost = None
     try:
         with arm.source:
@@ -83,6 +98,8 @@ def _live_links(a: argparse.Namespace) -> int:
     finally:
         if mcap is not None:
             mcap.close()  # complete on every way out (Ctrl-C, a lost device): nothing recorded is lost
+        if view is not None:
+            view.stop()
     out = {"summary": {lk.name: json_safe(s) for lk, s in zip(arm.links, summaries)}}
     if mcap is not None:
         out["mcap"] = {"path": str(a.mcap), "events": mcap.written, "messages": mcap.messages}
@@ -180,12 +197,17 @@ def cmd_live(a: argparse.Namespace) -> int:
         rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
         source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
     loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
+    view = _start_view(a, [loop], [("skin", live_sc)] if a.device == "sim" else None)
     lost = None
-    with source:
-        try:
-            summary = loop.run(duration_s=a.duration, watchdog_s=a.watchdog)
-        except DeviceLost as e:
-            lost, summary = e, loop.summary(0.0, 0.0, 0.0)
+    try:
+        with source:
+            try:
+                summary = loop.run(duration_s=a.duration, watchdog_s=a.watchdog)
+            except DeviceLost as e:
+                lost, summary = e, loop.summary(0.0, 0.0, 0.0)
+    finally:
+        if view is not None:
+            view.stop()
     print(json.dumps({"summary": json_safe(summary)}, allow_nan=False), file=sys.stderr)
     if lost is not None:
         raise lost
@@ -288,6 +310,10 @@ def add_parsers(sub) -> None:
                          "(e.g. two-links-time), or an arm file (e.g. arm6, or the ART/arm.yaml that `fit-svm --links` "
                          "writes): its links simulated on the default device, events in each link's frame (`sonicskin "
                          "info` lists them) (default: one link, --tx/--rx)")
+    lv.add_argument("--view", metavar="PORT", nargs="?", const="0",
+                    help="show the skin live in a browser at http://127.0.0.1:PORT/ (every link unrolled to scale, the "
+                         "touch and its force, the last events, the reference and drift state); PORT omitted: any free "
+                         "port, printed on stderr (default: off)")
     lv.add_argument("--mcap", metavar="FILE",
                     help="with --links on an arm: also write every touch as ROS 2 messages (contact point and wrench in "
                          "the link's frame, markers) into the MCAP file FILE, for `ros2 bag play` and Foxglove "

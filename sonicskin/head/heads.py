@@ -8,9 +8,11 @@ reference.  Nothing here runs a model: :class:`sonicskin.runtime.SkinRuntime` ru
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-from ..force import force_from_dict
+from ..force import energy_db, force_from_dict
 from ..rig import Layout
 from .predictions import Predictions
 
@@ -54,18 +56,30 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
     if ovo.ndim == 1:
         # scikit-learn's binary decision value is positive for classes_[1]; libsvm's pair value for the pair's first
         ovo = -ovo[:, None]
-    i, j = np.triu_indices(n_classes, k=1)  # libsvm's pair order: (0,1), (0,2), ..., (1,2), ...
-    if ovo.ndim != 2 or ovo.shape[1] != i.size:
-        raise ValueError(f"expected (n, {i.size}) pairwise scores for {n_classes} classes, got {ovo.shape}")
-    P = np.zeros((i.size, n_classes))
-    P[np.arange(i.size), i] = 1.0
-    P[np.arange(i.size), j] = -1.0
+    P, Vi, Vj = _pair_matrices(int(n_classes))
+    if ovo.ndim != 2 or ovo.shape[1] != P.shape[0]:
+        raise ValueError(f"expected (n, {P.shape[0]}) pairwise scores for {n_classes} classes, got {ovo.shape}")
     conf = ovo @ P
     win_i = (ovo > 0).astype(np.float64)  # libsvm votes for i when the decision value is positive
-    Vi = np.zeros((i.size, n_classes)); Vi[np.arange(i.size), i] = 1.0
-    Vj = np.zeros((i.size, n_classes)); Vj[np.arange(i.size), j] = 1.0
     votes = win_i @ Vi + (1.0 - win_i) @ Vj
     return votes + conf / (3.0 * (np.abs(conf) + 1.0))
+
+
+@functools.lru_cache(maxsize=32)
+def _pair_matrices(n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For libsvm's pair order (0,1), (0,2), ..., (1,2), ...: ``P`` (+1 for the pair's first class, -1 for its second),
+    and the one-hot first (``Vi``) and second (``Vj``) class of each pair; built once per class count (the live loop
+    calls :func:`ovr_scores_from_ovo` every chirp of every link)."""
+    i, j = np.triu_indices(n_classes, k=1)
+    rows = np.arange(i.size)
+    P = np.zeros((i.size, n_classes))
+    P[rows, i] = 1.0
+    P[rows, j] = -1.0
+    Vi = np.zeros((i.size, n_classes)); Vi[rows, i] = 1.0
+    Vj = np.zeros((i.size, n_classes)); Vj[rows, j] = 1.0
+    for m in (P, Vi, Vj):
+        m.setflags(write=False)
+    return P, Vi, Vj
 
 
 def pairwise(ovo: np.ndarray, n_locations: int) -> np.ndarray:
@@ -122,7 +136,7 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
     """Probability-weighted centroid (n, 2) of the ``k`` most likely markers (wrapping around a tube)."""
     k = min(k, w.shape[1])
     top = np.argsort(w, axis=1)[:, -k:]
-    ww = np.take_along_axis(w, top, axis=1)
+    ww = w[np.arange(len(w))[:, None], top]
     ww = ww / np.maximum(ww.sum(axis=1, keepdims=True), 1e-12)
     xy = layout.xy_cm[top]  # (n, k, 2)
     best = xy[:, -1:, :]
@@ -165,8 +179,6 @@ class SVMHead:
 
     def decide(self, outputs: list[np.ndarray], inputs: np.ndarray, *, score_reference: np.ndarray | None = None,
                input_reference: np.ndarray | None = None) -> Predictions:
-        from ..force import energy_db
-
         V = self.scores(outputs, inputs)
         S = V[:, :self.K]
         idx = np.argmax(S, axis=1)
