@@ -241,3 +241,20 @@ def test_one_shot_session_has_several_presses_per_location(rig):
     assert presses(0) == 6 and presses(1) == 2
     with pytest.raises(ValueError, match="train_repeats"):
         Scenario.from_dict({"train_repeats": 0})
+
+
+def test_sessions_never_overlap_in_time():
+    """drift-2h tests every 300 s, but its one-shot session (three passes over 31 markers) lasts 330 s: the next session
+    starts when it ends, not during it, so the recording from power-on is one stream in time order (reproduce's Fig. 12
+    replays it so); sessions shorter than the interval keep their schedule."""
+    from sonicskin.rig import Rig
+    from sonicskin.sim import Scenario, build_timeline
+
+    rig = Rig.load("jaco")
+    tl = build_timeline(Scenario.load("drift-2h").replace(sessions=3), rig)
+    starts = [tl.time_s[tl.session == k][0] for k in range(3)]
+    end0 = tl.time_s[tl.session == 0][-1] + rig.period_s
+    assert end0 > 300.0 and starts[1] == pytest.approx(end0) and starts[2] == 600.0
+    assert np.all(np.diff(tl.time_s) > 0)
+    tl = build_timeline(Scenario.load("moving"), rig)  # 3 sessions shorter than 600 s: on the hour plus 10 min steps
+    assert [tl.time_s[tl.session == k][0] for k in range(3)] == [3600.0, 4200.0, 4800.0]

@@ -192,6 +192,7 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
     moving_on = bool(sc.motion.get("enabled", False))
     cols: dict[str, list] = {f.name: [] for f in dataclasses.fields(Timeline)}
     event = 0
+    t_free = -np.inf  # when the previous session's last chirp ended
     for s in range(sc.sessions):
         if sc.subject_per_session:
             subj_ids = [sc.subjects[s % len(sc.subjects)]]
@@ -217,10 +218,14 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
             subj_of_seg.append(subj)
             if sc.gap_s > 0:
                 segs.append(("gap", rig.seconds_to_chirps(sc.gap_s), -1, np.nan, np.nan, None))
-        t0 = sc.start_s + s * sc.session_interval_s
+        # Sessions start every session_interval_s, or when the one before ends if it ran longer (a one-shot session of
+        # three passes over 31 markers takes 330 s; drift-2h tests every 300 s): one person, one link, one clock, so
+        # a recording replayed from power-on as one stream is in time order.
+        n_session = sum(seg[1] for seg in segs)
+        t0 = max(sc.start_s + s * sc.session_interval_s, t_free)
+        t_free = t0 + n_session / cps
         k = 0
         si = 0
-        n_session = sum(seg[1] for seg in segs)
         level = _motion_level(rng, n_session, cps) * float(sc.motion.get("level", 1.0)) if moving_on else np.zeros(n_session)
         for seg, n, loc, x, y, F in segs:
             idx = np.arange(k, k + n)
