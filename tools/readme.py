@@ -52,7 +52,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # The manual, in the order its blocks run after README.md's (the one list both tools and the tests read).
 PAGES = ("docs/bring-up.md", "docs/training.md", "docs/importers.md", "docs/cli.md", "docs/artifact.md",
-         "docs/simulator.md", "docs/models.md", "docs/api.md", "docs/robot-frame.md",
+         "docs/simulator.md", "docs/models.md", "docs/api.md", "docs/robot-frame.md", "docs/arm.md",
          "docs/reproduction.md")
 # Records of earlier rounds, quoted with the commits they ran on: not run, and their tables are not results.
 RECORDS = ("docs/history.md",)
