@@ -116,8 +116,16 @@ def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, cap
                                                              "layout": {"kind": "grid", "nx": 3, "ny": 2, "spacing_cm": 3.0,
                                                                         "x0_cm": 7.5, "y0_cm": 9.5}}}]
     f = _arm_file(tmp_path, links, rig="fast")
-    assert main(["simulate", "--links", str(f), "--out", str(tmp_path / "data"), "--quiet"]) == 0
-    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "art")]) == 0
+    assert main(["simulate", "--links", str(f), "--out", str(tmp_path / "data"), "--quiet", "--sessions", "2"]) == 0
+    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "art"),
+                 "--train", "s000"]) == 0
+    capsys.readouterr()
+    # every link's artifact scored on its own later session, a report per link
+    assert main(["compare", "--links", str(f), "--data", str(tmp_path / "data"), "--artifact", str(tmp_path / "art"),
+                 "--test", "s001", "--out", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    assert "## link upper" in out and "## link plate" in out
+    assert (tmp_path / "cmp" / "upper" / "compare.json").is_file() and (tmp_path / "cmp" / "plate" / "compare.json").is_file()
     arm = tmp_path / "art" / "arm.yaml"
     written = yaml.safe_load(arm.read_text())
     assert [d["artifact"] for d in written["links"]] == ["upper", "plate"] and written["rig"]["name"] == "fast"
@@ -163,3 +171,19 @@ def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, cap
         evs = sorted((e for e in api if e["frame_id"] == frame), key=lambda e: e["t_s"])
         assert len(msgs) == len(evs) > 10
         assert np.allclose([[m.point.x, m.point.y, m.point.z] for m in msgs], [e["point_m"] for e in evs], atol=1e-6)
+
+
+def test_record_an_arm_link_by_link(tmp_path, capsys):
+    """record --links: each link's guided session on its own channels with its own markers, into OUT/<link>."""
+    from sonicskin.dataset import Dataset
+
+    links = [{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 21}},
+             {"name": "b", "tx": 1, "rx": 1, "scenario": {**TINY, "seed": 22, "layout": {"kind": "grid", "nx": 2, "ny": 2,
+                                                                                         "spacing_cm": 1.5, "x0_cm": 3.0,
+                                                                                         "y0_cm": 10.0}}}]
+    f = _arm_file(tmp_path, links, rig="fast")
+    assert main(["record", "--links", str(f), "--out", str(tmp_path / "rec"), "--fast", "--passes", "1", "--no-artifact",
+                 "--touch-s", "0.5", "--gap-s", "0.2", "--moving-s", "0", "--calibration-s", "1"]) == 0
+    assert len(Dataset(tmp_path / "rec" / "a").layout) == 5 and len(Dataset(tmp_path / "rec" / "b").layout) == 4
+    code = main(["record", "--links", str(f), "--out", str(tmp_path / "rec2"), "--tx", "1"])
+    assert code == 2 and "record --links takes each link's channels and markers from the arm file" in capsys.readouterr().err

@@ -79,15 +79,50 @@ def cmd_record(a: argparse.Namespace) -> int:
     from ..rig import Rig
     from ..sim import Scenario
 
+    if a.links:
+        return _record_arm(a)
     # The scenario gives the layout of the markers (and, on the simulated device, the link and the person).
     # record_session checks the device before writing and removes a dataset it could not record anything into.
     out = Path(a.out)
     with clean_on_failure(out, writer_mode(a)):
-        record_session(out, Rig.load(a.rig), Scenario.load(a.scenario), locations=a.locations, device=a.device,
+        record_session(out, Rig.load(a.rig or "jaco"), Scenario.load(a.scenario), locations=a.locations, device=a.device,
                        resume=a.resume, overwrite=a.overwrite, realtime=not a.fast, calibration_s=a.calibration_s,
                        moving_s=a.moving_s, touch_s=a.touch_s, gap_s=a.gap_s, force_csv=a.force_csv,
                        force_serial=a.force_serial, tx=a.tx, rx=a.rx, passes=a.passes,
                        artifact=None if a.no_artifact else Path(a.artifact or f"{out}-artifact"))
+    return 0
+
+
+def _record_arm(a: argparse.Namespace) -> int:
+    """``record --links ARM --out DIR``: the guided session of every link in turn, each on its own TX/RX pair and with
+    its own markers (its scenario's layout), into ``DIR/<link>``, each with its artifact (``DIR/<link>-artifact``)
+    unless --no-artifact; ``fit-svm --links ARM --data DIR`` trains them all again at once."""
+    from ..links import file_rig, load_links
+    from ..record import record_session
+    from ..rig import Rig
+
+    if a.tx or a.rx or a.scenario != "stationary" or a.locations or a.artifact:
+        raise UsageError("record --links takes each link's channels and markers from the arm file and writes each link's "
+                         "artifact next to its recording (OUT/<link>-artifact); drop --tx, --rx, --scenario, --locations "
+                         "and --artifact")
+    rig = Rig.load(a.rig) if a.rig else (file_rig(a.links) or Rig.load("jaco"))
+    links = load_links(a.links, rig)
+    missing = [lk.name for lk in links if lk.scenario is None]
+    if missing:
+        raise UsageError(f"--links {a.links}: links {missing} have no `scenario:` to take their markers from; give each "
+                         f"link one (its layout is what the prompts ask you to press)")
+    root = Path(a.out)
+    for lk in links:
+        out = root / lk.name
+        print(f"link {lk.name} (TX {lk.tx}, RX {lk.rx}): {len(lk.scenario.make_layout())} markers into {out}", file=sys.stderr)
+        with clean_on_failure(out, writer_mode(a)):
+            record_session(out, lk.rig or rig, lk.scenario, device=a.device, resume=a.resume, overwrite=a.overwrite,
+                           realtime=not a.fast, calibration_s=a.calibration_s, moving_s=a.moving_s, touch_s=a.touch_s,
+                           gap_s=a.gap_s, force_csv=a.force_csv, force_serial=a.force_serial, tx=lk.tx, rx=lk.rx,
+                           passes=a.passes,
+                           artifact=None if a.no_artifact else Path(f"{out}-artifact"))
+    print(f"{len(links)} links recorded under {root}/<link>; train the arm: `sonicskin fit-svm --links {a.links} --data "
+          f"{root} --out ART`", file=sys.stderr)
     return 0
 
 
@@ -137,7 +172,9 @@ def add_parsers(sub) -> None:
                     help="'sim' (a simulated person follows the prompts) or an audio device name/index (default: sim)")
     rc.add_argument("--scenario", default="stationary",
                     help="layout of the markers (and the simulated link/person) (default: stationary)")
-    rc.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
+    rc.add_argument("--rig", help="rig name or YAML path (default: the --links arm file's rig, else jaco)")
+    rc.add_argument("--links", metavar="ARM", help="record every link of an arm file in turn, each on its TX/RX pair "
+                                                   "with its markers, into OUT/<link> (default: one link)")
     rc.add_argument("--locations", type=nonneg_int, nargs="+", metavar="ID", help="only these location ids (default: all)")
     rc.add_argument("--calibration-s", type=positive_float, default=3.0, help="hands-off calibration, seconds (default: 3)")
     rc.add_argument("--moving-s", type=nonneg_float, default=10.0, help="robot moving, hands off, seconds; 0 skips (default: 10)")

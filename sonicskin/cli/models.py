@@ -192,8 +192,45 @@ def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
     ``--artifact`` (score a trained artifact) and ``--data`` alone (train both models, export, score)."""
     if a.scenario:
         return _compare_scenarios(a)
+    if a.links:
+        return _compare_arm(a, extra)
     _check_compare_data(a)
     return _compare_artifact(a, extra) if a.artifact is not None else _compare_trained(a, extra)
+
+
+def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
+    """``--links ARM --data DIR``: ``compare`` on every link (``DIR/<link>``; with ``--artifact ART``, the trained arm
+    folder or its arm.yaml, each link's artifact), one report per link under ``OUT/<link>``."""
+    import copy
+
+    from ..arm import arm_file_of
+    from ..links import file_rig, load_links
+    from ..rig import Rig
+
+    if not a.data:
+        raise UsageError(f"compare --links {a.links} needs --data DIR, the folder of the links' datasets (DIR/<link>: "
+                         f"`sonicskin simulate --links {a.links} --out DIR`)")
+    spec = a.links
+    if a.artifact is not None:  # the trained arm: its links carry their artifacts
+        spec = arm_file_of(a.artifact)
+        if spec is None:
+            raise UsageError(f"--artifact {a.artifact} with --links: give the trained arm (the folder `fit-svm --links` "
+                             f"wrote, holding arm.yaml)")
+    links = load_links(spec, file_rig(spec) or Rig.load("jaco"))
+    data = Path(a.data)
+    absent = [lk.name for lk in links if not (data / lk.name / "dataset.json").is_file()]
+    if absent:
+        raise UsageError(f"{data} has no dataset for links {absent} (expected {data}/<link>/dataset.json)")
+    out = Path(a.out or Path("reports") / f"compare-{Path(str(a.links)).stem}")
+    for lk in links:
+        print(f"## link {lk.name}", flush=True)
+        b = copy.copy(a)
+        b.links, b.data, b.out = None, str(data / lk.name), str(out / lk.name)
+        b.artifact = None if a.artifact is None else str(lk.artifact)
+        _check_compare_data(b)
+        (_compare_artifact(b, extra) if b.artifact is not None else _compare_trained(b, extra))
+    print(f"wrote one report per link under {out}/<link>")
+    return 0
 
 
 def _compare_scenarios(a: argparse.Namespace) -> int:
@@ -337,7 +374,9 @@ def add_parsers(sub) -> None:
                                    "sessions and how many chirps of each location it scored. With --test, exactly those "
                                    "sessions are tested (the rest not in --train validate unless --val says otherwise). "
                                    "Without --artifact, other options go to LightningCLI as in `sonicskin train`.")
-    c.add_argument("--data", help="dataset folder (required unless --scenario; default: none)")
+    c.add_argument("--data", help="dataset folder (required unless --scenario; with --links: DATA/<link>) (default: none)")
+    c.add_argument("--links", metavar="ARM", help="compare every link of an arm file on DATA/<link> (with --artifact: "
+                                                  "the trained arm), a report per link in OUT/<link> (default: one link)")
     c.add_argument("--artifact", help="use this artifact instead of training (default: train both models first)")
     c.add_argument("--scenario", nargs="+", metavar="NAME",
                    help="instead of --data: simulate these scenarios with every --sim-seeds, train with every --train-seeds, "
