@@ -231,10 +231,9 @@ def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[st
     out: dict[str, Any] = {"frame_id": surface.frame_id}
     if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
         return out
-    p, n = surface.point_normal([[x_cm, y_cm]])
-    normal = tuple(float(a) for a in n[0])
+    p, normal = surface.point_normal_one(float(x_cm), float(y_cm))
     f = float(force_n) if force_n is not None else math.nan
-    out |= {"point_m": tuple(float(a) for a in p[0]), "normal": normal,
+    out |= {"point_m": p, "normal": normal,
             "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
     return out
 

@@ -31,6 +31,7 @@ percent of the 106.7 ms chirp period.
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import socket
 import sys
@@ -41,7 +42,7 @@ import numpy as np
 import scipy.fft
 
 from .acquire import AudioError
-from .dsp import _plainly_ok, band_db, find_chirp_offset, frame_faults, rig_chirp
+from .dsp import band_db, find_chirp_offset, frame_faults, rig_chirp
 from .errors import SonicskinError
 from .events import TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
@@ -87,6 +88,14 @@ def band_rfft(frame: np.ndarray, rig) -> np.ndarray:
     return scipy.fft.rfft(np.asarray(frame, np.float32), workers=1)[lo:hi]
 
 
+@functools.lru_cache(maxsize=16)
+def _allowed_bins(rig) -> np.ndarray:
+    """The rfft bins of :func:`band_spectrum` (the band without the PWM notches), built once per rig."""
+    out = np.asarray(rig.band_bins)[rig.allowed_mask]
+    out.setflags(write=False)
+    return out
+
+
 def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
     """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation of
     their band spectra (:func:`band_spectrum`) over every lag.  A periodic chirp train through a link repeats (1 for a
@@ -95,10 +104,29 @@ def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
     re-lock after lost audio, a jittery clock), as the magnitude features are."""
     L = rig.n_chirp
     Y = np.zeros(L, np.complex64)
-    Y[np.asarray(rig.band_bins)[rig.allowed_mask]] = X * np.conj(X_prev)
+    Y[_allowed_bins(rig)] = X * np.conj(X_prev)
     c = np.abs(scipy.fft.ifft(Y, workers=1)) * L  # the analytic cross-correlation at every circular lag
     norm = np.sqrt(float(np.vdot(X, X).real) * float(np.vdot(X_prev, X_prev).real))
     return float(c.max() / norm) if norm > 0 else 0.0
+
+
+def clearly_clean(frame: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7, min_run: int = 64) -> bool:
+    """True when one frame can have none of the live loop's faults (:meth:`LiveLoop._fault`: non-finite, silent,
+    clipped, a dropout, a DC offset alone), from four cheap reductions, with margins that float32 sums cannot cross;
+    ``False`` means "look closer", not "faulty".  The live loop checks every
+    chirp of every link, so the common case is one pass instead of six."""
+    e = float(np.dot(frame, frame))  # non-finite samples make it non-finite
+    n = frame.size
+    if not (math.isfinite(e) and e >= 4 * n * min_rms ** 2):
+        return False
+    hi, lo = float(frame.max()), float(frame.min())
+    if not (hi < clip_level and lo > -clip_level):
+        return False
+    # n samples spanning hi - lo vary by at least (hi - lo) / sqrt(2 n) (one at each end, the rest at the mean): exact,
+    # where e / n - mean^2 in float32 sums is not for a DC offset far above its variation
+    if (hi - lo) / math.sqrt(2 * n) < 2 * MIN_AC_RMS:
+        return False
+    return int(np.count_nonzero(frame == 0)) < min_run  # fewer zeros than one dropout run holds
 
 
 def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
@@ -303,11 +331,7 @@ class LiveLoop:
     # -- per chirp ---------------------------------------------------------------------
 
     def process_frame(self, start: int, frame: np.ndarray, t_ready: float) -> TouchEvent | None:
-        fault = 0 if _plainly_ok(frame[None]) else int(frame_faults(frame[None])[0])  # one pass when nothing is wrong
-        if not fault and dropout_frames(frame[None])[0]:
-            fault = 4
-        if not fault and float(np.std(frame)) < MIN_AC_RMS:  # a DC offset alone: its band features are all at the floor
-            fault = 5
+        fault = 0 if clearly_clean(frame) else self._fault(frame)
         R = band_rfft(frame, self.rig) if not fault else None  # the one FFT of this chirp: its check and its features
         if not fault and self._no_chirp(R[self.rig.allowed_mask]):  # after the boot: no chirp (noise alone, a knock)
             fault = 6
@@ -405,6 +429,16 @@ class LiveLoop:
                                 f"received spectrum varies by {self.boot_spread_db:.1f} dB from chirp to chirp (a chirp "
                                 f"repeats within ~0.1 dB, noise alone varies by 5.6 dB); is the transmitter playing on "
                                 f"output --tx and reaching the receiver? check it with `sonicskin check`")
+
+    @staticmethod
+    def _fault(frame: np.ndarray) -> int:
+        """The frame's fault code (0 none; 1-3 :func:`frame_faults`, 4 a dropout, 5 a DC offset alone)."""
+        fault = int(frame_faults(frame[None])[0])
+        if not fault and dropout_frames(frame[None])[0]:
+            fault = 4
+        if not fault and float(np.std(frame)) < MIN_AC_RMS:  # a DC offset alone: its band features are all at the floor
+            fault = 5
+        return fault
 
     def _no_chirp(self, X: np.ndarray) -> bool:
         """The chirp must stay in the input for the whole run, not only at boot: a transmitter that stopped, or an input

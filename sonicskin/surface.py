@@ -24,6 +24,7 @@ line naming the problem and the fix.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -142,6 +143,27 @@ class LinkSurface:
             nrm[:, 2] = sign
         R, t = self.pose[:3, :3], self.pose[:3, 3]
         return p @ R.T + t, nrm @ R.T
+
+    def point_normal_one(self, x_cm: float, y_cm: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """:meth:`point_normal` of one contact, as tuples, in plain floats (the live loop calls it for every event of every
+        link: a tenth of the batched call's cost, the same numbers to rounding)."""
+        x, y = x_cm / 100, y_cm / 100
+        if self.kind == "tube":
+            r, L = self.dims_m
+            th = math.radians(self.theta0_deg) + x / r
+            c, s = math.cos(th), math.sin(th)
+            p, n = (r * c, r * s, y - L / 2 if self.axis_from == "-z" else L / 2 - y), (c, s, 0.0)
+        else:
+            W, L, h = self.dims_m
+            sign = 1.0 if self.face == "+z" else -1.0
+            p, n = (x - W / 2, y - L / 2, sign * h / 2), (0.0, 0.0, sign)
+        R, t = self._rows
+        return (tuple(a * p[0] + b * p[1] + c * p[2] + o for (a, b, c), o in zip(R, t)),
+                tuple(a * n[0] + b * n[1] + c * n[2] for (a, b, c) in R))
+
+    @functools.cached_property
+    def _rows(self) -> tuple[tuple[tuple[float, ...], ...], tuple[float, ...]]:
+        return tuple(tuple(float(v) for v in row) for row in self.pose[:3, :3]), tuple(float(v) for v in self.pose[:3, 3])
 
     def check_layout(self, layout) -> None:
         """Raise :class:`SurfaceError` when ``layout`` (a :class:`sonicskin.rig.Layout`) does not fit on this surface: its

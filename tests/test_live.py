@@ -557,3 +557,20 @@ def test_rig_check_through_jack_names_a_rate_the_server_does_not_run(jack):
     rep = analyse(device_capture(rig48, "system", prompt=lambda m: None), rig48)
     assert rep.status("sample rate") == "fail" and not rep.ok
     assert rep.line("sample rate").fix.startswith("set the interface to 48000 Hz"), rep.table()
+
+
+def test_the_fast_frame_check_never_passes_a_faulty_frame():
+    """clearly_clean (one pass per chirp of every link) is True only where the full checks find no fault: a DC offset
+    far above a variation too small to be audio, silence, NaN, clipping and dropouts all go to the full checks."""
+    from sonicskin.live import LiveLoop, clearly_clean
+
+    rng = np.random.default_rng(3)
+    L = 2560
+    frames = [0.1 * rng.standard_normal(L), np.full(L, 0.5), 0.5 + 1e-9 * rng.standard_normal(L), np.zeros(L),
+              np.r_[np.nan, 0.1 * np.ones(L - 1)], np.clip(2 * rng.standard_normal(L), -1, 1),
+              np.r_[np.zeros(100), 0.1 * rng.standard_normal(L - 100)], 1e-8 * rng.standard_normal(L),
+              np.r_[np.zeros(63), 0.1 * rng.standard_normal(L - 63)], 0.3 + 0.01 * rng.standard_normal(L)]
+    frames += [a * rng.standard_normal(L) + b for a in (1e-8, 1e-6, 1e-3, 0.3) for b in (0.0, 0.2, 0.9)]
+    verdicts = [(clearly_clean(f.astype(np.float32)), LiveLoop._fault(f.astype(np.float32))) for f in frames]
+    assert all(fault == 0 for clean, fault in verdicts if clean)
+    assert sum(clean for clean, _ in verdicts) >= 5  # and it does pass ordinary audio

@@ -177,3 +177,17 @@ def test_bad_urdf_is_one_line(tmp_path):
     with pytest.raises(SurfaceError) as e:
         LinkSurface.from_urdf(bad, "a")
     assert str(e.value) == f"{bad}: not a URDF file (the root element is <sdf>, not <robot>)"
+
+
+def test_one_contact_is_the_batched_mapping():
+    """point_normal_one (each event of the live loop) gives point_normal's numbers, under a general pose, tube and plate."""
+    rng = np.random.default_rng(5)
+    for kind, dims in (("tube", (0.05, 0.3)), ("plate", (0.2, 0.25, 0.01))):
+        for axis_face in (("-z", "+z"), ("+z", "-z")):
+            s = LinkSurface("l", kind, dims, pose=pose_matrix(rng.normal(size=3), rng.normal(size=3)), theta0_deg=23.0,
+                            axis_from=axis_face[0], face=axis_face[1])
+            xy = rng.uniform(0, 20, size=(20, 2))
+            P, N = s.point_normal(xy)
+            for (x, y), p, n in zip(xy, P, N):
+                p1, n1 = s.point_normal_one(x, y)
+                assert np.allclose(p1, p, atol=1e-12) and np.allclose(n1, n, atol=1e-12)
