@@ -187,3 +187,19 @@ def test_record_an_arm_link_by_link(tmp_path, capsys):
     assert len(Dataset(tmp_path / "rec" / "a").layout) == 5 and len(Dataset(tmp_path / "rec" / "b").layout) == 4
     code = main(["record", "--links", str(f), "--out", str(tmp_path / "rec2"), "--tx", "1"])
     assert code == 2 and "record --links takes each link's channels and markers from the arm file" in capsys.readouterr().err
+
+
+def test_live_on_an_untrained_simulated_arm_trains_each_link_once(tmp_path, capsys, monkeypatch):
+    """live --links on an arm file without artifacts trains each simulated link on the spot (as live does for one link),
+    says so, and a second run reuses them."""
+    monkeypatch.chdir(tmp_path)
+    links = [{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 31}},
+             {"name": "b", "tx": 1, "rx": 1, "scenario": {**TINY, "seed": 32, "material": "aluminium"}}]
+    f = _arm_file(tmp_path, links, rig="fast")
+    assert main(["live", "--links", str(f), "--fast", "--duration", "6", "--no-status"]) == 0
+    out = capsys.readouterr()
+    assert "training an SVM on the simulated 't-a' link first, once" in out.err
+    assert (tmp_path / "artifacts" / "sim-t-a-svm" / "skin.json").is_file()
+    assert {json.loads(x)["link"] for x in out.out.splitlines()} == {"a", "b"}
+    assert main(["live", "--links", str(f), "--fast", "--duration", "6", "--no-status"]) == 0
+    assert "using artifacts/sim-t-b-svm, trained on the simulated 't-b' link by an earlier run" in capsys.readouterr().err
