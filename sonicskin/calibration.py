@@ -138,7 +138,8 @@ class OnlineReference:
         with the model run on whole blocks of chirps that share one reference.
 
         ``predict(inputs)`` runs the model on a block and returns an object with a boolean
-        ``touch`` array (and whatever the caller wants back).  Yields ``(lo, hi, out)``: chirps
+        ``touch`` array (and whatever the caller wants back; a ``reference_touch`` array, where not ``None``, is what
+        the reference skips instead of ``touch``).  Yields ``(lo, hi, out)``: chirps
         ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``.  Chirps before the first
         block are the boot calibration (no prediction).  ``boot_touch`` gives known no-touch flags
         for the boot (a labelled stream); without it the first ``beta`` chirps are the boot.
@@ -154,7 +155,8 @@ class OnlineReference:
         while i < n:
             hi = min(n, i + chunk)
             out = predict(self.inputs(X[i:hi]))
-            touch = np.asarray(out.touch, bool)
+            ref_touch = getattr(out, "reference_touch", None)  # what the reference must skip, where it is not out.touch
+            touch = np.asarray(out.touch if ref_touch is None else ref_touch, bool)
             j = i
             while j < hi:
                 done = self.step(X[j], time_s[j], bool(touch[j - i]))

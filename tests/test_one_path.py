@@ -103,3 +103,33 @@ def test_seeds_and_reproduce_report_what_the_live_loop_decides(cli_files, data, 
         m = stream_metrics(live_predictions(SkinRuntime(tmp_path / "seed-art", k), data, split["test"]), te, data.layout)
         assert rows[0][k]["accuracy"] == m["localization"]["accuracy"]
         assert rows[0][k]["missed_touch"] == m["detection"]["missed_touch_rate"]
+
+
+def test_alg2_takes_its_no_touch_chirps_by_the_physical_statistic():
+    """The network's `either` detector reports a touch when its head or the input-RMS statistic says so, but Alg. 2
+    picks its no-touch chirps by the input-RMS statistic alone: a head that calls a resting, warmed-up link touched
+    must not stop every reference refresh (drift-2h seed 1 had one reference in 2 h, and fell from 96 % to 63 %)."""
+    from sonicskin.calibration import OnlineReference
+    from sonicskin.head.heads import NetHead
+    from sonicskin.rig import Layout
+
+    layout = Layout.grid(3, 1, 1.2)
+    head = NetHead({"detector": {"mode": "either", "bias": 0.0, "threshold": 1.0, "reference": [0.0] * 4, "bins": 4}},
+                   layout)
+    logits = np.log(np.array([[0.7, 0.1, 0.1, 0.1],     # the head: touched (no-touch class 0.1)
+                              [0.7, 0.1, 0.1, 0.1],     # the head: touched, the inputs far from rest
+                              [0.02, 0.02, 0.02, 0.94]]))  # neither
+    inputs = np.array([[0.1, -0.1, 0.0, 0.1], [3.0, 2.0, -2.5, 3.0], [0.0, 0.1, 0.0, 0.0]], np.float32)
+    p = head.decide([logits, np.ones((3, 3))], inputs)
+    assert p.touch.tolist() == [True, True, False]
+    assert p.touched_for_reference().tolist() == [False, True, False]
+    assert NetHead({"detector": {"mode": "head"}}, layout).decide([logits, np.ones((3, 3))], inputs).reference_touch is None
+    # the reference's replay skips what touched_for_reference says, not the events' touch
+    ref = OnlineReference(2, 4)
+    class Out:
+        def __init__(self, n):
+            self.touch, self.reference_touch = np.ones(n, bool), np.zeros(n, bool)
+
+    X, t = np.zeros((20, 4), np.float32), np.arange(20.0)
+    assert sum(hi - lo for lo, hi, _ in ref.replay(X, t, lambda x: Out(len(x)))) == 20 - 2  # every chirp after the boot
+    assert ref.refreshes > 1  # every chirp "touched" for the events, none for the reference: it refreshes

@@ -229,6 +229,7 @@ class NetHead:
         place = p[:, :-1]
         idx = np.argmax(place, axis=1)
         touch = self.touch_logit(logits) + self.bias >= 0
+        by_rms = None
         if self.mode != "head":
             ref = self.reference if input_reference is None else input_reference
             by_rms = input_rms(inputs, ref, min(self.detector_bins, inputs.shape[1])) >= self.threshold
@@ -236,7 +237,11 @@ class NetHead:
         f = np.take_along_axis(np.asarray(force_all, np.float64), idx[:, None], axis=1)[:, 0]
         conf = place[np.arange(len(idx)), idx] / np.maximum(place.sum(axis=1), 1e-12)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
-        return Predictions(touch, self.ids[idx], centroid(place, self.layout), f, conf, place)
+        # Alg. 2's no-touch chirps by the physical statistic alone: the head's logit, trained on one session, calls rest
+        # chirps touched once warm-up has moved them, and an OR with it then blocked every reference refresh (measured:
+        # drift-2h simulator seed 1, from the 5th session on every rest chirp "touched", one reference in 2 h)
+        return Predictions(touch, self.ids[idx], centroid(place, self.layout), f, conf, place,
+                           reference_touch=by_rms if self.mode == "either" else None)
 
 
 def make_head(kind: str, entry: dict, layout: Layout) -> SVMHead | NetHead:

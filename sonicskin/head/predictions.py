@@ -18,6 +18,13 @@ class Predictions:
     confidence: np.ndarray   # (n,) probability of the chosen marker given a touch (net) / vote share (svm)
     scores: np.ndarray       # (n, N) per-location scores (net: probabilities; svm: calibrated S_final)
     calibrating: np.ndarray | None = None  # (n,) bool: boot calibration, no prediction (replays only)
+    #: (n,) bool: the chirps Alg. 2 must not take as no-touch for its reference, where that differs from ``touch``
+    #: (the network's ``either`` detector: its input-RMS part alone; None: ``touch``)
+    reference_touch: np.ndarray | None = None
+
+    def touched_for_reference(self) -> np.ndarray:
+        """What Alg. 2 counts as touched when it picks the no-touch chirps of a reference refresh."""
+        return self.touch if self.reference_touch is None else self.reference_touch
 
     def take(self, sel) -> Predictions:
         """The chirps ``sel`` (index, slice or mask)."""

@@ -124,7 +124,7 @@ class Stream:
             self.reference.step(x, t_s, None)
             return None
         p = self.predict(self._inputs(x[None]))
-        self.reference.step(x, t_s, bool(p.touch[0]))
+        self.reference.step(x, t_s, bool(p.touched_for_reference()[0]))
         return p
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
