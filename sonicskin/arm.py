@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .errors import SonicskinError, UsageError
-from .links import ARM_FILE, file_rig, load_links
+from .links import ARM_FILE, load_arm
 
 __all__ = ["ArmRun", "open_arm", "arm_file_of"]
 
@@ -52,12 +52,10 @@ def open_arm(spec, *, device: str | int | None = "sim", model: str = "svm", rig=
     called as ``train(scenario, rig)`` for a simulated link without an artifact (the CLI trains one on the spot);
     without it such a link is a one-line error."""
     from .acquire import SimulatedSource, SoundDeviceSource
-    from .rig import Rig
     from .runtime import SkinRuntime
 
     sim = device is None or device == "sim"
-    the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
-    links = load_links(spec, the_rig)
+    the_rig, links = load_arm(spec, rig)
     if sim and not all(lk.scenario is not None for lk in links):
         raise UsageError(f"--links {spec} lists links of a real audio interface (no simulated scenario per link); "
                          f"pass --device NAME|INDEX (`sonicskin devices`), or run a simulated arm (`sonicskin info` "

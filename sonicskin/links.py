@@ -45,7 +45,7 @@ from .acquire import Link
 from .errors import ConfigNotFoundError
 from .rig import ConfigError, Rig, load_yaml, resolve_config
 
-__all__ = ["load_links", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
+__all__ = ["load_links", "load_arm", "missing_datasets", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
 
 #: The arm file :func:`write_arm` writes next to the trained links' artifacts.
 ARM_FILE = "arm.yaml"
@@ -79,6 +79,18 @@ def file_rig(name_or_path) -> Rig | None:
         return Rig.from_dict(r)
     p = where.parent / str(r)
     return Rig.load(p if p.is_file() else r)
+
+
+def load_arm(spec, rig=None) -> tuple[Rig, list[Link]]:
+    """The rig and the links of a links or arm file: ``rig`` (a :class:`Rig`, a name or a path), else the rig the file
+    names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.arm.open_arm` read an arm through here."""
+    the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
+    return the_rig, load_links(spec, the_rig)
+
+
+def missing_datasets(links: list[Link], data: Path) -> list[str]:
+    """The links with no dataset under ``data/<link>`` (what ``simulate --links`` and ``record --links`` write)."""
+    return [lk.name for lk in links if not (Path(data) / lk.name / "dataset.json").is_file()]
 
 
 def link_scenario(spec, *, name: str, surface=None, where: str = "link"):

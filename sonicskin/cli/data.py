@@ -48,16 +48,14 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 def _simulate_arm(a: argparse.Namespace) -> int:
     """``simulate --links ARM``: one dataset per simulated link of an arm file, ``OUT/<link>``."""
-    from ..links import file_rig, load_links
-    from ..rig import Rig
+    from ..links import load_arm
     from ..sim.generate import simulate_dataset
     from ..sim.scenario import Scenario
 
     if a.seed is not None or a.set or a.scenario != "stationary":
         raise UsageError("simulate --links takes each link's scenario from the arm file; --scenario, --seed and --set "
                          "are for one link (edit the arm file's `scenario:` of a link instead)")
-    rig = Rig.load(a.rig) if a.rig else (file_rig(a.links) or Rig.load("jaco"))
-    links = load_links(a.links, rig)
+    rig, links = load_arm(a.links, a.rig)
     missing = [lk.name for lk in links if lk.scenario is None]
     if missing:
         raise UsageError(f"--links {a.links}: links {missing} have no simulated scenario; give each link a `scenario:`")
@@ -97,16 +95,14 @@ def _record_arm(a: argparse.Namespace) -> int:
     """``record --links ARM --out DIR``: the guided session of every link in turn, each on its own TX/RX pair and with
     its own markers (its scenario's layout), into ``DIR/<link>``, each with its artifact (``DIR/<link>-artifact``)
     unless --no-artifact; ``fit-svm --links ARM --data DIR`` trains them all again at once."""
-    from ..links import file_rig, load_links
+    from ..links import load_arm
     from ..record import record_session
-    from ..rig import Rig
 
     if a.tx or a.rx or a.scenario != "stationary" or a.locations or a.artifact:
         raise UsageError("record --links takes each link's channels and markers from the arm file and writes each link's "
                          "artifact next to its recording (OUT/<link>-artifact); drop --tx, --rx, --scenario, --locations "
                          "and --artifact")
-    rig = Rig.load(a.rig) if a.rig else (file_rig(a.links) or Rig.load("jaco"))
-    links = load_links(a.links, rig)
+    rig, links = load_arm(a.links, a.rig)
     missing = [lk.name for lk in links if lk.scenario is None]
     if missing:
         raise UsageError(f"--links {a.links}: links {missing} have no `scenario:` to take their markers from; give each "

@@ -93,13 +93,11 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
     """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml,
     the arm file that lists them (``live --links ART/arm.yaml``)."""
     from ..fit import build_svm_artifact
-    from ..links import file_rig, load_links, write_arm
-    from ..rig import Rig
+    from ..links import load_arm, missing_datasets, write_arm
 
-    rig = file_rig(a.links) or Rig.load("jaco")
-    links = load_links(a.links, rig)
+    rig, links = load_arm(a.links)
     data, out = Path(a.data), Path(a.out)
-    absent = [lk.name for lk in links if not (data / lk.name / "dataset.json").is_file()]
+    absent = missing_datasets(links, data)
     if absent:
         raise UsageError(f"{data} has no dataset for links {absent} (expected {data}/<link>/dataset.json); record or "
                          f"simulate every link first (`sonicskin simulate --links {a.links} --out {data}`)")
@@ -204,8 +202,7 @@ def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
     import copy
 
     from ..arm import arm_file_of
-    from ..links import file_rig, load_links
-    from ..rig import Rig
+    from ..links import load_arm, missing_datasets
 
     if not a.data:
         raise UsageError(f"compare --links {a.links} needs --data DIR, the folder of the links' datasets (DIR/<link>: "
@@ -216,9 +213,9 @@ def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
         if spec is None:
             raise UsageError(f"--artifact {a.artifact} with --links: give the trained arm (the folder `fit-svm --links` "
                              f"wrote, holding arm.yaml)")
-    links = load_links(spec, file_rig(spec) or Rig.load("jaco"))
+    _, links = load_arm(spec)
     data = Path(a.data)
-    absent = [lk.name for lk in links if not (data / lk.name / "dataset.json").is_file()]
+    absent = missing_datasets(links, data)
     if absent:
         raise UsageError(f"{data} has no dataset for links {absent} (expected {data}/<link>/dataset.json)")
     out = Path(a.out or Path("reports") / f"compare-{Path(str(a.links)).stem}")
