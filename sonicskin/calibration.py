@@ -30,6 +30,13 @@ class OnlineReference:
       for ``beta`` consecutive no-touch chirps.
     - **Refresh**: once ``alpha`` chirps of stream time have passed since the reference took
       effect, the next ``beta`` consecutive chirps the detector calls no-touch become the new one.
+    - **Re-boot**: a gap in the stream longer than ``alpha`` (the device was off, or the recording
+      paused) starts a new boot: the first ``beta`` chirps after it are hands-off by the same protocol
+      as at power-on and become the reference whatever the detector says.  After days off the wall may
+      have warmed or cooled by several kelvin; the detector, still on the old reference, then calls
+      every chirp touched and a refresh would never come (two months of Fig. 12: 8 references in 10
+      sessions, the network at 35-39 % on the coldest and warmest days).  As at power-on, the chirps of
+      the window get no prediction (:meth:`booting_at`); :attr:`reboots` counts these boots.
 
     The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
     with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).
@@ -59,6 +66,9 @@ class OnlineReference:
         self.refreshes = 0                        # references taken, the boot's included
         self.boot_disturbed = False               # the boot window lost chirps to faults (see class doc)
         self.boot_chirps = 0                      # chirps in the boot reference
+        self.reboots = 0                          # boots after a stream gap longer than alpha (see class doc)
+        self._rebooting = False
+        self._last_t: float | None = None
         self._boot_t0: float | None = None
         self._early = False                       # a disturbed boot: re-take the reference from the next rest
         self._run: list[np.ndarray] = []
@@ -72,6 +82,20 @@ class OnlineReference:
     def ready(self) -> bool:
         """A reference exists (the boot calibration is complete)."""
         return self.features is not None
+
+    @property
+    def calibrating(self) -> bool:
+        """In a boot calibration: the first, or a re-boot after a pause longer than ``alpha``."""
+        return self.features is None or self._rebooting
+
+    def _gap(self, t_s: float) -> bool:
+        """The stream paused longer than ``alpha`` before ``t_s`` (a re-boot follows; never with ``alpha=None``)."""
+        return self._last_t is not None and self.alpha is not None and (t_s - self._last_t) * self.cps > self.alpha
+
+    def booting_at(self, t_s: float) -> bool:
+        """The chirp at stream time ``t_s`` belongs to a boot calibration (the first one, or a re-boot after a
+        gap): hands off by protocol, fed to :meth:`step` with no prediction."""
+        return self.calibrating or self._gap(t_s)
 
     def inputs(self, x: np.ndarray) -> np.ndarray:
         """Model inputs of features ``x`` (..., d): minus the reference in relative mode."""
@@ -87,6 +111,7 @@ class OnlineReference:
         self.t_set_s = float(t_s)
         self.refreshes += 1
         self._run = []
+        self._rebooting = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
         """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection.
@@ -95,6 +120,13 @@ class OnlineReference:
         ``None`` during the boot (taken as hands-off).  Returns ``True`` when this chirp completed
         a new reference, in effect from the next chirp on.
         """
+        gap = self._gap(t_s)
+        self._last_t = float(t_s)
+        if gap and self.features is not None:
+            self._rebooting, self._boot_t0, self._run = True, None, []
+            self.reboots += 1
+        if self._rebooting:
+            return self._boot_step(x, t_s)
         if self.features is not None:
             if not self._early and (self.alpha is None or round((t_s - self.t_set_s) * self.cps) < self.alpha):
                 return False
@@ -140,20 +172,30 @@ class OnlineReference:
         ``predict(inputs)`` runs the model on a block and returns an object with a boolean
         ``touch`` array (and whatever the caller wants back; a ``reference_touch`` array, where not ``None``, is what
         the reference skips instead of ``touch``).  Yields ``(lo, hi, out)``: chirps
-        ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``.  Chirps before the first
-        block are the boot calibration (no prediction).  ``boot_touch`` gives known no-touch flags
-        for the boot (a labelled stream); without it the first ``beta`` chirps are the boot.
+        ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``; ``out`` is ``None`` for the
+        chirps of a boot calibration (the first ``beta``, and ``beta`` after every gap longer than
+        ``alpha``: no prediction).  ``boot_touch`` gives known no-touch flags for the first boot (a
+        labelled stream).
         """
         X = np.asarray(X, np.float32)
         time_s = np.asarray(time_s, float)
         n = len(X)
-        i = 0
-        while i < n and not self.ready:
-            self.step(X[i], time_s[i], None if boot_touch is None else bool(boot_touch[i]))
-            i += 1
         chunk = n if self.alpha is None else self.alpha + 8 * self.beta
+        # A pause longer than alpha before chirp k: a re-boot starts there (never with alpha None).
+        gaps = (np.zeros(n, bool) if self.alpha is None
+                else np.r_[False, np.diff(time_s) * self.cps > self.alpha])
+        i = 0
         while i < n:
+            lo = i
+            while i < n and self.booting_at(time_s[i]):
+                self.step(X[i], time_s[i], None if boot_touch is None else bool(boot_touch[i]))
+                i += 1
+            if i > lo:
+                yield lo, i, None
+                continue
             hi = min(n, i + chunk)
+            nxt = np.flatnonzero(gaps[i + 1:hi])
+            hi = i + 1 + int(nxt[0]) if nxt.size else hi
             out = predict(self.inputs(X[i:hi]))
             ref_touch = getattr(out, "reference_touch", None)  # what the reference must skip, where it is not out.touch
             touch = np.asarray(out.touch if ref_touch is None else ref_touch, bool)

@@ -348,9 +348,12 @@ class LiveLoop:
         x = band_db(R[None], self.rig)[0]  # the band features (log_magnitude_db's numbers), from the same FFT
         if was_calibrating and self.boot_spread_db is None:
             self._boot_add(x)
-        refreshes = self.stream.reference.refreshes
+        refreshes, reboots = self.stream.reference.refreshes, self.stream.reference.reboots
         p = self.stream.chirp(x, t_s)  # Alg. 2 reference (and drift tracking), model, detection, force
         ref = self.stream.reference
+        if ref.reboots != reboots:
+            self.warn(f"the stream paused for more than {ref.alpha / ref.cps / 60:.0f} min: boot calibration again from "
+                      f"the next {ref.beta / ref.cps:.1f} s (hands off the link, as at power-on)")
         drift = self.stream.drift
         if drift is not None and ref.refreshes != refreshes and drift.warning and drift.warning != self._drift_warned:
             self._drift_warned = drift.warning  # once per new finding, at the reference that found it

@@ -33,7 +33,8 @@ def test_reference_clock_counts_stream_time_across_gaps():
     times = np.r_[np.arange(20) / 10, 1000 + np.arange(20) / 10]  # a recording with a 1000 s gap
     x = np.arange(40, dtype=float)[:, None]
     done = [i for i in range(40) if ref.step(x[i], times[i], False if ref.ready else None)]
-    assert done == [9, 29]  # boot on chirps 0-9; after the gap alpha has passed: chirps 20-29
+    assert done == [9, 29]  # boot on chirps 0-9; the 1000 s gap (> alpha) re-boots on chirps 20-29
+    assert ref.reboots == 1
     np.testing.assert_allclose(ref.features, [24.5])
     with pytest.raises(RuntimeError, match="no reference yet"):
         OnlineReference().inputs(np.zeros(3))
@@ -92,7 +93,46 @@ def test_online_reference_replay_equals_chirp_by_chirp(rng):
         a.step(X[i], t[i], bool(p.touch[0]))
     b = OnlineReference(beta_chirps=6, alpha_chirps=30, chirps_per_s=10.0)
     blocks = list(b.replay(X, t, predict))
-    got = np.concatenate([out.inputs[: hi - lo] for lo, hi, out in blocks])
-    assert blocks[0][0] == 6 and blocks[-1][1] == 400 and b.refreshes == a.refreshes
+    assert blocks[0][:2] == (0, 6) and blocks[0][2] is None  # the boot: no prediction
+    got = np.concatenate([out.inputs[: hi - lo] for lo, hi, out in blocks[1:]])
+    assert blocks[1][0] == 6 and blocks[-1][1] == 400 and b.refreshes == a.refreshes
     np.testing.assert_array_equal(got, np.stack(step_out))
     assert a.refreshes >= 4  # boot + refreshes decided on the replayed detections
+
+
+def test_a_pause_longer_than_alpha_reboots_the_reference_even_when_every_chirp_reads_touched():
+    """Days off (the wall warmed by kelvins): the old reference calls every chirp touched, so Alg. 2 would never
+    refresh; the first beta chirps after the pause are a boot (hands off by protocol), with no prediction, in the
+    chirp-by-chirp path and the vectorised replay alike."""
+    from types import SimpleNamespace
+
+    beta, alpha, cps = 5, 50, 10.0
+    t = np.r_[np.arange(100) / cps, 3600 + np.arange(100) / cps]  # an hour off after 10 s
+    X = np.r_[np.zeros((100, 2)), np.full((100, 2), 4.0)].astype(np.float32)  # the channel moved while off
+
+    def predict(inputs):  # touched wherever the input is far from the reference
+        return SimpleNamespace(touch=np.abs(inputs).max(axis=1) > 1.0, inputs=inputs)
+
+    a = OnlineReference(beta, alpha, cps)
+    touched, booting = [], []
+    for i in range(200):
+        booting.append(a.booting_at(t[i]))
+        if booting[-1]:
+            a.step(X[i], t[i])
+            continue
+        p = predict(a.inputs(X[i][None]))
+        touched.append(bool(p.touch[0]))
+        a.step(X[i], t[i], touched[-1])
+    assert np.flatnonzero(booting).tolist() == [0, 1, 2, 3, 4, 100, 101, 102, 103, 104]
+    assert a.reboots == 1 and not any(touched)  # the old reference would call all 100 touched
+    np.testing.assert_allclose(a.features, [4.0, 4.0])
+    b = OnlineReference(beta, alpha, cps)
+    blocks = list(b.replay(X, t, predict))
+    assert [(lo, hi) for lo, hi, out in blocks if out is None] == [(0, 5), (100, 105)]
+    got = np.concatenate([out.touch[: hi - lo] for lo, hi, out in blocks if out is not None])
+    assert got.tolist() == touched and b.reboots == 1 and b.refreshes == a.refreshes
+    # alpha None ("never refresh", Fig. 12's baseline): a pause changes nothing
+    c = OnlineReference(beta, None, cps)
+    blocks = list(c.replay(X, t, predict))
+    assert [(lo, hi) for lo, hi, out in blocks if out is None] == [(0, 5)] and c.reboots == 0
+    assert np.concatenate([out.touch[: hi - lo] for lo, hi, out in blocks if out is not None])[95:].all()

@@ -574,3 +574,26 @@ def test_the_fast_frame_check_never_passes_a_faulty_frame():
     verdicts = [(clearly_clean(f.astype(np.float32)), LiveLoop._fault(f.astype(np.float32))) for f in frames]
     assert all(fault == 0 for clean, fault in verdicts if clean)
     assert sum(clean for clean, _ in verdicts) >= 5  # and it does pass ordinary audio
+
+
+def test_a_pause_longer_than_alpha_reboots_alike_live_and_offline(rig, artifact):
+    """A recording with a pause of two hours in it (the device was off): the chirps after the pause start a new boot
+    calibration (no predictions for beta seconds), chirp by chirp (the live loop's path) as in the vectorised replay."""
+    from sonicskin.dataset import Dataset
+
+    t = Dataset(artifact.parent / "data").features(progress=False)
+    X, ts = t.X, np.asarray(t["time_s"], float).copy()
+    half = len(ts) // 2
+    ts[half:] += 7200.0
+    for model in ("svm", "net") if (artifact / "net.onnx").exists() else ("svm",):
+        rt = SkinRuntime(artifact, model)
+        st = rt.stream()
+        one = [st.chirp(X[i], ts[i]) for i in range(len(X))]
+        cal = np.array([p is None for p in one])
+        beta = st.reference.beta
+        assert np.flatnonzero(cal).tolist() == list(range(beta)) + list(range(half, half + beta))
+        assert st.reference.reboots == 1
+        off = rt.replay(X, ts)
+        np.testing.assert_array_equal(off.calibrating, cal)
+        np.testing.assert_array_equal(off.touch[~cal], [p.touch[0] for p in one if p is not None])
+        np.testing.assert_array_equal(off.location[~cal], [p.location[0] for p in one if p is not None])

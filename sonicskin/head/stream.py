@@ -87,7 +87,8 @@ class Stream:
 
     @property
     def calibrating(self) -> bool:
-        return not self.reference.ready
+        """In a boot calibration (the first, or a re-boot after a pause longer than alpha)."""
+        return self.reference.calibrating
 
     def predict(self, inputs: np.ndarray) -> Predictions:
         """Decisions on model inputs under the current reference."""
@@ -120,7 +121,7 @@ class Stream:
                                 "skip that chirp, as the live loop does")
         if self.drift is None:
             x = x[self.bins]
-        if not self.reference.ready:
+        if self.reference.booting_at(t_s):  # the first boot, or a re-boot after a pause longer than alpha
             self.reference.step(x, t_s, None)
             return None
         p = self.predict(self._inputs(x[None]))
@@ -140,15 +141,16 @@ class Stream:
         if not np.isfinite(time_s).all() or np.any(np.diff(time_s) < 0):
             raise ArtifactError("time_s must be finite and non-decreasing (the stream clock of each chirp, in order): "
                                 "replay one stream at a time, in recording order")
-        parts, lo = [], None
+        parts, n = [], len(X)
         # OnlineReference.replay hands each block through its own inputs(): the bins minus the reference, or (drift
-        # tracking, a reference of band rows) the rows unchanged, mapped to model inputs here.
+        # tracking, a reference of band rows) the rows unchanged, mapped to model inputs here.  Boot chirps (the
+        # first, and a re-boot after a pause longer than alpha) come as out None.
         predict = self.predict if self.drift is None else (lambda x: self.predict(self._inputs(x)))
         for i, j, out in self.reference.replay(X, time_s, predict):
-            lo = i if lo is None else lo
-            parts.append(out.take(slice(0, j - i)))
-        n = len(X)
-        n_boot = n if lo is None else lo
-        p = Predictions.concat([Predictions.boot(n_boot, self.head.K), *parts]) if parts else Predictions.boot(n, self.head.K)
-        p.calibrating = np.arange(n) < n_boot
-        return p
+            if out is None:
+                parts.append(Predictions.boot(j - i, self.head.K))
+            else:
+                part = out.take(slice(0, j - i))
+                part.calibrating = np.zeros(j - i, bool)
+                parts.append(part)
+        return Predictions.concat(parts) if parts else Predictions.boot(n, self.head.K)
