@@ -142,11 +142,10 @@ class Listener:
             self.links, self.runtime, self.source = arm.links, arm.runtimes[0], arm.source
             self.loops = arm.loops(emit=lambda line: None, on_event=self._on_event)
             self.loop = self.loops[0]
-            if mcap is not None and not all(lk.surface is not None for lk in self.links):
-                raise SonicskinError(f"mcap= writes touches in their links' frames; {arm_file} places no surface on links "
-                                     f"{[lk.name for lk in self.links if lk.surface is None]} (docs/robot-frame.md)")
+            if mcap is not None:
+                arm.require_frames("mcap=")
             self._mcap_path = mcap
-            self._start_view(view, [(lk.name, lk.scenario) for lk in self.links] if device in (None, "sim") else None)
+            self._start_view(view, arm.scenarios)
             return
         if mcap is not None:
             raise SonicskinError("mcap= writes touches in the robot's frames, which an arm file gives its links: pass the "
@@ -182,10 +181,9 @@ class Listener:
         self.view = self.view_url = None
         if view is None or view is False:
             return
-        from .view import LinkView, parse_view_port, view_loops
+        from .view import parse_view_port, view_loops
 
-        links = [LinkView.from_scenario(name, sc) for name, sc in scenarios] if scenarios else None
-        self.view = view_loops(self.loops, links=links, port=parse_view_port(view))
+        self.view = view_loops(self.loops, scenarios=scenarios, port=parse_view_port(view))
         self.view_url = self.view.url
 
     def _on_event(self, ev: TouchEvent) -> None:

@@ -35,6 +35,22 @@ class ArmRun:
     runtimes: list
     source: object
     rig: object
+    spec: object = None        # the arm or links file it was opened from (for messages)
+    simulated: bool = False    # the simulated arm (each link's scenario plays on its channel)
+
+    @property
+    def scenarios(self) -> list | None:
+        """``(name, scenario)`` per link on the simulated arm (how the live view draws them), else ``None``."""
+        return [(lk.name, lk.scenario) for lk in self.links] if self.simulated else None
+
+    def require_frames(self, what: str) -> None:
+        """``what`` (``--mcap``, ``mcap=``) writes touches in the links' frames: one line naming the links without
+        a surface, and how to give them one."""
+        bare = [lk.name for lk in self.links if lk.surface is None]
+        if bare:
+            raise UsageError(f"{what} writes each touch in its link's frame, and {self.spec} places no surface on links "
+                             f"{bare}; give them a frame (an arm file's `frame:` with `urdf:`, or `surface:`: "
+                             f"docs/robot-frame.md)")
 
     def loops(self, **kw) -> list:
         """One :class:`~sonicskin.live.LiveLoop` per link (``kw`` as LiveLoop's: emit, status, on_event, ...)."""
@@ -63,7 +79,8 @@ def open_arm(spec, *, device: str | int | None = "sim", model: str = "svm", rig=
     arts = _artifacts(spec, links, the_rig, link_artifacts, train if sim else None)
     runtimes = [SkinRuntime(Path(art), model, rig=lk.rig or the_rig) for lk, art in zip(links, arts)]
     if not sim:
-        return ArmRun(links, runtimes, SoundDeviceSource(the_rig, device, links=links, blocksize=blocksize), the_rig)
+        return ArmRun(links, runtimes, SoundDeviceSource(the_rig, device, links=links, blocksize=blocksize), the_rig,
+                      spec, simulated=False)
     from .sim import Simulator, build_timeline
 
     sims, tls = [], []
@@ -76,7 +93,7 @@ def open_arm(spec, *, device: str | int | None = "sim", model: str = "svm", rig=
         sims.append(Simulator(live_sc, lk.rig or the_rig))
         tls.append(build_timeline(live_sc, lk.rig or the_rig))
     return ArmRun(links, runtimes, SimulatedSource(sims, tls, realtime=not fast, drop_every=drop_every,
-                                                   blocksize=blocksize), the_rig)
+                                                   blocksize=blocksize), the_rig, spec, simulated=True)
 
 
 def _artifacts(spec, links, rig, given, train) -> list[Path]:

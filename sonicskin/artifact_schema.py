@@ -52,9 +52,9 @@ is :mod:`sonicskin.artifact_files`; binding the model files to this document, :m
                           or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
                           per layout id, intercept}
 
-and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, n_in)`` (the model's ``n_in`` first bins of ``features.bins``); the net outputs
-logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM a label and ``N (N - 1) / 2`` pairwise values
-(2 columns when ``N = 2``).
+and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, n_in)`` (the model's
+``n_in`` first bins of ``features.bins``); the net outputs logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM
+a label and ``N (N - 1) / 2`` pairwise values (2 columns when ``N = 2``).
 """
 
 from __future__ import annotations

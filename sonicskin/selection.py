@@ -522,9 +522,9 @@ def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     import textwrap
+
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     k, a, s = (np.asarray(lc[x], float) for x in ("presses_per_location", "accuracy", "std"))

@@ -405,13 +405,17 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
     loop.on_event, loop.on_chirp = on_event, on_chirp
 
 
-def view_loops(loops, *, links: list[LinkView] | None = None, host: str = "127.0.0.1", port: int = 0) -> ViewServer:
+def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
+               port: int = 0) -> ViewServer:
     """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`).
 
-    ``links``: how to draw them (e.g. :meth:`LinkView.from_scenario` on the simulated device, for the surface's size and
-    the transducers); default: each loop's artifact layout, named by its link (``"skin"`` for a single unnamed link).
+    ``links``: how to draw them; or ``scenarios``, ``(name, scenario)`` per loop on the simulated device
+    (:meth:`LinkView.from_scenario`: the surface's size and the transducers); default: each loop's artifact layout,
+    named by its link (``"skin"`` for a single unnamed link).
     """
     loops = list(loops)
+    if links is None and scenarios:
+        links = [LinkView.from_scenario(name, sc) for name, sc in scenarios]
     if links is None:
         links = [LinkView(lp.link_name or "skin", lp.rt.layout) for lp in loops]
     view = ViewServer(links, host=host, port=port)

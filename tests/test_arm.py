@@ -203,3 +203,24 @@ def test_live_on_an_untrained_simulated_arm_trains_each_link_once(tmp_path, caps
     assert {json.loads(x)["link"] for x in out.out.splitlines()} == {"a", "b"}
     assert main(["live", "--links", str(f), "--fast", "--duration", "6", "--no-status"]) == 0
     assert "using artifacts/sim-t-b-svm, trained on the simulated 't-b' link by an earlier run" in capsys.readouterr().err
+
+
+def test_mcap_needs_every_link_in_a_frame(tmp_path):
+    """MCAP writes touches in the links' frames: an arm whose links have no surface (a real interface's links file) is
+    refused in one line that names those links and how to place them, for --mcap and mcap= alike."""
+    from sonicskin.arm import ArmRun
+
+    f = tmp_path / "links.yaml"
+    f.write_text(yaml.safe_dump({"duplex": "none", "links": [{"name": "a", "tx": 0, "rx": 0}, {"name": "b", "tx": 1, "rx": 1}]}))
+    links = load_links(f, FAST)
+    assert all(lk.surface is None for lk in links)
+    run = ArmRun(links, [], None, FAST, f, simulated=False)
+    assert run.scenarios is None
+    for what in ("--mcap", "mcap="):
+        with pytest.raises(ValueError) as e:
+            run.require_frames(what)
+        assert str(e.value).startswith(f"{what} writes each touch in its link's frame")
+        assert "['a', 'b']" in str(e.value) and "docs/robot-frame.md" in str(e.value) and "\n" not in str(e.value)
+    arm6 = load_links("arm6", FAST)
+    ArmRun(arm6, [], None, FAST, "arm6", simulated=True).require_frames("--mcap")  # every arm6 link has its frame
+    assert [n for n, _ in ArmRun(arm6, [], None, FAST, "arm6", simulated=True).scenarios] == [lk.name for lk in arm6]

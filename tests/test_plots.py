@@ -187,8 +187,9 @@ def test_force_panel_names_a_model_that_saturates():
 
 
 def test_learning_curve_keeps_its_note_inside_and_says_why_three_passes_give_two_points(tmp_path, saved):
-    from sonicskin.selection import learning_curve_by_pass, save_learning_curve
     from sklearn.neighbors import NearestCentroid
+
+    from sonicskin.selection import learning_curve_by_pass, save_learning_curve
 
     rng = np.random.default_rng(0)
     y = np.tile(np.arange(4), 3)

@@ -52,10 +52,9 @@ def _start_view(a: argparse.Namespace, loops, scenarios=None):
     device, else its artifact's layout), its address on stderr; ``None`` without --view."""
     if a.view is None:
         return None
-    from ..view import LinkView, parse_view_port, view_loops
+    from ..view import parse_view_port, view_loops
 
-    links = [LinkView.from_scenario(name, sc) for name, sc in scenarios] if scenarios else None
-    view = view_loops(loops, links=links, port=parse_view_port(a.view))
+    view = view_loops(loops, scenarios=scenarios, port=parse_view_port(a.view))
     print(f"sonicskin live: the live view is at {view.url} (open it in a browser on this machine)", file=sys.stderr,
           flush=True)
     return view
@@ -81,13 +80,10 @@ def _live_links(a: argparse.Namespace) -> int:
     if a.mcap:
         from ..rosbag import McapEventWriter
 
-        if not all(lk.surface is not None for lk in arm.links):
-            raise UsageError(f"--mcap writes each touch in its link's frame, and --links {a.links} places no surface on "
-                             f"links {[lk.name for lk in arm.links if lk.surface is None]}; give them a frame (an arm "
-                             f"file's `frame:` with `urdf:`, or `surface:`: docs/robot-frame.md)")
+        arm.require_frames("--mcap")
         mcap = McapEventWriter(a.mcap, t0_unix_s=time.time())  # t_s = 0: the stream starts now
     loops = arm.loops(emit=emit, status=not a.no_status, on_event=mcap.write if mcap else None)
-    view = _start_view(a, loops, [(lk.name, lk.scenario) for lk in arm.links] if a.device == "sim" else None)
+    view = _start_view(a, loops, arm.scenarios)
     lost = None
     try:
         with arm.source:
