@@ -48,10 +48,13 @@ class OnlineReference:
     chirps_per_s : the stream clock: a ``t_s`` difference times this is a chirp count.
     relative : :meth:`inputs` subtracts the feature reference (``False``: absolute inputs).
     score_fn : ``inputs (m, d) -> scores (m, k)``; its mean over the reference chirps is :attr:`scores`.
+    labelled : the ``touch`` flags are labels (a training session), not a detector's: a re-boot then waits for
+        ``beta`` consecutive labelled no-touch chirps, as the first boot does, instead of taking the first ``beta``.
     """
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
-                 relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None):
+                 relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None,
+                 labelled: bool = False):
         if int(beta_chirps) < 1:
             raise ValueError(f"beta_chirps must be >= 1, got {beta_chirps}")
         if alpha_chirps is not None and int(alpha_chirps) < 1:
@@ -60,6 +63,7 @@ class OnlineReference:
         self.alpha = None if alpha_chirps is None else int(alpha_chirps)
         self.cps = float(chirps_per_s)
         self.relative, self.score_fn = relative, score_fn
+        self.labelled = bool(labelled)            # touch flags are labels: a re-boot waits for beta known no-touch chirps
         self.features: np.ndarray | None = None   # mean features of the reference chirps
         self.scores: np.ndarray | None = None     # mean scores of the same chirps (score_fn)
         self.t_set_s: float | None = None         # stream time of the reference's last chirp
@@ -126,8 +130,9 @@ class OnlineReference:
             self._rebooting, self._boot_t0, self._run = True, None, []
             self.reboots += 1
         if self._rebooting:
-            return self._boot_step(x, t_s)
-        if self.features is not None:
+            if not (self.labelled and touch is not None):  # labels say which chirps are hands-off: wait for them below
+                return self._boot_step(x, t_s)
+        elif self.features is not None:
             if not self._early and (self.alpha is None or round((t_s - self.t_set_s) * self.cps) < self.alpha):
                 return False
         elif touch is None:  # the boot, hands off by protocol: a window of stream time

@@ -90,7 +90,7 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     out = np.empty(X.shape, np.float32)
     for s in np.unique(session):
         idx = np.flatnonzero(session == s)
-        ref = OnlineReference(beta, alpha if online else None, cps)
+        ref = OnlineReference(beta, alpha if online else None, cps, labelled=True)
         cur = np.full(idx.size, -1)
         refs: list[np.ndarray] = []
         for k, i in enumerate(idx):

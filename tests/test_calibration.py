@@ -136,3 +136,20 @@ def test_a_pause_longer_than_alpha_reboots_the_reference_even_when_every_chirp_r
     blocks = list(c.replay(X, t, predict))
     assert [(lo, hi) for lo, hi, out in blocks if out is None] == [(0, 5)] and c.reboots == 0
     assert np.concatenate([out.touch[: hi - lo] for lo, hi, out in blocks if out is not None])[95:].all()
+
+
+def test_a_labelled_stream_reboots_on_its_known_no_touch_chirps():
+    """Training sessions feed labels, not a detector: after a pause the re-boot waits for beta labelled no-touch chirps
+    (a press right after the pause never enters the reference), as the first boot does."""
+    beta, alpha, cps = 4, 50, 10.0
+    t = np.r_[np.arange(20) / cps, 3600 + np.arange(20) / cps]
+    X = np.r_[np.zeros((20, 1)), np.full((20, 1), 2.0)].astype(np.float32)
+    touch = np.zeros(40, bool)
+    touch[20:26] = True  # pressed straight after the pause
+    X[20:26] += 10.0
+    ref = OnlineReference(beta, alpha, cps, labelled=True)
+    done = [i for i in range(40) if ref.step(X[i], t[i], bool(touch[i]))]
+    assert done == [3, 29] and ref.reboots == 1  # chirps 26-29: the first four hands-off ones after the pause
+    np.testing.assert_allclose(ref.features, [2.0])
+    blind = OnlineReference(beta, alpha, cps)  # a detector's flags: the first beta chirps after the pause, by protocol
+    assert [i for i in range(40) if blind.step(X[i], t[i], bool(touch[i]))] == [3, 23]
