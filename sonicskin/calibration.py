@@ -92,9 +92,16 @@ class OnlineReference:
         """In a boot calibration: the first, or a re-boot after a pause longer than ``alpha``."""
         return self.features is None or self._rebooting
 
+    def _paused(self, dt_s):
+        """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``: a re-boot
+        follows (never with ``alpha=None``)."""
+        if self.alpha is None:
+            return np.zeros(np.shape(dt_s), bool)
+        return np.asarray(dt_s) * self.cps > self.alpha
+
     def _gap(self, t_s: float) -> bool:
-        """The stream paused longer than ``alpha`` before ``t_s`` (a re-boot follows; never with ``alpha=None``)."""
-        return self._last_t is not None and self.alpha is not None and (t_s - self._last_t) * self.cps > self.alpha
+        """The stream paused longer than ``alpha`` before ``t_s``."""
+        return self._last_t is not None and bool(self._paused(t_s - self._last_t))
 
     def booting_at(self, t_s: float) -> bool:
         """The chirp at stream time ``t_s`` belongs to a boot calibration (the first one, or a re-boot after a
@@ -126,8 +133,9 @@ class OnlineReference:
         """
         gap = self._gap(t_s)
         self._last_t = float(t_s)
-        if gap and self.features is not None:
+        if gap and self.features is not None:  # a new boot: the last one's state (a disturbed window) is over
             self._rebooting, self._boot_t0, self._run = True, None, []
+            self.boot_disturbed = self._early = False
             self.reboots += 1
         if self._rebooting:
             if not (self.labelled and touch is not None):  # labels say which chirps are hands-off: wait for them below
@@ -187,8 +195,7 @@ class OnlineReference:
         n = len(X)
         chunk = n if self.alpha is None else self.alpha + 8 * self.beta
         # A pause longer than alpha before chirp k: a re-boot starts there (never with alpha None).
-        gaps = (np.zeros(n, bool) if self.alpha is None
-                else np.r_[False, np.diff(time_s) * self.cps > self.alpha])
+        gaps = np.r_[False, self._paused(np.diff(time_s))]
         i = 0
         while i < n:
             lo = i

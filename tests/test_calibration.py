@@ -35,6 +35,12 @@ def test_reference_clock_counts_stream_time_across_gaps():
     done = [i for i in range(40) if ref.step(x[i], times[i], False if ref.ready else None)]
     assert done == [9, 29]  # boot on chirps 0-9; the 1000 s gap (> alpha) re-boots on chirps 20-29
     assert ref.reboots == 1
+    # A disturbed first boot (chirps 2-9 lost) does not make a clean re-boot read disturbed or refresh early.
+    d = OnlineReference.from_seconds(beta_s=1.0, alpha_s=60.0, chirps_per_s=10.0)
+    keep = [0, 1, 2, 12] + list(range(20, 40))
+    assert [i for i in keep if d.step(x[i], times[i], False if d.ready else None)] == [12, 29]
+    assert d.boot_disturbed is False and d.reboots == 1
+    assert not any(d.step(x[i], times[i], False) for i in range(30, 40))  # no early refresh after the re-boot
     np.testing.assert_allclose(ref.features, [24.5])
     with pytest.raises(RuntimeError, match="no reference yet"):
         OnlineReference().inputs(np.zeros(3))
