@@ -18,7 +18,7 @@ def test_heldout_seeds_are_fixed_many_and_disjoint_from_design_seeds():
     assert len(seeds["heldout"]) >= 10 and len(set(seeds["heldout"])) == len(seeds["heldout"])
     assert not set(seeds["heldout"]) & set(seeds["design"])
     # issue 26: 20 new held-out seeds, the earlier 12 kept apart as "previous" (seen by earlier rounds)
-    assert seeds["heldout"] == tuple(range(7013, 7033)) and seeds["previous"] == tuple(range(7001, 7013))
+    assert seeds["heldout"] == tuple(range(7033, 7053)) and seeds["previous"] == tuple(range(7001, 7033))
     with pytest.raises(ValueError, match=r"seeds \[7001\] are both held-out and previous seeds"):
         RandomFamily.from_dict({"family": "random", "seeds": {"heldout": [7001], "previous": [7001, 7002]}})
     with pytest.raises(ValueError, match=r"seeds \[3\] are both design and held-out seeds"):
