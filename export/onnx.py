@@ -1,16 +1,18 @@
 """Export the network to ONNX (torch.onnx), checked for parity against torch right after export.
 
-Only exporting happens here: the one fit (:mod:`sonicskin.fit`) trains, chooses and assembles the artifact
-(the SVM's export, skl2onnx, is :func:`sonicskin.artifact.export_svm`)."""
+Only exporting happens here: the one fit (:mod:`sonicskin.fit`) trains, chooses and assembles the artifact (every
+other kind exports itself, :mod:`sonicskin.kinds`)."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from sonicskin.artifact import decisions_parity, ort_session, parity_bound, require_parity
+from sonicskin.kinds.net import touch_logit
+from sonicskin.parity import decisions_parity, ort_session, parity_bound, require_parity
 
 __all__ = ["export_net"]
 
@@ -18,15 +20,13 @@ __all__ = ["export_net"]
 def export_net(model: torch.nn.Module, path: Path, X_check: np.ndarray) -> dict:
     """torch -> ONNX with a dynamic batch axis (TorchScript exporter: 0.1 s per export against 3-7 s for the dynamo
     exporter, which dominated ``reproduce``'s time; the graph runs the same in onnxruntime), then parity on
-    ``X_check`` (:func:`sonicskin.artifact.decisions_parity`):
+    ``X_check`` (:func:`sonicskin.parity.decisions_parity`):
     the location (argmax of the location logits), the touch decision (p(touch) >= 0.5, as the runtime reads it),
-    the logits and the force within :data:`~sonicskin.artifact.PARITY_TOL` of their scale.  The raw figures
+    the logits and the force within :data:`~sonicskin.parity.PARITY_TOL` of their scale.  The raw figures
     (``max_abs_logits``, ``max_abs_force_n``) are returned for ``skin.json``; a mismatch raises
-    :class:`~sonicskin.artifact.ParityError` (one line)."""
+    :class:`~sonicskin.parity.ParityError` (one line)."""
     model = model.eval()
     example = torch.from_numpy(X_check[:2].astype(np.float32))
-    import warnings
-
     with warnings.catch_warnings():  # the TorchScript exporter's deprecation notice
         warnings.simplefilter("ignore")
         torch.onnx.export(model, (example,), str(path), input_names=["features"], output_names=["logits", "force"],
@@ -46,14 +46,8 @@ def export_net(model: torch.nn.Module, path: Path, X_check: np.ndarray) -> dict:
             d = kernel.decision(kernel.rbf(model.standardize(torch.from_numpy(X_check.astype(np.float32))))).numpy()
         tie = (np.abs(d) < parity_bound(d)).any(1)
 
-    def touch_margin(lg):  # log p(touch) / p(no touch): the runtime's p(touch) >= 0.5
-        from scipy.special import logsumexp
-
-        lg = np.asarray(lg, np.float64)
-        return logsumexp(lg[:, :-1], axis=1) - lg[:, -1]
-
     parity = decisions_parity({"logits": logits, "force_n": force}, {"logits": ref_logits, "force_n": ref_force},
-                              label="logits", label_cols=slice(0, -1), touch=(touch_margin(logits), touch_margin(ref_logits)),
+                              label="logits", label_cols=slice(0, -1), touch=(touch_logit(logits), touch_logit(ref_logits)),
                               vote_tie=tie, every_chirp=("force_n",))
     return require_parity(parity, "net.onnx", "the torch network", len(X_check),
                           f"torch {torch.__version__} exported differently; reinstall the tested versions (pip install -c "

@@ -1,6 +1,7 @@
 """Torch networks over the OSPA-selected bins."""
 
-from .kernel import KernelVotes, svm_pipeline
+from .kernel import KernelVotes
+from .lda import LDASkinNet
 from .net import SkinNet
 
-__all__ = ["KernelVotes", "SkinNet", "svm_pipeline"]
+__all__ = ["KernelVotes", "LDASkinNet", "SkinNet"]

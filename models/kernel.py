@@ -16,16 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 
-__all__ = ["KernelVotes", "svm_pipeline"]
-
-
-def svm_pipeline(C: float = 10.0):
-    """The baseline's classifier: scaler + RBF SVC (one-vs-one), as :func:`sonicskin.fit.fit_svm_head` fits it."""
-    from sklearn.pipeline import Pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC
-
-    return Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, gamma="scale", decision_function_shape="ovo"))])
+__all__ = ["KernelVotes"]
 
 
 def _pairs(n_classes: int) -> tuple[np.ndarray, np.ndarray]:

@@ -3,6 +3,7 @@ optionally the SVM's kernel machine as its location layer (:class:`models.kernel
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -54,23 +55,8 @@ class SkinNet(nn.Module):
         self.register_buffer("mean", torch.zeros(n_in))
         self.register_buffer("std", torch.ones(n_in))
         self.n_in, self.n_locations = n_in, n_locations
-        # The touch decision chosen on validation data (:meth:`set_detector`); None: the trained head's own.
-        # A plain attribute (a constant of the exported graph), kept in the checkpoint's metadata.
-        self.detector: dict | None = None
         # A validated pooled force model replacing the head (:meth:`set_force`); None: the trained head.
         self.force_linear: dict | None = None
-
-    DETECTORS = ("head", "input-rms", "either")
-
-    def set_detector(self, detector: dict | None) -> None:
-        """Fix the network's touch decision: ``{"mode": "head"|"input-rms"|"either", "bias": b, "threshold": t,
-        "reference": [b <= B numbers]}`` (the detector reads the first b inputs).  ``head``: the trained touch
-        logit plus ``bias``; ``input-rms``: the SVM's detector (RMS dB change of the inputs from ``reference`` at
-        least ``threshold``); ``either``: a touch when either says so.  The location and force outputs are unchanged.
-        """
-        if detector is not None and detector.get("mode") not in self.DETECTORS:
-            raise ValueError(f"detector mode must be one of {self.DETECTORS}, got {detector.get('mode')!r}")
-        self.detector = None if detector is None or (detector["mode"] == "head" and not detector.get("bias")) else dict(detector)
 
     def set_force(self, pooled: dict | None) -> None:
         """Replace the force head by a pooled linear model ``F_k = x . coef + loc[k]`` (the SVM's validated
@@ -85,28 +71,14 @@ class SkinNet(nn.Module):
         # log sigmoid, written out: the exported Log(Sigmoid) loses the tails in onnxruntime (-inf below x ~ -17)
         return torch.clamp(x, max=0.0) - torch.log(1.0 + torch.exp(-x.abs()))
 
-    def touch_logit(self, logits: torch.Tensor) -> torch.Tensor:
-        """log p(touch) / p(no touch) of (n, N + 1) logits."""
-        return torch.logsumexp(logits[:, :-1], 1) - logits[:, -1]
-
-    def _detect(self, x: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
-        d = self.detector
-        t = self.touch_logit(logits) + float(d.get("bias", 0.0))
-        if d["mode"] != "head":
-            ref = torch.as_tensor(d["reference"], dtype=x.dtype)
-            n = len(d["reference"])  # the first (best) inputs, as the SVM's detector reads them
-            rms = torch.sqrt(torch.mean((x[:, :n] - ref) ** 2, 1))
-            r = 50.0 * (rms - float(d["threshold"]))  # steep: p(touch) crosses 0.5 at the threshold
-            t = r if d["mode"] == "input-rms" else torch.maximum(t, r)
-        place = torch.log_softmax(logits[:, :-1], 1)
-        return torch.cat([place + self._logsig(t)[:, None], self._logsig(-t)[:, None]], 1)
-
     def set_normalization(self, mean, std) -> None:
-        self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
-        self.std.copy_(torch.as_tensor(std, dtype=torch.float32).clamp_min(1e-6))
+        """The training inputs' mean and std (of the first inputs the trunk reads)."""
+        k = self.mean.numel()
+        self.mean.copy_(torch.as_tensor(np.asarray(mean)[:k], dtype=torch.float32))
+        self.std.copy_(torch.as_tensor(np.asarray(std)[:k], dtype=torch.float32).clamp_min(1e-6))
 
     def init_from_svm(self, pipe) -> None:
-        """Start the kernel layer as a fitted scaler + RBF SVC pipeline (:func:`models.kernel.svm_pipeline`)
+        """Start the kernel layer as a fitted scaler + RBF SVC pipeline (the SVM kind's, :mod:`sonicskin.kinds.svm`)
         trained on this network's inputs; the network's normalisation becomes the pipeline's scaler."""
         scaler, svc = pipe[0], pipe[-1]
         if self.kernel is None or svc.support_vectors_.shape != tuple(self.kernel.centres.shape):
@@ -125,8 +97,6 @@ class SkinNet(nn.Module):
         if self.force_linear is not None:
             w = torch.as_tensor(self.force_linear["coef"], dtype=x.dtype)
             force = (x @ w)[:, None] + torch.as_tensor(self.force_linear["loc"], dtype=x.dtype)[None, :]
-        if self.detector is not None:
-            logits = self._detect(x, logits)
         return logits, force
 
     def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -139,7 +109,5 @@ class SkinNet(nn.Module):
         # logits are these log-probabilities, so cross-entropy and the runtime's softmax read them as before, but the
         # trunk's touch logit no longer has to track the size of the vote scores (which vary with the input).
         t = self.location(h)
-        # log sigmoid(+-t), written out: the exported Log(Sigmoid) loses the tails in onnxruntime (-inf below t ~ -17)
-        soft = torch.log(1.0 + torch.exp(-t.abs()))
-        loc = (torch.clamp(t, max=0.0) - soft) + torch.log_softmax(votes, 1)
-        return torch.cat([loc, torch.clamp(-t, max=0.0) - soft], 1), self.force(torch.cat([h, phi], 1))
+        loc = self._logsig(t) + torch.log_softmax(votes, 1)
+        return torch.cat([loc, self._logsig(-t)], 1), self.force(torch.cat([h, phi], 1))

@@ -26,25 +26,27 @@ is :mod:`sonicskin.artifact_files`; binding the model files to this document, :m
                         stretch against it at every Alg. 2 reference and maps each chirp back
     selection           optional: what model selection chose on the training/validation presses and its
                         validation estimate (svm, force, detection, net; see sonicskin.selection), reported only
-    models              {"net": ..., "svm": ...}, at least one:
+    models              {kind: entry} of the model kinds (sonicskin.kinds: net, svm, lda), at least one:
       file              a plain file name inside the artifact folder (no directories, no symlink out of it),
                         at most 256 MB
       sha256            64 lowercase hex digits of that file
       probe             {inputs: 1..64 rows of B finite numbers, outputs: one entry per graph output, null or
                         the export-time output rows}: re-run at load, the model must reproduce them
-      kind              "skinnet" (net) | "svc-ovo" (svm)
+      kind              the kind's graph: "skinnet" (net) | "svc-ovo" (svm) | "shrinkage-lda" (lda)
       n_in              <= B: the model reads the first n_in bins (OSPA order);  n_locations == N
       parity            optional dict of export parity figures;  hparams: optional dict (net)
       net only (version 3):
         detector          optional {mode: "head" | "input-rms" | "either", bias: finite, threshold: 0..1e3 (dB RMS),
                           reference: optional 1..B finite numbers, bins: optional int 1..B}: the touch decision the
                           network head applies to the graph's outputs (absent: the graph's own p(touch) >= 0.5)
-      svm only:
+      svm and lda (closed-form kinds, sonicskin.kinds.closed):
         reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
         threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
         detection         optional bool (default true); false: trained on touches only, no detector
         detector          "input-rms" | "paper" (version 3: the paper's max calibrated score);  detector_bins:
                           optional int 1..B (the input-RMS statistic reads the first ones; default all)
+      lda only:
+        norm              "none" | "level" | "unit": each chirp as measured, its mean dB removed, or unit length
         energy_ref_db     finite, |e| <= 1e4
         train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
         force             model (a force curve model); curves: {} or one per layout id, each
@@ -65,10 +67,12 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from . import kinds
 from .errors import ArtifactError
+from .force import MODELS, PooledForce
 
-__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "MODEL_KINDS", "REEXPORT",
-           "validate_skin", "nonfinite_field", "probe_widths"]
+__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin",
+           "nonfinite_field"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
 ARTIFACT_VERSION = 3
@@ -76,7 +80,6 @@ ARTIFACT_VERSION = 3
 #: sonicskin.head; such a graph decides touches itself, so its entry has no detector) and 3.
 READABLE_VERSIONS = (2, 3)
 MAX_PROBES = 64
-MODEL_KINDS = {"net": "skinnet", "svm": "svc-ovo"}
 REEXPORT = "export the artifact again (`sonicskin export --run DIR` or `sonicskin fit-svm`)"
 MAX_ABS_SCORE = 1e4       # per-location SVM scores are votes (< N) and relative dB inputs
 MAX_THRESHOLD_DB = 1e3
@@ -84,14 +87,9 @@ MAX_ABS_COEF = 1e12       # force curves from one press can be ill-conditioned b
 
 _TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "calibration", "training",
         "models", "digest", "selection", "drift"}
-_SELECTION_KEYS = {"svm", "force", "detection", "net"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
 _COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
-_MODEL_KEYS = {"net": _COMMON | {"hparams", "detector"},
-               "svm": _COMMON | {"reference_scores", "threshold", "detector", "detector_bins", "detection", "energy_ref_db",
-                                 "train_false_touch_rate",
-                                 "train_missed_touch_rate", "force"}}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
 
@@ -104,8 +102,13 @@ def _short(v: Any, n: int = 60) -> str:
 class _Doc:
     """Checks of one document; every failure is one line ``<source>: <field> <problem>; <fix>``."""
 
+    MAX_SCORE, MAX_THRESHOLD = MAX_ABS_SCORE, MAX_THRESHOLD_DB
+
     def __init__(self, source: str):
         self.source = source
+
+    def force(self, force, field: str, layout_ids: list[int], n_in: int) -> None:
+        _check_force(self, force, field, layout_ids, n_in)
 
     def fail(self, field: str, problem: str, fix: str = REEXPORT):
         raise ArtifactError(f"{self.source}: {field} {problem}; {fix}")
@@ -267,8 +270,6 @@ def _check_pooled(doc: _Doc, pooled: Any, field: str, layout_ids: list[int], n_i
 
 
 def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int], n_in: int | None = None) -> None:
-    from .force import MODELS, PooledForce
-
     force = doc.obj(force, field)
     if force.get("model") == PooledForce.NAME:  # one linear model over the inputs and the location
         doc.keys(force, {"model", "curves", "pooled"}, field)
@@ -315,14 +316,15 @@ def _check_file_name(doc: _Doc, name: Any, field: str) -> str:
 
 def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[int], sealed: bool = True) -> None:
     f = f"models.{name}"
+    kind = kinds.get(name)
     m = doc.obj(m, f)
-    doc.keys(m, _MODEL_KEYS[name], f)
+    doc.keys(m, _COMMON | kind.keys, f)
     _check_file_name(doc, doc.get(m, "file", f), f"{f}.file")
     if sealed:
         sha = doc.str(doc.get(m, "sha256", f), f"{f}.sha256")
         if not _SHA.fullmatch(sha):
             doc.fail(f"{f}.sha256", f"must be 64 lowercase hex digits, got {_short(sha)}")
-    doc.const(doc.get(m, "kind", f), f"{f}.kind", MODEL_KINDS[name])
+    doc.const(doc.get(m, "kind", f), f"{f}.kind", kind.graph)
     m_in = doc.int(doc.get(m, "n_in", f), f"{f}.n_in", lo=1)
     if m_in > n_in:  # a model reads the first n_in bins of features.bins (OSPA order; version 3: the SVM a prefix)
         doc.fail(f"{f}.n_in", f"is {m_in}: the model takes {m_in} features but skin.json lists {n_in} bins in features.bins")
@@ -333,56 +335,8 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
     if "parity" in m:
         doc.obj(m["parity"], f"{f}.parity")
     if sealed:
-        _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", m_in, probe_widths(name, n_loc))
-    if name == "net":
-        if "hparams" in m:
-            doc.obj(m["hparams"], f"{f}.hparams")
-        if "detector" in m:
-            _check_net_detector(doc, m["detector"], f"{f}.detector", m_in)
-        return
-    if n_loc < 2:
-        doc.fail(f"{f}.n_locations", "must be >= 2 for an SVM (it separates locations)")
-    ref = doc.list(doc.get(m, "reference_scores", f), f"{f}.reference_scores")
-    if len(ref) != n_loc + m_in:
-        doc.fail(f"{f}.reference_scores", f"has {len(ref)} values, expected n_locations + n_in = {n_loc} + {m_in} = "
-                                          f"{n_loc + m_in}")
-    for i, v in enumerate(ref):
-        doc.num(v, f"{f}.reference_scores[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    detection = m.get("detection", True)
-    if not isinstance(detection, bool):
-        doc.fail(f"{f}.detection", f"must be true or false, got {detection!r}")
-    if detection:
-        doc.num(doc.get(m, "threshold", f), f"{f}.threshold", lo=0, lo_open=True, hi=MAX_THRESHOLD_DB)
-    elif doc.get(m, "threshold", f) != 0:  # trained on touches only: every chirp is taken as a touch
-        doc.fail(f"{f}.threshold", "must be 0 when detection is false (an SVM trained on touches only)")
-    doc.choice(doc.get(m, "detector", f), f"{f}.detector", ("input-rms", "paper"))
-    if "detector_bins" in m:  # the detector reads the first detector_bins inputs (default: all)
-        doc.int(m["detector_bins"], f"{f}.detector_bins", lo=1, hi=m_in)
-    doc.num(doc.get(m, "energy_ref_db", f), f"{f}.energy_ref_db", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    for k in ("train_false_touch_rate", "train_missed_touch_rate"):
-        if k in m and not (m[k] is None and not detection):
-            doc.num(m[k], f"{f}.{k}", lo=0, hi=1)
-    _check_force(doc, doc.get(m, "force", f), f"{f}.force", layout_ids, m_in)
-
-
-def _check_net_detector(doc: _Doc, d: Any, field: str, n_in: int) -> None:
-    d = doc.obj(d, field)
-    doc.keys(d, {"mode", "bias", "threshold", "reference", "bins"}, field)
-    doc.choice(doc.get(d, "mode", field), f"{field}.mode", ("head", "input-rms", "either"))
-    if "bias" in d:
-        doc.num(d["bias"], f"{field}.bias", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    if "threshold" in d:
-        doc.num(d["threshold"], f"{field}.threshold", lo=0, hi=MAX_THRESHOLD_DB)
-    elif d["mode"] != "head":
-        doc.fail(f"{field}.threshold", f"is missing (mode {d['mode']!r} thresholds the input-RMS statistic)")
-    if "reference" in d:
-        ref = doc.list(d["reference"], f"{field}.reference", nonempty=True)
-        if len(ref) > n_in:
-            doc.fail(f"{field}.reference", f"has {len(ref)} values, more than the {n_in} inputs")
-        for i, v in enumerate(ref):
-            doc.num(v, f"{field}.reference[{i}]", lo=-MAX_ABS_SCORE, hi=MAX_ABS_SCORE)
-    if "bins" in d:
-        doc.int(d["bins"], f"{field}.bins", lo=1, hi=n_in)
+        _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", m_in, kind.outputs(n_loc))
+    kind.check_entry(doc, m, f, n_in=m_in, layout_ids=layout_ids)
 
 
 def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int | None]) -> None:
@@ -407,20 +361,12 @@ def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int 
 
 
 def _check_selection(doc: _Doc, sel: Any) -> None:
-    """Model selection's report (reported only, never run): an object of objects that
-    :func:`sonicskin.selection.format_selection` (what ``compare --artifact`` prints) can read."""
-    from .selection import format_selection
-
+    """Model selection's report (reported only, never run): an object of the kinds' report objects."""
     sel = doc.obj(sel, "selection")
-    doc.keys(sel, _SELECTION_KEYS, "selection")
+    doc.keys(sel, {k for kind in kinds.KINDS.values() for k in kind.selection_keys}, "selection")
     for k, v in sel.items():
         if v is not None:
             doc.obj(v, f"selection.{k}")
-    try:
-        format_selection(sel)
-    except (KeyError, TypeError, AttributeError, ValueError, IndexError) as e:
-        what = f"{type(e).__name__} {e}" if isinstance(e, KeyError) else f"{type(e).__name__}: {' '.join(str(e).split())[:80]}"
-        doc.fail("selection", f"is not the report model selection writes (reading it fails with {what})")
 
 
 def _check_training(doc: _Doc, tr: Any) -> None:
@@ -430,11 +376,6 @@ def _check_training(doc: _Doc, tr: Any) -> None:
     for k in ("train", "val", "test"):
         for i, s in enumerate(doc.list(doc.get(split, k, "training.split"), f"training.split.{k}")):
             doc.str(s, f"training.split.{k}[{i}]")
-
-
-def probe_widths(model: str, n_loc: int) -> list[int | None]:
-    """Width of each graph output compared on the probes (``None``: not compared, the SVM's label)."""
-    return [n_loc + 1, n_loc] if model == "net" else [None, n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2]
 
 
 def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
@@ -497,7 +438,7 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
     models = doc.obj(doc.get(meta, "models", ""), "models")
     if not models:
         doc.fail("models", "is empty")
-    doc.keys(models, set(MODEL_KINDS), "models")
+    doc.keys(models, set(kinds.KINDS), "models")
     for name, m in models.items():
         _check_model(doc, name, m, n_in=len(spec.bins), layout_ids=list(layout.ids), sealed=sealed)
     bad = nonfinite_field(meta)  # in a free-form field (parity, hparams, training): the checked ones name their own

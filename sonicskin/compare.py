@@ -1,4 +1,4 @@
-"""Side-by-side evaluation of the network and the SVM of one artifact (onnxruntime only)."""
+"""Side-by-side evaluation of every model of one artifact (the network, the SVM, the LDA; onnxruntime only)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinds
 from .artifact_files import load_skin
 from .dataset import Dataset, FeatureTable, write_file
 from .feature_cache import load_features_cached
@@ -151,8 +152,8 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` (the network and/or the SVM) on the test sessions of its
-    split (or ``sessions``).
+    """Evaluate every model of ``artifact`` (its kinds, :mod:`sonicskin.kinds`) on the test sessions of its split (or
+    ``sessions``).
 
     Each test session is replayed as a stream through :meth:`SkinRuntime.replay`, as the live
     loop runs it: the first ``beta`` seconds boot the reference, refreshes follow each model's own
@@ -167,7 +168,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     data = data or meta["training"]["data"]
     split = meta["training"]["split"]
     res: dict = {"artifact": str(art), "data": str(data), "models": {}}
-    names = [k for k in ("net", "svm") if k in meta["models"]]
+    names = [k for k in kinds.names() if k in meta["models"]]
     ds = Dataset(data)
     # The data's rig and marker layout must be the artifact's (else the scores are of the wrong places).
     check_rig(meta, ds.rig, here=f"dataset {ds.root}")
@@ -181,16 +182,17 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     unknown = sorted(set(test) - set(ds.sessions))
     if unknown:
         raise ValueError(f"test session(s) {', '.join(unknown)} are not in {data} (it has {', '.join(ds.sessions)})")
-    res["split"] = {"train": list(split["train"]), "val": list(split["val"]), "test": test}
+    res["split"] = {"train": list(split["train"]), "val": list(split["val"]), "test": test,
+                    **({"refit": True} if meta["training"].get("refit") else {})}
     res["test_sessions"] = test
     res["trained_on_test"] = sorted(set(test) & (set(split["train"]) | set(split["val"])))
     te = t.select(np.isin(t["session"], test))
-    svm_meta = meta["models"].get("svm", {})
+    detection = all(m.get("detection", True) for m in meta["models"].values())  # False: trained on touches only
     for k, rt in rts.items():
         drift: dict = {}
         p = replay_sessions(rt, te, test, drift=drift)
         r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
-                           detection=svm_meta.get("detection", True))
+                           detection=detection)
         sel = touch_mask(te, meta.get("min_force_n", 0.5)) & p.touch  # the chirps force is scored on (plotted)
         r["force_points"] = {"true_n": te["force_n"][sel].tolist(), "predicted_n": p.force_n[sel].tolist()}
         if latency:  # on the first test stream, as it was scored (booted, or without a boot: replay_sessions)
@@ -216,7 +218,9 @@ def split_line(split: dict) -> str:
     """``train s000 | validation none | test s002, s003``."""
     def names(v):
         return ", ".join(v) if v else "none"
-    return f"train {names(split.get('train'))} | validation {names(split.get('val'))} | test {names(split.get('test'))}"
+    refit = (f" (deployed models refitted on {' + '.join(list(split['train']) + list(split['val']))})"
+             if split.get("refit") and split.get("val") else "")
+    return f"train {names(split.get('train'))} | validation {names(split.get('val'))}{refit} | test {names(split.get('test'))}"
 
 
 def counts_line(counts: dict[str, int]) -> str:
@@ -254,7 +258,7 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("training time (to exported epoch)", lambda r: "n/a" if r["train_time_s"] is None else f"{r['train_time_s']:.1f} s"),
     ]
     models = res["models"]
-    head = {"net": "network", "svm": "SVM"}
+    head = kinds.labels()
     w = max(len(r[0]) for r in rows)
     split = res.get("split") or {"test": res["test_sessions"]}
     out = [title or f"{res['data']}", f"  sessions: {split_line(split)}"]
@@ -281,8 +285,8 @@ def format_comparison(res: dict, title: str = "") -> str:
         warned = [f"{s}: {d['warning']}" for s, d in drift.items() if d.get("warning")]
         if warned:
             out.append(f"  warning: drift tracking on {warned[0]}" + (f" (and {len(warned) - 1} more)" if len(warned) > 1 else ""))
-    if "net" in models and "svm" in models and models["net"]["latency"] and models["svm"]["latency"]:
-        net, svm = models["net"], models["svm"]
+    net, svm = models.get(kinds.NETWORK), models.get(kinds.BASELINE)
+    if net and svm and net["latency"] and svm["latency"]:
         speed = speed_ratio(net["latency"]["onnx_median_ms"], svm["latency"]["onnx_median_ms"])
         speed2 = speed_ratio(net["latency"]["median_ms"], svm["latency"]["median_ms"])
         out.append(f"  per chirp, the network is {speed} than the SVM in onnxruntime ({speed2} with post-processing; same run)"
@@ -304,14 +308,15 @@ def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> 
     from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names
 
     names = location_names(res.get("data"), layout)
-    label = {"net": "network", "svm": "SVM"}
-    models = [k for k in ("net", "svm") if k in res["models"]]
-    fig, ax = plt.subplot_mosaic([["net", "svm"], ["cdf", "force"], ["detect", "detect"]], figsize=(13, 14),
-                                 height_ratios=[1, 1, 0.45])
-    for k in ("net", "svm"):
-        if k not in models:
-            ax[k].axis("off")
-            continue
+    label = kinds.labels()
+    models = [k for k in kinds.names() if k in res["models"]]
+    panels = models + ["off"] * (len(models) % 2)  # the confusion matrices two per row
+    rows = [panels[i:i + 2] for i in range(0, len(panels), 2)]
+    fig, ax = plt.subplot_mosaic([*rows, ["cdf", "force"], ["detect", "detect"]], figsize=(13, 7 * len(rows) + 7),
+                                 height_ratios=[1] * len(rows) + [1, 0.45])
+    if "off" in ax:
+        ax["off"].axis("off")
+    for k in models:
         r = res["models"][k]
         confusion_panel(fig, ax[k], r["localization"]["confusion"], names, f"{label[k]}: accuracy {r['localization']['accuracy']:.1%}")
     cdf_panel(ax["cdf"], {label[k]: np.asarray(res["models"][k]["errors_cm"]) for k in models})

@@ -19,6 +19,7 @@ import numpy as np
 
 from .dataset import Dataset, FeatureTable, write_file
 from .force import PerLocationForce, energy_db
+from .kinds import BASELINE
 from .metrics import force_report
 
 __all__ = ["split_sessions", "evaluate_svm"]
@@ -46,6 +47,8 @@ def _touch(t: FeatureTable, min_force_n: float) -> np.ndarray:
 
 
 NOT_MEASURABLE = "not measurable on this data"
+#: the paper's SVM: its own C, kernel width and per-location Fourier-1 (no selection), its own touch rule
+PAPER_SVM = {BASELINE: {"select": False, "detector": "paper"}}
 
 
 def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
@@ -120,8 +123,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     with tempfile.TemporaryDirectory(prefix="sonicskin-evaluate-") as tmp:
         data = paper_data(n_bins=gamma)
         paper = Path(artifact) if artifact is not None else Path(tmp) / "paper"
-        skin = fit_artifact(data, paper, select=False, detector="paper", log=quiet)
-        rt = SkinRuntime(paper, "svm")
+        skin = fit_artifact(data, paper, options=PAPER_SVM, log=quiet)
+        rt = SkinRuntime(paper, BASELINE)
         # Alg. 2 from the model's own detection (boot: each stream's first beta chirps); no test labels.
         p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative"
              else rt.predict_inputs(rt.inputs(te.X)))
@@ -129,9 +132,9 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
             p.calibrating = np.zeros(len(te), bool)
         offline = rt.predict_inputs(rt.inputs(te.X))  # the training session's reference throughout
         m = stream_metrics(p, te, ds.layout, min_force_n=min_force_n, detection=rest)
-        svm = skin["models"]["svm"]
+        svm = skin["models"][BASELINE]
         res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions), "test_sessions": test_sessions,
-                     "n_train": len(tr), "n_test": len(te), "train_time_s": skin["training"]["svm_train_time_s"],
+                     "n_train": len(tr), "n_test": len(te), "train_time_s": skin["training"][f"{BASELINE}_train_time_s"],
                      "n_bins": len(data.spec.bins), "beta_chirps": beta}
         touch = _touch(te, min_force_n)
         res["localization"] = m["localization"]
@@ -169,8 +172,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
     # OSPA vs every bin of the chirp band (no selection, no matched filter: a rig without PWM notches).
     t0 = time.perf_counter()
     every = paper_data(bins=np.arange(ds.rig.n_band), rig=Rig.from_dict({**ds.rig.to_dict(), "pwm_hz": []}))
-    fit_artifact(every, tmp / "all-bins", select=False, detector="paper", log=quiet)
-    rt_all = SkinRuntime(tmp / "all-bins", "svm")
+    fit_artifact(every, tmp / "all-bins", options=PAPER_SVM, log=quiet)
+    rt_all = SkinRuntime(tmp / "all-bins", BASELINE)
     out["accuracy_all_bins"] = float(np.mean(rt_all.predict_inputs(rt_all.inputs(te.X[touch])).location == loc[touch]))
     out["accuracy_ospa"] = float(np.mean(p.location[scored] == loc[scored]))
     out["all_bins_train_time_s"] = time.perf_counter() - t0
@@ -199,8 +202,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
         # session's from its labelled rest, the test streams' from the SVM's own detection).
         d = prepare(data.dataset, table=data.table, split=data.split, bins=data.spec.bins, mode="relative",
                     min_force_n=data.min_force_n, log=quiet)
-        fit_artifact(d, tmp / "relative", select=False, detector="paper", log=quiet)
-        pr = replay_sessions(SkinRuntime(tmp / "relative", "svm"), te, sorted(set(te["session"])))
+        fit_artifact(d, tmp / "relative", options=PAPER_SVM, log=quiet)
+        pr = replay_sessions(SkinRuntime(tmp / "relative", BASELINE), te, sorted(set(te["session"])))
         p_rel = pr.location
         ok = touch & ~pr.calibrating
         out["accuracy_feature_calibration"] = float(np.mean(p_rel[ok] == loc[ok]))

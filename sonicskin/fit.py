@@ -1,16 +1,19 @@
-"""One fit: a dataset's feature table and a split -> a fitted SVM head, a trained network -> one artifact.
+"""One fit: a dataset's feature table and a split -> every model kind fitted, chosen on the validation presses,
+refitted on every labelled press -> one artifact.
 
 Every verb that trains goes through here: ``fit-svm``, ``record``, ``export`` (a Lightning checkpoint's network
-beside the SVM), ``compare``, ``seeds``, ``evaluate`` and ``reproduce``.  The steps:
+beside the closed-form models), ``compare``, ``seeds``, ``evaluate`` and ``reproduce``.  The steps:
 
 1. :func:`prepare` -> :class:`TrainingData`: the features table, the split (sessions or people, never chirps),
    OSPA's bins chosen on the training sessions (gamma validated when not given), the model inputs of every chirp
    (:class:`~sonicskin.features.FeatureSpec`), the class and force targets;
-2. :func:`fit_svm` -> :class:`SVMFit`: model selection on the training/validation presses
-   (:mod:`sonicskin.selection`), scaler + RBF SVC, Alg. 2's training reference, the detector threshold, the force
-   model;
-3. the network (torch side, imported only when one is trained: :mod:`sonicskin.training.fit`) -> ``NetFit``;
-4. :func:`write_artifact`: both exported to ONNX with parity checks, ``skin.json`` sealed, swapped in atomically.
+2. each model kind (:mod:`sonicskin.kinds`, those it requires first) fits itself on the training chirps, choosing its
+   options on the validation presses (:meth:`TrainingData.folds`) or taking its measured default;
+3. with a validation session, the chosen configurations are **refitted on the training and validation sessions
+   together** (:meth:`TrainingData.refit`, scikit-learn's ``refit=True``): the estimates stay those of the held-out
+   pass, the deployed models have seen every labelled press (``refit=False`` keeps the training sessions' models);
+4. :func:`write_artifact`: every model exported to ONNX with its parity check, ``skin.json`` sealed, swapped in
+   atomically.
 
 Nothing of a test session's labels reaches any step: only the rows of ``split.train`` and ``split.val`` are read
 for fitting and choosing (``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
@@ -19,20 +22,23 @@ for fitting and choosing (``tests/test_selection.py`` changes a test session and
 from __future__ import annotations
 
 import dataclasses
-import time
 import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from . import kinds
+from .artifact import PROBE_ROWS, atomic_artifact, skin_json
 from .dataset import Dataset, FeatureTable
+from .drift import DriftError, DriftTracker
 from .feature_cache import load_features_cached
-from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, select_bins, training_targets
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, select_bins, training_targets, usable_bins
+from .selection import press_ids, press_passes, save_learning_curve, select_gamma_on_table
 from .split import Split
 
-__all__ = ["TrainingData", "SVMFit", "prepare", "fit_svm", "fit_svm_head", "ovo_decision", "write_artifact",
-           "fit_artifact", "build_svm_artifact", "summary_lines"]
+__all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artifact", "build_svm_artifact",
+           "summary_lines", "selection_lines"]
 
 
 @dataclasses.dataclass
@@ -53,9 +59,10 @@ class TrainingData:
     force: np.ndarray      # (n,) float32 N (NaN: no force sensor)
     usable: np.ndarray     # (n,) bool: may train (light presses below min_force_n may not)
     min_force_n: float = 0.5
-    selection: dict = dataclasses.field(default_factory=dict)  # choices made so far (gamma: selection["svm"])
+    selection: dict = dataclasses.field(default_factory=dict)  # choices made so far (gamma: the SVM's selection)
     rig: Any = None        # the rig the artifact declares (default: the dataset's)
     n_svm: int | None = None  # the SVM reads the first n_svm bins (OSPA's gamma for it); default: every bin
+    options: dict = dataclasses.field(default_factory=dict)  # how prepare() made it (refit() makes it again)
 
     def __post_init__(self):
         if self.rig is None:
@@ -87,6 +94,36 @@ class TrainingData:
     def quiet(self) -> np.ndarray:
         return quiet_mask(self.table)
 
+    def folds(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
+        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``.  With a validation session: fitted on
+        the training sessions and scored on the validation session, and the other way round (the mean of both halves
+        the ties at 100 % of one session).  Without one: the training sessions' last pass over the markers held out.
+        ``[]`` when nothing can validate (one press per marker, no validation session)."""
+        train, val = self.rows("train"), self.rows("val")
+        if val.any():
+            return ([(train, val), (val, train)], f"validation on {', '.join(self.split.val)} (and fitted there, scored "
+                                                  f"on {', '.join(self.split.train)})")
+        t = self.table
+        seg = t["segment"] if "segment" in t.labels else None
+        passes = press_passes(np.where(train, press_ids(t["location"], t["session"], seg), -1), t["location"])
+        if passes.max() >= 1:
+            last = passes == passes.max()
+            return [(train & ~last, train & last)], "held-out last pass"
+        return [], "one press per location and no validation session"
+
+    def refit(self) -> TrainingData:
+        """The same chirps with the validation sessions joined to the training ones: OSPA's bins, the inputs and
+        every model fitted again on every labelled press, with the choices already made (``selection``)."""
+        if not self.split.val:
+            return self
+        split = Split(self.split.train + self.split.val, (), self.split.test)
+        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s}
+        d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False,
+                    **o)
+        d.selection = dict(self.selection)
+        d.options["refit_of"] = self.split.to_dict()
+        return d
+
 
 def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
             val_sessions=None, test_subjects=None, split: Split | None = None, table: FeatureTable | None = None,
@@ -113,17 +150,15 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
                            allow_no_test=allow_no_test)
     selection: dict = {}
     tr = t.select(split.mask(t, "train"))
+    given_bins = bins
     if bins is None:
         if n_bins is None:  # validated on the training and validation sessions only
-            from .selection import select_gamma_on_table
-
-            selection["svm"] = select_gamma_on_table(t, ds.rig, train_sessions=list(split.train),
+            selection[kinds.BASELINE] = select_gamma_on_table(t, ds.rig, train_sessions=list(split.train),
                                                      val_sessions=list(split.val), mode=mode, min_force_n=min_force_n,
                                                      log=log or (lambda m: warnings.warn(m, stacklevel=2)))
-            n_bins = selection["svm"]["params"]["n_bins"]
-        n_usable = int(ds.rig.allowed_mask.sum())
-        bins = select_bins(tr, ds.rig, n_usable if wide else n_bins, min_force_n)
-        n_svm = min(int(n_bins or len(bins)), len(bins))
+            n_bins = selection[kinds.BASELINE]["params"]["n_bins"]
+        n_svm = usable_bins(ds.rig, n_bins, log=log)  # OSPA's gamma (the paper's 300 for None), clamped with a warning
+        bins = select_bins(tr, ds.rig, int(ds.rig.allowed_mask.sum()) if wide else n_svm, min_force_n)
     else:
         n_svm = len(bins)
     spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=float(alpha_s))
@@ -140,131 +175,7 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
     X = spec.transform(t, ds.rig.chirps_per_s)
     cls, usable = training_targets(t, ds.layout, min_force_n)
     return TrainingData(ds, t, split, spec, X, cls, t["force_n"].astype(np.float32), usable, min_force_n, selection,
-                        rig or ds.rig, n_svm)
-
-
-# -- the SVM head --------------------------------------------------------------------------------------------------
-def ovo_decision(pipe, X: np.ndarray, block: int = 2048) -> np.ndarray:
-    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(decision_function_shape="ovo")``, with the
-    kernel matrix from one BLAS product per block of chirps (libsvm's own loop is 10-20x slower on thousands of
-    bins).  Equal to scikit-learn's up to float64 rounding (``tests/test_reproduce.py`` checks it)."""
-    svc = pipe[-1]
-    Z = np.asarray(pipe[:-1].transform(X), np.float64)
-    S = np.asarray(svc.support_vectors_, np.float64)
-    coef, icpt, nsv = np.asarray(svc.dual_coef_), np.asarray(svc.intercept_), np.asarray(svc.n_support_)
-    k = len(nsv)
-    start = np.r_[0, np.cumsum(nsv)]
-    s2 = np.einsum("ij,ij->i", S, S)
-    out = np.empty((len(Z), k * (k - 1) // 2))
-    for lo in range(0, len(Z), block):
-        z = Z[lo:lo + block]
-        d2 = np.einsum("ij,ij->i", z, z)[:, None] + s2[None, :] - 2.0 * (z @ S.T)
-        K = np.exp(-svc._gamma * np.maximum(d2, 0.0))
-        p = 0
-        for i in range(k):
-            for j in range(i + 1, k):
-                si, sj = slice(start[i], start[i + 1]), slice(start[j], start[j + 1])
-                out[lo:lo + block, p] = K[:, si] @ coef[j - 1, si] + K[:, sj] @ coef[i, sj] + icpt[p]
-                p += 1
-    return out[:, 0] if k == 2 else out  # binary: scikit-learn's public coef and intercept are already sign-flipped
-
-
-def fit_svm_head(X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.ndarray, *, n_locations: int,
-                 location_ids, C: float = 10.0, kernel_gamma="scale", force_model: str = "fourier1",
-                 force_alpha: float = 10.0, detector: str = "input-rms"):
-    """Fit scaler + SVC on touch chirps (``cls < n_locations``), then the Alg. 2 reference scores, the detection
-    threshold (Youden's J on the training chirps, of the ``detector`` statistic: the input-RMS change, or the paper's
-    max calibrated score) and the force model (per-location curves, or ``"pooled-ridge"`` over the inputs and the
-    location, see :class:`sonicskin.force.PooledForce`).  Returns the sklearn pipeline and its JSON-able parameters
-    (the ``skin.json`` entry the :class:`sonicskin.head.SVMHead` reads)."""
-    from sklearn.pipeline import Pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVC
-
-    from .calibration import TouchDetector
-    from .force import PerLocationForce, PooledForce, energy_db
-    from .head import DETECTOR_BINS, score_vector, touch_statistic
-
-    touch = cls < n_locations
-    pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, gamma=kernel_gamma,
-                                                              decision_function_shape="ovo"))])
-    pipe.fit(X[touch], cls[touch])
-    if len(pipe.classes_) != n_locations:
-        raise ValueError(f"training data touches {len(pipe.classes_)} of the {n_locations} locations; "
-                         f"record every location at least once")
-    V = score_vector(ovo_decision(pipe, X), n_locations, X)
-    # A table of touches only has no rest: no Alg. 2 reference (zero) and no detector (threshold 0 on a statistic
-    # >= 0: every chirp is a touch); "detection": false says so in skin.json.
-    rest = quiet.sum() >= 2 and (~touch).any()
-    ref = V[quiet].mean(axis=0) if rest else np.zeros(V.shape[1])
-    n_det = min(DETECTOR_BINS, X.shape[1])
-    stat = touch_statistic(V - ref, n_locations, n_det, detector=detector)[:, None]
-    det = TouchDetector().fit(stat[touch], stat[~touch]) if rest else None
-    all_bins = np.arange(X.shape[1])
-    e_ref = float(energy_db(X[quiet], all_bins).mean()) if rest else 0.0
-    E = energy_db(X, all_bins) - e_ref
-    ids = np.asarray(location_ids)
-    has_f = touch & np.isfinite(force)  # recordings without a force sensor carry NaN forces
-    fm = PooledForce(force_alpha) if force_model == PooledForce.NAME else PerLocationForce(force_model)
-    if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations and np.ptp(force[has_f]) > 0:
-        if isinstance(fm, PooledForce):
-            fm.fit(X[has_f], force[has_f], ids[cls[has_f]])
-        else:
-            fm.fit(E[has_f], force[has_f], ids[cls[has_f]])
-    else:
-        fm = PerLocationForce("fourier1")  # no force sensor (or a constant force): force is absent (NaN), never 0 N
-        fm.curves_ = {}
-    params = {"reference_scores": ref.tolist(), "threshold": det.threshold_ if rest else 0.0, "detector": detector,
-              "detector_bins": n_det, "detection": bool(rest), "energy_ref_db": e_ref,
-              "train_false_touch_rate": det.false_touch_rate_ if rest else None,
-              "train_missed_touch_rate": det.missed_touch_rate_ if rest else None,
-              "force": fm.to_dict()}
-    return pipe, params
-
-
-@dataclasses.dataclass
-class SVMFit:
-    """A fitted SVM head: the scaler + SVC pipeline, its ``skin.json`` parameters, the model selection, the fit time."""
-
-    pipe: Any
-    params: dict
-    selection: dict
-    fit_s: float
-
-
-def fit_svm(data: TrainingData, *, select: bool = True, C: float = 10.0, kernel_width: float | None = None,
-            force_model: str = "fourier1", detector: str = "input-rms", log=print) -> SVMFit:
-    """Fit the SVM head on the training chirps of ``data``.
-
-    ``select``: C, kernel width, force model validated on the training and validation presses
-    (:func:`sonicskin.selection.select_on_inputs`; gamma was chosen by :func:`prepare`); otherwise the given values
-    (the paper's: C 10, ``gamma="scale"``, per-location Fourier-1).  The detection threshold is Youden's J on the
-    training chirps; with a validation session its missed and false touches there are reported in the selection."""
-    from .selection import detection_on_validation, select_on_inputs
-
-    data = data.narrow(data.n_svm)  # the SVM's gamma (a prefix of the inputs in OSPA order)
-    train, val = data.rows("train"), data.rows("val")
-    sel = dict(data.selection)
-    if select:
-        sel = select_on_inputs(data.X, data.table, cls=data.cls, train_mask=train, val_mask=val,
-                               n_locations=data.n_locations, location_ids=data.layout.ids, selection=sel,
-                               min_force_n=data.min_force_n, log=log)
-    sp = (sel.get("svm") or {}).get("params", {}) if select else {}
-    fsel = (sel.get("force") or {}) if select else {}
-    width = sp.get("kernel_width", kernel_width)
-    t0 = time.perf_counter()
-    pipe, params = fit_svm_head(data.X[train], data.cls[train], data.force[train], data.quiet[train],
-                                n_locations=data.n_locations, location_ids=data.layout.ids, C=sp.get("C", C),
-                                kernel_gamma="scale" if width is None else width / data.X.shape[1],
-                                force_model=fsel.get("model", force_model), force_alpha=fsel.get("alpha") or 10.0,
-                                detector=detector)
-    fit_s = time.perf_counter() - t0
-    if select and params["detection"] and val.any() and detector == "input-rms":  # what the threshold does on validation
-        det = detection_on_validation(data.X, data.table, cls=data.cls, val_mask=val, n_locations=data.n_locations,
-                                      threshold=params["threshold"])
-        if det is not None:
-            sel["detection"] = det
-    return SVMFit(pipe, params, sel, fit_s)
+                        rig or ds.rig, n_svm, {"wide": wide, "bins": given_bins})
 
 
 # -- the artifact ---------------------------------------------------------------------------------------------------
@@ -286,8 +197,6 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
     training sessions' hands-off chirps at rest over the whole band, with the wall's material when the dataset names
     it (its kappa gives the temperature equivalent).  ``None`` without rest (a table of touches only) or without a
     mode pattern to track."""
-    from .drift import DriftError, DriftTracker
-
     rest = data.quiet & data.split.mask(data.table, "train")
     if rest.sum() < 2:
         return None
@@ -302,104 +211,98 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
     return tr.to_dict()
 
 
-def write_artifact(data: TrainingData, out: str | Path, *, svm: SVMFit | None = None, net=None, training: dict | None = None,
-                   learning_curve: bool = False, drift: bool = True, log=print) -> dict:
-    """Export ``svm`` (skl2onnx) and ``net`` (a ``sonicskin.training.fit.NetFit``: torch.onnx) with their parity
-    checks into ``out`` with a sealed ``skin.json`` (:func:`sonicskin.artifact.skin_json`); ``out`` is replaced as a
-    whole at the end (:func:`sonicskin.artifact.atomic_artifact`).  ``drift``: store drift tracking's training
-    reference (:func:`drift_reference`), so every stream maps its chirps back onto the training frequency axis.
-    Returns the ``skin.json`` document."""
-    from .artifact import PROBE_ROWS, atomic_artifact, export_svm, skin_json
+def fit_models(data: TrainingData, wanted=("svm",), *, refit: bool = True, options: dict | None = None, log=print
+               ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
+    """Fit the model kinds ``wanted`` (and those they require) on ``data``; with a validation session and ``refit``,
+    fit them again with their choices on the training and validation sessions together.  ``options``: keyword
+    arguments per kind's :meth:`~sonicskin.kinds.ModelKind.fit`.  Returns the data the deployed models were fitted on
+    and the fitted models, in fitting order."""
+    options = options or {}
+    order = kinds.fit_order(wanted)
+    fits: dict[str, kinds.Fitted] = {}
+    for name in order:
+        fits[name] = kinds.get(name, fitting=True).fit(data, fitted=fits, log=log, **options.get(name, {}))
+    if not (refit and data.split.val):
+        return data, fits
+    final = data.refit()
+    log(f"refitting on {', '.join(final.split.train)}: every labelled press (the estimates above are from the held-out pass)")
+    refits: dict[str, kinds.Fitted] = {}
+    for name in order:
+        refits[name] = kinds.get(name, fitting=True).fit(final, fitted=refits, selection=fits[name].selection, log=log,
+                                                         **options.get(name, {}))
+    return final, refits
 
-    if svm is None and net is None:
-        raise ValueError("write_artifact needs a fitted SVM, a trained network or both")
+
+def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fitted], *, training: dict | None = None,
+                   learning_curve: bool = False, drift: bool = True, log=print) -> dict:
+    """Export every fitted model (:meth:`~sonicskin.kinds.ModelKind.export`, each with its parity check) into ``out``
+    with a sealed ``skin.json`` (:func:`sonicskin.artifact.skin_json`); ``out`` is replaced as a whole at the end
+    (:func:`sonicskin.artifact.atomic_artifact`).  ``drift``: store drift tracking's training reference
+    (:func:`drift_reference`), so every stream maps its chirps back onto the training frequency axis.  Returns the
+    ``skin.json`` document."""
+    if not fits:
+        raise ValueError("write_artifact needs at least one fitted model")
     out = Path(out)
     check = _check_rows(data)
-    sel = dict(svm.selection if svm is not None else data.selection)
+    sel = dict(data.selection)
     models: dict[str, dict] = {}
     times = {}
     with atomic_artifact(out) as tmp:
-        if svm is not None:
-            n_svm = int(svm.pipe[0].n_features_in_)  # the first n_svm inputs (OSPA order)
-            parity = export_svm(svm.pipe, data.n_locations, tmp / "svm.onnx", check[:, :n_svm])
-            models["svm"] = {"file": "svm.onnx", "kind": "svc-ovo", "n_in": n_svm,
-                             "n_locations": data.n_locations, "parity": parity, **svm.params}
-            times["svm_train_time_s"] = svm.fit_s
-        if net is not None:
-            import contextlib
-            import io
-
-            from sonicskin.export.onnx import export_net  # torch: only a verb that trained a network gets here
-            from sonicskin.training.cli import quiet_third_party
-
-            with quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):  # torch.onnx's progress lines
-                parity = export_net(net.model, tmp / "net.onnx", check[:, :net.model.n_in])
-            entry = {"file": "net.onnx", "kind": "skinnet", "n_in": int(net.model.n_in), "n_locations": data.n_locations,
-                     "parity": parity, "hparams": net.hparams}
-            if net.detector is not None:
-                entry["detector"] = net.detector
-            models["net"] = entry
-            sel["net"] = {**(sel.get("net") or {}), **net.selection}
-            times["net_train_time_s"] = net.train_time_s
+        for name, f in fits.items():
+            kind = kinds.get(name, fitting=True)
+            parity = kind.export(f, tmp / kind.file, check[:, :f.n_in])
+            models[name] = {"file": kind.file, "kind": kind.graph, "n_in": int(f.n_in), "n_locations": data.n_locations,
+                            "parity": parity, **f.entry}
+            sel.update(f.selection)
+            times[f"{name}_train_time_s"] = f.fit_s
+        split = data.split.to_dict()
+        refit = data.options.get("refit_of")
         skin = skin_json(tmp, rig=data.rig.to_dict(), layout=data.layout.to_dict(), spec=data.spec,
                          min_force_n=data.min_force_n,
-                         training={"data": str(Path(data.dataset.root).resolve()), "split": data.split.to_dict(), **times,
-                                   **(training or {})},
+                         training={"data": str(Path(data.dataset.root).resolve()), "split": refit or split, **times,
+                                   **({"refit": True} if refit else {}), **(training or {})},
                          models=models, probe_inputs=check[:PROBE_ROWS], selection=sel,
                          drift=drift_reference(data, log) if drift else None)
-        if learning_curve:
-            from .selection import save_learning_curve
-
-            if save_learning_curve(sel, tmp / "learning_curve.png",
-                                   title=f"{Path(data.dataset.root).name}: SVM accuracy vs presses per location"):
-                log(f"wrote {out}/learning_curve.png")
+        if learning_curve and save_learning_curve(sel, tmp / "learning_curve.png",
+                                                  title=f"{Path(data.dataset.root).name}: SVM accuracy vs presses per location"):
+            log(f"wrote {out}/learning_curve.png")
     return skin
 
 
-def fit_artifact(data: TrainingData, out: str | Path, *, net=None, svm: SVMFit | None = None, select: bool = True,
-                 detector: str = "input-rms", net_options: dict | None = None, training: dict | None = None,
-                 learning_curve: bool = False, log=print) -> dict:
-    """The whole fit: the SVM head (``svm``, or fitted here), the network, the artifact.
+def fit_artifact(data: TrainingData, out: str | Path, wanted=("svm",), *, refit: bool = True, options: dict | None = None,
+                 training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
+    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`).  The network (``"net"`` among
+    ``wanted``) needs torch; ``options[net]`` may pass ``model=`` a trained module (a Lightning checkpoint's), whose
+    touch decision and force are then chosen on the validation presses before the refit."""
+    final, fits = fit_models(data, wanted, refit=refit, options=options, log=log)
+    return write_artifact(final, out, fits, training=training, learning_curve=learning_curve, log=log)
 
-    ``net``: ``None`` (an SVM-only artifact, torch-free), ``"train"`` (trained here in-process,
-    :func:`sonicskin.training.fit.train_network` with ``net_options``), or a trained ``torch.nn.Module`` (e.g. a
-    Lightning checkpoint's), whose touch decision and force are then chosen here
-    (:func:`sonicskin.training.fit.finish_network`)."""
-    if svm is None:
-        svm = fit_svm(data, select=select, detector=detector, log=log)
-    net_fit = None
-    if net is not None:
-        from sonicskin.training.fit import finish_network, train_network  # torch: only when a network is asked for
 
-        if isinstance(net, str):
-            if net != "train":
-                raise ValueError(f"net must be None, 'train' or a torch module, got {net!r}")
-            net_fit = train_network(data, svm=svm, select=select, **(net_options or {}))
-        else:
-            net_fit = finish_network(net, data, svm=svm, **(net_options or {}))
-    return write_artifact(data, out, svm=svm, net=net_fit, training=training, learning_curve=learning_curve, log=log)
+def selection_lines(sel: dict | None) -> list[str]:
+    """What every training verb prints about its choices: each kind's lines (a block it cannot read is skipped)."""
+    out = []
+    for kind in map(kinds.get, kinds.names()):
+        try:
+            out += kind.selection_lines(sel or {})
+        except (KeyError, TypeError, AttributeError, ValueError, IndexError):
+            out.append(f"({kind.label}: its selection report cannot be read)")
+    return out
 
 
 def summary_lines(out: str | Path, skin: dict) -> list[str]:
-    """What every training verb prints about the artifact it wrote: the model selection, then its files with their
-    size and export parity."""
-    from .selection import format_selection
-
+    """What every training verb prints about the artifact it wrote: the model selection, whether the deployed models
+    were refitted, then its files with their size and export parity."""
     out = Path(out)
-    models = skin["models"]
-
-    def size(name: str) -> str:
-        return f"{(out / models[name]['file']).stat().st_size / 1e3:.0f} kB"
-
-    lines = format_selection(skin.get("selection"))
-    if "net" in models:
-        svm = (f", svm.onnx ({size('svm')}, parity max |d scores| {models['svm']['parity']['max_abs_scores']:.1e})"
-               if "svm" in models else "")
-        lines.append(f"exported {out}: net.onnx ({size('net')}, parity max |d logits| "
-                     f"{models['net']['parity']['max_abs_logits']:.1e}){svm}")
-    else:
-        lines.append(f"wrote {out}/svm.onnx ({size('svm')}, parity max |d scores| "
-                     f"{models['svm']['parity']['max_abs_scores']:.1e}) and skin.json")
+    lines = selection_lines(skin.get("selection"))
+    tr = skin["training"]
+    if tr.get("refit"):
+        sp = tr["split"]
+        lines.append(f"deployed models refitted on {' + '.join(sp['train'] + sp['val'])} (every labelled press; the "
+                     f"estimates above are from the held-out pass)")
+    files = [f"{m['file']} ({(out / m['file']).stat().st_size / 1e3:.0f} kB, parity max |d "
+             f"{'logits' if 'max_abs_logits' in m['parity'] else 'scores'}| "
+             f"{m['parity'].get('max_abs_logits', m['parity'].get('max_abs_scores', 0.0)):.1e})" for m in skin["models"].values()]
+    lines.append(f"exported {out}: {', '.join(files)} and skin.json")
     return lines
 
 

@@ -16,7 +16,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .artifact_schema import MODEL_KINDS, REEXPORT, _short
+from . import kinds
+from .artifact_schema import REEXPORT, _short
 from .errors import ArtifactError
 
 __all__ = ["BINDING_KEY", "canonical", "artifact_digest", "binding", "read_binding", "stamp_binding", "run_probe",
@@ -45,7 +46,7 @@ def artifact_digest(meta: dict) -> str:
 def binding(meta: dict, model: str) -> dict:
     """What ``model`` was trained and exported with, as stored inside its ONNX file (``metadata_props``)."""
     entry = {k: v for k, v in meta["models"][model].items() if k not in _UNBOUND}
-    return {"model": model, "kind": MODEL_KINDS[model], "rig": meta["rig"], "layout": meta["layout"],
+    return {"model": model, "kind": kinds.get(model).graph, "rig": meta["rig"], "layout": meta["layout"],
             "features": meta["features"], "min_force_n": meta["min_force_n"], "split": meta["training"]["split"],
             "entry_sha256": hashlib.sha256(canonical(entry)).hexdigest()}
 
@@ -210,18 +211,14 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
                             f"{[(i.type, i.shape) for i in ins]}; {REEXPORT}")
     if ins[0].shape[-1] != n_in:
         raise ArtifactError(f"{where} takes {ins[0].shape[-1]} features but skin.json lists {n_in} bins for it; {REEXPORT}")
-    if model == "net":
-        want = {0: n_loc + 1, 1: n_loc}
-        what = f"logits (batch, {n_loc + 1}) and force (batch, {n_loc})"
-    else:
-        want = {1: n_loc * (n_loc - 1) // 2 if n_loc > 2 else 2}
-        what = f"a label and {want[1]} pairwise decision values for {n_loc} locations"
-    if len(outs) != 2:
+    kind = kinds.get(model)
+    widths = kind.outputs(n_loc)
+    want = {k: n for k, n in enumerate(widths) if n is not None}
+    what = kind.output_text(n_loc)
+    if len(outs) != len(widths):
         raise ArtifactError(f"{where} has {len(outs)} outputs, expected {what}; {REEXPORT}")
     declared = {k: _last_dim(outs[k].shape) for k in want}
-    # skl2onnx declares the SVC's score output as (batch, n_classes) even with decision_function_shape="ovo",
-    # which really yields the K (K - 1) / 2 pairwise values: the probe run below is what counts there.
-    allowed = {k: (None, n, n_loc) if model == "svm" else (None, n) for k, n in want.items()}
+    allowed = {k: (None, n, *kind.declared_widths(k, n_loc)) for k, n in want.items()}
     try:
         got = session.run(None, {ins[0].name: np.zeros((2, n_in), np.float32)})
     except Exception as e:  # onnxruntime raises its own exception types

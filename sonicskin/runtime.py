@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinds
 from .artifact_files import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
 from .dsp import log_magnitude_db
 from .errors import ArtifactError
 from .features import FeatureSpec
-from .head import Predictions, Stream, make_head
+from .head import Predictions, Stream
 from .head.stream import band_rows, finite_rows
 from .integrity import check_integrity, check_layout, check_rig, check_session
 from .rig import Layout, Rig
@@ -33,7 +34,7 @@ class SkinRuntime:
     Parameters
     ----------
     folder : the artifact folder.
-    model : ``"net"`` or ``"svm"``.
+    model : a model kind of the artifact (:mod:`sonicskin.kinds`: ``"svm"``, ``"lda"``, ``"net"``).
     rig : the rig it will run on (a :class:`Rig`, a rig name or a YAML path); defaults to the artifact's own.  A
         different sample rate, chirp or band raises :class:`ArtifactError`.
     layout : the marker layout of the surface it will run on (e.g. a scenario's ``make_layout()``);
@@ -88,7 +89,7 @@ class SkinRuntime:
         self.input_name = self.session.get_inputs()[0].name
         self.n_locations = len(self.layout)
         self.ids = np.asarray(self.layout.ids)
-        self.head = make_head(model, self.m, self.layout)  # model outputs -> touch, location, xy, force (sonicskin.head)
+        self.head = kinds.get(model).head(self.m, self.layout)  # model outputs -> touch, location, xy, force (sonicskin.head)
         self.drift = self.meta.get("drift")  # drift tracking's training reference (each stream tracks its own stretch)
 
     # -- features ----------------------------------------------------------------------

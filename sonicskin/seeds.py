@@ -23,10 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from . import kinds
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
 from .feature_cache import load_features_cached
+from .fit import prepare, write_artifact
 from .jsonio import json_safe
+from .kinds import BASELINE, CLOSED_FORM, NETWORK
 from .rig import Rig
 from .runtime import SkinRuntime
 from .split import Split
@@ -99,11 +102,6 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
     C, kernel width, force model and detection, and the network's location layer and touch decision, are chosen by
     validation on the training session's presses (:mod:`sonicskin.selection`); otherwise the paper's values.
     ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
-    from sonicskin.training.cli import quiet_third_party
-    from sonicskin.training.fit import choose_network_layer, train_network
-
-    from .fit import fit_svm, prepare, write_artifact
-
     quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
@@ -111,33 +109,36 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
     data = prepare(ds, table=t, split=split, n_bins=None if select else 300, wide=True, log=quiet_log)
     if train_stride > 1:
         data = dataclasses.replace(data, usable=data.usable & (np.arange(len(t)) % int(train_stride) == 0))
-    svm = fit_svm(data, select=select, log=quiet_log)
+    closed = {}
+    for k in kinds.fit_order([NETWORK])[:-1]:  # the closed forms the network starts from, fitted once
+        closed[k] = kinds.get(k).fit(data, fitted=closed, log=quiet_log, **({"select": select} if k == BASELINE else {}))
     te = t.select(split.mask(t, "test"))
     floor = _floors(ds, t, split)
-    with quiet_third_party():
-        layer = choose_network_layer(data, svm=svm, epochs=epochs) if select else {}
-    out, svm_metrics = [], None
+    net_kind, layer = kinds.get(NETWORK, fitting=True), None
+    out, closed_metrics = [], {}
     for seed in train_seeds:
-        with quiet_third_party():
-            net = train_network(data, svm=svm, select=select, seed=int(seed), epochs=epochs, layer=layer)
-        skin = write_artifact(data, work, svm=svm, net=net, training={"train_seed": int(seed)}, log=quiet_log)
+        net = net_kind.fit(data, fitted=closed, select=select, seed=int(seed), epochs=epochs, layer=layer, log=quiet_log)
+        layer = layer or {k: v for k, v in net.selection[NETWORK].items() if k in ("location_layer", "layer_how", "hparams")}
+        fits = {**closed, NETWORK: net}
+        skin = write_artifact(data, work, fits, training={"train_seed": int(seed)}, log=quiet_log)
         sel = skin.get("selection") or {}
-        row = {"train_seed": int(seed), "net_train_s": net.train_time_s, "svm_train_s": svm.fit_s, "floor": floor,
+        row = {"train_seed": int(seed), "train_s": {k: f.fit_s for k, f in fits.items()}, "floor": floor,
                "split": split.to_dict(),
-               "selection": {k: {kk: v[kk] for kk in ("params", "model", "location_layer", "detector", "force") if kk in v}
+               "selection": {k: {kk: v[kk] for kk in ("params", "model", "name", "location_layer", "detector", "force") if kk in v}
                              for k, v in sel.items() if isinstance(v, dict)}}
-        for k in ("net", "svm"):
-            if k == "svm" and svm_metrics is not None:
-                row[k] = svm_metrics
+        for k in fits:
+            if k in closed_metrics:  # deterministic: the same model every training seed
+                row[k] = closed_metrics[k]
                 continue
             p = replay_sessions(SkinRuntime(work, k), te, split.test)
             row[k] = {m: float(f(stream_metrics(p, te, ds.layout))) for m, (f, _, _) in METRICS.items()}
-        svm_metrics = row["svm"]
-        log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net "
-            f"{row['net']['accuracy']:.1%} svm {row['svm']['accuracy']:.1%} floor {floor['accuracy']:.1%}; force net "
-            f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR floor {floor.get('force_rmse_n', np.nan):.2f} N; "
-            f"missed net {row['net']['missed_touch']:.1%} svm {row['svm']['missed_touch']:.1%} (net trained in "
-            f"{net.train_time_s:.0f} s; {row['selection']})")
+        closed_metrics = {k: row[k] for k in closed}
+        n, b = row[NETWORK], row[BASELINE]
+        log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net {n['accuracy']:.1%} svm "
+            f"{b['accuracy']:.1%} lda {row.get(CLOSED_FORM, {}).get('accuracy', np.nan):.1%} floor {floor['accuracy']:.1%}; "
+            f"force net {n['force_rmse_n']:.2f} svm {b['force_rmse_n']:.2f} SVR floor {floor.get('force_rmse_n', np.nan):.2f} N; "
+            f"missed net {n['missed_touch']:.1%} svm {b['missed_touch']:.1%} (net trained in {net.fit_s:.0f} s; "
+            f"{row['selection']})")
         out.append(row)
     return out
 
@@ -147,9 +148,9 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
     interval over simulator seeds (the network averaged over its training seeds within a seed)."""
     out = {}
     for m in METRICS:
-        net = np.array([r["net"][m] for rows in runs.values() for r in rows], float)
-        svm = np.array([rows[0]["svm"][m] for rows in runs.values()], float)
-        d = np.array([np.mean([r["net"][m] for r in rows]) - rows[0]["svm"][m] for rows in runs.values()], float)
+        net = np.array([r[NETWORK][m] for rows in runs.values() for r in rows], float)
+        svm = np.array([rows[0][BASELINE][m] for rows in runs.values()], float)
+        d = np.array([np.mean([r[NETWORK][m] for r in rows]) - rows[0][BASELINE][m] for rows in runs.values()], float)
         lo, hi = t_interval(d)
         out[m] = {"net_mean": float(net.mean()), "net_std": float(net.std(ddof=1)) if net.size > 1 else 0.0,
                   "svm_mean": float(svm.mean()), "svm_std": float(svm.std(ddof=1)) if svm.size > 1 else 0.0,

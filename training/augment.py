@@ -32,11 +32,9 @@ work on relative dB over every usable bin and the model's inputs are selected af
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
-__all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "fit_augmented_net", "net_layers", "choose_force", "choose_net_layer"]
+__all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "choose_force"]
 
 #: augmentations and their default size (see the module notes)
 AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "gain": 0.3, "tilt": 0.3, "motion": 1.0}
@@ -139,124 +137,7 @@ class Augmenter:
         return X[:, self.cols]
 
 
-# -- the network -----------------------------------------------------------------------------------------------
-def net_layers() -> dict:
-    """The location layers the augmented network can have: name -> options of :func:`fit_augmented_net`, plus
-    ``n_inputs``: the network reads only the first (best, OSPA order) that many inputs (``None``: all)."""
-    return {"MLP, every bin (augmented)": {"layer": "mlp"},
-            "MLP, 1000 bins (augmented)": {"layer": "mlp", "n_inputs": 1000},
-            "metric (normalized LDA)": {"layer": "metric", "metric_lr": 0.0, "unit_norm": True}}
-
-
-def fit_augmented_net(X, cls, force, *, n_locations: int, augmenter: Augmenter | None = None, touch_rows=None,
-                      layer: str = "metric", lda=None, metric_lr: float = 1e-3, epochs: int = 40, seed: int = 0,
-                      batch_size: int = 128, hidden=(128, 128), dropout: float = 0.3, lr: float = 2e-3,
-                      weight_decay: float = 1e-2, force_weight: float = 0.1, noise_db: float = 0.3, aug_share: float = 0.5,
-                      target_margin: float | None = 8.0, n_trunk: int | None = None, unit_norm: bool = False,
-                      n_members: int = 1, log=None):
-    """Train a network on (X, cls, force) with augmented touch chirps; returns ``predict(X) -> (logits, force)``
-    with ``predict.model`` the torch module (a :class:`models.SkinNet` / :class:`models.metric.MetricSkinNet`,
-    exported as any SkinNet).
-
-    ``X`` (n, n_in): the model inputs of every training chirp (touch and hands-off; ``cls == n_locations`` is no
-    touch); ``touch_rows``: the rows of ``X`` the ``augmenter``'s chirps are (in its order).  Every epoch the touch
-    rows are joined by one augmented copy of ``aug_share`` of them (labels and forces of their originals).
-    ``layer``: ``"metric"`` (:class:`~models.metric.MetricVotes` initialised from ``lda``, a fitted
-    :class:`sonicskin.nuisance.ShrinkageLDA` on the same inputs' touch chirps; ``metric_lr`` 0 keeps it frozen) or
-    ``"mlp"`` (SkinNet without a kernel layer).  ``n_members`` > 1: that many networks trained with seeds ``seed``,
-    ``seed + 1``, ... averaged (:class:`~models.metric.SkinEnsemble`).  ``n_trunk``: the metric network's trunk (touch, force) reads the
-    first ``n_trunk`` inputs only, and with ``unit_norm`` its metric layer reads unit-length chirps (``lda`` then fitted
-    on ``Normalizer()``-ed touch chirps) (:class:`~models.metric.MetricSkinNet`).
-    """
-    import torch
-    import torch.nn.functional as F
-    from sonicskin.models import SkinNet
-    from sonicskin.models.metric import MetricSkinNet, SkinEnsemble
-
-    from sonicskin import threads
-
-    if n_members > 1:
-        kw = dict(n_locations=n_locations, augmenter=augmenter, touch_rows=touch_rows, layer=layer, lda=lda,
-                  metric_lr=metric_lr, epochs=epochs, batch_size=batch_size, hidden=hidden, dropout=dropout, lr=lr,
-                  weight_decay=weight_decay, force_weight=force_weight, noise_db=noise_db, aug_share=aug_share,
-                  target_margin=target_margin, n_trunk=n_trunk, unit_norm=unit_norm)
-        members = [fit_augmented_net(X, cls, force, seed=seed + i, **kw).model for i in range(n_members)]
-        return _predictor(SkinEnsemble(members).eval())
-    threads.apply_torch()
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    X = np.ascontiguousarray(X, np.float32)
-    cls = np.asarray(cls, np.int64)
-    force = np.asarray(force, np.float32)
-    n_in = X.shape[1]
-    mean, std = X.mean(0), X.std(0) + 1e-3
-    if layer == "metric":
-        if lda is None:
-            raise ValueError("the metric layer starts from a fitted ShrinkageLDA on the same inputs (lda=...)")
-        model = MetricSkinNet(n_in, n_locations, tuple(hidden), dropout, n_trunk=n_trunk, unit_norm=unit_norm)
-        model.init_from_lda(lda, mean, std, target_margin=target_margin)
-    elif layer == "mlp":
-        model = SkinNet(n_in, n_locations, tuple(hidden), dropout)
-        model.set_normalization(mean, std)
-    else:
-        raise ValueError(f"layer must be 'metric' or 'mlp', got {layer!r}")
-    metric_params = list(model.metric.parameters()) if layer == "metric" else []
-    ids = {id(p) for p in metric_params}
-    groups = [{"params": [p for p in model.parameters() if id(p) not in ids]}]
-    for p in metric_params:
-        p.requires_grad_(metric_lr > 0)
-    if metric_params and metric_lr > 0:
-        groups.append({"params": metric_params, "lr": metric_lr, "weight_decay": 0.0})
-    opt = torch.optim.AdamW(groups, lr=lr, weight_decay=weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
-    touch_rows = np.asarray(touch_rows if touch_rows is not None else np.flatnonzero(cls < n_locations), int)
-    t0 = time.perf_counter()
-    model.train()
-    for _ in range(epochs):
-        Xe, ce, fe = X, cls, force
-        if augmenter is not None and aug_share > 0:
-            k = max(1, int(round(aug_share * len(touch_rows))))
-            pick = rng.choice(len(touch_rows), size=k, replace=False)
-            Xa = augmenter.draw(rng, pick).astype(np.float32)
-            src = touch_rows[pick]
-            Xe, ce, fe = np.vstack([X, Xa]), np.r_[cls, cls[src]], np.r_[force, force[src]]
-        Xt, yt, ft = torch.from_numpy(Xe), torch.from_numpy(ce), torch.from_numpy(fe)
-        perm = torch.randperm(len(Xt))
-        for i in range(0, len(Xt), batch_size):
-            b = perm[i:i + batch_size]
-            x = Xt[b]
-            if noise_db > 0:
-                x = x + noise_db * torch.randn_like(x)
-            logits, f_all = model(x)
-            loss = F.cross_entropy(logits, yt[b])
-            touched = yt[b] < n_locations
-            has_f = touched & torch.isfinite(ft[b])
-            if has_f.any():
-                loss = loss + force_weight * F.mse_loss(f_all[has_f].gather(1, yt[b][has_f, None])[:, 0], ft[b][has_f])
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-        sched.step()
-    model.eval()
-    if log:
-        log(f"trained {layer} network {epochs} epochs in {time.perf_counter() - t0:.1f} s")
-
-    return _predictor(model)
-
-
-def _predictor(model):
-    """``predict(X) -> (logits, force)`` of a trained torch model on float rows, the model at ``predict.model``."""
-    import torch
-
-    def predict(Xq):
-        with torch.no_grad():
-            lg, f = model(torch.from_numpy(np.ascontiguousarray(Xq, np.float32)))
-        return lg.numpy(), f.numpy()
-
-    predict.model = model
-    return predict
-
-
+# -- the network's force ---------------------------------------------------------------------------------------
 def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
                  first: tuple = (None, 300), how: str = "validation") -> dict:
     """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
@@ -294,49 +175,6 @@ def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alph
     if cand[best][1] is not None:
         model.set_force(cand[best][1])
     return {"force": best, "force_how": f"{how}: " + ", ".join(f"{k} {v:.2f} N" for k, v in rmse.items()), "force_rmse": rmse}
-
-
-def choose_net_layer(X, cls, force, *, n_locations: int, train, val, augmenter: Augmenter | None, touch_rows,
-                     lda=None, lda_unit=None, kernel_fit=None, layers: dict | None = None, seed: int = 0,
-                     epochs: int = 40, n_trunk: int = 300, log=None) -> dict:
-    """Train each candidate location layer on the ``train`` rows and keep the one with the best touch accuracy on
-    the ``val`` rows (ties: the first of ``layers``, default :func:`net_layers`).
-
-    ``X`` (n, n_in): every chirp's inputs (every usable bin, OSPA order, so the trunk reads the best ``n_trunk``);
-    ``touch_rows``: positions *within the train rows* of the augmenter's chirps (its input columns are ``X``'s; a layer
-    with ``n_inputs`` reads the first that many, and ``predict.n_inputs`` says how many); ``lda`` / ``lda_unit``: fitted
-    :class:`sonicskin.nuisance.ShrinkageLDA` on the training touch chirps (raw / unit-length) for the metric
-    layers; ``kernel_fit``: a callable ``() -> predict`` training the package's kernel network (the SVM copy) to
-    compete as ``"SVM kernel (frozen)"``.  Returns ``{"location_layer", "scores", "predict"}`` (the winner's
-    ``predict``, trained on the train rows).
-    """
-    layers = dict(net_layers() if layers is None else layers)
-    train, val = np.asarray(train, bool), np.asarray(val, bool)
-    rows = np.flatnonzero(train)
-    vt = val & (np.asarray(cls) < n_locations)
-    scores, preds = {}, {}
-    for name, opts in layers.items():
-        opts = dict(opts)
-        k = opts.pop("n_inputs", None) or X.shape[1]
-        model_lda = lda_unit if opts.get("unit_norm") else lda
-        if opts.get("layer") == "metric" and (model_lda is None or model_lda.n_features_in_ != k):
-            continue
-        aug = augmenter.restricted(k) if augmenter is not None and k < X.shape[1] else augmenter
-        pred = fit_augmented_net(X[rows][:, :k], cls[rows], force[rows], n_locations=n_locations, augmenter=aug,
-                                 touch_rows=touch_rows, lda=model_lda, seed=seed, epochs=epochs, n_trunk=n_trunk, **opts)
-        pred.n_inputs = k
-        lg, _ = pred(X[vt][:, :k])
-        scores[name] = float(np.mean(lg[:, :n_locations].argmax(1) == cls[vt]))
-        preds[name] = pred
-    if kernel_fit is not None:
-        pred = kernel_fit()
-        lg, _ = pred(X[vt][:, :pred.model.n_in]) if pred.model.n_in < X.shape[1] else pred(X[vt])
-        scores["SVM kernel (frozen)"] = float(np.mean(lg[:, :n_locations].argmax(1) == cls[vt]))
-        preds["SVM kernel (frozen)"] = pred
-    best = max(scores, key=lambda k: (scores[k], -list(scores).index(k)))
-    if log:
-        log("network location layer: " + best + " (validation: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()) + ")")
-    return {"location_layer": best, "scores": scores, "predict": preds[best]}
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):

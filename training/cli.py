@@ -24,7 +24,7 @@ from lightning.pytorch.cli import LightningCLI
 from sonicskin.errors import UsageError
 
 from .data import SkinDataModule
-from .module import SkinLitModule
+from .module import LAYER_KINDS, SkinLitModule
 
 __all__ = ["SkinCLI", "EpochBar", "main", "quiet_third_party"]
 
@@ -194,7 +194,7 @@ _FLOAT_RANGES = {  # (lo, lo_open, hi)
     "model.lr": (0.0, True, 10.0), "model.weight_decay": (0.0, False, 10.0), "model.dropout": (0.0, False, 0.99),
     "model.input_dropout": (0.0, False, 0.99), "model.label_smoothing": (0.0, False, 0.99),
     "model.force_weight": (0.0, False, 1e6), "model.kernel_lr": (0.0, False, 10.0), "model.tau": (0.0, True, 1e6),
-    "model.svm_c": (0.0, True, 1e9), "model.rest_mix": (0.0, False, 1.0), "model.noise_db": (0.0, False, 100.0),
+    "model.rest_mix": (0.0, False, 1.0), "model.noise_db": (0.0, False, 100.0),
     "data.noise_db": (0.0, False, 100.0), "data.min_force_n": (0.0, False, 1e4), "trainer.gradient_clip_val": (0.0, False, 1e9),
 }
 MAX_EPOCHS = 1_000_000
@@ -280,8 +280,8 @@ def check_ranges(cfg) -> None:
     if kernel is not None and not isinstance(kernel, bool) and kernel != "auto":
         bad("model.kernel", "true, false or auto", kernel)
     layer = get("model.layer")
-    if layer is not None and layer not in ("kernel", "mlp", "metric", "auto"):
-        bad("model.layer", "kernel, mlp, metric or auto", layer)
+    if layer is not None and layer not in LAYER_KINDS:
+        bad("model.layer", ", ".join(LAYER_KINDS[:-1]) + f" or {LAYER_KINDS[-1]}", layer)
     seed = get("seed_everything")
     if seed is not None and not isinstance(seed, bool) and (not isinstance(seed, int) or not 0 <= seed < 2**32):
         bad("seed_everything", "true, false or an integer from 0 to 2**32 - 1", seed)

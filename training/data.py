@@ -10,7 +10,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
-from sonicskin.fit import prepare
+from sonicskin.fit import fit_models, prepare
+from sonicskin.kinds import CLOSED_FORM
+from sonicskin.rig import Rig
 
 __all__ = ["SkinDataModule"]
 
@@ -60,34 +62,16 @@ class SkinDataModule(L.LightningDataModule):
         if meta is None:
             raise FileNotFoundError(f"{data} is not a sonicskin dataset (dataset.json missing); run `sonicskin simulate` first")
         self._n_locations = len(meta["layout"]["ids"])
-        from sonicskin.features import usable_bins
-        from sonicskin.rig import Rig
-
-        self.selection: dict | None = None
-        if n_bins is None:  # chosen by validation on the training/validation sessions (never the test sessions)
-            n_bins = self._select(data)
-        # OSPA's gamma on this dataset's rig: n_bins, or all bins of a narrower band (clamped with a warning); the
-        # network's inputs are every usable bin in OSPA's order (its layer reads a validated prefix), the SVM the first n_bins.
-        rig = Rig.from_dict(meta["rig"])
-        self._n_svm = usable_bins(rig, n_bins)
-        self._n_in = int(rig.allowed_mask.sum())
+        # The network's inputs are every usable bin in OSPA's order (its layer reads a validated prefix); the SVM reads
+        # the first n_bins (OSPA's gamma, validated by prepare() when None).
+        self._n_in = int(Rig.from_dict(meta["rig"]).allowed_mask.sum())
         self.prepared = None  # sonicskin.fit.TrainingData, after setup
+        self.fitted: dict = {}  # the closed-form models on its training chirps (the network's closed-form layers)
 
-    def _select(self, data: str) -> int:
-        from sonicskin.dataset import Dataset
-        from sonicskin.feature_cache import load_features_cached
-        from sonicskin.selection import select_gamma_on_table
-        from sonicskin.split import Split
-
-        h = self.hparams
-        ds = Dataset(data)
-        t = load_features_cached(ds, progress=False)
-        split = Split.make(t, train_sessions=h.train_sessions, val_sessions=h.val_sessions, test_subjects=h.test_subjects,
-                           allow_no_test=True)
-        sel = select_gamma_on_table(t, ds.rig, train_sessions=list(split.train), val_sessions=list(split.val), mode=h.mode,
-                                    min_force_n=h.min_force_n, log=lambda m: print(f"sonicskin: {m}"))
-        self.selection = {"svm": sel}
-        return int(sel["params"]["n_bins"])
+    @property
+    def selection(self) -> dict | None:
+        """What model selection chose on the training/validation sessions (gamma, the closed forms' options)."""
+        return None if self.prepared is None else self.prepared.selection
 
     @property
     def n_locations(self) -> int:
@@ -110,11 +94,11 @@ class SkinDataModule(L.LightningDataModule):
         if self.prepared is not None:
             return
         h = self.hparams
-        p = prepare(h.data, n_bins=self._n_svm, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
-                    test_subjects=h.test_subjects, min_force_n=h.min_force_n)
-        if self.selection:
-            p.selection = dict(self.selection)
+        p = prepare(h.data, n_bins=h.n_bins, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
+                    test_subjects=h.test_subjects, min_force_n=h.min_force_n, log=lambda m: print(f"sonicskin: {m}"))
         self.prepared = p
+        _, self.fitted = fit_models(p, (CLOSED_FORM,), refit=False, log=lambda m: None)
+        p.selection = {k: v for f in self.fitted.values() for k, v in f.selection.items()} | p.selection
         tr = p.rows("train")
         self.mean = p.X[tr].mean(axis=0)
         self.std = p.X[tr].std(axis=0) + 1e-3
@@ -122,8 +106,7 @@ class SkinDataModule(L.LightningDataModule):
         self.meta = {"data": str(Path(h.data).resolve()), "rig": ds.rig.to_dict(), "layout": ds.layout.to_dict(),
                      "spec": p.spec.to_dict(), "n_svm": int(p.n_svm), "split": split.to_dict(), "min_force_n": h.min_force_n,
                      "sessions_sha256": session_fingerprints(ds.root, [*split.train, *split.val, *split.test])}
-        if self.selection:
-            self.meta["selection"] = self.selection
+        self.meta["selection"] = dict(p.selection)
 
     def _loader(self, part: str, shuffle: bool) -> DataLoader:
         p = self.prepared

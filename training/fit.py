@@ -1,202 +1,240 @@
-"""The network's part of the one fit (:mod:`sonicskin.fit`): train it in-process, choose its touch decision and its
-force model on data it did not train on, and hand it over for export as a :class:`NetFit`.
+"""The network as a model kind (:class:`NetTrainer`, the ``sonicskin.kinds`` entry point ``net``): trained in-process,
+its location layer, touch decision and force chosen on presses it did not train on, refitted with those choices on
+every labelled press, exported to ONNX (:mod:`sonicskin.export.onnx`).
 
-``sonicskin train`` (LightningCLI) trains the same module; ``sonicskin export`` then calls :func:`finish_network` on
-the checkpoint's network, so both paths end in the same choices.
+``sonicskin train`` (LightningCLI) trains the same module; ``sonicskin export`` hands the checkpoint's network to
+:meth:`NetTrainer.fit` (``model=``), so both paths end in the same choices and the same refit (:mod:`sonicskin.fit`).
 """
 
 from __future__ import annotations
 
-import dataclasses
+import contextlib
+import io
 import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
-__all__ = ["NetFit", "train_network", "choose_network_layer", "finish_network", "artifact_from_checkpoint"]
+from sonicskin.dataset import Dataset
+from sonicskin.errors import ArtifactError
+from sonicskin.features import FeatureSpec
+from sonicskin.fit import fit_artifact, prepare, summary_lines
+from sonicskin.force import PooledForce
+from sonicskin.head import DETECTOR_BINS
+from sonicskin.integrity import check_layout, check_rig
+from sonicskin.kinds import BASELINE, NETWORK, Fitted
+from sonicskin.kinds.net import NetKind
+from sonicskin.split import Split
+
+from .augment import make_augmenter
+from .checkpoint import load_checkpoint
+from .data import session_fingerprints
+from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams
+
+__all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force",
+           "artifact_from_checkpoint"]
 
 
-@dataclasses.dataclass
-class NetFit:
-    """A trained network ready for export: the torch module, its hyperparameters (``skin.json`` ``hparams``), the
-    touch decision its head applies (``skin.json`` ``detector``; ``None``: its own p(touch)), what was chosen and
-    how (``selection["net"]``), and the training time."""
+class NetTrainer(NetKind):
+    """The network kind with its fit and export (torch)."""
 
-    model: object
-    hparams: dict
-    detector: dict | None
-    selection: dict
-    train_time_s: float | None = None
+    can_fit = True
+
+    def fit(self, data, *, fitted, selection=None, log=print, model=None, seed: int = 0, epochs: int | None = None,
+            select: bool = True, layer: dict | None = None, hparams: dict | None = None, train_time_s: float | None = None,
+            **options) -> Fitted:
+        """Train on ``data``'s training rows (``options``: the module's hyperparameters), or finish ``model``, a trained
+        module (its ``hparams``, the ``layer`` it chose).  ``selection``: the choices of an earlier pass (a refit):
+        the same layer, hyperparameters, epochs, seed, touch decision and force, trained anew here."""
+        if selection is not None:
+            return train_network(data, fitted=fitted, chosen=selection[NETWORK])
+        if model is not None:
+            return finish_network(model, data, fitted=fitted, selection=layer, hparams=hparams, train_time_s=train_time_s,
+                                  seed=seed)
+        return train_network(data, fitted=fitted, select=select, seed=seed, epochs=epochs, layer=layer, **options)
+
+    def export(self, fit, path, X_check):
+        from sonicskin.export.onnx import export_net
+
+        from .cli import quiet_third_party
+
+        with quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):  # torch.onnx's progress lines
+            return export_net(fit.model, path, X_check)
 
 
 def _plain_hparams(h) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dict(h).items()}
 
 
-def train_network(data, *, svm, select: bool = True, seed: int = 0, epochs: int | None = None, layer: dict | None = None,
-                  **hparams) -> NetFit:
+def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epochs: int | None = None,
+                  layer: dict | None = None, chosen: dict | None = None, **hparams) -> Fitted:
     """Train the network on the training chirps of ``data`` (a :class:`sonicskin.fit.TrainingData`) in-process.
 
-    ``select``: its location layer is chosen first (:func:`choose_network_layer`); without validation it is the SVM's
-    copy (:data:`training.quick.UNVALIDATED`).  ``layer``: that choice already made (several training seeds share
-    it).  The network reads the first inputs its layer asks for (OSPA order) and, unless it is the SVM's copy, trains
-    on augmented presses of its own training session (:func:`training.augment.make_augmenter`).  Then
-    :func:`finish_network`."""
-    from .augment import make_augmenter
-    from .quick import DEFAULTS, UNVALIDATED, fit_net, layer_hparams
-
+    ``select``: its location layer is chosen first (:func:`choose_network_layer`); without validation it is the
+    closed form (:data:`training.quick.UNVALIDATED`).  ``layer``: that choice already made (several training seeds
+    share it).  ``chosen``: every choice of an earlier pass (layer, epochs, seed, touch decision, force), trained anew on
+    these rows (a refit).  The network reads the first inputs its layer asks for (OSPA order) and trains on augmented
+    presses of its own training sessions (:func:`training.augment.make_augmenter`).  Then :func:`finish_network`."""
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
+    if chosen is not None:
+        seed, epochs = chosen.get("train_seed", seed), chosen.get("epochs", epochs)
+        layer = {"location_layer": chosen.get("location_layer", "as trained"), "layer_how": chosen.get("layer_how", ""),
+                 "hparams": chosen.get("hparams")}
     kw = {} if epochs is None else {"epochs": int(epochs)}
-    if layer is None and select:
-        layer = choose_network_layer(data, svm=svm, seed=seed, epochs=epochs)
+    here = layer is None and select
+    if here:
+        layer = choose_network_layer(data, fitted=fitted, seed=seed, epochs=epochs)
     if not layer or "location_layer" not in layer:
         layer = {"location_layer": UNVALIDATED, "layer_how": "not validated (model selection off)"}
-    hp = {**DEFAULTS, **hparams,
-          **(layer.get("hparams") or layer_hparams(layer["location_layer"], n_in=X.shape[1], n_svm=data.n_svm))}
-    aug = make_augmenter(data, train) if hp.get("augment") else None
-    svm_fits = svm is not None and hp.get("layer") == "kernel" and int(svm.pipe[0].n_features_in_) == hp.get("n_inputs")
+    layer = dict(layer)
+    model = layer.pop("fold_model", None) if here else None  # the chosen MLP as its first fold trained it: these rows
+    hp = {**DEFAULTS, **hparams, **(layer.get("hparams") or layer_hparams(layer["location_layer"], n_in=X.shape[1]))}
     t0 = time.perf_counter()
-    predict = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug,
-                      kernel_svm=svm.pipe if svm_fits else None, **kw, **hp)
+    if model is None:
+        aug = make_augmenter(data, train) if hp.get("augment") else None
+        model = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug, fitted=fitted,
+                        **kw, **hp).model
     train_s = time.perf_counter() - t0
-    model = predict.model
-    hparams_out = _plain_hparams({"n_in": int(X.shape[1]), "n_locations": n, **hp,
+    hparams_out = _plain_hparams({"n_in": int(X.shape[1]), "n_locations": n, **hp, "epochs": int(epochs or 40),
                                   "n_centres": int(model.kernel.centres.shape[0]) if model.kernel is not None else 0})
-    return finish_network(model, data, svm=svm, selection=layer, train_time_s=train_s, hparams=hparams_out, seed=seed)
+    return finish_network(model, data, fitted=fitted, selection=layer, train_time_s=train_s, hparams=hparams_out,
+                          seed=seed, chosen=chosen)
 
 
 def layer_folds(data):
-    """Where the network's location layer is validated: ``([(train rows, held-out rows, augmenter)], how)``.
-
-    With a validation session: trained on the training session and scored on the validation session, and the other
-    way round (the mean of both halves the ties at 100 % of one session).  Without one: the training session's last
-    pass over the markers held out (trained on the others).  ``[]`` when nothing can validate (one press per marker,
-    no validation session)."""
-    from sonicskin.selection import press_ids, press_passes
-
-    from .augment import make_augmenter
-
-    t = data.table
-    train, val = data.rows("train"), data.rows("val")
-    if val.any():
-        return ([(train, val, make_augmenter(data, train)), (val, train, make_augmenter(data, val))],
-                f"validation on {', '.join(data.split.val)} (and trained there, scored on {', '.join(data.split.train)})")
-    seg = t["segment"] if "segment" in t.labels else None
-    passes = press_passes(np.where(train, press_ids(t["location"], t["session"], seg), -1), t["location"])
-    if passes.max() >= 1:
-        last = passes == passes.max()
-        return [(train & ~last, train & last, make_augmenter(data, train & ~last))], "held-out last pass"
-    return [], "one press per location and no validation session: not validated"
+    """Where the network's location layer is validated (:meth:`sonicskin.fit.TrainingData.folds`, each with the
+    augmenter of its fit rows): ``([(fit rows, held-out rows, augmenter)], how)``."""
+    folds, how = data.folds()
+    return [(f, h, make_augmenter(data, f)) for f, h in folds], how
 
 
-def choose_network_layer(data, *, svm, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
-    """The network's location layer chosen on presses it did not train on (:func:`layer_folds`,
-    :func:`sonicskin.training.quick.choose_layer`); the SVM's copy when nothing can validate."""
-    from .quick import UNVALIDATED, choose_layer
-
+def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
+    """The network's location layer chosen on presses it did not train on (:func:`training.quick.choose_layer`); the
+    closed form when nothing can validate."""
     folds, how = layer_folds(data)
     if not folds:
-        return {"location_layer": UNVALIDATED, "layer_how": how}
+        return {"location_layer": UNVALIDATED, "layer_how": f"{how}: not validated, the closed form"}
     kw = {**hparams, **({} if epochs is None else {"epochs": int(epochs)})}
-    alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
-    return choose_layer(data.X, data.cls, data.force, n_locations=data.n_locations, folds=folds, how=how, seed=seed,
-                        location_ids=np.asarray(data.layout.ids), alpha=alpha, n_svm=data.n_svm, **kw)
+    return choose_layer(data, folds=folds, how=how, fitted=fitted, seed=seed, **kw)
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
     """``sonicskin train`` with ``model.layer: auto``: the Lightning module's location layer chosen as
     :func:`choose_network_layer` chooses it for an in-process network, set on the module (its hyperparameters, then
     the network rebuilt) and recorded in its checkpoint's selection."""
-    from .quick import UNVALIDATED, layer_hparams
-
     datamodule.setup("fit")
     h = module.hparams
     data = datamodule.prepared
-    res = choose_network_layer(data, svm=None, epochs=epochs, hidden=tuple(h.hidden), dropout=h.dropout,
+    res = choose_network_layer(data, fitted=datamodule.fitted, epochs=epochs, hidden=tuple(h.hidden), dropout=h.dropout,
                                weight_decay=h.weight_decay)
-    hp = res.get("hparams") or layer_hparams(res.get("location_layer", UNVALIDATED), n_in=data.X.shape[1], n_svm=data.n_svm)
-    for k, v in hp.items():
+    res.pop("fold_model", None)
+    for k, v in (res.get("hparams") or layer_hparams(res["location_layer"], n_in=data.X.shape[1])).items():
         h[k] = v
     module.model = module._build()
     if datamodule.meta is not None:
-        datamodule.meta.setdefault("selection", {})["net"] = {k: res[k] for k in ("location_layer", "layer_how")}
+        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in ("location_layer", "layer_how")}
     print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
     return res
 
 
-def finish_network(model, data, *, svm, selection: dict | None = None, train_time_s: float | None = None,
-                   hparams: dict | None = None, seed: int | None = None) -> NetFit:
+def finish_network(model, data, *, fitted: dict, selection: dict | None = None, train_time_s: float | None = None,
+                   hparams: dict | None = None, seed: int | None = None, chosen: dict | None = None) -> Fitted:
     """The touch decision and the force of a trained network, chosen on chirps it did not train on.
 
     Touch: with a validation session holding hands-off and touch chirps, the best of its own head, its head
     recalibrated there, the SVM's input-RMS detector and either of them
     (:func:`sonicskin.training.quick.choose_detector`); without one its head cannot be judged on data it did not
     train on, so it is combined with the input-RMS detector (``either``: never more misses than the SVM's).  Force:
-    its own head or a pooled ridge (over every input or the first 300), whichever has the lower RMSE on the validation
-    presses (:func:`sonicskin.training.quick.choose_force`), or the choice ``selection`` made on a held-out pass."""
-    import torch
-
-    from sonicskin.force import PooledForce
-    from sonicskin.head import DETECTOR_BINS
-
-    from .quick import choose_detector, choose_force
-
-    sel = dict(selection or {})
-    sel.pop("hparams", None)
+    its own head or a pooled ridge, whichever has the lower RMSE on the validation presses (:func:`choose_force`).
+    ``chosen``: both choices made by an earlier pass (a refit), applied with this data's SVM threshold and ridge."""
+    sel = {k: v for k, v in (selection or {}).items() if k not in ("hparams", "fold_model")}
     model = model.eval()
-    if hasattr(model, "set_detector"):
-        model.set_detector(None)  # a checkpoint of an older export may carry one: the head decides now
     n, ids = data.n_locations, np.asarray(data.layout.ids)
     X, cls, force, t = data.X[:, :model.n_in], data.cls, data.force, data.table  # the network reads the first n_in
     train, val = data.rows("train"), data.rows("val")
     q = data.quiet
     n_det = min(DETECTOR_BINS, X.shape[1])  # the SVM's detector reads the first (best) inputs only
     ref = np.zeros(n_det) if data.spec.mode == "relative" else X[train & q][:, :n_det].mean(axis=0)
-    detection = svm is not None and svm.params["detection"]
-    detector = None
-    if not detection:
+    svm = fitted.get(BASELINE)
+    detection = svm is not None and svm.entry["detection"]
+    threshold = float(svm.entry["threshold"]) if detection else 0.0
+    if chosen is not None:
+        sel.update({k: v for k, v in chosen.items() if k in ("detector", "how", "detector_mode", "bias", "force", "force_how",
+                                                             "force_rmse")})
+        detector = {"mode": chosen["detector_mode"], "bias": chosen.get("bias", 0.0)} if chosen.get("detector_mode") else None
+    elif not detection:
+        detector = None
         sel.update(detector="head", how="no hands-off chirps (or no SVM detector): the head's own p(touch)")
     elif (val & q).sum() >= 2 and (val & (cls < n)).any():
         with torch.no_grad():
             logits = model(torch.from_numpy(np.ascontiguousarray(X[val], np.float32)))[0].numpy()
-        d = choose_detector(logits, X[val], (cls < n)[val], (t["location"] < 0)[val], threshold=svm.params["threshold"],
+        d = choose_detector(logits, X[val], (cls < n)[val], (t["location"] < 0)[val], threshold=threshold,
                             reference=ref, how=f"validation on {', '.join(data.split.val)}")
         detector = d["config"]
         sel.update(detector=d["detector"], how=d["how"])
     else:
-        detector = {"mode": "either", "bias": 0.0, "threshold": float(svm.params["threshold"])}
+        detector = {"mode": "either", "bias": 0.0}
         sel.update(detector="either", how="no validation session: the head combined with the input-RMS detector")
     if detector is not None:
-        detector = {"mode": detector["mode"], "bias": float(detector.get("bias", 0.0)),
-                    "threshold": float(detector["threshold"]), "bins": int(n_det),
-                    **({} if data.spec.mode == "relative" else {"reference": [float(v) for v in ref]})}
+        detector = {"mode": detector["mode"], "bias": float(detector.get("bias", 0.0)), "threshold": threshold,
+                    "bins": int(n_det), **({} if data.spec.mode == "relative" else {"reference": [float(v) for v in ref]})}
+        sel.update(detector_mode=detector["mode"], bias=detector["bias"])
         if detector["mode"] == "head" and not detector["bias"]:
             detector = None  # the graph's own p(touch) >= 0.5: nothing for the head to add
     alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
-    if val.any():
+    if chosen is None and val.any():
         sel.update(choose_force(model, X, cls, force, fit_rows=train, val_rows=val, location_ids=ids, alpha=alpha,
                                 how=f"validation on {', '.join(data.split.val)}"))
-    elif str(sel.get("force", "")).startswith("pooled-ridge"):  # chosen on the held-out pass: refitted on every pass
+    elif str(sel.get("force", "")).startswith("pooled-ridge"):  # chosen on held-out presses: refitted on these
         fr = train & (cls < n) & np.isfinite(force)
         k = 300 if "first 300" in sel["force"] else X.shape[1]
-        pf = PooledForce(alpha).fit(X[fr][:, :k], force[fr], ids[cls[fr]])
-        coef = np.zeros(X.shape[1])
-        coef[:k] = pf.coef_
-        model.set_force({"coef": coef, "loc": [pf.loc_coef_[int(i)] + pf.intercept_ for i in ids]})
+        model.set_force(PooledForce(alpha).fit(X[fr][:, :k], force[fr], ids[cls[fr]]).padded(X.shape[1]).folded(ids))
     if seed is not None:
         sel["train_seed"] = int(seed)
-    return NetFit(model, dict(hparams or {}), detector, sel, train_time_s)
+    hp = dict(hparams or {})
+    if hp.get("epochs"):
+        sel["epochs"] = int(hp["epochs"])
+    sel["hparams"] = {k: v for k, v in hp.items() if k not in ("n_in", "n_locations", "n_centres", "epochs")}
+    entry = {"hparams": hp, **({"detector": detector} if detector is not None else {})}
+    return Fitted(model, entry, int(model.n_in), {NETWORK: sel}, train_time_s)
+
+
+def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
+                 first: tuple = (None, 300), how: str = "validation") -> dict:
+    """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
+    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
+    (the best OSPA bins, as the SVM's force and detector read them: a ridge over thousands of bins fits one session's
+    presses more loosely).  Sets the model's force (:meth:`models.SkinNet.set_force`)."""
+    ids = np.asarray(location_ids)
+    n_loc, n_in = len(ids), X.shape[1]
+    f = np.asarray(force, np.float64)
+    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
+    vr = val_rows & (cls < n_loc) & np.isfinite(f)
+    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
+        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
+    model.set_force(None)
+    with torch.no_grad():
+        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
+    cand = {"head": (np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None), None)}
+    for k in first:
+        k = n_in if k is None else min(int(k), n_in)
+        name = "pooled-ridge" if k == n_in else f"pooled-ridge (first {k} inputs)"
+        if name not in cand:
+            pf = PooledForce(alpha).fit(X[fr][:, :k], f[fr], ids[cls[fr]]).padded(n_in)
+            cand[name] = (np.clip(pf.predict(None, ids[cls[vr]], inputs=X[vr]), 0, None), pf.folded(ids))
+    rmse = {k: float(np.sqrt(np.mean((p - f[vr]) ** 2))) for k, (p, _) in cand.items()}
+    best = min(rmse, key=rmse.get)
+    if cand[best][1] is not None:
+        model.set_force(cand[best][1])
+    return {"force": best, "force_how": f"{how}: " + ", ".join(f"{k} {v:.2f} N" for k, v in rmse.items()), "force_rmse": rmse}
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
     """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
     the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
     layout and session names gave an artifact whose two models were trained on different recordings."""
-    from sonicskin.errors import ArtifactError
-
-    from .data import session_fingerprints
-
     split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
     missing = [s for s in split if s not in set(ds.sessions)]
     if missing:
@@ -212,29 +250,22 @@ def check_same_sessions(meta: dict, ds, ckpt) -> None:
                                 f"trained on (a copy of it is fine) with --data")
 
 
+def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, refit: bool = True,
+                             log=print) -> dict:
+    """``sonicskin export``: the checkpoint's network beside the closed-form models, through the one fit
+    (:mod:`sonicskin.fit`).
 
-
-def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, log=print) -> dict:
-    """``sonicskin export``: the checkpoint's network beside the SVM, through the one fit (:mod:`sonicskin.fit`).
-
-    The SVM is fitted on the checkpoint's own split, bins and inputs, so both models in the artifact see exactly the
-    same bins, reference and sessions; the network's touch decision and force are chosen as for an in-process network
-    (:func:`finish_network`).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout
-    and hold the very recordings it was trained on.  ``out`` is replaced as a whole at the end."""
-    from sonicskin.dataset import Dataset
-    from sonicskin.errors import ArtifactError
-    from sonicskin.features import FeatureSpec
-    from sonicskin.fit import fit_artifact, prepare, summary_lines
-    from sonicskin.integrity import check_layout, check_rig
-    from sonicskin.split import Split
-
-    from .checkpoint import load_checkpoint
-
+    The SVM and the LDA are fitted on the checkpoint's own split, bins and inputs, so every model in the artifact sees
+    exactly the same bins, reference and sessions; the network's touch decision and force are chosen as for an
+    in-process network (:func:`finish_network`); with a validation session and ``refit`` every model is then fitted
+    again on the training and validation sessions (the network retrained in-process with the checkpoint's choices and
+    epochs).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout and hold the very
+    recordings it was trained on.  ``out`` is replaced as a whole at the end."""
     lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
     meta = lit.meta
     spec = FeatureSpec.from_dict(meta["spec"])
     ds = Dataset(data or meta["data"])
-    # The data must be the checkpoint's rig and marker layout: the SVM is fitted on its positions here.
+    # The data must be the checkpoint's rig and marker layout: the closed forms are fitted on its positions here.
     check_rig({"rig": meta["rig"]}, ds.rig, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     check_same_sessions(meta, ds, ckpt)
@@ -245,11 +276,15 @@ def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | P
         raise ArtifactError(f"dataset {ds.root} gives other model inputs than checkpoint {Path(ckpt).name} was trained on "
                             f"({d.spec.mode}, beta {d.spec.beta_s:g} s vs {spec.mode}, beta {spec.beta_s:g} s); pass the "
                             f"dataset it was trained on with --data")
-    d.selection = dict(meta.get("selection") or {})
+    d.selection = {k: v for k, v in (meta.get("selection") or {}).items() if k != NETWORK}
     d.n_svm = int(meta.get("n_svm", len(spec.bins)))  # the SVM reads the first n_svm of the network's bins
-    skin = fit_artifact(d, out, net=lit.model, training={"checkpoint": str(ckpt)}, log=log,
-                        net_options={"hparams": _plain_hparams(lit.hparams), "train_time_s": meta.get("train_time_s"),
-                                     "selection": (meta.get("selection") or {}).get("net")})
+    d.options = {"wide": True, "bins": None}  # a refit chooses OSPA's bins again on every labelled press
+    net_sel = (meta.get("selection") or {}).get(NETWORK) or {}
+    hp = _plain_hparams(lit.hparams)
+    hp["epochs"] = int(meta.get("epochs") or 40)
+    skin = fit_artifact(d, out, (NETWORK,), refit=refit, training={"checkpoint": str(ckpt)}, log=log,
+                        options={NETWORK: {"model": lit.model, "hparams": hp, "train_time_s": meta.get("train_time_s"),
+                                           "layer": net_sel, "seed": 0}})
     for line in summary_lines(out, skin):
         log(line)
     return skin

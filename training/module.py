@@ -3,26 +3,23 @@
 from __future__ import annotations
 
 import json
+import time
 
 import lightning as L
 import numpy as np
 import torch
 import torch.nn.functional as F
-from sonicskin.models import SkinNet, svm_pipeline
+from sonicskin.models import LDASkinNet, SkinNet
 
-__all__ = ["SkinLitModule", "fit_kernel_svm", "LAYER_KINDS"]
+from sonicskin.kinds import BASELINE, CLOSED_FORM
+from sonicskin.kinds.lda import linear_scores
+
+from .augment import make_augmenter
+
+__all__ = ["SkinLitModule", "LAYER_KINDS"]
 
 #: the network's location layers (``model.layer``)
-LAYER_KINDS = ("kernel", "mlp", "metric", "auto")
-
-
-def fit_kernel_svm(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float = 10.0):
-    """The baseline's scaler + RBF SVC on the touch chirps (``cls < n_locations``) of a training split."""
-    touch = cls < n_locations
-    if len(np.unique(cls[touch])) != n_locations:
-        raise ValueError(f"training data touches {len(np.unique(cls[touch]))} of the {n_locations} locations; "
-                         f"record every location at least once")
-    return svm_pipeline(C).fit(np.asarray(X, np.float64)[touch], cls[touch])
+LAYER_KINDS = ("lda", "kernel", "mlp", "auto")
 
 
 def _plain(o):
@@ -65,17 +62,17 @@ class SkinLitModule(L.LightningModule):
         The older name of ``layer``: ``True`` the SVM's kernel machine, ``False`` an MLP, ``"auto"`` chosen by
         validation; ``layer`` wins when given.
     layer : str
-        The location layer: ``"kernel"`` (the SVM's kernel machine, RBF units at its support vectors, fitted on the
-        training split when training starts: scaler + RBF SVC, C = ``svm_c``), ``"mlp"`` (the trunk's own location
-        logits), ``"metric"`` (class prototypes under a metric learned from every marker's presses:
-        :class:`models.metric.MetricSkinNet`, started as a shrinkage LDA on the unit-length touch chirps), or
-        ``"auto"``: chosen before training by validation (:func:`training.fit.choose_network_layer`).
+        The location layer: ``"lda"`` (the artifact's shrinkage LDA, frozen: :class:`models.LDASkinNet`),
+        ``"kernel"`` (the artifact's SVM as a kernel machine, RBF units at its support vectors), ``"mlp"`` (the
+        trunk's own location logits), or ``"auto"``: chosen before training by validation
+        (:func:`training.fit.choose_network_layer`).  The closed-form layers are the models the artifact's
+        ``lda.onnx`` and ``svm.onnx`` hold, fitted on the same training chirps (:mod:`sonicskin.kinds`).
     n_inputs : int, optional
         The network reads the first ``n_inputs`` inputs only (OSPA's best bins); ``None``: all ``n_in``.
     n_trunk : int
-        Metric layer: the trunk (touch, force) reads the first ``n_trunk`` inputs, the metric layer all of them.
-    metric_lr : float
-        Learning rate of the metric layer; 0 keeps it the LDA's.
+        LDA layer: the trunk (touch, force) reads the first ``n_trunk`` inputs, the LDA all of them.
+    norm : str
+        LDA layer: each chirp's normalisation before it (``none``, ``level``, ``unit``: the LDA's own).
     augment : bool
         Train on augmented touch chirps too (:class:`training.augment.Augmenter`: the force ramp within each press, the
         touch's strength, aim toward neighbouring markers, warm-up stretch, gain and tilt, the robot's motion, each
@@ -88,8 +85,6 @@ class SkinLitModule(L.LightningModule):
         Softness of the kernel layer's one-vs-one votes.
     n_centres : int
         RBF units; set when the SVM is fitted (stored so a checkpoint rebuilds the same shapes); leave at 0.
-    svm_c : float
-        The SVM's C for the kernel layer.
     rest_mix : float
         Augmentation with the rig's own noise: each training touch chirp gets a random no-touch chirp's
         deviation (from the batch's no-touch mean) times ``rest_mix`` (0 = off; measured no gain over
@@ -99,9 +94,9 @@ class SkinLitModule(L.LightningModule):
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.3, lr: float = 2e-3, weight_decay: float = 1e-2, force_weight: float = 0.1,
                  noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
-                 kernel: bool | str = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0, svm_c: float = 10.0,
+                 kernel: bool | str = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0,
                  rest_mix: float = 0.0, layer: str | None = None, n_inputs: int | None = None, n_trunk: int = 300,
-                 metric_lr: float = 0.0, augment: bool = False, aug_share: float = 0.5):
+                 norm: str = "none", augment: bool = False, aug_share: float = 0.5):
         super().__init__()
         self.save_hyperparameters()
         if layer is None:
@@ -123,68 +118,51 @@ class SkinLitModule(L.LightningModule):
     def _build(self):
         h = self.hparams
         n = self.n_model_in
-        if h.layer == "metric":
-            from sonicskin.models.metric import MetricSkinNet
-
-            return MetricSkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk,
-                                 unit_norm=True)
+        if h.layer == "lda":
+            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm)
         centres = h.n_centres if h.layer == "kernel" else 0
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 
-    def init_metric(self, X: np.ndarray, cls: np.ndarray) -> None:
-        """Start the metric layer as a shrinkage LDA on the unit-length touch chirps of (X, cls) (training split)."""
-        from sklearn.preprocessing import normalize
-
-        from sonicskin.nuisance import ShrinkageLDA
-
-        n, K = self.n_model_in, self.hparams.n_locations
-        X = np.asarray(X, np.float64)[:, :n]
-        touch = np.asarray(cls) < K
-        if np.unique(cls[touch]).size != K:
-            raise ValueError(f"training data touches {np.unique(cls[touch]).size} of the {K} locations; "
-                             f"record every location at least once")
-        lda = ShrinkageLDA().fit(normalize(X[touch]), np.asarray(cls)[touch])
-        self.model.init_from_lda(lda, X.mean(0), X.std(0) + 1e-3)
-
-    def init_kernel(self, X: np.ndarray, cls: np.ndarray, pipe=None) -> None:
-        """Fit the SVM on (X, cls) of the training split and start the kernel layer (and normalisation) from it
-        (``pipe``: that SVM, already fitted)."""
-        if pipe is None:
-            pipe = fit_kernel_svm(np.asarray(X)[:, :self.n_model_in], cls, self.hparams.n_locations, C=self.hparams.svm_c)
+    def init_closed_form(self, fitted: dict) -> None:
+        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the
+        :class:`sonicskin.kinds.Fitted` SVM and LDA on this network's training chirps): the kernel layer is the SVM
+        (its support vectors; the network's normalisation its scaler), the LDA layer the LDA, frozen."""
         h = self.hparams
-        h.n_centres = int(pipe[-1].support_vectors_.shape[0])
-        self.model = self._build()
-        self.model.init_from_svm(pipe)
+        if h.layer == "kernel":
+            pipe = fitted[BASELINE].model
+            h.n_centres = int(pipe[-1].support_vectors_.shape[0])
+            self.model = self._build()
+            self.model.init_from_svm(pipe)
+        elif h.layer == "lda":
+            lda = fitted[CLOSED_FORM]
+            h.norm, h.n_inputs = lda.entry["norm"], int(lda.n_in)
+            self.model = self._build()
+            self.model.init_from_lda(*linear_scores(lda.model))
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None)
         if dm is not None and getattr(dm, "prepared", None) is not None:
-            n = self.n_model_in
-            self.model.set_normalization(dm.mean[:n], dm.std[:n])
-            self.meta = dm.meta
             if stage == "fit" and self.hparams.layer == "auto":  # SkinCLI.before_fit chooses it (training.fit)
                 raise ValueError("model.layer 'auto' must be resolved before training (training.fit.choose_auto_layer)")
             p = dm.prepared
             tr = p.rows("train")
-            if stage == "fit" and self.hparams.layer == "kernel" and self.model.kernel is None:
-                self.init_kernel(p.X[tr], p.cls[tr])
-            if stage == "fit" and self.hparams.layer == "metric":
-                self.init_metric(p.X[tr], p.cls[tr])
+            if stage == "fit":
+                self.init_closed_form(dm.fitted)
+            n = self.n_model_in
+            if self.hparams.layer != "kernel":  # the kernel layer's normalisation is the SVM's scaler
+                self.model.set_normalization(p.X[tr][:, :n].mean(0), p.X[tr][:, :n].std(0) + 1e-3)
+            self.meta = dm.meta
             if stage == "fit" and self.hparams.augment and self.augmenter is None:
-                from .augment import make_augmenter
-
                 self.augmenter, self.aug_rows = make_augmenter(p, tr, n_cols=n)
             if self.model.kernel is not None:  # before DDP wraps the model: a frozen layer is no unused parameter
                 self.model.kernel.requires_grad_(self.hparams.kernel_lr > 0)
-            if getattr(self.model, "metric", None) is not None:
-                self.model.metric.requires_grad_(self.hparams.metric_lr > 0)
 
     def on_train_start(self) -> None:
-        import time
         self._t0 = time.perf_counter()
+        if self.meta is not None:
+            self.meta["epochs"] = int(self.trainer.max_epochs or 1)
 
     def on_train_epoch_end(self) -> None:
-        import time
         if self.meta is not None and hasattr(self, "_t0"):
             self.meta["train_time_s"] = time.perf_counter() - self._t0
 
@@ -260,18 +238,16 @@ class SkinLitModule(L.LightningModule):
         self._step(batch, "test")
 
     def make_optimizer(self, epochs: int):
-        """AdamW (the kernel layer at ``kernel_lr``, the metric layer at ``metric_lr``; frozen at 0) with a cosine
-        schedule over ``epochs``."""
+        """AdamW (the kernel layer at ``kernel_lr``, frozen at 0; a frozen LDA layer has no parameters to train) with
+        a cosine schedule over ``epochs``."""
         h = self.hparams
-        groups, ids = [], set()
-        for layer, lr in ((self.model.kernel, h.kernel_lr), (getattr(self.model, "metric", None), h.metric_lr)):
-            params = list(layer.parameters()) if layer is not None else []
-            for q in params:
-                q.requires_grad_(lr > 0)
-            ids |= {id(q) for q in params}
-            if params and lr > 0:
-                groups.append({"params": params, "lr": lr, "weight_decay": 0.0})
-        groups.insert(0, {"params": [q for q in self.parameters() if id(q) not in ids]})
+        kernel = list(self.model.kernel.parameters()) if self.model.kernel is not None else []
+        for q in kernel:
+            q.requires_grad_(h.kernel_lr > 0)
+        ids = {id(q) for q in kernel}
+        groups = [{"params": [q for q in self.parameters() if id(q) not in ids and q.requires_grad]}]
+        if kernel and h.kernel_lr > 0:
+            groups.append({"params": kernel, "lr": h.kernel_lr, "weight_decay": 0.0})
         opt = torch.optim.AdamW(groups, lr=h.lr, weight_decay=h.weight_decay)
         return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(1, epochs))
 

@@ -136,6 +136,9 @@ def add_model_options(p: argparse.ArgumentParser, *, train_default: str = "the f
     g.add_argument("--test", nargs="+", metavar="SESSION", help="test sessions (default: all the others)")
     g.add_argument("--test-subjects", type=nonneg_int, nargs="+", metavar="ID",
                    help="leave-subjects-out: sessions of these people are the test set (default: off)")
+    g.add_argument("--no-refit", dest="refit", action="store_false",
+                   help="deploy the models fitted on the training sessions alone (default: after choosing on the "
+                        "validation session, refit every model on the training and validation sessions together)")
 
 
 def check_split_options(a: argparse.Namespace) -> None:

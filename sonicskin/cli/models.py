@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from ..errors import UsageError
+from ..kinds import labels
 from ._common import (
     add_model_options,
     check_split_options,
@@ -152,9 +153,9 @@ def _report_training(cli, *, selection: bool = True) -> None:
             metrics += (f" (validation {', '.join(split.val)})" if split.val else
                         f" (no validation session: on the training sessions {', '.join(split.train)})")
         print(f"trained {res['epochs']} epochs in {res['train_time_s']:.0f} s: {metrics}")
-    from ..selection import format_selection
+    from ..fit import selection_lines
 
-    for line in format_selection(getattr(cli.datamodule, "selection", None) if selection else None):
+    for line in selection_lines(getattr(cli.datamodule, "selection", None) if selection else None):
         print(line)
 
 
@@ -167,11 +168,11 @@ def cmd_export(a: argparse.Namespace) -> int:
     if not run.exists():
         raise FileNotFoundError(f"{run} does not exist; pass a run folder of `sonicskin train` or its .ckpt file")
     need_train_extra("export")
-    export_quietly(latest_checkpoint(run), a.out, data=a.data)
+    export_quietly(latest_checkpoint(run), a.out, data=a.data, refit=a.refit)
     return 0
 
 
-def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> None:
+def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None, refit: bool = True) -> None:
     """:func:`sonicskin.training.fit.artifact_from_checkpoint` with one result line: torch.onnx's progress prints and third-party
     warnings are dropped, a half-made artifact is removed, an unreadable checkpoint is one line (training.checkpoint refuses it)."""
     import io
@@ -182,7 +183,7 @@ def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None) -> N
 
     stdout = sys.stdout
     with removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
-        artifact_from_checkpoint(ckpt, out, data=data, log=lambda msg: print(msg, file=stdout))
+        artifact_from_checkpoint(ckpt, out, data=data, refit=refit, log=lambda msg: print(msg, file=stdout))
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
@@ -267,7 +268,7 @@ def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
     if not (artifact / "skin.json").is_file():
         raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-    if (extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None
+    if (extra or any(getattr(a, k) for k in ("n_bins", "mode", "train", "test_subjects")) or a.val is not None or not a.refit
             or a.config != "moving"):
         raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
                          "compare on (drop the training options or --artifact)")
@@ -287,7 +288,7 @@ def _compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
         return 0
     _report_training(cli, selection=False)  # the export below prints the whole selection
     artifact = run / "artifact"
-    export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data)
+    export_quietly(latest_checkpoint(Path(cli.trainer.checkpoint_callback.dirpath)), artifact, data=a.data, refit=a.refit)
     return _score_artifact(a, artifact, expected=False)
 
 
@@ -299,13 +300,13 @@ def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) ->
     from ..rig import Layout
 
     res = compare_artifact(artifact, a.data, sessions=a.test)
-    title = f"{Path(a.data).name}: " + " vs ".join({"net": "network", "svm": "SVM"}[k] for k in res["models"])
+    title = f"{Path(a.data).name}: " + " vs ".join(labels()[k] for k in res["models"])
     print(format_comparison(res, title))
     meta = json.loads((artifact / "skin.json").read_text())
     if expected and meta.get("selection"):  # what the validation expected, next to what the test sessions gave
-        from ..selection import format_selection
+        from ..fit import selection_lines
 
-        print("\n".join(f"  expected at training: {line}" for line in format_selection(meta["selection"])))
+        print("\n".join(f"  expected at training: {line}" for line in selection_lines(meta["selection"])))
     out = Path(a.out or Path("reports") / f"compare-{Path(a.data).name}")
     paths = save_comparison(res, out, Layout.from_dict(meta["layout"]), title)
     print("wrote " + ", ".join(str(p) for p in paths))

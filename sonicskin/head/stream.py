@@ -12,7 +12,6 @@ from collections.abc import Callable
 import numpy as np
 
 from ..errors import ArtifactError
-from .heads import NetHead, SVMHead
 from .predictions import Predictions
 
 __all__ = ["Stream", "band_rows", "finite_rows"]
@@ -46,7 +45,8 @@ class Stream:
     Parameters
     ----------
     run : ``inputs (n, len(spec.bins)) -> outputs`` of the model (its ONNX graph).
-    head : the model's :class:`~sonicskin.head.SVMHead` or :class:`~sonicskin.head.NetHead`.
+    head : the model kind's head (:mod:`sonicskin.kinds`); a ``calibrated`` head's score vectors are what Alg. 2
+        averages (its ``S_c``), any other reads the stream's no-touch inputs.
     spec : the artifact's :class:`~sonicskin.features.FeatureSpec` (bins, mode, beta, alpha).
     rig : the artifact's :class:`~sonicskin.rig.Rig`.
     drift : a :class:`~sonicskin.drift.DriftTracker` holding the training session's rest spectrum (the artifact's
@@ -56,11 +56,11 @@ class Stream:
         model: the reference then tracks gain, tilt *and* stretch.
     """
 
-    def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head: SVMHead | NetHead, spec, rig, *, drift=None):
+    def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head, spec, rig, *, drift=None):
         self.run, self.head, self.spec, self.rig, self.drift = run, head, spec, rig, drift
         self.bins = list(spec.bins)
         if drift is None:
-            score_fn = (lambda x: head.scores(run(x), x)) if isinstance(head, SVMHead) else None
+            score_fn = (lambda x: head.scores(run(x), x)) if head.calibrated else None
             self.reference = spec.reference(rig.chirps_per_s, score_fn=score_fn)
         else:  # the reference holds band rows; inputs are formed here, on the warped axis
             self._bins = np.asarray(self.bins, np.int64)
@@ -81,7 +81,7 @@ class Stream:
         self.drift.update(block)
         self._ref_inputs = self.drift.warp_bins(self.reference.features, self._bins)
         inputs = self._inputs(block)
-        if isinstance(self.head, SVMHead):
+        if self.head.calibrated:
             return self.head.scores(self.run(inputs), inputs)
         return np.zeros((len(block), 1))
 
@@ -94,7 +94,7 @@ class Stream:
         """Decisions on model inputs under the current reference."""
         ref = self.reference
         input_ref = None
-        if isinstance(self.head, NetHead) and ref.ready:
+        if not self.head.calibrated and ref.ready:
             if self.drift is not None:
                 input_ref = np.zeros(len(self.bins)) if self.spec.mode == "relative" else self._ref_inputs
             else:

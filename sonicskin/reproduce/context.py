@@ -17,10 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import kinds
 from ..dataset import Dataset, FeatureTable
 from ..feature_cache import load_features_cached
 from ..features import select_bins
+from ..fit import prepare, write_artifact
 from ..head import Predictions
+from ..kinds import BASELINE, CLOSED_FORM, NETWORK
 from ..rig import Rig
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
@@ -33,7 +36,7 @@ MATERIALS = ("cfrp", "aluminium", "abs", "glass", "wood")
 # --quick: every press half as long (1.5 s of 3 s) and 5 s of moving no-touch (of 10 s), on top of each
 # experiment's fewer sessions: about 0.6x the chirps of the same sessions in full.
 QUICK_SIZE = {"touch_s": 1.5, "moving_s": 5.0}
-MODEL = {"svm": "SVM", "net": "network"}
+MODEL = kinds.labels()
 #: the datasets each experiment reads (``--only`` simulates these only)
 USES = {"fig6b": ("moving",), "fig11": ("moving",), "fig12": ("drift-2h", "drift-2months"), "fig13": ("stationary",),
         "table1": ("stationary", "moving", "multi-person"),
@@ -112,7 +115,7 @@ class Context:
 
     @property
     def kinds(self) -> list[str]:
-        return ["svm", "net"] if self.net else ["svm"]
+        return [BASELINE, NETWORK] if self.net else [BASELINE]
 
     def save(self, fig, name: str, res: dict) -> dict:
         """Write the figure (the first simulator seed draws it) and return the results."""
@@ -162,8 +165,6 @@ class Context:
         these training chirps train (a resample).  ``notches=False``: the artifact's rig has no PWM notches (the
         paper's no-matched-filter ablation: every band bin may be read).  ``n_svm``: the SVM reads the first ``n_svm``
         of ``bins`` (OSPA order), the network may read them all (default: both read every one)."""
-        from ..fit import prepare
-
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
         key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)
@@ -183,27 +184,24 @@ class Context:
         """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM (gamma
         from the bins, C 10, ``gamma="scale"``, per-location Fourier-1, the input-RMS detector), or the network as the
         package deploys it (its location layer, touch decision and force chosen on the training chirps' held-out
-        pass, :func:`sonicskin.training.fit.train_network`).  Each is fitted and exported once."""
-        from ..fit import fit_svm, write_artifact
-
+        pass, :mod:`sonicskin.kinds`).  Each is fitted and exported once."""
         data, dkey = data_key
-        key = (dkey, kind, seed if kind == "net" else 0, self.epochs if kind == "net" else 0)
+        key = (dkey, kind, seed if kind == NETWORK else 0, self.epochs if kind == NETWORK else 0)
         if key in self._arts:
             self.shared["fits_reused"] += 1
             return self._arts[key]
-        if dkey not in self._svm:
-            self._svm[dkey] = fit_svm(data, select=False, log=lambda m: None)
-        path = self.out / "work" / f"seed{self.sim_seed}" / _key(*key)
         quiet = lambda m: None  # noqa: E731
-        if kind == "svm":
-            write_artifact(data, path, svm=self._svm[dkey], log=quiet)
+        closed = self._svm.setdefault(dkey, {})
+        if BASELINE not in closed:  # the paper's SVM, once per training data
+            closed[BASELINE] = kinds.get(BASELINE).fit(data, fitted={}, select=False, log=quiet)
+        path = self.out / "work" / f"seed{self.sim_seed}" / _key(*key)
+        if kind == BASELINE:
+            write_artifact(data, path, {BASELINE: closed[BASELINE]}, log=quiet)
         else:
-            from sonicskin.training.cli import quiet_third_party
-            from sonicskin.training.fit import train_network
-
-            with quiet_third_party():
-                net = train_network(data, svm=self._svm[dkey], seed=seed, epochs=self.epochs)
-                write_artifact(data, path, net=net, log=quiet)
+            if CLOSED_FORM not in closed:
+                closed[CLOSED_FORM] = kinds.get(CLOSED_FORM).fit(data, fitted=closed, log=quiet)
+            net = kinds.get(NETWORK, fitting=True).fit(data, fitted=closed, seed=seed, epochs=self.epochs, log=quiet)
+            write_artifact(data, path, {NETWORK: net}, log=quiet)
         self.shared["fits"] += 1
         self._arts[key] = path
         return path
@@ -215,7 +213,7 @@ class Context:
         from ..runtime import SkinRuntime
 
         data, dkey = data_key
-        key = (dkey, kind, seed if kind == "net" else 0, mask_key(test), one_stream)
+        key = (dkey, kind, seed if kind == NETWORK else 0, mask_key(test), one_stream)
         if key in self._preds:
             self.shared["replays_reused"] += 1
             return self._preds[key]

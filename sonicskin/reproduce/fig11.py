@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kinds import BASELINE, NETWORK
 from .context import Context, plt
 
 
@@ -29,10 +30,10 @@ def run(ctx: Context) -> dict:
             accs = []
             for s in sz[f"{k}_seeds"]:
                 keep = None
-                if k == "svm" and s > 0:
+                if k == BASELINE and s > 0:
                     keep = np.random.default_rng(s).random(len(t)) < 0.8
                 d = ctx.data(ds, train=train, bins=order[:g], keep=keep)
-                accs.append(ctx.evaluate(k, d, test, seed=s if k == "net" else 0)["accuracy"])
+                accs.append(ctx.evaluate(k, d, test, seed=s if k == NETWORK else 0)["accuracy"])
             res[k][g] = accs
     fig, ax = plt().subplots(figsize=(5, 3.5))
     for k, v in res.items():

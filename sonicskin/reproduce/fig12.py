@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..features import touch_mask
+from ..kinds import NETWORK
 from .context import MODEL, NEVER_S, Context, deployed_data, first_session_split, plt
 
 ALPHAS = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
@@ -44,7 +45,7 @@ def run(ctx: Context) -> dict:
         d = (deployed_data(ctx, ds, train, alpha_s=a) if ctx.net and name in ("20 min", "never") else
              ctx.data(ds, train=train, bins=bins, alpha_s=a))
         for k in ctx.kinds:
-            if name not in ("20 min", "never") and k == "net":
+            if name not in ("20 min", "never") and k == NETWORK:
                 continue
             res[f"{k} alpha={name}"] = _per_session(ctx, k, d, train, later)
     out = ctx.save(draw(res), "fig12.png", res)

@@ -6,6 +6,7 @@ import numpy as np
 
 from ..features import quiet_mask, touch_mask
 from ..force import MODELS, energy_db, fit_curve
+from ..kinds import NETWORK
 from .context import Context, deployed_data, first_session_split, plt
 
 
@@ -23,7 +24,7 @@ def run(ctx: Context) -> dict:
                   for k in ds.layout.ids if (touch & (tr["location"] == k)).sum() > 6]
             res[feat][model] = float(np.mean(r2))
     if ctx.net:  # the deployed network's force on its own training session (replayed as a stream)
-        p = ctx.predict("net", deployed_data(ctx, ds, train), train)
+        p = ctx.predict(NETWORK, deployed_data(ctx, ds, train), train)
         m = touch & p.touch
         g = tr["force_n"][m]
         res["network (training fit)"] = float(1 - np.sum((p.force_n[m] - g) ** 2) / np.sum((g - g.mean()) ** 2))

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..force import MODELS
 from .aggregate import pool
-from .context import QUICK_SIZE, datasets
+from .context import MODEL, QUICK_SIZE, datasets
 from .fig11 import sizes as fig11_sizes
 
 PAPER = {
@@ -56,7 +56,7 @@ def sizes(ctx, seeds) -> list[str]:
 
 def report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
     ks = ctx.kinds
-    col = " | ".join("SVM" if k == "svm" else "network" for k in ks)
+    col = " | ".join(MODEL[k] for k in ks)
     lines = ["# SonicSkin on the simulated rig: the paper's Sec. V, SVM and network\n",
              f"Mode: {'quick' if ctx.quick else 'full'}; run time {runtime_s / 60:.1f} min on this machine. "
              f"Every number below is measured in this run as mean +- standard deviation over {len(seeds)} simulator "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kinds import NETWORK
 from .context import MODEL, Context, deployed_data, first_session_split, plt
 
 
@@ -57,7 +58,7 @@ def _net_layer(ctx: Context, d) -> str:
     """The location layer the deployed network uses (its artifact's ``selection.net``), '' without a network."""
     import json
 
-    if "net" not in ctx.kinds:
+    if NETWORK not in ctx.kinds:
         return ""
-    sel = json.loads((ctx.artifact("net", d) / "skin.json").read_text()).get("selection", {}).get("net", {})
+    sel = json.loads((ctx.artifact(NETWORK, d) / "skin.json").read_text()).get("selection", {}).get(NETWORK, {})
     return str(sel.get("location_layer", ""))

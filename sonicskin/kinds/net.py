@@ -1,0 +1,133 @@
+"""The network's runtime half: its head (decisions from its ONNX outputs) and its ``skin.json`` entry.
+
+Fitting and exporting it needs torch: :mod:`sonicskin.training.kind` subclasses :class:`NetKind` with them and is
+registered through the ``sonicskin.kinds`` entry point (:func:`sonicskin.kinds.get` loads it only to fit one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.special import logsumexp
+
+from ..head import DETECTOR_BINS, Predictions, input_rms
+from ..head.heads import centroid, softmax
+from ..rig import Layout
+from . import BASELINE, CLOSED_FORM, ModelKind, register
+
+__all__ = ["NetKind", "NetHead", "NET_DETECTORS", "touch_logit"]
+
+#: Touch decisions of the network head: its own touch logit (plus a validated ``bias``), the input-RMS detector
+#: the SVM uses, or ``either`` of the two.
+NET_DETECTORS = ("head", "input-rms", "either")
+
+
+def touch_logit(logits: np.ndarray) -> np.ndarray:
+    """``log p(touch) / p(no touch)`` of (n, N + 1) logits."""
+    logits = np.asarray(logits, np.float64)
+    return logsumexp(logits[:, :-1], axis=1) - logits[:, -1]
+
+
+class NetHead:
+    """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]``.
+
+    ``logits`` are log-probabilities of the N locations and (last) no touch.  Touch: by the entry's ``detector``
+    (:data:`NET_DETECTORS`; absent: the head's own ``p(touch) >= 0.5``), the input-RMS statistic measured from the
+    stream's no-touch inputs as the SVM head measures it.  Location: the most likely marker; confidence its
+    probability given a touch; force: the force output at that marker.  Training chooses the detector by calling
+    :meth:`touch` on validation outputs, so what it chooses is what runs.
+    """
+
+    calibrated = False  # Alg. 2 gives it the stream's no-touch inputs, not score vectors
+
+    def __init__(self, entry: dict, layout: Layout):
+        self.layout, self.K = layout, len(layout)
+        self.ids = np.asarray(layout.ids)
+        d = entry.get("detector") or {"mode": "head"}
+        if d.get("mode") not in NET_DETECTORS:
+            raise ValueError(f"network detector mode must be one of {NET_DETECTORS}, got {d.get('mode')!r}")
+        self.mode, self.bias = d["mode"], float(d.get("bias", 0.0))
+        self.threshold = float(d.get("threshold", 0.0))
+        ref = d.get("reference")
+        self.reference = None if ref is None else np.asarray(ref, np.float64)
+        self.detector_bins = int(d.get("bins", len(ref) if ref is not None else DETECTOR_BINS))
+
+    def touch(self, logits: np.ndarray, inputs: np.ndarray, input_reference: np.ndarray | None = None):
+        """``(touch, by_rms)`` per chirp: the decision and its input-RMS part (``None`` for mode ``head``)."""
+        touch = touch_logit(logits) + self.bias >= 0
+        by_rms = None
+        if self.mode != "head":
+            ref = self.reference if input_reference is None else input_reference
+            by_rms = input_rms(inputs, ref, min(self.detector_bins, inputs.shape[1])) >= self.threshold
+            touch = by_rms if self.mode == "input-rms" else touch | by_rms
+        return touch, by_rms
+
+    def decide(self, outputs: list[np.ndarray], inputs: np.ndarray, *, score_reference: np.ndarray | None = None,
+               input_reference: np.ndarray | None = None) -> Predictions:
+        logits, force_all = outputs[0], outputs[1]
+        p = softmax(np.asarray(logits, np.float64))
+        place = p[:, :-1]
+        idx = np.argmax(place, axis=1)
+        touch, by_rms = self.touch(logits, inputs, input_reference)
+        f = np.take_along_axis(np.asarray(force_all, np.float64), idx[:, None], axis=1)[:, 0]
+        conf = place[np.arange(len(idx)), idx] / np.maximum(place.sum(axis=1), 1e-12)
+        f = np.where(touch, np.clip(f, 0, None), 0.0)
+        # Alg. 2's no-touch chirps by the physical statistic alone: the head's logit, trained on one session, calls rest
+        # chirps touched once warm-up has moved them, and an OR with it then blocked every reference refresh (measured:
+        # drift-2h simulator seed 1, from the 5th session on every rest chirp "touched", one reference in 2 h)
+        return Predictions(touch, self.ids[idx], centroid(place, self.layout), f, conf, place,
+                           reference_touch=by_rms if self.mode == "either" else None)
+
+
+class NetKind(ModelKind):
+    name, label, graph, file = "net", "network", "skinnet", "net.onnx"
+    keys = frozenset({"hparams", "detector"})
+    selection_keys = ("net",)
+    requires = (BASELINE, CLOSED_FORM)  # its frozen layers are the artifact's SVM and LDA; its detector thresholds the SVM's statistic
+    can_fit = False  # sonicskin.training.kind (the entry point) can
+
+    def outputs(self, n_loc):
+        return [n_loc + 1, n_loc]
+
+    def output_text(self, n_loc):
+        return f"logits (batch, {n_loc + 1}) and force (batch, {n_loc})"
+
+    def check_entry(self, doc, m, field, *, n_in, layout_ids):
+        if "hparams" in m:
+            doc.obj(m["hparams"], f"{field}.hparams")
+        if "detector" not in m:
+            return
+        f = f"{field}.detector"
+        d = doc.obj(m["detector"], f)
+        doc.keys(d, {"mode", "bias", "threshold", "reference", "bins"}, f)
+        doc.choice(doc.get(d, "mode", f), f"{f}.mode", NET_DETECTORS)
+        if "bias" in d:
+            doc.num(d["bias"], f"{f}.bias", lo=-doc.MAX_SCORE, hi=doc.MAX_SCORE)
+        if "threshold" in d:
+            doc.num(d["threshold"], f"{f}.threshold", lo=0, hi=doc.MAX_THRESHOLD)
+        elif d["mode"] != "head":
+            doc.fail(f"{f}.threshold", f"is missing (mode {d['mode']!r} thresholds the input-RMS statistic)")
+        if "reference" in d:
+            ref = doc.list(d["reference"], f"{f}.reference", nonempty=True)
+            if len(ref) > n_in:
+                doc.fail(f"{f}.reference", f"has {len(ref)} values, more than the {n_in} inputs")
+            for i, v in enumerate(ref):
+                doc.num(v, f"{f}.reference[{i}]", lo=-doc.MAX_SCORE, hi=doc.MAX_SCORE)
+        if "bins" in d:
+            doc.int(d["bins"], f"{f}.bins", lo=1, hi=n_in)
+
+    def head(self, entry, layout):
+        return NetHead(entry, layout)
+
+    def selection_lines(self, sel):
+        n = sel.get("net") or {}
+        out = []
+        if n.get("detector"):
+            out.append(f"network touch decision: {n['detector']} ({n.get('how', '')})")
+        if n.get("location_layer"):
+            out.append(f"network location layer: {n['location_layer']} ({n.get('layer_how', '')})")
+        if n.get("force"):
+            out.append(f"network force: {'its own head' if n['force'] == 'head' else 'the pooled ridge'} ({n.get('force_how', '')})")
+        return out
+
+
+register(NetKind())
