@@ -361,12 +361,19 @@ def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int 
 
 
 def _check_selection(doc: _Doc, sel: Any) -> None:
-    """Model selection's report (reported only, never run): an object of the kinds' report objects."""
+    """Model selection's report (reported only, never run): an object of the kinds' report objects that each kind's
+    :meth:`~sonicskin.kinds.ModelKind.selection_lines` (what ``compare --artifact`` prints) can read."""
     sel = doc.obj(sel, "selection")
     doc.keys(sel, {k for kind in kinds.KINDS.values() for k in kind.selection_keys}, "selection")
     for k, v in sel.items():
         if v is not None:
             doc.obj(v, f"selection.{k}")
+    for kind in kinds.KINDS.values():
+        try:
+            kind.selection_lines(sel)
+        except (KeyError, TypeError, AttributeError, ValueError, IndexError) as e:
+            what = f"{type(e).__name__} {e}" if isinstance(e, KeyError) else f"{type(e).__name__}: {' '.join(str(e).split())[:80]}"
+            doc.fail("selection", f"is not the report model selection writes (reading it fails with {what})")
 
 
 def _check_training(doc: _Doc, tr: Any) -> None:

@@ -1,5 +1,5 @@
-"""training.augment: each augmentation moves a chirp only along its own nuisance direction; the metric network
-starts as the LDA it is initialised from and exports to ONNX."""
+"""training.augment: each augmentation moves a chirp only along its own nuisance direction; the network's LDA layer
+is the LDA it starts from and exports to ONNX."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sonicskin.training.augment import AUGMENTATIONS, Augmenter, fit_augmented_net  # noqa: E402
+from sonicskin.training.augment import AUGMENTATIONS, Augmenter  # noqa: E402
+from sonicskin.training.quick import fit_net  # noqa: E402
 
 F = np.linspace(20e3, 80e3, 601)
 
@@ -109,43 +110,27 @@ def _with_rest(X, y, n_rest=20, seed=0):
     return Xa, cls, force, K
 
 
-def test_metric_net_starts_as_its_lda_and_exports(tmp_path):
-    from sonicskin.models.metric import MetricSkinNet
-
-    from sonicskin.nuisance import ShrinkageLDA
+@pytest.mark.parametrize("norm", ["none", "level", "unit"])
+def test_lda_net_places_touches_exactly_as_its_lda_and_exports(tmp_path, norm):
+    """The network's closed-form layer is the artifact's LDA, frozen: after training its place is the LDA's on
+    chirps the LDA is not sure of, and the export keeps it."""
+    from sonicskin.kinds import Fitted
+    from sonicskin.kinds.lda import fit_lda, normalize
+    from sonicskin.models import LDASkinNet
 
     X, y, press, _ = _session(K=4, per=8, seed=1)
     X = X[:, ::10]
     Xa, cls, force, K = _with_rest(X, y)
-    lda = ShrinkageLDA().fit(X, y)
-    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="metric", lda=lda, metric_lr=0.0, epochs=3)
-    model = pred.model
-    assert isinstance(model, MetricSkinNet)
-    rng = np.random.default_rng(9)
-    Xq = X + 0.3 * rng.normal(size=X.shape)  # chirps the LDA is not certain of
-    logits, _ = pred(Xq)
-    np.testing.assert_array_equal(logits[:, :K].argmax(1), lda.predict(Xq))  # frozen: the place is the LDA's
+    lda = fit_lda(X, y, X.shape[1], norm)
+    pred = fit_net(Xa, cls, force, n_locations=K, layer="lda", epochs=3, n_trunk=20,
+                   fitted={"lda": Fitted(lda, {"norm": norm}, X.shape[1], {})})
+    assert isinstance(pred.model, LDASkinNet) and pred.model.n_trunk == 20
+    Xq = X + 0.3 * np.random.default_rng(9).normal(size=X.shape)
+    np.testing.assert_array_equal(pred(Xq)[0][:, :K].argmax(1), lda.predict(normalize(Xq, norm)))
     from sonicskin.export.onnx import export_net
 
-    parity = export_net(model, tmp_path / "net.onnx", Xa.astype(np.float32))
-    assert parity["labels_equal"] and parity["max_abs_logits"] < 1e-3
-
-
-def test_metric_layer_keeps_lda_argmax_under_standardisation():
-    from sonicskin.models.metric import MetricVotes
-
-    from sonicskin.nuisance import ShrinkageLDA
-
-    for K in (2, 5):
-        rng = np.random.default_rng(K)
-        y = np.arange(60) % K
-        X = rng.normal(size=(60, 30)) + y[:, None] * 0.5
-        lda = ShrinkageLDA().fit(X, y)
-        mean, std = X.mean(0), X.std(0) + 0.1
-        layer = MetricVotes.from_lda(lda, mean, std)
-        with torch.no_grad():
-            s = layer(torch.from_numpy(((X - mean) / std).astype(np.float32))).numpy()
-        np.testing.assert_array_equal(s.argmax(1), lda.predict(X))
+    parity = export_net(pred.model, tmp_path / "net.onnx", Xa.astype(np.float32))
+    assert parity["labels_equal"] and parity["max_abs_logits"] <= parity["logits_tol"]
 
 
 def test_mlp_layer_learns_separable_markers():
@@ -153,42 +138,16 @@ def test_mlp_layer_learns_separable_markers():
     X = X[:, ::20]
     Xa, cls, force, K = _with_rest(X, y)
     aug = Augmenter(X, y, press, freqs_hz=F[::20], sizes={"press": 0.3, "strength": 0.1})
-    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="mlp", augmenter=aug, touch_rows=np.arange(len(y)),
-                             epochs=30)
+    pred = fit_net(Xa, cls, force, n_locations=K, layer="mlp", augment=True, augmenter=(aug, np.r_[np.arange(len(y)), -np.ones(20, int)]),
+                   epochs=30)
     logits, _ = pred(X)
     assert np.mean(logits[:, :K].argmax(1) == y) == 1.0
-    with pytest.raises(ValueError, match=r"^the metric layer starts from a fitted ShrinkageLDA on the same inputs \(lda=...\)$"):
-        fit_augmented_net(Xa, cls, force, n_locations=K, layer="metric")
-
-
-def test_ensemble_is_the_mean_probability_and_exports(tmp_path):
-    from sonicskin.models.metric import SkinEnsemble
-
-    X, y, press, _ = _session(K=3, per=8, seed=4)
-    X = X[:, ::20]
-    Xa, cls, force, K = _with_rest(X, y)
-    pred = fit_augmented_net(Xa, cls, force, n_locations=K, layer="mlp", epochs=3, n_members=3)
-    ens = pred.model
-    assert isinstance(ens, SkinEnsemble) and len(ens.members) == 3
-    x = torch.from_numpy(Xa.astype(np.float32))
-    with torch.no_grad():
-        p = torch.stack([torch.softmax(m._forward(x)[0], 1) for m in ens.members]).mean(0)
-        f = torch.stack([m._forward(x)[1] for m in ens.members]).mean(0)
-        lg, fe = ens(x)
-    np.testing.assert_allclose(torch.softmax(lg, 1).numpy(), p.numpy(), atol=1e-6)
-    np.testing.assert_allclose(fe.numpy(), f.numpy(), atol=1e-5)
-    from sonicskin.export.onnx import export_net
-
-    parity = export_net(ens, tmp_path / "net.onnx", Xa.astype(np.float32))
-    assert parity["labels_equal"] and parity["max_abs_force_n"] < 1e-3
-    with pytest.raises(ValueError, match=r"^an ensemble needs at least one trained network$"):
-        SkinEnsemble([])
 
 
 def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_force():
     """Force is linear in the first 5 inputs; the other 200 are noise.  On presses the ridges were not fitted on,
     the ridge over the first inputs only is the better one (a known answer), and it is set on the model."""
-    from sonicskin.training.augment import choose_force
+    from sonicskin.training.fit import choose_force
 
     rng = np.random.default_rng(5)
     K, n = 3, 240
@@ -197,30 +156,10 @@ def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_f
     X = np.column_stack([np.outer(F_true, [1.0, 0.5, -0.3, 0.8, 0.2]) + 0.05 * rng.normal(size=(n, 5)), 3.0 * rng.normal(size=(n, 200))])
     fit, val = np.arange(n) < 40, np.arange(n) >= 120
     Xa, cls, force, _ = _with_rest(X[:40], y[:40])
-    pred = fit_augmented_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=2)
+    pred = fit_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=2)
     res = choose_force(pred.model, X, y, F_true, fit_rows=fit, val_rows=val, location_ids=np.arange(K), alpha=1.0, first=(None, 5))
     assert res["force"] == "pooled-ridge (first 5 inputs)"
     assert res["force_rmse"]["pooled-ridge (first 5 inputs)"] < 0.5 * res["force_rmse"]["pooled-ridge"]
     _, f = pred(X[val])
     np.testing.assert_allclose(f[np.arange(val.sum()), y[val]], np.clip(f[np.arange(val.sum()), y[val]], 0, None))
     assert np.sqrt(np.mean((f[np.arange(val.sum()), y[val]] - F_true[val]) ** 2)) < 0.5
-
-
-def test_choose_net_layer_keeps_the_best_on_validation():
-    from sonicskin.training.augment import choose_net_layer
-
-    from sonicskin.nuisance import ShrinkageLDA
-
-    X, y, press, _ = _session(K=3, per=10, seed=6)
-    X = X[:, ::20]
-    Xa, cls, force, K = _with_rest(X, y)
-    train = np.r_[np.arange(len(y)) % 2 == 0, np.ones(20, bool)]
-    val = ~train
-    lda = ShrinkageLDA().fit(X[train[:len(y)]], y[train[:len(y)]])
-    seen = []
-    res = choose_net_layer(Xa, cls, force, n_locations=K, train=train, val=val, augmenter=None,
-                           touch_rows=None, lda=lda, epochs=5, log=seen.append,
-                           layers={"metric": {"layer": "metric", "metric_lr": 0.0}, "MLP": {"layer": "mlp"}})
-    assert set(res["scores"]) == {"metric", "MLP"}
-    assert res["location_layer"] == max(res["scores"], key=lambda k: (res["scores"][k], -list(res["scores"]).index(k)))
-    assert seen and seen[0].startswith("network location layer: ")

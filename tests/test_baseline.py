@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 from sklearn.svm import SVC
 
-from sonicskin.head.heads import ovr_scores_from_ovo
+from sonicskin.kinds.svm import export_pipeline, ovr_scores_from_ovo
 
 
 def _clusters(rng, k=5, n=30, f=40, spread=0.3):
@@ -33,9 +33,7 @@ def test_two_locations_through_onnx(rng, tmp_path):
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import StandardScaler
 
-    from sonicskin.artifact import export_svm
-
     X, y = _clusters(rng, k=2, spread=1.5)
     pipe = make_pipeline(StandardScaler(), SVC(decision_function_shape="ovo")).fit(X, y)
-    parity = export_svm(pipe, 2, tmp_path / "svm.onnx", X)
+    parity = export_pipeline(pipe, tmp_path / "svm.onnx", X)
     assert parity["labels_equal"] and parity["max_abs_scores"] <= parity["scores_tol"] < 0.01

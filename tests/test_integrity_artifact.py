@@ -527,10 +527,11 @@ def _fingerprint(a: Path) -> dict[str, str]:
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(a.iterdir())}
 
 
-@pytest.mark.parametrize("where", ["export_svm", "skin_json", "swap"])
+@pytest.mark.parametrize("where", ["export_pipeline", "skin_json", "swap"])
 @pytest.mark.parametrize("exc", [KeyboardInterrupt, RuntimeError])
 def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeypatch, where, exc):
     import sonicskin.artifact as A
+    import sonicskin.kinds.svm as S
 
     out = tmp_path / "art"
     shutil.copytree(cli_files["artifact"], out)
@@ -538,8 +539,8 @@ def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeyp
 
     def boom(*a, **k):
         raise exc("interrupted")
-    target = {"export_svm": "export_svm", "skin_json": "stamp_binding", "swap": "_swap_in"}[where]
-    monkeypatch.setattr(A, target, boom)
+    module, target = {"export_pipeline": (S, "export_pipeline"), "skin_json": (A, "stamp_binding"), "swap": (A, "_swap_in")}[where]
+    monkeypatch.setattr(module, target, boom)
     with pytest.raises(exc):
         build_svm_artifact(cli_files["data"], out, n_bins=60, progress=False, log=lambda *_: None)
     assert _fingerprint(out) == before

@@ -6,10 +6,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sonicskin.models import KernelVotes, SkinNet, svm_pipeline  # noqa: E402
+from sonicskin.kinds import Fitted  # noqa: E402
+from sonicskin.kinds.svm import fit_pipeline, ovr_scores_from_ovo  # noqa: E402
+from sonicskin.models import KernelVotes, SkinNet  # noqa: E402
 from sonicskin.training.quick import fit_net  # noqa: E402
 
-from sonicskin.head.heads import ovr_scores_from_ovo  # noqa: E402
 
 
 def _toy(n_per=30, K=4, d=12, seed=0):
@@ -22,6 +23,12 @@ def _toy(n_per=30, K=4, d=12, seed=0):
     return X.astype(np.float32), cls, force.astype(np.float32)
 
 
+def _kernel_net(X, cls, force, **kw):
+    """fit_net with the kernel layer: the SVM of (X, cls), frozen (as the SVM kind fits it)."""
+    pipe = fit_pipeline(X[cls < 4], cls[cls < 4], 4)
+    return fit_net(X, cls, force, n_locations=4, layer="kernel", fitted={"svm": Fitted(pipe, {}, X.shape[1], {})}, **kw)
+
+
 def _svm_location(pipe, X):
     return ovr_scores_from_ovo(pipe.decision_function(X), pipe[-1].classes_.size).argmax(1)
 
@@ -29,7 +36,7 @@ def _svm_location(pipe, X):
 @pytest.mark.parametrize("K", [4, 2])
 def test_kernel_layer_reproduces_the_svm_decision_values_and_votes(K):
     X, cls, _ = _toy(K=K)
-    pipe = svm_pipeline().fit(X, cls)
+    pipe = fit_pipeline(X, cls, int(cls.max()) + 1)
     layer = KernelVotes.from_svc(pipe[-1], K)
     Xq, _, _ = _toy(K=K, seed=1)
     z = torch.from_numpy(pipe[0].transform(Xq).astype(np.float32))
@@ -52,7 +59,7 @@ def test_kernel_layer_rejects_what_it_cannot_copy():
     with pytest.raises(ValueError, match="RBF SVC"):
         from sklearn.svm import SVC
         KernelVotes.from_svc(SVC(kernel="linear").fit(X, cls), 4)
-    pipe = svm_pipeline().fit(X[cls < 3], cls[cls < 3])
+    pipe = fit_pipeline(X[cls < 3], cls[cls < 3], 3)
     with pytest.raises(ValueError, match="classes"):
         KernelVotes.from_svc(pipe[-1], 4)
     with pytest.raises(ValueError, match="support vectors"):
@@ -62,7 +69,7 @@ def test_kernel_layer_rejects_what_it_cannot_copy():
 def _net_from_svm(query_seed: int):
     """A SkinNet initialised from an SVM of the toy data, the SVM, and toy queries of another seed."""
     X, cls, _ = _toy()
-    pipe = svm_pipeline().fit(X, cls)
+    pipe = fit_pipeline(X, cls, int(cls.max()) + 1)
     net = SkinNet(X.shape[1], 4, n_centres=pipe[-1].support_vectors_.shape[0]).eval()
     net.init_from_svm(pipe)
     return net, pipe, _toy(seed=query_seed)[0]
@@ -82,10 +89,10 @@ def test_fit_net_keeps_the_svm_localization_and_learns_force():
     Xa = np.vstack([X, rest])
     ca = np.concatenate([cls, np.full(len(rest), 4)])
     fa = np.concatenate([force, np.full(len(rest), np.nan, np.float32)])
-    predict = fit_net(Xa, ca, fa, n_locations=4, epochs=60, seed=0)
+    svm = fit_pipeline(X, cls, 4)
+    predict = fit_net(Xa, ca, fa, n_locations=4, epochs=60, seed=0, layer="kernel", fitted={"svm": Fitted(svm, {}, 12, {})})
     Xq, cq, fq = _toy(n_per=20, seed=4)
     logits, f_all = predict(Xq)
-    svm = svm_pipeline().fit(X, cls)
     np.testing.assert_array_equal(logits[:, :4].argmax(1), _svm_location(svm, Xq))  # frozen kernel layer = the SVM
     assert (logits.argmax(1) < 4).mean() > 0.95  # touches are not called no-touch
     rest_q = np.random.default_rng(5).normal(5.0, 0.3, (50, X.shape[1])).astype(np.float32)
@@ -97,7 +104,7 @@ def test_fit_net_keeps_the_svm_localization_and_learns_force():
 
 def test_kernel_layer_trains_through_its_votes():
     X, cls, _ = _toy()
-    pipe = svm_pipeline().fit(X, cls)
+    pipe = fit_pipeline(X, cls, int(cls.max()) + 1)
     layer = KernelVotes.from_svc(pipe[-1], 4)
     scores, _ = layer(torch.from_numpy(pipe[0].transform(X).astype(np.float32)))
     torch.nn.functional.cross_entropy(scores, torch.from_numpy(cls)).backward()
@@ -109,7 +116,7 @@ def test_kernel_net_exports_to_onnx_with_parity(tmp_path):
     from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
-    predict = fit_net(X, cls, force, n_locations=4, epochs=2, seed=0)
+    predict = _kernel_net(X, cls, force, epochs=2, seed=0)
     parity = export_net(predict.model, tmp_path / "net.onnx", X)
     assert parity["labels_equal"] and parity["touch_equal"] and parity["max_abs_logits"] <= parity["logits_tol"]
     assert parity["max_abs_force_n"] <= parity["force_n_tol"]
@@ -140,7 +147,7 @@ def test_saturated_touch_logit_exports_finite(tmp_path, bias):
     from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
-    predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
+    predict = _kernel_net(X, cls, force, epochs=1, seed=0)
     with torch.no_grad():
         predict.model.location.bias.fill_(bias)
     parity = export_net(predict.model, tmp_path / "net.onnx", X)
@@ -177,7 +184,7 @@ def test_export_parity_holds_at_a_vote_tie(tmp_path):
     from sonicskin.export.onnx import export_net
 
     X, cls, force = _toy()
-    predict = fit_net(X, cls, force, n_locations=4, epochs=1, seed=0)
+    predict = _kernel_net(X, cls, force, epochs=1, seed=0)
     net = predict.model
     a, b = X[cls == 0][0].astype(np.float64), X[cls == 1][0].astype(np.float64)
 

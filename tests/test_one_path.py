@@ -110,7 +110,7 @@ def test_alg2_takes_its_no_touch_chirps_by_the_physical_statistic():
     picks its no-touch chirps by the input-RMS statistic alone: a head that calls a resting, warmed-up link touched
     must not stop every reference refresh (drift-2h seed 1 had one reference in 2 h, and fell from 96 % to 63 %)."""
     from sonicskin.calibration import OnlineReference
-    from sonicskin.head.heads import NetHead
+    from sonicskin.kinds.net import NetHead
     from sonicskin.rig import Layout
 
     layout = Layout.grid(3, 1, 1.2)

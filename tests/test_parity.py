@@ -4,7 +4,7 @@ within a bound relative to their scale; rounding never fails a valid export, a r
 import numpy as np
 import pytest
 
-from sonicskin.artifact import PARITY_TOL, ParityError, decisions_parity, parity_bound
+from sonicskin.parity import PARITY_TOL, ParityError, decisions_parity, parity_bound
 
 
 def _logits(seed=0, n=50, K=5, scale=100.0):
@@ -151,20 +151,18 @@ def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch)
 def test_a_real_svm_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
     import onnxruntime
     import sklearn
-    from sonicskin.models import svm_pipeline
-
-    from sonicskin import artifact
+    from sonicskin.kinds import svm
 
     rng = np.random.default_rng(0)
     cls = np.repeat(np.arange(3), 20)
     X = (rng.normal(0, 1, (3, 8))[cls] * 3 + rng.normal(0, 0.3, (60, 8))).astype(np.float32)
-    pipe = svm_pipeline().fit(X, cls)
-    assert artifact.export_svm(pipe, 3, tmp_path / "ok.onnx", X)["labels_equal"]
+    pipe = svm.fit_pipeline(X, cls, 3)
+    assert svm.export_pipeline(pipe, tmp_path / "ok.onnx", X)["labels_equal"]
     # an onnxruntime whose pairwise decisions come out negated
-    monkeypatch.setattr(artifact, "ort_session", _altered(artifact.ort_session, lambda label, ovo: (label, -ovo)))
+    monkeypatch.setattr(svm, "ort_session", _altered(svm.ort_session, lambda label, ovo: (label, -ovo)))
     with pytest.raises(ParityError, match=r"^the exported svm\.onnx does not decide as scikit-learn's SVM does on its 60 "
                        r"check chirps \(the location differs; max \|d scores\| [\d.]+ > [\d.e-]+; max \|d decision\| [\d.]+ > "
                        rf"[\d.e-]+\): onnxruntime {onnxruntime.__version__} runs the graph skl2onnx wrote differently from "
                        rf"scikit-learn {sklearn.__version__}; reinstall the package's dependencies \(pip install -c "
                        r"constraints\.txt -e \.\) and fit again$"):
-        artifact.export_svm(pipe, 3, tmp_path / "svm.onnx", X)
+        svm.export_pipeline(pipe, tmp_path / "svm.onnx", X)

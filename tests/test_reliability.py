@@ -89,19 +89,21 @@ def test_network_training_is_bit_reproducible_across_processes():
 
 
 def test_choose_layer_breaks_ties_at_the_printed_percent_in_a_fixed_order(monkeypatch):
-    """A candidate ahead by less than the printed precision does not win: the line would show a tie."""
+    """A candidate ahead by less than the printed precision does not win: the line would show a tie, which goes to the
+    closed form (the first in LAYERS' order)."""
     pytest.importorskip("torch")
+    from types import SimpleNamespace
+
+    from sonicskin.kinds import Fitted
     from sonicskin.training import quick
 
     n, K = 1000, 4
     cls = np.arange(n) % K
-    X = np.zeros((n, 3), np.float32)
+    data = SimpleNamespace(X=np.zeros((n, 3), np.float32), cls=cls, force=np.zeros(n), n_locations=K)
     acc = {}
 
-    names = {"kernel": "SVM kernel (frozen)", "metric": "metric (normalized LDA)", "mlp": "MLP, every bin"}
-
-    def fake_fit(X_, cls_, force_, *, n_locations, seed=0, layer="kernel", **kw):
-        right = int(round(acc[names[layer]] * n))
+    def fake_fit(X_, cls_, force_, *, n_locations, seed=0, layer="mlp", **kw):
+        right = int(round(acc["MLP, every bin"] * n))
 
         def predict(Xq):
             lg = np.zeros((len(Xq), K + 1), np.float32)
@@ -114,14 +116,10 @@ def test_choose_layer_breaks_ties_at_the_printed_percent_in_a_fixed_order(monkey
 
     monkeypatch.setattr(quick, "fit_net", fake_fit)
     rows = np.ones(n, bool)
-    order = ["MLP, every bin", "metric (normalized LDA)", "SVM kernel (frozen)"]  # LAYERS' order
-    for scores, want in (({"MLP, every bin": 0.935, "metric (normalized LDA)": 0.944, "SVM kernel (frozen)": 0.930},
-                          "MLP, every bin"),
-                         ({"MLP, every bin": 0.930, "metric (normalized LDA)": 0.944, "SVM kernel (frozen)": 0.941},
-                          "metric (normalized LDA)"),
-                         ({"MLP, every bin": 0.930, "metric (normalized LDA)": 0.936, "SVM kernel (frozen)": 0.951},
-                          "SVM kernel (frozen)")):
+    for scores, want in (({"MLP, every bin": 0.944, "LDA (closed form)": 0.934}, "MLP, every bin"),
+                         ({"MLP, every bin": 0.944, "LDA (closed form)": 0.936}, "LDA (closed form)")):
         acc.update(scores)
-        out = quick.choose_layer(X, cls, np.zeros(n), n_locations=K, folds=[(rows, rows, None)], how="test", layers=order)
+        lda = Fitted(None, {}, 3, {"lda": {"status": "validated", "accuracy": scores["LDA (closed form)"]}})
+        out = quick.choose_layer(data, folds=[(rows, rows, None)], how="test", fitted={"lda": lda})
         assert out["location_layer"] == want, out["layer_how"]
-    assert out["layer_how"] == "test: MLP, every bin 93%, metric (normalized LDA) 94%, SVM kernel (frozen) 95%"
+    assert out["layer_how"] == "test: LDA (closed form) 94%, MLP, every bin 94%"

@@ -79,17 +79,15 @@ def test_seed_results_aggregate_to_mean_and_spread():
 
 @pytest.mark.parametrize("k", [2, 3, 5])
 def test_blas_decision_values_equal_scikit_learns(k):
-    """reproduce and fit_svm_head score chirps with one BLAS product (ovo_decision); it must be libsvm's decision_function."""
+    """reproduce and the SVM kind score chirps with one BLAS product (ovo_decision); it must be libsvm's decision_function."""
     import numpy as np
-    from sonicskin.models.kernel import svm_pipeline
-
-    from sonicskin.fit import ovo_decision
+    from sonicskin.kinds.svm import fit_pipeline, ovo_decision
 
     rng = np.random.default_rng(k)
     X = rng.normal(size=(300, 50)).astype(np.float32)
     y = rng.integers(0, k, 300)
     X[np.arange(300), y] += 2.0  # separable enough to have few support vectors, not all
-    pipe = svm_pipeline(10.0).fit(X, y)
+    pipe = fit_pipeline(X, y, k)
     Xq = rng.normal(size=(2100, 50)).astype(np.float32)  # more than one block of 2,048
     ref = pipe.decision_function(Xq)
     got = ovo_decision(pipe, Xq)

@@ -144,24 +144,18 @@ def test_validation_never_sees_test_sessions(cli_files, tmp_path):
 
 
 def test_network_touch_decision_follows_the_chosen_detector():
-    torch = pytest.importorskip("torch")
-    from sonicskin.models import SkinNet
+    pytest.importorskip("torch")
+    from sonicskin.kinds.net import NetHead
+    from sonicskin.rig import Layout
     from sonicskin.training.quick import choose_detector
 
-    torch.manual_seed(0)
-    net = SkinNet(n_in=6, n_locations=3, hidden=(8,)).eval()
-    x = torch.randn(50, 6)
-    with torch.no_grad():
-        lg0, f0 = net(x)
-        net.set_detector({"mode": "input-rms", "threshold": 1.0, "reference": [0.0] * 6})
-        lg, f = net(x)
-    p = torch.softmax(lg, 1)
-    rms = torch.sqrt(torch.mean(x ** 2, 1))
-    far = (rms - 1.0).abs() > 0.05
-    assert torch.equal(((1 - p[:, -1]) >= 0.5)[far], (rms >= 1.0)[far])
-    assert torch.equal(lg[:, :3].argmax(1), lg0[:, :3].argmax(1)) and torch.equal(f, f0)  # place and force unchanged
-    np.testing.assert_allclose(p.sum(1).numpy(), 1.0, rtol=1e-5)
-    # choose_detector keeps the misses within half a point of the input-RMS detector's
+    rng = np.random.default_rng(0)
+    x = rng.normal(0, 1, (50, 6))
+    logits = np.log(np.full((50, 4), 0.25))
+    det = {"mode": "input-rms", "bias": 0.0, "threshold": 1.0, "reference": [0.0] * 6, "bins": 6}
+    p = NetHead({"detector": det}, Layout.grid(3, 1, 1.0)).decide([logits, np.zeros((50, 3))], x)
+    np.testing.assert_array_equal(p.touch, np.sqrt(np.mean(x ** 2, 1)) >= 1.0)  # the head applies the chosen detector
+    # choose_detector (which runs that same head) keeps the misses within half a point of the input-RMS detector's
     rng = np.random.default_rng(0)
     touch = np.r_[np.ones(200, bool), np.zeros(200, bool)]
     X = np.where(touch[:, None], rng.normal(0, 2.0, (400, 6)), rng.normal(0, 0.3, (400, 6)))

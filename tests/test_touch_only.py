@@ -7,8 +7,8 @@ import pytest
 
 from sonicskin.dataset import FeatureTable
 from sonicskin.features import MIN_REST_CHIRPS, rest_beta, select_bins
-from sonicskin.fit import fit_svm_head
-from sonicskin.head import SVMHead
+from sonicskin.kinds.closed import score_entry
+from sonicskin.kinds.svm import SVMHead, fit_pipeline, ovo_decision, ovr_scores_from_ovo
 from sonicskin.metrics import force_report
 from sonicskin.rig import Layout, Rig
 
@@ -57,8 +57,9 @@ def _paper_svm(X, loc, force, layout):
     """The paper's SVM on arrays: OSPA's 20 bins, the SVM head fitted without rest (the one fit's own function), and the
     head's decisions on new chirps (scikit-learn's pairwise scores, what the exported graph outputs)."""
     bins = select_bins(_table(X, loc), RIG, 20)
-    pipe, params = fit_svm_head(X[:, bins], loc, force, np.zeros(loc.size, bool), n_locations=len(layout),
-                                location_ids=layout.ids)
+    pipe = fit_pipeline(X[:, bins], loc, len(layout))
+    params = score_entry(ovr_scores_from_ovo(ovo_decision(pipe, X[:, bins]), len(layout)), X[:, bins], loc, force,
+                         np.zeros(loc.size, bool), n_locations=len(layout), location_ids=layout.ids)
     head = SVMHead(params, layout)
     return params, lambda Z: head.decide([None, pipe.decision_function(Z[:, bins])], Z[:, bins])
 

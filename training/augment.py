@@ -40,6 +40,25 @@ __all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "choose_force"]
 AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "gain": 0.3, "tilt": 0.3, "motion": 1.0}
 
 
+def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances
+    in cm; around a tube of ``circumference_cm`` the distance along the circumference is the shorter way round."""
+    P = np.asarray(positions_cm, np.float64)
+    if P.shape != (K, 2):
+        raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
+    dx, dy = np.abs(P[:, None, 0] - P[None, :, 0]), np.abs(P[:, None, 1] - P[None, :, 1])
+    if circumference_cm:
+        dx = np.minimum(dx, circumference_cm - dx)
+    D = np.hypot(dx, dy)
+    rings = []
+    for k in range(K):
+        others = np.argsort(D[k])[1:]
+        near = np.array([j for j in others if D[k, j] <= D[k, others[0]] * 1.5][:4], int)
+        rings.append((near, D[k, near]))
+    return rings
+
+
+
 class Augmenter:
     """Draws one augmented copy of every training touch chirp per call.
 
@@ -87,8 +106,6 @@ class Augmenter:
             self.rest = R - R.mean(axis=0)
         self.neigh: list[tuple[np.ndarray, np.ndarray]] = []
         if positions_cm is not None:
-            from sonicskin.nuisance import neighbour_rings
-
             self.neigh = neighbour_rings(positions_cm, K, circumference_cm)
 
     def restricted(self, k: int) -> Augmenter:

@@ -23,7 +23,7 @@ from .module import SkinLitModule
 __all__ = ["DEFAULTS", "LAYERS", "UNVALIDATED", "fit_net", "layer_hparams", "choose_layer", "choose_detector"]
 
 #: training.quick's hyperparameters (configs/train/*.yaml set the same for ``sonicskin train``).
-DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_db": 0.3, "kernel": True, "kernel_lr": 0.0}
+DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_db": 0.3, "layer": "mlp", "kernel_lr": 0.0}
 
 #: The network's location layers that validation chooses among (issue 36; ties at the printed whole percent go to the
 #: first listed).  ``LDA (closed form)`` is the artifact's own LDA (its bins and normalisation validated by

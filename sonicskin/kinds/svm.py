@@ -20,7 +20,7 @@ from ..selection import detection_on_validation, select_on_inputs
 from . import Fitted, ModelKind, register
 from .closed import SCORE_KEYS, check_score_entry, score_entry
 
-__all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decision"]
+__all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decision", "fit_pipeline", "export_pipeline"]
 
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
@@ -120,6 +120,52 @@ class SVMHead(ScoreHead):
         return softmax(4.0 * S)  # S counts votes: sharpen so the centroid stays among neighbours
 
 
+def fit_pipeline(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float = 10.0, kernel_width: float | None = None):
+    """Scaler + RBF ``SVC(decision_function_shape="ovo")`` on the touch chirps (``cls < n_locations``) of ``X``; RBF
+    gamma ``kernel_width / n_features`` on the standardised inputs (``None``: scikit-learn's ``"scale"``)."""
+    touch = cls < n_locations
+    pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, decision_function_shape="ovo",
+                                                              gamma="scale" if kernel_width is None else kernel_width / X.shape[1]))])
+    pipe.fit(X[touch], cls[touch])
+    if len(pipe.classes_) != n_locations:
+        raise ValueError(f"training data touches {len(pipe.classes_)} of the {n_locations} locations; "
+                         f"record every location at least once")
+    return pipe
+
+
+def export_pipeline(pipe, path, X_check: np.ndarray) -> dict:
+    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check``: the location the runtime reads
+    (argmax of the per-location scores), the scores and the pairwise decision values within
+    :data:`~sonicskin.parity.PARITY_TOL` of their scale; :class:`~sonicskin.parity.ParityError` (one line) otherwise."""
+    import sklearn
+    from skl2onnx import to_onnx
+
+    n = len(pipe.classes_)
+    with warnings.catch_warnings():  # skl2onnx reads SVC's deprecated probA_/probB_
+        warnings.simplefilter("ignore", FutureWarning)
+        onx = to_onnx(pipe, X_check[:1].astype(np.float32), options={SVC: {"zipmap": False}}, target_opset=17)
+    # skl2onnx lists the opsets in set order (it changes with PYTHONHASHSEED): sorted, the same inputs give the same bytes
+    ops = sorted((o.domain, o.version) for o in onx.opset_import)
+    del onx.opset_import[:]
+    for domain, version in ops:
+        onx.opset_import.add(domain=domain, version=version)
+    write_file(path, onx.SerializeToString())
+    sess = ort_session(path)
+    _, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
+    ref_ovo = pipe.decision_function(X_check.astype(np.float32))
+    S, S_ref = ovr_scores_from_ovo(ovo, n), ovr_scores_from_ovo(ref_ovo, n)
+    # The runtime's location is argmax S (votes, ties by confidence).  A pairwise decision within float32 rounding of
+    # zero can vote the other way in onnxruntime than in scikit-learn (float64) and move a score by a whole vote: such
+    # chirps are near ties, held to their decision values only.
+    d, d_ref = pairwise(ovo, n), pairwise(ref_ovo, n)
+    tie = (np.abs(d_ref) < parity_bound(d_ref)).any(axis=1)
+    parity = decisions_parity({"scores": S, "decision": d}, {"scores": S_ref, "decision": d_ref}, label="scores",
+                              vote_tie=tie, every_chirp=("decision",))
+    return require_parity(parity, "svm.onnx", "scikit-learn's SVM", len(X_check),
+                          f"skl2onnx wrote differently from scikit-learn {sklearn.__version__}; reinstall the package's "
+                          f"dependencies (pip install -c constraints.txt -e .) and fit again")
+
+
 def _finite(*v) -> bool:
     return all(x is not None and np.isfinite(x) for x in v)
 
@@ -167,14 +213,8 @@ class SVMKind(ModelKind):
         fsel = (sel.get("force") or {}) if chosen else {}
         width = sp.get("kernel_width", kernel_width)
         X, cls = d.X[train], d.cls[train]
-        touch = cls < n
         t0 = time.perf_counter()
-        pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=sp.get("C", C), decision_function_shape="ovo",
-                                                                  gamma="scale" if width is None else width / X.shape[1]))])
-        pipe.fit(X[touch], cls[touch])
-        if len(pipe.classes_) != n:
-            raise ValueError(f"training data touches {len(pipe.classes_)} of the {n} locations; "
-                             f"record every location at least once")
+        pipe = fit_pipeline(X, cls, n, C=sp.get("C", C), kernel_width=width)
         S = ovr_scores_from_ovo(pairwise(ovo_decision(pipe, X), n), n)
         entry = score_entry(S, X, cls, d.force[train], d.quiet[train], n_locations=n, location_ids=d.layout.ids,
                             force_model=fsel.get("model", force_model), force_alpha=fsel.get("alpha") or 10.0,
@@ -187,36 +227,7 @@ class SVMKind(ModelKind):
         return Fitted(pipe, entry, X.shape[1], {k: v for k, v in sel.items() if k in self.selection_keys}, fit_s)
 
     def export(self, fit, path, X_check):
-        """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check``: the location the runtime
-        reads (argmax of the per-location scores), the scores and the pairwise decision values within
-        :data:`~sonicskin.parity.PARITY_TOL` of their scale; :class:`~sonicskin.parity.ParityError` otherwise."""
-        import sklearn
-        from skl2onnx import to_onnx
-
-        pipe, n = fit.model, len(fit.model.classes_)
-        with warnings.catch_warnings():  # skl2onnx reads SVC's deprecated probA_/probB_
-            warnings.simplefilter("ignore", FutureWarning)
-            onx = to_onnx(pipe, X_check[:1].astype(np.float32), options={SVC: {"zipmap": False}}, target_opset=17)
-        # skl2onnx lists the opsets in set order (it changes with PYTHONHASHSEED): sorted, the same inputs give the same bytes
-        ops = sorted((o.domain, o.version) for o in onx.opset_import)
-        del onx.opset_import[:]
-        for domain, version in ops:
-            onx.opset_import.add(domain=domain, version=version)
-        write_file(path, onx.SerializeToString())
-        sess = ort_session(path)
-        _, ovo = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})
-        ref_ovo = pipe.decision_function(X_check.astype(np.float32))
-        S, S_ref = ovr_scores_from_ovo(ovo, n), ovr_scores_from_ovo(ref_ovo, n)
-        # The runtime's location is argmax S (votes, ties by confidence).  A pairwise decision within float32 rounding
-        # of zero can vote the other way in onnxruntime than in scikit-learn (float64) and move a score by a whole
-        # vote: such chirps are near ties, held to their decision values only.
-        d, d_ref = pairwise(ovo, n), pairwise(ref_ovo, n)
-        tie = (np.abs(d_ref) < parity_bound(d_ref)).any(axis=1)
-        parity = decisions_parity({"scores": S, "decision": d}, {"scores": S_ref, "decision": d_ref}, label="scores",
-                                  vote_tie=tie, every_chirp=("decision",))
-        return require_parity(parity, "svm.onnx", "scikit-learn's SVM", len(X_check),
-                              f"skl2onnx wrote differently from scikit-learn {sklearn.__version__}; reinstall the package's "
-                              f"dependencies (pip install -c constraints.txt -e .) and fit again")
+        return export_pipeline(fit.model, path, X_check)
 
     def selection_lines(self, sel):
         out = []
