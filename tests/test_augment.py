@@ -114,9 +114,10 @@ def _with_rest(X, y, n_rest=20, seed=0):
 def test_lda_net_places_touches_exactly_as_its_lda_and_exports(tmp_path, norm):
     """The network's closed-form layer is the artifact's LDA, frozen: after training its place is the LDA's on
     chirps the LDA is not sure of, and the export keeps it."""
+    from sonicskin.models import LDASkinNet
+
     from sonicskin.kinds import Fitted
     from sonicskin.kinds.lda import fit_lda, normalize
-    from sonicskin.models import LDASkinNet
 
     X, y, press, _ = _session(K=4, per=8, seed=1)
     X = X[:, ::10]

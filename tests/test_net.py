@@ -6,11 +6,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sonicskin.kinds import Fitted  # noqa: E402
-from sonicskin.kinds.svm import fit_pipeline, ovr_scores_from_ovo  # noqa: E402
 from sonicskin.models import KernelVotes, SkinNet  # noqa: E402
 from sonicskin.training.quick import fit_net  # noqa: E402
 
+from sonicskin.kinds import Fitted  # noqa: E402
+from sonicskin.kinds.svm import fit_pipeline, ovr_scores_from_ovo  # noqa: E402
 
 
 def _toy(n_per=30, K=4, d=12, seed=0):

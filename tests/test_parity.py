@@ -151,6 +151,7 @@ def test_a_real_network_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch)
 def test_a_real_svm_mismatch_is_one_line_with_the_fix(tmp_path, monkeypatch):
     import onnxruntime
     import sklearn
+
     from sonicskin.kinds import svm
 
     rng = np.random.default_rng(0)

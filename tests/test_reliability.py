@@ -94,8 +94,9 @@ def test_choose_layer_breaks_ties_at_the_printed_percent_in_a_fixed_order(monkey
     pytest.importorskip("torch")
     from types import SimpleNamespace
 
-    from sonicskin.kinds import Fitted
     from sonicskin.training import quick
+
+    from sonicskin.kinds import Fitted
 
     n, K = 1000, 4
     cls = np.arange(n) % K

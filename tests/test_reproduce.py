@@ -81,6 +81,7 @@ def test_seed_results_aggregate_to_mean_and_spread():
 def test_blas_decision_values_equal_scikit_learns(k):
     """reproduce and the SVM kind score chirps with one BLAS product (ovo_decision); it must be libsvm's decision_function."""
     import numpy as np
+
     from sonicskin.kinds.svm import fit_pipeline, ovo_decision
 
     rng = np.random.default_rng(k)

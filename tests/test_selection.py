@@ -145,9 +145,10 @@ def test_validation_never_sees_test_sessions(cli_files, tmp_path):
 
 def test_network_touch_decision_follows_the_chosen_detector():
     pytest.importorskip("torch")
+    from sonicskin.training.quick import choose_detector
+
     from sonicskin.kinds.net import NetHead
     from sonicskin.rig import Layout
-    from sonicskin.training.quick import choose_detector
 
     rng = np.random.default_rng(0)
     x = rng.normal(0, 1, (50, 6))
