@@ -60,12 +60,9 @@ def replay(art: Path, kind: str, t, sessions: list[str], layout) -> tuple[dict, 
 
 def run_dataset(ds, work: Path, *, epochs: int | None, log) -> dict:
     """Both models trained on s000 (as deployed), scored per later session with drift tracking on and off."""
-    from sonicskin.training.cli import quiet_third_party
-    from sonicskin.training.fit import train_network
-
     from sonicskin.feature_cache import load_features_cached
     from sonicskin.features import touch_mask
-    from sonicskin.fit import fit_svm, prepare, write_artifact
+    from sonicskin.fit import fit_models, prepare, write_artifact
     from sonicskin.split import Split
 
     t = load_features_cached(ds, progress=False)
@@ -73,14 +70,12 @@ def run_dataset(ds, work: Path, *, epochs: int | None, log) -> dict:
     later = sessions[1:]
     quiet = lambda m: None  # noqa: E731
     data = prepare(ds, table=t, split=Split((sessions[0],), (), tuple(later)), n_bins=None, wide=True, log=quiet)
-    svm = fit_svm(data, log=quiet)
-    with quiet_third_party():
-        net = train_network(data, svm=svm, epochs=epochs)
+    _, fits = fit_models(data, ("net",), options={"net": {"epochs": epochs}}, log=quiet)
     out: dict = {"minutes": {s: float(t["time_s"][(t["session"] == s) & touch_mask(t)].mean() / 60) for s in later},
-                 "net_layer": net.selection.get("location_layer"), "acc": {}, "stretch": {}}
+                 "net_layer": fits["net"].selection["net"].get("location_layer"), "acc": {}, "stretch": {}}
     for drift in (True, False):
         art = work / ("drift" if drift else "no-drift")
-        write_artifact(data, art, svm=svm, net=net, drift=drift, log=quiet)
+        write_artifact(data, art, {k: fits[k] for k in ("net", "svm")}, drift=drift, log=quiet)
         for kind in ("net", "svm"):
             acc, stretch = replay(art, kind, t, later, ds.layout)
             out["acc"][f"{kind} {'with' if drift else 'without'} drift tracking"] = acc

@@ -30,8 +30,8 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sonicskin.dsp import log_magnitude_db  # noqa: E402
-from sonicskin.fit import fit_svm_head  # noqa: E402
-from sonicskin.head import SVMHead  # noqa: E402
+from sonicskin.kinds.closed import score_entry  # noqa: E402
+from sonicskin.kinds.svm import SVMHead, fit_pipeline, ovo_decision, ovr_scores_from_ovo  # noqa: E402
 from sonicskin.ospa import OSPA  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.sim import Scenario, Simulator, build_timeline  # noqa: E402
@@ -169,8 +169,9 @@ def main() -> None:
     touch = s0.location >= 0
     bins = OSPA(gamma=300, allowed=rig.allowed_mask).fit(X0[touch], X_moving=X0[(s0.location < 0) & (s0.moving > 0)]).selected_
     cls = np.where(touch, layout.index_of(np.where(touch, s0.location, layout.ids[0])), len(layout))
-    pipe, params = fit_svm_head(X0[:, bins], cls, s0.force_n, quiet, n_locations=len(layout), location_ids=layout.ids,
-                                detector="paper")
+    pipe = fit_pipeline(X0[:, bins], cls, len(layout))
+    params = score_entry(ovr_scores_from_ovo(ovo_decision(pipe, X0[:, bins]), len(layout)), X0[:, bins], cls, s0.force_n, quiet,
+                         n_locations=len(layout), location_ids=layout.ids, detector="paper")
     head = SVMHead(params, layout)
     frame = f1[100:101]
     feat = timeit(lambda: log_magnitude_db(frame, rig), 200)

@@ -57,6 +57,10 @@ METRICS = {  # name -> (unit, larger is better)
 LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "force_rmse_n": "force RMSE",
           "missed_touch": "missed touches", "false_touch": "false touches"}
 SPLIT = {"train": ["s000"], "val": ["s001"], "test": ["s002", "s003"]}
+#: the protocols users run (issue 36): train s000 and validate on s001, the deployed models refitted on both
+#: ("refit", compare's default); or one session and nothing to validate on ("oneshot", --val none)
+PROTOCOLS = {"refit": ["--val", "s001"], "oneshot": ["--val", "none"]}
+MODELS = ("net", "svm", "lda")
 
 
 def _model_metrics(r: dict) -> dict:
@@ -69,12 +73,12 @@ def _model_metrics(r: dict) -> dict:
             "false_touch": num(r["detection"].get("false_touch_rate"))}
 
 
-def floors(ds, *, min_force_n: float = 0.5) -> dict:
-    """The plain scikit-learn floors on this split (:func:`sonicskin.floors.plain_floors`)."""
+def floors(ds, *, train, min_force_n: float = 0.5) -> dict:
+    """The plain scikit-learn floors trained on the sessions ``train`` (:func:`sonicskin.floors.plain_floors`)."""
     from sonicskin.feature_cache import load_features_cached
     from sonicskin.floors import plain_floors
 
-    return plain_floors(load_features_cached(ds, progress=False), ds.rig, train=SPLIT["train"], test=SPLIT["test"],
+    return plain_floors(load_features_cached(ds, progress=False), ds.rig, train=train, test=SPLIT["test"],
                         min_force_n=min_force_n)
 
 
@@ -87,7 +91,7 @@ def describe(sc) -> dict:
             "warmup_c": sc.temperature["warmup_c"]}
 
 
-def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | None, log) -> dict:
+def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | None, protocol: str, log) -> dict:
     from sonicskin.cli import main
     from sonicskin.rig import Rig
     from sonicskin.seeds import scenario_dataset
@@ -101,7 +105,7 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     ds = scenario_dataset("random", seed, cache, rig=Rig.load(rig_name), log=lambda *_: None)
     sim_s = time.perf_counter() - t0
     rep = out / "compare" / f"random-{seed}"
-    argv = ["compare", "--data", str(ds.root), "--train", *SPLIT["train"], "--val", *SPLIT["val"], "--test", *SPLIT["test"],
+    argv = ["compare", "--data", str(ds.root), "--train", *SPLIT["train"], *PROTOCOLS[protocol], "--test", *SPLIT["test"],
             "--runs", str(out / "runs"), "--out", str(rep), "--trainer.enable_progress_bar", "false",
             "--trainer.enable_model_summary", "false"]
     if epochs:
@@ -116,15 +120,19 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     res = json.loads((rep / "compare.json").read_text())
     models_s = time.perf_counter() - t1
     t2 = time.perf_counter()
-    fl = floors(ds)
+    # floors trained on the same presses as the deployed models: s000, and with the refit s000 + s001 (both printed)
+    fl = floors(ds, train=SPLIT["train"] + (SPLIT["val"] if protocol == "refit" else []))
+    fl1 = floors(ds, train=SPLIT["train"]) if protocol == "refit" else fl
+    fl.update({f"{k}_s000": v for k, v in fl1.items() if k.endswith("accuracy") or k.endswith("rmse_n")})
     row = {"seed": int(seed), "rig": describe(Scenario.load("random", seed=seed)), "split": res["split"],
-           "chirps_per_location": res["chirps_per_location"],
-           "net": _model_metrics(res["models"]["net"]), "svm": _model_metrics(res["models"]["svm"]), "floor": fl,
+           "protocol": protocol, "chirps_per_location": res["chirps_per_location"],
+           **{k: _model_metrics(res["models"][k]) for k in MODELS if k in res["models"]}, "floor": fl,
            "net_layer": ((json.loads((Path(res["artifact"]) / "skin.json").read_text()).get("selection") or {}).get("net")
                          or {}).get("location_layer"),
            "seconds": {"simulate": sim_s, "models": models_s, "floors": time.perf_counter() - t2}}
     log(f"seed {seed} ({row['rig']['material']} {row['rig']['surface']}, {row['rig']['locations']} locations): accuracy "
-        f"net {row['net']['accuracy']:.1%} ({row['net_layer']}) svm {row['svm']['accuracy']:.1%} floors SVC "
+        f"net {row['net']['accuracy']:.1%} ({row['net_layer']}) svm {row['svm']['accuracy']:.1%} "
+        f"lda {row.get('lda', {}).get('accuracy', np.nan):.1%} floors SVC "
         f"{fl['svc_accuracy']:.1%} LDA {fl['lda_accuracy']:.1%} normalized SVC {fl['normalized_svc_accuracy']:.1%}; force RMSE net "
         f"{row['net']['force_rmse_n']:.2f} svm {row['svm']['force_rmse_n']:.2f} SVR {fl.get('svr_force_rmse_n', np.nan):.2f} "
         f"mean {fl.get('mean_force_rmse_n', np.nan):.2f} N; missed net {row['net']['missed_touch']:.1%} "
@@ -139,20 +147,24 @@ def summarize(rows: list[dict]) -> dict:
     def col(get):
         return np.array([get(r) for r in rows], float)
 
-    q = {f"{m}/{k}": col(lambda r, m=m, k=k: r[k][m]) for m in METRICS for k in ("net", "svm")}
+    q = {f"{m}/{k}": col(lambda r, m=m, k=k: r.get(k, {}).get(m, np.nan)) for m in METRICS for k in MODELS}
     for k in ("svc", "lda", "normalized_svc"):
         q[f"accuracy/{k}_floor"] = col(lambda r, k=k: r["floor"].get(f"{k}_accuracy", np.nan))
+        if any("lda_accuracy_s000" in r["floor"] and r.get("protocol") == "refit" for r in rows):
+            q[f"accuracy/{k}_floor_s000"] = col(lambda r, k=k: r["floor"].get(f"{k}_accuracy_s000", np.nan))
     q["force_rmse_n/svr_floor"] = col(lambda r: r["floor"].get("svr_force_rmse_n", np.nan))
     q["force_rmse_n/mean_floor"] = col(lambda r: r["floor"].get("mean_force_rmse_n", np.nan))
+    q = {k: v for k, v in q.items() if np.isfinite(v).any()}
     out = {"values": {k: {"mean": float(np.nanmean(v)), "std": float(np.nanstd(v, ddof=1)) if np.isfinite(v).sum() > 1 else 0.0,
                           "n": int(np.isfinite(v).sum())} for k, v in q.items()}, "pairs": {}}
-    pairs = [(f"{m}/net", f"{m}/svm") for m in METRICS] + [
+    pairs = [(f"{m}/net", f"{m}/svm") for m in METRICS] + [(f"{m}/net", f"{m}/lda") for m in METRICS] + [
         ("accuracy/svm", "accuracy/svc_floor"), ("accuracy/net", "accuracy/svc_floor"),
         ("accuracy/svm", "accuracy/lda_floor"), ("accuracy/net", "accuracy/lda_floor"),
         ("accuracy/svm", "accuracy/normalized_svc_floor"), ("accuracy/net", "accuracy/normalized_svc_floor"),
+        *[("accuracy/net", f"accuracy/{k}_floor_s000") for k in ("svc", "lda", "normalized_svc") if f"accuracy/{k}_floor_s000" in q],
         ("force_rmse_n/svm", "force_rmse_n/svr_floor"), ("force_rmse_n/net", "force_rmse_n/svr_floor"),
         ("force_rmse_n/svm", "force_rmse_n/mean_floor"), ("force_rmse_n/net", "force_rmse_n/mean_floor")]
-    for a, b in pairs:
+    for a, b in [(a, b) for a, b in pairs if a in q and b in q]:
         d = q[a] - q[b]
         lo, hi = t_interval(d[np.isfinite(d)])
         out["pairs"][f"{a} - {b}"] = {"mean": float(np.nanmean(d)), "ci95": [lo, hi], "n": int(np.isfinite(d).sum())}
@@ -167,14 +179,17 @@ def _f(v: float, unit: str, signed: bool = False) -> str:
     return f"{v * 100:{s}.1f}" if unit == "pct" else f"{v:{s}.2f}"
 
 
-NAMES = {"net": "network", "svm": "package SVM", **{f"{k}_floor": v for k, v in FLOOR_NAMES.items()}}
+NAMES = {"net": "network", "svm": "package SVM", "lda": "package LDA", **{f"{k}_floor": v for k, v in FLOOR_NAMES.items()},
+         **{f"{k}_floor_s000": f"{v}, trained on s000 alone" for k, v in FLOOR_NAMES.items()}}
 
 
 def format_markdown(res: dict) -> str:
     S = res["summary"]
     u = {"pct": " %", "N": " N"}
+    how = (f"validation {', '.join(SPLIT['val'])}, the deployed models and the floors refitted on s000 + s001"
+           if res.get("protocol", "refit") == "refit" else "no validation session (one session, one press per marker)")
     lines = [f"Random rigs, seeds {res['seeds']} ({res['seed_list']}); sessions: train {', '.join(SPLIT['train'])}, "
-             f"validation {', '.join(SPLIT['val'])}, test {', '.join(SPLIT['test'])} (one press per marker per session). "
+             f"{how}, test {', '.join(SPLIT['test'])} (one press per marker per session). "
              f"Mean ± std over {len(res['rows'])} rigs; intervals: 95 % Student t over rigs of the paired difference. "
              f"Wall time {res['wall_s'] / 60:.0f} min.", "",
              "| metric | model / floor | mean ± std |", "|---|---|---|"]
@@ -219,6 +234,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rig", default="jaco", help="acquisition rig (default: jaco, the paper's)")
     p.add_argument("--epochs", type=int, help="network epochs (default: the training config's)")
     p.add_argument("--resume", action="store_true", help="keep per-seed results already in OUT/seeds (default: recompute)")
+    p.add_argument("--protocol", choices=sorted(PROTOCOLS), default="refit",
+                   help="refit: validate on s001, refit on s000 + s001 (default); oneshot: s000 alone, no validation")
     a = p.parse_args(argv)
     fam = family_seeds("random")
     if a.seeds in (["heldout"], ["design"], ["previous"]):
@@ -236,11 +253,11 @@ def main(argv: list[str] | None = None) -> int:
         if a.resume and f.is_file():
             rows.append(json.loads(f.read_text()))
             continue
-        row = run_seed(s, cache=Path(a.cache), out=out, rig_name=a.rig, epochs=a.epochs, log=print)
+        row = run_seed(s, cache=Path(a.cache), out=out, rig_name=a.rig, epochs=a.epochs, protocol=a.protocol, log=print)
         f.write_text(json.dumps(row, indent=1))
         rows.append(row)
         sys.stdout.flush()
-    res = {"seeds": seeds, "seed_list": seed_list, "split": SPLIT, "rows": rows, "summary": summarize(rows),
+    res = {"seeds": seeds, "seed_list": seed_list, "split": SPLIT, "protocol": a.protocol, "rows": rows, "summary": summarize(rows),
            "wall_s": time.perf_counter() - t0}
     (out / "random.json").write_text(json.dumps(res, indent=1))
     md = format_markdown(res)

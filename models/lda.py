@@ -29,12 +29,14 @@ class LDASkinNet(SkinNet):
         self.n_in, self.norm = n_in, norm
         self.n_trunk = self.mean.numel()
         self.lda = nn.Linear(n_in, n_locations).requires_grad_(False)
+        self.register_buffer("centre", torch.zeros(n_in))
         self.location = nn.Linear(hidden[-1] if hidden else self.n_trunk, 1)  # the touch logit
         self.force = nn.Linear((hidden[-1] if hidden else self.n_trunk) + n_locations, n_locations)
 
-    def init_from_lda(self, W: np.ndarray, b: np.ndarray) -> None:
-        """The LDA's scores ``normalise(x) W' + b`` (:func:`sonicskin.kinds.lda.linear_scores`)."""
+    def init_from_lda(self, W: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
+        """The LDA's scores ``(normalise(x) - c) W' + b`` (:func:`sonicskin.kinds.lda.linear_scores`)."""
         with torch.no_grad():
+            self.centre.copy_(torch.as_tensor(c, dtype=torch.float32))
             self.lda.weight.copy_(torch.as_tensor(W, dtype=torch.float32))
             self.lda.bias.copy_(torch.as_tensor(b, dtype=torch.float32))
 
@@ -48,6 +50,6 @@ class LDASkinNet(SkinNet):
     def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.trunk(self.standardize(x[:, :self.n_trunk]))
         t = self.location(h)
-        place = torch.log_softmax(self.lda(self.normalized(x)), 1)
+        place = torch.log_softmax(self.lda(self.normalized(x) - self.centre), 1)
         loc = self._logsig(t) + place
         return torch.cat([loc, self._logsig(-t)], 1), self.force(torch.cat([h, place.exp()], 1))

@@ -167,7 +167,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
     split = meta["training"]["split"]
-    res: dict = {"artifact": str(art), "data": str(data), "models": {}}
+    res: dict = {"artifact": str(art), "data": str(data), "models": {}, "labels": kinds.labels()}
     names = [k for k in kinds.names() if k in meta["models"]]
     ds = Dataset(data)
     # The data's rig and marker layout must be the artifact's (else the scores are of the wrong places).

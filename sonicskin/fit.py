@@ -297,7 +297,7 @@ def summary_lines(out: str | Path, skin: dict) -> list[str]:
     files = [f"{m['file']} ({(out / m['file']).stat().st_size / 1e3:.0f} kB, parity max |d "
              f"{'logits' if 'max_abs_logits' in m['parity'] else 'scores'}| "
              f"{m['parity'].get('max_abs_logits', m['parity'].get('max_abs_scores', 0.0)):.1e})" for m in skin["models"].values()]
-    lines.append(f"exported {out}: {', '.join(files)} and skin.json")
+    lines.append(f"exported {out}: {', '.join(files)} and skin.json" if len(files) > 1 else f"wrote {out}/{files[0]} and skin.json")
     return lines
 
 

@@ -27,7 +27,7 @@ from . import kinds
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
 from .feature_cache import load_features_cached
-from .fit import prepare, write_artifact
+from .fit import fit_models, prepare, write_artifact
 from .jsonio import json_safe
 from .kinds import BASELINE, CLOSED_FORM, NETWORK
 from .rig import Rig
@@ -74,11 +74,14 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
     return Dataset(path)
 
 
-def _split(t, test_subjects=None) -> Split:
+def _split(t, test_subjects=None, val: bool = False) -> Split:
+    """One-shot: the first session trains, every later one tests (``test_subjects``: those people's sessions test, the
+    others train).  ``val``: the next session (the last of the training people's) validates, and the deployed models
+    are refitted on training and validation sessions together."""
     if test_subjects:
         sp = Split.make(t, test_subjects=test_subjects)
-        return Split(sp.train + sp.val, (), sp.test)  # no early stopping here: the validation people train too
-    return Split.make(t, val_sessions=[])
+        return sp if val else Split(sp.train + sp.val, (), sp.test)
+    return Split.make(t, val_sessions=None if val else [])
 
 
 def _floors(ds: Dataset, t, split) -> dict:
@@ -96,34 +99,31 @@ def _floors(ds: Dataset, t, split) -> dict:
 
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
-              train_stride: int = 1) -> list[dict]:
-    """Both models on one simulated dataset through the one fit (:mod:`sonicskin.fit`): the SVM once, the network per
-    training seed, each exported to ``work`` and its test sessions replayed through the artifact.  ``select``: gamma,
-    C, kernel width, force model and detection, and the network's location layer and touch decision, are chosen by
-    validation on the training session's presses (:mod:`sonicskin.selection`); otherwise the paper's values.
+              train_stride: int = 1, val: bool = False) -> list[dict]:
+    """Every model on one simulated dataset through the one fit (:func:`sonicskin.fit.fit_models`), the network per
+    training seed, each exported to ``work`` and its test sessions replayed through the artifact.  ``select``: every
+    model's options chosen by validation on the training presses (:mod:`sonicskin.selection`); otherwise the paper's
+    values.  ``val``: the next session validates and the models are refitted on both (:func:`_split`).
     ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
     quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
-    split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"))
-    # gamma chosen on the training sessions only (validation is on their presses: the split has no val session)
+    split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"), val)
     data = prepare(ds, table=t, split=split, n_bins=None if select else 300, wide=True, log=quiet_log)
     if train_stride > 1:
         data = dataclasses.replace(data, usable=data.usable & (np.arange(len(t)) % int(train_stride) == 0))
-    closed = {}
-    for k in kinds.fit_order([NETWORK])[:-1]:  # the closed forms the network starts from, fitted once
-        closed[k] = kinds.get(k).fit(data, fitted=closed, log=quiet_log, **({"select": select} if k == BASELINE else {}))
     te = t.select(split.mask(t, "test"))
-    floor = _floors(ds, t, split)
-    net_kind, layer = kinds.get(NETWORK, fitting=True), None
-    out, closed_metrics = [], {}
+    floor = _floors(ds, t, Split(split.train + split.val, (), split.test))  # the floors train on every labelled press
+    out, closed_metrics, layer = [], {}, None
     for seed in train_seeds:
-        net = net_kind.fit(data, fitted=closed, select=select, seed=int(seed), epochs=epochs, layer=layer, log=quiet_log)
+        final, fits = fit_models(data, [NETWORK], log=quiet_log,
+                                 options={BASELINE: {"select": select}, NETWORK: {"select": select, "seed": int(seed),
+                                                                                  "epochs": epochs, "layer": layer}})
+        net = fits[NETWORK]
         layer = layer or {k: v for k, v in net.selection[NETWORK].items() if k in ("location_layer", "layer_how", "hparams")}
-        fits = {**closed, NETWORK: net}
-        skin = write_artifact(data, work, fits, training={"train_seed": int(seed)}, log=quiet_log)
+        skin = write_artifact(final, work, fits, training={"train_seed": int(seed)}, log=quiet_log)
         sel = skin.get("selection") or {}
         row = {"train_seed": int(seed), "train_s": {k: f.fit_s for k, f in fits.items()}, "floor": floor,
-               "split": split.to_dict(),
+               "split": skin["training"]["split"] | ({"refit": True} if skin["training"].get("refit") else {}),
                "selection": {k: {kk: v[kk] for kk in ("params", "model", "name", "location_layer", "detector", "force") if kk in v}
                              for k, v in sel.items() if isinstance(v, dict)}}
         for k in fits:
@@ -132,13 +132,13 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
                 continue
             p = replay_sessions(SkinRuntime(work, k), te, split.test)
             row[k] = {m: float(f(stream_metrics(p, te, ds.layout))) for m, (f, _, _) in METRICS.items()}
-        closed_metrics = {k: row[k] for k in closed}
+        closed_metrics = {k: row[k] for k in fits if k != NETWORK}
         n, b = row[NETWORK], row[BASELINE]
         log(f"  {name} seed {ds.root.name.rsplit('seed', 1)[-1]} train seed {seed}: accuracy net {n['accuracy']:.1%} svm "
-            f"{b['accuracy']:.1%} lda {row.get(CLOSED_FORM, {}).get('accuracy', np.nan):.1%} floor {floor['accuracy']:.1%}; "
-            f"force net {n['force_rmse_n']:.2f} svm {b['force_rmse_n']:.2f} SVR floor {floor.get('force_rmse_n', np.nan):.2f} N; "
-            f"missed net {n['missed_touch']:.1%} svm {b['missed_touch']:.1%} (net trained in {net.fit_s:.0f} s; "
-            f"{row['selection']})")
+            f"{b['accuracy']:.1%} lda {row.get(CLOSED_FORM, {}).get('accuracy', np.nan):.1%} floor {floor['accuracy']:.1%} "
+            f"LDA floor {floor['lda_accuracy']:.1%}; force net {n['force_rmse_n']:.2f} svm {b['force_rmse_n']:.2f} SVR floor "
+            f"{floor.get('force_rmse_n', np.nan):.2f} N; missed net {n['missed_touch']:.1%} svm {b['missed_touch']:.1%} "
+            f"(net trained in {net.fit_s:.0f} s; {row['selection']})")
         out.append(row)
     return out
 
@@ -152,7 +152,9 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
         svm = np.array([rows[0][BASELINE][m] for rows in runs.values()], float)
         d = np.array([np.mean([r[NETWORK][m] for r in rows]) - rows[0][BASELINE][m] for rows in runs.values()], float)
         lo, hi = t_interval(d)
+        lda = np.array([rows[0].get(CLOSED_FORM, {}).get(m, np.nan) for rows in runs.values()], float)
         out[m] = {"net_mean": float(net.mean()), "net_std": float(net.std(ddof=1)) if net.size > 1 else 0.0,
+                  "lda_mean": float(np.nanmean(lda)) if np.isfinite(lda).any() else None,
                   "svm_mean": float(svm.mean()), "svm_std": float(svm.std(ddof=1)) if svm.size > 1 else 0.0,
                   "diff_mean": float(d.mean()), "diff_ci95": [lo, hi], "n_sim_seeds": int(d.size), "n_net_runs": int(net.size)}
     return out
@@ -160,8 +162,9 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
 
 def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
                   out: str | Path = "reports/compare-seeds", epochs: int | None = None, select: bool = True,
-                  rig: Rig | None = None, log=print) -> dict:
-    """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries."""
+                  rig: Rig | None = None, val: bool = False, log=print) -> dict:
+    """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries.  ``val``: the
+    second session validates and every model is refitted on both (the protocol of a user who recorded two passes)."""
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise ValueError(f"unknown scenario(s) {unknown}; the comparison knows {sorted(SCENARIOS)}")
@@ -170,20 +173,21 @@ def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 
     out = Path(out)
     rig = rig or Rig.load("jaco")
     res: dict = {"sim_seeds": [int(s) for s in sim_seeds], "train_seeds": [int(s) for s in train_seeds],
-                 "epochs": epochs, "rig": rig.name, "scenarios": {}}
+                 "epochs": epochs, "rig": rig.name, "validation": bool(val), "scenarios": {}}
     for name in scenarios:
         t0 = time.perf_counter()
         runs = {}
         for s in sim_seeds:
             # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
             done = out / "runs" / f"{name}-seed{s}.json"
-            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "select": bool(select), "rig": rig.to_dict()}
+            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "select": bool(select), "rig": rig.to_dict(),
+                   "val": bool(val)}
             if done.is_file() and json.loads(done.read_text())["key"] == key:
                 runs[int(s)] = json.loads(done.read_text())["rows"]
                 continue
             ds = scenario_dataset(name, s, cache, rig=rig, log=log)
             runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log,
-                                     select=select)
+                                     select=select, val=val)
             done.parent.mkdir(parents=True, exist_ok=True)
             done.write_text(json.dumps({"key": key, "rows": runs[int(s)]}))
         res["scenarios"][name] = {"runs": {str(k): v for k, v in runs.items()}, "summary": summarize(runs),
@@ -205,14 +209,15 @@ def format_markdown(res: dict) -> str:
              f"as the live loop runs them (no test labels). Mean ± std over runs (network: every simulator x training "
              f"seed; SVM, deterministic: every simulator seed). Percentages in points; interval: 95 % Student t over "
              f"simulator seeds of the paired difference.", "",
-             "| scenario | metric | network | SVM | net − SVM [95 % CI] |", "|---|---|---|---|---|"]
+             "| scenario | metric | network | SVM | LDA | net − SVM [95 % CI] |", "|---|---|---|---|---|---|"]
     for name, sc in res["scenarios"].items():
         for m, (_, unit, _) in METRICS.items():
             r = sc["summary"][m]
             u = {"pct": " %", "cm": " cm", "N": " N"}[unit]
             lo, hi = r["diff_ci95"]
             lines.append(f"| {name} | {LABELS[m]} | {_fmt(r['net_mean'], unit)} ± {_fmt(r['net_std'], unit)}{u} | "
-                         f"{_fmt(r['svm_mean'], unit)} ± {_fmt(r['svm_std'], unit)}{u} | {_fmt(r['diff_mean'], unit, True)} "
+                         f"{_fmt(r['svm_mean'], unit)} ± {_fmt(r['svm_std'], unit)}{u} | "
+                         f"{'n/a' if r.get('lda_mean') is None else _fmt(r['lda_mean'], unit) + u} | {_fmt(r['diff_mean'], unit, True)} "
                          f"[{_fmt(lo, unit, True)}, {_fmt(hi, unit, True)}]{u} |")
     floors = [("accuracy", "SVC (all bins)", "pct"), ("lda_accuracy", "shrinkage LDA (all bins)", "pct"),
               ("normalized_svc_accuracy", "normalized SVC (OSPA 300)", "pct"), ("force_rmse_n", "pooled SVR force", "N")]

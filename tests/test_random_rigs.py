@@ -98,7 +98,7 @@ def test_benchmark_summary_pairs_rigs_and_floors_score_the_named_split(cli_files
     assert S["values"]["force_rmse_n/svm"] == {"mean": pytest.approx(2.0), "std": pytest.approx(1.0), "n": 3}
     # Floors on a real dataset: trained on s000's touches, scored on every touch chirp of the test sessions.
     ds = Dataset(cli_files["data"])
-    fl = bench.floors(ds)
+    fl = bench.floors(ds, train=["s000"])
     t = ds.features(progress=False)
     assert fl["n_test_touch"] == int((np.isin(t["session"], ["s002", "s003"]) & touch_mask(t)).sum())
     assert fl["n_train_touch"] == int(((t["session"] == "s000") & touch_mask(t)).sum())

@@ -27,7 +27,7 @@ def test_paired_interval_is_over_simulator_seeds():
     assert s["svm_std"] == pytest.approx(np.std([0.88, 0.80, 0.91], ddof=1))
     assert (s["n_sim_seeds"], s["n_net_runs"]) == (3, 6)
     md = format_markdown({"sim_seeds": [0, 1, 2], "train_seeds": [0, 1], "scenarios": {"moving": {"summary": summarize(runs)}}})
-    assert "| moving | accuracy | 89.0 ± 6.5 % | 86.3 ± 5.7 % | +2.7 [-1.1, +6.5] % |" in md
+    assert "| moving | accuracy | 89.0 ± 6.5 % | 86.3 ± 5.7 % | n/a | +2.7 [-1.1, +6.5] % |" in md
 
 
 def test_bad_requests_say_what_to_do(tmp_path):

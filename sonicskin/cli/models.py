@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 
 from ..errors import UsageError
-from ..kinds import labels
 from ._common import (
     add_model_options,
     check_split_options,
@@ -240,8 +239,12 @@ def _compare_scenarios(a: argparse.Namespace) -> int:
     from ..seeds import compare_seeds, format_markdown
 
     out = Path(a.out or "reports/compare-seeds")
+    check_split_options(a)
+    if a.train or a.test or a.test_subjects or (a.val and a.val != ["s001"]):
+        raise UsageError("--scenario splits each scenario itself: the first session trains, the others test; --val s001 "
+                         "validates on the second and refits on both (drop --train/--test/--test-subjects)")
     res = compare_seeds(a.scenario, sim_seeds=a.sim_seeds, train_seeds=a.train_seeds, cache=a.cache, out=out,
-                        epochs=a.epochs, rig=Rig.load(a.rig or "jaco"))
+                        epochs=a.epochs, rig=Rig.load(a.rig or "jaco"), val=bool(a.val))
     print(format_markdown(res))
     print(f"wrote {out}/seeds.json, seeds.md, seeds.png")
     return 0
@@ -300,7 +303,7 @@ def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) ->
     from ..rig import Layout
 
     res = compare_artifact(artifact, a.data, sessions=a.test)
-    title = f"{Path(a.data).name}: " + " vs ".join(labels()[k] for k in res["models"])
+    title = f"{Path(a.data).name}: " + " vs ".join(res["labels"][k] for k in res["models"])
     print(format_comparison(res, title))
     meta = json.loads((artifact / "skin.json").read_text())
     if expected and meta.get("selection"):  # what the validation expected, next to what the test sessions gave

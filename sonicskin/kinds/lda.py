@@ -171,18 +171,22 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
     return X
 
 
-def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray]:
-    """``(W (K, d), b (K,))``: the LDA's per-class scores ``x W' + b`` (a binary LDA's one row expanded), scaled so
-    that at the class means the best score leads the second by ``margin`` (the median over classes): a softmax over
-    them is confident but not saturated (the confidence the events carry; raw scores over thousands of bins differ
-    by hundreds).  The argmax is the LDA's."""
+def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` (a binary LDA's one row expanded),
+    about the training chirps' centre ``c`` (so float32 graphs never subtract two large sums: absolute dB inputs are
+    all near one level and the LDA reads their small differences), scaled so that at the class means the best score
+    leads the second by ``margin`` (the median over classes): a softmax over them is confident but not saturated (the
+    confidence the events carry; raw scores over thousands of bins differ by hundreds).  The argmax is the LDA's."""
     W, b = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
     if W.shape[0] == 1:  # scikit-learn's binary convention: one row, positive for classes_[1]
         W, b = np.vstack([-W / 2, W / 2]), np.r_[-b / 2, b / 2]
-    top2 = np.sort(np.asarray(lda.means_) @ W.T + b, axis=1)[:, -2:]
+    M = np.asarray(lda.means_, np.float64)
+    c = np.asarray(lda.priors_, np.float64) @ M
+    b = b + W @ c
+    top2 = np.sort((M - c) @ W.T + b, axis=1)[:, -2:]
     gap = float(np.median(top2[:, 1] - top2[:, 0]))
     scale = margin / gap if gap > 0 else 1.0
-    return W * scale, b * scale
+    return W * scale, b * scale, c
 
 
 def fit_lda(X: np.ndarray, y: np.ndarray, k: int, norm: str):
@@ -190,7 +194,7 @@ def fit_lda(X: np.ndarray, y: np.ndarray, k: int, norm: str):
     return ShrinkageLDA().fit(normalize(np.asarray(X)[:, :k], norm), y)
 
 
-def _name(k: int, n_in: int, norm: str) -> str:
+def candidate_name(k: int, n_in: int, norm: str) -> str:
     return f"{'every bin' if k >= n_in else f'{k} bins'}, {NORMS[norm]}"
 
 
@@ -208,7 +212,7 @@ def choose(data, log=None) -> dict:
     default = (n_in if dk is None else min(dk, n_in), dnorm)
     folds, how = data.folds()
     if not folds:
-        return {"status": "default", "k": default[0], "norm": default[1], "name": _name(default[0], n_in, default[1]),
+        return {"status": "default", "k": default[0], "norm": default[1], "name": candidate_name(default[0], n_in, default[1]),
                 "how": f"{how}: the default measured across the random rig family"}
     scores = {}
     for k, norm in lda_candidates(n_in):
@@ -222,11 +226,11 @@ def choose(data, log=None) -> dict:
         else:
             scores[(k, norm)] = float(np.mean(accs))
     if not scores:
-        return {"status": "default", "k": default[0], "norm": default[1], "name": _name(default[0], n_in, default[1]),
+        return {"status": "default", "k": default[0], "norm": default[1], "name": candidate_name(default[0], n_in, default[1]),
                 "how": f"{how}: a fold lacks a location, the measured default"}
     best = max(scores, key=lambda c: (round(100 * scores[c]), c == default))
-    return {"status": "validated", "k": int(best[0]), "norm": best[1], "name": _name(best[0], n_in, best[1]),
-            "accuracy": scores[best], "scores": {_name(k, n_in, nm): v for (k, nm), v in scores.items()}, "how": how}
+    return {"status": "validated", "k": int(best[0]), "norm": best[1], "name": candidate_name(best[0], n_in, best[1]),
+            "accuracy": scores[best], "scores": {candidate_name(k, n_in, nm): v for (k, nm), v in scores.items()}, "how": how}
 
 
 class LDAHead(ScoreHead):
@@ -267,21 +271,21 @@ class LDAKind(ModelKind):
             raise ValueError(f"training data touches {np.unique(cls[touch]).size} of the {n} locations; "
                              f"record every location at least once")
         lda = fit_lda(X[touch], cls[touch], k, norm)
-        W, b = linear_scores(lda)
+        W, b, c = linear_scores(lda)
         svm = fitted.get(BASELINE)
         fsel = (svm.selection.get("force") or {}) if svm is not None else {}
-        entry = score_entry(normalize(X, norm) @ W.T + b, X, cls, data.force[train], data.quiet[train], n_locations=n,
+        entry = score_entry((normalize(X, norm) - c) @ W.T + b, X, cls, data.force[train], data.quiet[train], n_locations=n,
                             location_ids=data.layout.ids, force_model=fsel.get("model", "fourier1"),
                             force_alpha=fsel.get("alpha") or 10.0, force_cols=data.n_svm)
         return Fitted(lda, {**entry, "norm": norm}, k, {"lda": sel}, time.perf_counter() - t0)
 
     def export(self, fit, path, X_check):
-        """The LDA as an ONNX graph (the normalisation, then one Gemm), then parity of its scores and location on
+        """The LDA as an ONNX graph (the normalisation, the centre, then one Gemm), then parity of its scores and location on
         ``X_check`` against numpy's."""
         import onnx
         from onnx import TensorProto, helper, numpy_helper
 
-        W, b = linear_scores(fit.model)
+        W, b, c = linear_scores(fit.model)
         K, d = W.shape
         norm = fit.entry["norm"]
         nodes, x = [], "inputs"
@@ -292,8 +296,9 @@ class LDAKind(ModelKind):
             nodes += [helper.make_node("ReduceL2", [x], ["l2"], axes=[1], keepdims=1),
                       helper.make_node("Max", ["l2", "eps"], ["l2e"]), helper.make_node("Div", [x, "l2e"], ["z"])]
             x = "z"
-        nodes.append(helper.make_node("Gemm", [x, "W", "b"], ["scores"], transB=1))
+        nodes += [helper.make_node("Sub", [x, "c"], ["zc"]), helper.make_node("Gemm", ["zc", "W", "b"], ["scores"], transB=1)]
         init = [numpy_helper.from_array(W.astype(np.float32), "W"), numpy_helper.from_array(b.astype(np.float32), "b"),
+                numpy_helper.from_array(c.astype(np.float32), "c"),
                 numpy_helper.from_array(np.array([1e-12], np.float32), "eps")]
         graph = helper.make_graph(nodes, "shrinkage_lda", [helper.make_tensor_value_info("inputs", TensorProto.FLOAT, ["batch", d])],
                                   [helper.make_tensor_value_info("scores", TensorProto.FLOAT, ["batch", K])], init)
@@ -302,7 +307,7 @@ class LDAKind(ModelKind):
         write_file(path, model.SerializeToString())
         sess = ort_session(path)
         got = sess.run(None, {sess.get_inputs()[0].name: X_check.astype(np.float32)})[0]
-        ref = normalize(X_check.astype(np.float32), norm) @ W.T + b
+        ref = (normalize(X_check.astype(np.float32), norm) - c) @ W.T + b
         parity = decisions_parity({"scores": got}, {"scores": ref}, label="scores")
         return require_parity(parity, "lda.onnx", "the LDA", len(X_check),
                               f"onnx {onnx.__version__} wrote the graph differently; reinstall the package's dependencies")

@@ -238,14 +238,14 @@ class SVMKind(ModelKind):
             ci = f", 95 % interval over presses {lo:.0%}-{hi:.0%}" if _finite(lo, hi) else ""
             paper = (f"; the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%}" if loc.get("paper_accuracy") is not None
                      else "")
-            out.append(f"SVM: chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} x 'scale' "
+            out.append(f"chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} x 'scale' "
                        f"(validation accuracy {e['accuracy']:.0%} on {e['n_presses']} presses, {loc['how']}{ci}{paper})")
             lc = loc.get("learning_curve")
             if lc and lc["accuracy"]:
                 pts = ", ".join(f"{k}: {a:.0%}" for k, a in zip(lc["presses_per_location"], lc["accuracy"]))
                 out.append(f"learning curve (presses per location: accuracy) {pts}; {lc['verdict']}")
         elif loc:
-            out.append(f"SVM: gamma {loc['params']['n_bins']} (the paper's; {loc['reason']})")
+            out.append(f"gamma {loc['params']['n_bins']} (the paper's; {loc['reason']})")
         f = sel.get("force") or {}
         if f.get("status") == "validated":
             lo, hi = f["estimate"]["press_rmse_ci95"]

@@ -36,7 +36,7 @@ MATERIALS = ("cfrp", "aluminium", "abs", "glass", "wood")
 # --quick: every press half as long (1.5 s of 3 s) and 5 s of moving no-touch (of 10 s), on top of each
 # experiment's fewer sessions: about 0.6x the chirps of the same sessions in full.
 QUICK_SIZE = {"touch_s": 1.5, "moving_s": 5.0}
-MODEL = kinds.labels()
+MODEL = {k: kinds.labels()[k] for k in (BASELINE, NETWORK)}  # the paper's model and ours
 #: the datasets each experiment reads (``--only`` simulates these only)
 USES = {"fig6b": ("moving",), "fig11": ("moving",), "fig12": ("drift-2h", "drift-2months"), "fig13": ("stationary",),
         "table1": ("stationary", "moving", "multi-person"),

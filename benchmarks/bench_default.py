@@ -1,0 +1,100 @@
+"""The network's configuration when nothing can validate, measured across the random rig family (issue 36).
+
+    nice -n 5 .venv/bin/python benchmarks/bench_default.py                 # design seeds 0-29, both input modes
+    nice -n 5 .venv/bin/python benchmarks/bench_default.py --no-net        # the closed forms only (a minute)
+
+With one session and one press per marker there is nothing to validate on: the package takes the configuration that
+is best and most robust across rigs it was not tuned on.  Here every design rig of the ``random`` family
+(``configs/scenarios/random.yaml``: material, tube or plate, size, transducers, loss, irregularity, markers, people,
+motion, warm-up) trains on session s000 alone and is scored on every touch chirp of s002 and s003 (inputs relative to
+each session's labelled no-touch reference, or absolute as a table of touches only gives them), for:
+
+- the LDA kind's candidates (:func:`sonicskin.kinds.lda.lda_candidates`: 1000 bins or every bin, each chirp as
+  measured, its level removed or at unit length);
+- the package's SVM (C 10, ``gamma="scale"``, OSPA's 300 bins);
+- the network's MLP layers trained on augmented presses (``--no-net`` leaves them out).
+
+Printed: mean, worst and 10th percentile over rigs per candidate and mode, and the paired difference of each against
+the default (:data:`sonicskin.kinds.lda.DEFAULTS`) with a 95 % t interval over rigs.  The held-out seeds are refused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import warnings
+from pathlib import Path
+
+for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from sonicskin.fit import prepare  # noqa: E402
+from sonicskin.kinds.lda import DEFAULTS, candidate_name, fit_lda, lda_candidates, normalize  # noqa: E402
+from sonicskin.kinds.svm import fit_pipeline  # noqa: E402
+from sonicskin.rig import Rig  # noqa: E402
+from sonicskin.seeds import scenario_dataset  # noqa: E402
+from sonicskin.sim.scenario import family_seeds  # noqa: E402
+from sonicskin.split import Split  # noqa: E402
+from sonicskin.stats import t_interval  # noqa: E402
+
+
+def one_rig(ds, mode: str, net: bool) -> dict:
+    d = prepare(ds, split=Split(("s000",), (), ("s002", "s003")), n_bins=300, wide=True, mode=mode, progress=False,
+                log=lambda *_: None)
+    n = d.n_locations
+    tr, te = d.rows("train") & (d.cls < n), d.rows("test") & (d.cls < n)
+    out = {}
+    for k, norm in lda_candidates(d.X.shape[1]):
+        name = f"LDA, {candidate_name(k, d.X.shape[1], norm)}"
+        out[name] = float(np.mean(fit_lda(d.X[tr], d.cls[tr], k, norm).predict(normalize(d.X[te][:, :k], norm)) == d.cls[te]))
+    svm = fit_pipeline(d.X[tr][:, :300], d.cls[tr], n)
+    out["package SVM (300 bins)"] = float(np.mean(svm.predict(d.X[te][:, :300]) == d.cls[te]))
+    if net:
+        from sonicskin.training.augment import make_augmenter
+        from sonicskin.training.quick import DEFAULTS as NET, fit_net, layer_hparams
+
+        rows = d.rows("train")
+        for layer in ("MLP, every bin", "MLP, 1000 bins"):
+            hp = {**NET, **layer_hparams(layer, n_in=d.X.shape[1])}
+            pred = fit_net(d.X[rows], d.cls[rows], d.force[rows], n_locations=n, augmenter=make_augmenter(d, rows), **hp)
+            out[f"network, {layer}"] = float(np.mean(pred(d.X[te])[0][:, :n].argmax(1) == d.cls[te]))
+    dk, dnorm = DEFAULTS[mode]
+    out["default"] = out[f"LDA, {candidate_name(d.X.shape[1] if dk is None else min(dk, d.X.shape[1]), d.X.shape[1], dnorm)}"]
+    return out
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=int, nargs="+", help="random family seeds (default: the design seeds)")
+    p.add_argument("--cache", default="data/random", help="simulated datasets (default: data/random)")
+    p.add_argument("--modes", nargs="+", default=["relative", "absolute"], choices=["relative", "absolute"])
+    p.add_argument("--no-net", action="store_true", help="leave the network's MLP layers out")
+    a = p.parse_args(argv)
+    fam = family_seeds("random")
+    seeds = a.seeds or list(fam["design"])
+    if set(seeds) & set(fam["heldout"]):
+        raise SystemExit("bench_default: error: held-out seeds are only ever evaluated (bench_random_rigs.py); choose "
+                         "design seeds")
+    rig = Rig.load("jaco")
+    warnings.simplefilter("ignore")
+    for mode in a.modes:
+        rows = [one_rig(scenario_dataset("random", s, Path(a.cache), rig=rig, log=lambda *_: None), mode, not a.no_net)
+                for s in tqdm(seeds, desc=mode)]
+        names = sorted(rows[0], key=lambda k: -np.mean([r[k] for r in rows]))
+        print(f"\n{mode} inputs, train s000 alone, test s002 s003, {len(rows)} design rigs of the random family "
+              f"(seeds {seeds[0]}-{seeds[-1]}); the default: {DEFAULTS[mode]}\n")
+        print("| candidate | mean | worst | 10th percentile | minus the default, 95 % CI |\n|---|---|---|---|---|")
+        for k in names:
+            v = np.array([r[k] for r in rows])
+            d = v - np.array([r["default"] for r in rows])
+            lo, hi = t_interval(d) if np.any(d) else (0.0, 0.0)
+            print(f"| {k} | {v.mean():.1%} | {v.min():.1%} | {np.percentile(v, 10):.1%} | "
+                  f"{d.mean() * 100:+.1f} [{lo * 100:+.1f}, {hi * 100:+.1f}] |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
