@@ -54,7 +54,8 @@ def one_rig(ds, mode: str, net: bool) -> dict:
     out["package SVM (300 bins)"] = float(np.mean(svm.predict(d.X[te][:, :300]) == d.cls[te]))
     if net:
         from sonicskin.training.augment import make_augmenter
-        from sonicskin.training.quick import DEFAULTS as NET, fit_net, layer_hparams
+        from sonicskin.training.quick import DEFAULTS as NET
+        from sonicskin.training.quick import fit_net, layer_hparams
 
         rows = d.rows("train")
         for layer in ("MLP, every bin", "MLP, 1000 bins"):

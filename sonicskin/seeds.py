@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kinds
 from .compare import replay_sessions, stream_metrics
 from .dataset import Dataset
 from .feature_cache import load_features_cached
