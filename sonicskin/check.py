@@ -38,7 +38,7 @@ import scipy.fft
 import scipy.ndimage
 import scipy.signal
 
-from .acquire import AudioError, Link, blocks, check_blocksize, check_device_rate, list_devices, resolve_device
+from .acquire import AudioError, AudioSource, Link, blocks, check_blocksize, check_device_rate, list_devices, resolve_device
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
 from .errors import SonicskinError, UsageError
 from .jsonio import json_safe
@@ -199,6 +199,7 @@ class SimulatedDevice:
 
     RATES = (44_100.0, 48_000.0, 96_000.0, 192_000.0)
     GAIN = {"disconnected": 0.0, "clipping": 40.0, "weak": 1e-2}  # of the received chirp, per fault
+    prompts = False  # the press is scripted
 
     def __init__(self, rig: Rig, scenario="stationary", *, fault: str = "none", n_inputs: int = 2, motors: float = 0.0,
                  delay_ms: float = 2.9, seed: int = 0):
@@ -210,7 +211,8 @@ class SimulatedDevice:
         sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
         self.scenario = sc.replace(seed=sc.seed + 2000 + seed, sessions=1)
         self.sim = Simulator(self.scenario, rig)
-        self.n_inputs, self.motors, self.delay_ms = int(n_inputs), float(motors), float(delay_ms)
+        self.n_inputs = self.n_outputs = int(n_inputs)
+        self.motors, self.delay_ms = float(motors), float(delay_ms)
         self.rates = (44_100.0, 48_000.0) if fault == "rate" else self.RATES
         self.name = f"simulated ({self.scenario.name}{'' if fault == 'none' else ', fault: ' + fault})"
 
@@ -230,23 +232,48 @@ class SimulatedDevice:
                         force_n=F, moving=np.full(n, self.motors), temperature_c=sc.temperature_c(t),
                         subject=np.full(n, sc.subjects[0]))
 
-    def source(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float, blocksize: int = 1024):
-        """What the receiver disc puts out, as a source read as fast as it goes: the chirp train at rest, the press, a
-        tail, through the interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
-        rig = self.rig
+    def refused(self, rig: Rig, tx: int) -> str | None:
+        """Why the interface does not run the rig's rate (``None``: it does)."""
+        return None if rig.fs_hz in self.rates else f"the device runs {', '.join(f'{r:g}' for r in self.rates)} Hz"
+
+    def open(self, rig: Rig, *, rx: int, n: int, settle_s: float, rest_s: float, press_s: float, tail_s: float,
+             blocksize: int, **_) -> tuple[np.ndarray, list[int], AudioSource]:
+        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
+        ``rx``; input 1 when cabled wrongly) and its source: what the disc puts out, as fast as it is read, through the
+        interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
         d = int(round(self.delay_ms * 1e-3 * rig.fs_hz)) % rig.n_chirp
         tl = self.timeline(rig.seconds_to_chirps(settle_s + rest_s) + (d > 0), rig.seconds_to_chirps(press_s),
                            rig.seconds_to_chirps(tail_s))
         sim = copy.copy(self.sim)  # the fault's gain on this capture's copy (the simulator's arrays are shared)
         sim.gain = np.float32(sim.gain * self.GAIN.get(self.fault, 1.0))
-        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
-                           blocksize=blocksize)
+        src = open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
+                          blocksize=blocksize)
+        rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
+        noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
+        return noise, [min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)], src
 
-    def inputs(self, n: int) -> np.ndarray:
-        """What ``n`` samples of every input hear with nothing cabled to it: the sensor's noise, 24-bit."""
-        rng = np.random.default_rng([self.scenario.seed, 17])
-        q = float(2 ** 23 - 1)
-        return (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
+
+class _Interface:
+    """An audio interface as the check records from it: every input (at most ``max_inputs``), the chirp on ``tx``."""
+
+    prompts = True  # a person presses when asked
+
+    def __init__(self, device, max_inputs: int):
+        self.idx = resolve_device(device)
+        d = list_devices()[self.idx]
+        self.name, self.n_inputs, self.n_outputs = d["name"], min(int(d["inputs"]), max_inputs), int(d["outputs"])
+
+    def refused(self, rig: Rig, tx: int) -> str | None:
+        try:
+            check_device_rate(self.idx, rig, self.n_inputs, tx + 1)
+        except AudioError as e:
+            return str(e)
+        return None
+
+    def open(self, rig: Rig, *, tx: int, rx: int, n: int, blocksize: int, playback, **_):
+        src = open_source(rig, self.idx, [Link(tx=tx, rx=rx)], rx_channels=list(range(self.n_inputs)), blocksize=blocksize,
+                          playback=playback)
+        return np.zeros((n, self.n_inputs), np.float32), slice(None), src
 
 
 def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
@@ -256,42 +283,34 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
     """Play the chirp on ``tx`` and record every input of ``device``; ask for a press after ``rest_s``.
 
     ``device``: an audio interface (name or index), or the simulated one: ``"sim"`` (the link of ``scenario`` with the
-    ``fault`` and ``motors`` of :class:`SimulatedDevice`) or a :class:`SimulatedDevice`; its press is scripted.
-    ``prompt(msg)`` tells the user what to do (default: stderr).  ``playback`` replaces what is played (tests: a
-    simulated received signal through a loopback); ``on_start()`` runs once the stream runs (tests: wire the JACK
-    loopback).  A rate the device refuses is a capture that says so (the check's first line fails).
+    ``fault`` and ``motors`` of :class:`SimulatedDevice`) or a :class:`SimulatedDevice`, whose press is scripted.
+    ``prompt(msg)`` tells the user what to do (default: stderr, on an interface).  ``playback`` replaces what is played
+    (tests: a simulated received signal through a loopback); ``on_start()`` runs once the stream runs (tests: wire the
+    JACK loopback).  A rate the device refuses is a capture that says so (the check's first line fails).
     """
-    prompt = prompt or (lambda msg: print(msg, file=sys.stderr, flush=True))
     check_windows(rig, rest_s, press_s)
     check_blocksize(blocksize, "--blocksize")
     if not (isinstance(device, SimulatedDevice) or simulated(device)) and fault != "none":
         raise UsageError("--sim-fault is for the simulated device (--device sim)")
     if simulated(device):
         device = SimulatedDevice(rig, scenario, fault=fault, motors=motors)
-    fs, sim = rig.fs_hz, isinstance(device, SimulatedDevice)
+    elif not isinstance(device, SimulatedDevice):
+        device = _Interface(device, max_inputs)
+    if prompt is None:  # a person presses on an interface when asked; the simulated press is scripted
+        prompt = (lambda msg: print(msg, file=sys.stderr, flush=True)) if device.prompts else (lambda msg: None)
+    fs = rig.fs_hz
     rest = (int(settle_s * fs), int((settle_s + rest_s) * fs))
     press = (rest[1], int((settle_s + rest_s + press_s) * fs))
     n_total = press[1] + int(tail_s * fs)
-    if sim:
-        name, n_in, n_out = device.name, device.n_inputs, device.n_inputs
-    else:
-        idx = resolve_device(device)
-        d = list_devices()[idx]
-        name, n_in, n_out = d["name"], min(int(d["inputs"]), max_inputs), int(d["outputs"])
-    for opt, channel, n, what in (("--rx", rx, n_in, "inputs"), ("--tx", tx, n_out, "outputs")):
+    for opt, channel, n, what in (("--rx", rx, device.n_inputs, "inputs"), ("--tx", tx, device.n_outputs, "outputs")):
         if channel >= n:
             raise SonicskinError(f"{opt} {channel}: the device has {n} {what} (0-{n - 1})")
-    refused = (None if fs in device.rates else f"the device runs {', '.join(f'{r:g}' for r in device.rates)} Hz") if sim \
-        else _refused_rate(idx, rig, n_in, tx + 1)
+    refused = device.refused(rig, tx)
     if refused is not None:
-        return Capture(np.zeros((0, n_in), np.float32), fs, rx, tx, rest, press, name, rate_ok=False, rate_detail=refused)
-    if sim:  # the receiver on input rx (input 1 when cabled wrongly), the other inputs hear noise
-        audio, columns = device.inputs(n_total), [min(1 if device.fault == "wrong-channel" else rx, n_in - 1)]
-        src = device.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s, blocksize=blocksize)
-    else:
-        audio, columns = np.zeros((n_total, n_in), np.float32), slice(None)
-        src = open_source(rig, idx, [Link(tx=tx, rx=rx)], rx_channels=list(range(n_in)), blocksize=blocksize,
-                          playback=playback)
+        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
+                       rate_detail=refused)
+    audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, settle_s=settle_s, rest_s=rest_s, press_s=press_s,
+                                      tail_s=tail_s, blocksize=blocksize, playback=playback)
     asked = released = False
     with src:
         if on_start is not None:
@@ -313,16 +332,7 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
                 prompt("check: release")
             if a + m >= n_total:
                 break
-    return Capture(audio, fs, rx, tx, rest, press, name, overflows=src.overflows + src.dropped_blocks)
-
-
-def _refused_rate(idx: int, rig: Rig, n_in: int, n_out: int) -> str | None:
-    """Why device ``idx`` does not run the rig's rate, or ``None`` when it does."""
-    try:
-        check_device_rate(idx, rig, n_in, n_out)
-    except AudioError as e:
-        return str(e)
-    return None
+    return Capture(audio, fs, rx, tx, rest, press, device.name, overflows=src.overflows + src.dropped_blocks)
 
 
 # -- analysis ---------------------------------------------------------------------------------------

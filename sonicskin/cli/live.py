@@ -126,6 +126,15 @@ def cmd_info(a: argparse.Namespace) -> int:
     return 0
 
 
+def _device_options(p: argparse.ArgumentParser) -> None:
+    """The device and its channels, as ``live`` and ``check`` take them."""
+    p.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    p.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    p.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    p.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples, at most 1048576 "
+                   "(default: 1024)")
+
+
 def add_parsers(sub) -> None:
     lv = sub.add_parser("live", help="real-time touch sensing: audio -> touch events (JSON lines)",
                         description="Run the live loop. By default on the simulated device with scripted touches; "
@@ -138,7 +147,8 @@ def add_parsers(sub) -> None:
                                     "before it starts. The run stops with one line when the device stops delivering "
                                     "(--watchdog), or when its input holds no usable chirp (silent, NaN, clipped, "
                                     "constant, or noise without the chirp).")
-    lv.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    lv.set_defaults(func=cmd_live)
+    _device_options(lv)
     lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm) (default: on the simulated device, "
                                        "an SVM is trained on the spot the first time, about 2 min and 200 MB under ./data "
                                        "and ./artifacts, and reused later)")
@@ -156,10 +166,6 @@ def add_parsers(sub) -> None:
     lv.add_argument("--watchdog", type=positive_float, default=3.0, metavar="S",
                     help="stop with an error when the device (or the simulated one, --fast too) delivers no audio, or no "
                          "usable chirp, for S seconds (default: 3)")
-    lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
-    lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
-    lv.add_argument("--blocksize", type=positive_int, default=1024,
-                    help="audio block in samples, at most 1048576 (default: 1024)")
     lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time (default: real time)")
     lv.add_argument("--drop-every", type=positive_int, metavar="N",
                     help="simulated device: drop one audio block in N (N >= 2), fault injection (default: none)")
@@ -179,39 +185,31 @@ def add_parsers(sub) -> None:
                          "(docs/robot-frame.md) (default: off)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")
-    lv.set_defaults(func=cmd_live)
-
     ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
                         description="Play the rig's chirp, record every input, ask for one firm press, and print one table: "
                                     "each measurement with pass/warn/fail and its fix. Writes check.png (|H(f)| at rest and "
                                     "pressed, noise floor, PWM bands, the band used) and check.json to --out. Exit code 0 "
                                     "when nothing fails, 1 otherwise. Runs on the simulated device by default.")
-    ck.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    ck.set_defaults(func=cmd_check)
+    _device_options(ck)
     ck.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
-    ck.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
-    ck.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
     ck.add_argument("--rest", type=positive_float, default=4.0, help="seconds of hands-off chirps (default: 4)")
     ck.add_argument("--press", type=positive_float, default=3.0,
                     help="seconds of the press, at least 3 chirp periods (0.4 s on jaco) (default: 3)")
     ck.add_argument("--out", default=".", help="folder for check.png and check.json (default: .)")
-    ck.add_argument("--blocksize", type=positive_int, default=1024,
-                    help="audio block in samples, at most 1048576 (default: 1024)")
     ck.add_argument("--scenario", default="stationary", help="simulated device: the link (default: stationary)")
     ck.add_argument("--sim-fault", default="none", choices=("none", "disconnected", "clipping", "weak", "wrong-channel", "rate"),
                     help="simulated device: inject a fault (default: none)")
     ck.add_argument("--sim-motors", type=float, default=0.0, metavar="LEVEL",
                     help="simulated device: motor activity 0..1 during the check (default: 0, robot still)")
-    ck.set_defaults(func=cmd_check)
-
     dv = sub.add_parser("devices", help="list audio devices",
                         description="List the audio interfaces PortAudio sees (index, name, host API, input and output "
                                     "channels, default rate), for `sonicskin live/record --device NAME|INDEX`. Needs "
                                     "libportaudio2; the simulated device needs none.")
     dv.set_defaults(func=cmd_devices)
-
     i = sub.add_parser("info", help="show the version, the rig and the available configs",
                        description="Print the package version, the rig's sample rate, chirp, period and usable bins, "
                                    "and the names of the shipped rig, scenario, training and links configs (usable as "
                                    "--rig/--scenario/--config NAME, and `live --links NAME`).")
-    i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
     i.set_defaults(func=cmd_info)
+    i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
