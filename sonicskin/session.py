@@ -5,13 +5,12 @@
 (``"sim"`` or ``None``: each link's scenario plays a new session of scripted touches) or on an audio interface.  A single
 artifact is an arm of one link, so each check of a run is written once, here: the artifact's layout against the
 simulated scenario, the links' frames for an MCAP file, a link without an artifact (trained on the spot on the simulated
-device when asked, :func:`train_oneshot`).  :func:`open_source` is the one place a device or the simulated device opens.
+device when asked).  :func:`open_source` is the one place a device or the simulated device opens.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -19,25 +18,17 @@ from pathlib import Path
 from . import acquire
 from .acquire import AudioSource, Link, check_blocksize
 from .errors import ConfigNotFoundError, UsageError
-from .fit import build_svm_artifact
 from .links import ARM_FILE, load_arm
 from .live import LiveLoop, run_loops
 from .rig import Rig
 from .rosbag import McapEventWriter
 from .runtime import SkinRuntime
-from .sim import Scenario, Simulator, Timeline, build_timeline, generate
+from .sim import Scenario, Simulator, Timeline, build_timeline
 from .view import ViewServer, parse_view_port, view_loops
 
-__all__ = ["SIM", "simulated", "arm_file_of", "load_config", "open_source", "live_scenario", "Run", "open_run",
-           "train_oneshot"]
+__all__ = ["SIM", "simulated", "arm_file_of", "load_config", "open_source", "live_scenario", "Run", "open_run"]
 
 SIM = "sim"  #: the simulated device's name (``--device sim``, ``device="sim"``; ``None`` too)
-
-# One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
-# an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
-ONESHOT_S_PER_SAMPLE = 118 / (3097 * 20480)
-ONESHOT_BYTES_PER_SAMPLE = 199e6 / (3097 * 20480)
-
 
 def simulated(device) -> bool:
     """``device`` is the simulated device (``None`` or ``"sim"``), not an audio interface's name or index."""
@@ -145,7 +136,8 @@ class Run:
 
 def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scenario="stationary", rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
-             link_artifacts: list | None = None, train: bool = False, mcap=None) -> Run:
+             link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
+             mcap=None) -> Run:
     """Open a skin on a device.
 
     ``artifact``: an artifact folder, one link (channels ``tx``/``rx`` of an interface; on the simulated device it plays
@@ -154,9 +146,10 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scena
     file's ``artifact:`` or ``link_artifacts`` (one per link, in order).  ``device``: ``"sim"`` or ``None``, the simulated
     device (real time, or as fast as it is read with ``fast``; ``drop_every`` drops one block in N), or an audio
     interface by name or index.  ``rig``: a rig name or path (default: the arm file's, else the artifact's own, else
-    jaco).  ``train``: a simulated link without an artifact is trained on the spot, once (:func:`train_oneshot`);
-    otherwise that is a one-line error.  ``mcap``: the MCAP file :meth:`Run.run` writes each touch into, in its link's
-    frame (refused, before anything opens, unless every link has a frame).
+    jaco).  ``train``: called as ``train(scenario, rig)`` for a simulated link without an artifact, its artifact's folder
+    (the CLI: :func:`sonicskin.record.train_oneshot`); without it such a link is a one-line error.  ``mcap``: the MCAP
+    file :meth:`Run.run` writes each touch into, in its link's frame (refused, before anything opens, unless every link
+    has a frame).
     """
     check_blocksize(blocksize)
     sim = simulated(device)
@@ -174,7 +167,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scena
                     artifact=artifact)]
     if mcap is not None:
         _require_frames(lks, spec)
-    arts = _artifacts(spec, lks, the_rig, link_artifacts, train and sim)
+    arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
     runtimes = [SkinRuntime(Path(art), model, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
     the_rig = the_rig or runtimes[0].rig
     if not sim:
@@ -207,7 +200,7 @@ def _require_frames(links: list[Link], spec) -> None:
                          f"docs/robot-frame.md)")
 
 
-def _artifacts(spec, links: list[Link], rig: Rig, given: list | None, train: bool) -> list[Path]:
+def _artifacts(spec, links: list[Link], rig: Rig, given: list | None, train: Callable | None) -> list[Path]:
     """Each link's artifact folder: ``given`` (one per link), else the link's own, else trained on the spot."""
     if given:
         if len(given) != len(links):
@@ -216,33 +209,9 @@ def _artifacts(spec, links: list[Link], rig: Rig, given: list | None, train: boo
         return [Path(x) for x in given]
     arts = []
     for lk in links:
-        if lk.artifact is None and not (train and lk.scenario is not None):
+        if lk.artifact is None and not (train is not None and lk.scenario is not None):
             raise UsageError(f"--links {spec}: link {lk.name!r} has no artifact; train one per link on that link's own "
                              f"recordings (`sonicskin fit-svm --links {spec} --data DIR --out ART`, then --links "
                              f"ART/{ARM_FILE}), or pass --link-artifact DIR once per link")
-        arts.append(Path(lk.artifact) if lk.artifact is not None else train_oneshot(lk.scenario, lk.rig or rig))
+        arts.append(Path(lk.artifact) if lk.artifact is not None else Path(train(lk.scenario, lk.rig or rig)))
     return arts
-
-
-def train_oneshot(scenario: Scenario, rig: Rig, root: Path = Path("."), log: Callable[[str], None] | None = None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``): what ``sonicskin record`` + ``fit-svm`` do on a
-    real rig, for a run without an artifact.
-
-    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
-    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
-    log = log or (lambda m: print(m, file=sys.stderr))
-    art = root / f"artifacts/sim-{scenario.name}-svm"
-    if (art / "skin.json").is_file():
-        log(f"no --artifact: using {art}, trained on the simulated {scenario.name!r} link by an earlier run (delete it to "
-            f"train again)")
-        return art
-    data = root / f"data/sim-{scenario.name}-oneshot"
-    samples = len(build_timeline(scenario.replace(sessions=1), rig)) * rig.n_chirp
-    est_s = samples * ONESHOT_S_PER_SAMPLE
-    took = f"about {est_s / 60:.0f} min" if est_s >= 90 else f"about {max(est_s, 1):.0f} s"
-    log(f"no --artifact: training an SVM on the simulated {scenario.name!r} link first, once: {took} on an idle 2-core "
-        f"machine (longer when it is busy), {samples * ONESHOT_BYTES_PER_SAMPLE / 1e6:,.0f} MB of simulated recordings "
-        f"written to {data}, the artifact to {art} (reused by later runs); pass --artifact DIR to run a trained one")
-    generate.simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False, log=log)
-    build_svm_artifact(data, art, progress=False, log=log)
-    return art

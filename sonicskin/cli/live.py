@@ -33,6 +33,7 @@ def cmd_live(a: argparse.Namespace) -> int:
     # here, not at the top: `sonicskin simulate` and every verb but live load neither onnxruntime nor scikit-learn
     from ..acquire import DeviceLost, check_blocksize
     from ..live import UdpSink
+    from ..record import train_oneshot
     from ..session import open_run, simulated
 
     check_blocksize(a.blocksize, "--blocksize")
@@ -65,7 +66,7 @@ def cmd_live(a: argparse.Namespace) -> int:
         sinks.append(LslSink(a.lsl))
     run = open_run(a.artifact, links=a.links, device=a.device, model=a.model, scenario=a.scenario, rig=a.rig, tx=a.tx,
                    rx=a.rx, fast=a.fast, blocksize=a.blocksize, drop_every=a.drop_every, link_artifacts=a.link_artifact,
-                   train=True, mcap=a.mcap)
+                   train=train_oneshot, mcap=a.mcap)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
         print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
