@@ -236,21 +236,27 @@ class SimulatedDevice:
         """Why the interface does not run the rig's rate (``None``: it does)."""
         return None if rig.fs_hz in self.rates else f"the device runs {', '.join(f'{r:g}' for r in self.rates)} Hz"
 
-    def open(self, rig: Rig, *, rx: int, n: int, settle_s: float, rest_s: float, press_s: float, tail_s: float,
-             blocksize: int, **_) -> tuple[np.ndarray, list[int], AudioSource]:
-        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
-        ``rx``; input 1 when cabled wrongly) and its source: what the disc puts out, as fast as it is read, through the
-        interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
+    def source(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float, blocksize: int = 1024) -> AudioSource:
+        """What the receiver disc puts out, read as fast as it goes: the chirp train at rest, the press, a tail, through
+        the interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
+        rig = self.rig
         d = int(round(self.delay_ms * 1e-3 * rig.fs_hz)) % rig.n_chirp
         tl = self.timeline(rig.seconds_to_chirps(settle_s + rest_s) + (d > 0), rig.seconds_to_chirps(press_s),
                            rig.seconds_to_chirps(tail_s))
         sim = copy.copy(self.sim)  # the fault's gain on this capture's copy (the simulator's arrays are shared)
         sim.gain = np.float32(sim.gain * self.GAIN.get(self.fault, 1.0))
-        src = open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
-                          blocksize=blocksize)
+        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
+                           blocksize=blocksize)
+
+    def open(self, rig: Rig, *, rx: int, n: int, blocksize: int, settle_s: float, rest_s: float, press_s: float,
+             tail_s: float, **_) -> tuple[np.ndarray, list[int], AudioSource]:
+        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
+        ``rx``; input 1 when cabled wrongly) and its :meth:`source`."""
         rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
         noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
-        return noise, [min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)], src
+        column = min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)
+        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s,
+                                            blocksize=blocksize)
 
 
 class _Interface:
@@ -309,8 +315,8 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
     if refused is not None:
         return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
                        rate_detail=refused)
-    audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, settle_s=settle_s, rest_s=rest_s, press_s=press_s,
-                                      tail_s=tail_s, blocksize=blocksize, playback=playback)
+    audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, blocksize=blocksize, playback=playback,
+                                      settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s)
     asked = released = False
     with src:
         if on_start is not None:
