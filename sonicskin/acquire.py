@@ -44,6 +44,8 @@ class AudioError(SonicskinError, RuntimeError):
 
 class DeviceLost(AudioError):
     """No audio arrived for the watchdog's time: the audio server or the interface stopped (:func:`blocks`)."""
+
+
 MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds the whole run in one block
 
 

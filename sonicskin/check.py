@@ -70,6 +70,7 @@ def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
             raise SonicskinError(f"{name} {v:g} s holds fewer than the {n} chirp periods the check needs {what} "
                                  f"({rig.period_s * 1e3:.1f} ms each): give {name} {math.ceil(need * 10) / 10:g} or more")
 
+
 # pass at or above the first value, warn at or above the second, fail below (lower-is-better rows say so)
 THRESHOLDS = {
     "lock_db": (20.0, 10.0),

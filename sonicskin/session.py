@@ -30,6 +30,7 @@ __all__ = ["SIM", "simulated", "arm_file_of", "load_config", "open_source", "liv
 
 SIM = "sim"  #: the simulated device's name (``--device sim``, ``device="sim"``; ``None`` too)
 
+
 def simulated(device) -> bool:
     """``device`` is the simulated device (``None`` or ``"sim"``), not an audio interface's name or index."""
     return device is None or device == SIM
