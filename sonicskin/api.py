@@ -119,6 +119,7 @@ class Listener:
         self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
                                blocksize=blocksize, mcap=mcap)
         self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
+        self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
         self.view_url = self.opened.view.url if self.opened.view is not None else None
 
     def _on_event(self, ev: TouchEvent) -> None:
