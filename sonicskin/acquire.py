@@ -1,10 +1,12 @@
 """Audio acquisition: the only module that touches audio hardware (through sounddevice).
 
-A *source* delivers the receiver's audio as blocks through :meth:`read`; the transmitter plays
-the chirp back to back.  :class:`SoundDeviceSource` is a duplex PortAudio stream whose callback
-only copies into a queue (all work happens in the consumer, as in sounddevice's
-``rec_unlimited.py``); :class:`SimulatedSource` has the same interface and is backed by the
-simulated rig, so every command runs on a machine with no sound card.
+A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks through :meth:`~AudioSource.read`; the
+transmitter plays the chirp back to back.  :class:`SoundDeviceSource` is a duplex PortAudio stream whose callback
+only copies into a queue (all work happens in the consumer, as in sounddevice's ``rec_unlimited.py``);
+:class:`SimulatedSource` (the simulated device: one link, a whole arm, the rig check's interface) and
+:class:`RecordingSource` (a recorded session) are the same contract, produced by a thread of their own, so every
+command runs on a machine with no sound card.  :func:`blocks` is how every consumer reads one (the live loop, the
+recorder, the rig check): with its watchdog, and the error that ended a producer raised in the consumer's thread.
 
 Overflows (the consumer fell behind, or the driver dropped input) are counted and flagged on
 the next block as a discontinuity, never fatal; the live loop re-locks its framing on them.
@@ -13,12 +15,14 @@ the next block as a discontinuity, never fatal; the live loop re-locks its frami
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import queue
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -26,9 +30,9 @@ from .dsp import rig_chirp
 from .errors import SonicskinError
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "MAX_BLOCKSIZE", "check_blocksize", "Link", "load_links", "import_sounddevice",
-           "list_devices", "find_device", "resolve_device", "check_device_rate", "SoundDeviceSource", "SimulatedSource",
-           "RecordingSource"]
+__all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksize", "Link", "import_sounddevice",
+           "list_devices", "find_device", "resolve_device", "check_device_rate", "AudioSource", "blocks",
+           "SoundDeviceSource", "SimulatedSource", "RecordingSource"]
 
 
 class AudioError(SonicskinError, RuntimeError):
@@ -36,6 +40,10 @@ class AudioError(SonicskinError, RuntimeError):
 
     A :class:`~sonicskin.errors.SonicskinError` (one line from the CLI, caught by ``except SonicskinError`` in a
     robot program) that is still a ``RuntimeError``, as it was before."""
+
+
+class DeviceLost(AudioError):
+    """No audio arrived for the watchdog's time: the audio server or the interface stopped (:func:`blocks`)."""
 
 
 MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds the whole run in one block
@@ -85,13 +93,6 @@ class Link:
         out = np.zeros(L * self.n_slots, np.float32)
         out[self.slot * L:(self.slot + 1) * L] = rig_chirp(own)
         return out
-
-
-def load_links(name_or_path, rig: Rig) -> list[Link]:
-    """The links of a links or arm file (``configs/links``, ``configs/arms``): see :func:`sonicskin.links.load_links`."""
-    from .links import load_links as _load
-
-    return _load(name_or_path, rig)
 
 
 def import_sounddevice():
@@ -171,13 +172,70 @@ def thread_cpu_s(thread: threading.Thread | None) -> float | None:
         return None
 
 
-class _QueueSource:
-    """Shared consumer side: a bounded queue of blocks, counters, and a clean shutdown."""
+class AudioSource(Protocol):
+    """The contract between a source and its consumers (:func:`blocks`; the live loop, the recorder, the rig check).
 
-    #: what the consumer's watchdog says when this source delivers nothing (:func:`sonicskin.live.run_loops`)
+    Blocks of the receiver channel(s) come from :meth:`read`: ``(n,)`` for one link, ``(n, links)`` for several on one
+    interface; a finite source sets :attr:`finished` after its last block.  Every source of this module is one."""
+
+    rig: Rig
+    #: blocks come at the sample rate (a device, the real-time simulation); ``False``: as fast as they are read
+    realtime: bool
+    #: set once a finite source (a simulated session, a recording) has delivered its last block; ``None``: never ends
+    finished: threading.Event | None
+    #: what ended the source's producer thread early, raised in the consumer's thread by :func:`blocks`
+    error: BaseException | None
+    #: what the watchdog says when nothing arrives (``{s}``: its seconds)
+    stall_text: str
+
+    def read(self, timeout: float = 1.0) -> Block | None: ...
+    def counters(self) -> dict: ...
+    def producer_cpu_s(self) -> float | None: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+    def __enter__(self) -> AudioSource: ...
+    def __exit__(self, *exc) -> None: ...
+
+
+def blocks(source: AudioSource, *, watchdog_s: float | None = 3.0, poll_s: float = 0.1) -> Iterator[Block | None]:
+    """Every block of a started source as it arrives, and ``None`` after each ``poll_s`` without one (the consumer's
+    moment to look at its clock).
+
+    Ends when a finite source has delivered everything.  Raises the exception that ended the source's producer
+    thread, and :class:`DeviceLost` (the source's :attr:`~AudioSource.stall_text`) when no block arrives for
+    ``watchdog_s`` seconds while the source has not ended and its producer does not compute either (a slow render is
+    not a stall, whatever the pace; ``None``: wait for ever)."""
+    t_alive, cpu_seen = time.perf_counter(), None
+    while True:
+        block = source.read(timeout=poll_s)
+        if block is None and source.finished is not None and source.finished.is_set():
+            block = source.read(timeout=0)  # what it delivered before it ended is in the queue by now
+            if block is None:
+                return
+        if block is not None:
+            t_alive = time.perf_counter()
+            yield block
+            continue
+        if source.error is not None:  # the producer thread died of it
+            raise source.error
+        if watchdog_s is not None:  # a device can die silently; a simulated source's producer can stall
+            now = time.perf_counter()
+            cpu = source.producer_cpu_s()
+            if cpu is not None and cpu != cpu_seen:  # still computing (a slow render on a loaded machine)
+                cpu_seen, t_alive = cpu, now
+            if now - t_alive > watchdog_s:
+                raise DeviceLost(source.stall_text.format(s=watchdog_s))
+        yield None
+
+
+class _QueueSource:
+    """The consumer side every source shares: a bounded queue of blocks, counters, and a clean shutdown."""
+
     stall_text = ("no audio from the device for {s:g} s (the audio server or the interface stopped, or the cable is out); "
                   "check it with `sonicskin devices` and start again")
-    error: BaseException | None = None  # what ended a producer thread early (raised in the consumer's thread)
+    realtime = True
+    finished: threading.Event | None = None
+    error: BaseException | None = None
 
     def __init__(self, rig: Rig, blocksize: int, max_queued_s: float = 2.0):
         self.rig, self.blocksize = rig, int(blocksize)
@@ -188,18 +246,26 @@ class _QueueSource:
         self._index = 0
         self._pos = 0
         self._lost = False
+        self._stop = threading.Event()
 
-    def _deliver(self, samples: np.ndarray, lost_before: bool = False) -> None:
-        """Called by the producer (audio callback or simulator thread): copy into the queue, never block."""
-        lost = lost_before or self._lost
-        try:
-            self.queue.put_nowait(Block(samples, self._index, self._pos, lost))
-            self._lost = False
-        except queue.Full:
-            self.dropped_blocks += 1
-            self._lost = True
+    def _deliver(self, samples: np.ndarray, lost_before: bool = False, *, wait: bool = False) -> None:
+        """Called by the producer (audio callback or producer thread): queue the next block.  A full queue drops it
+        (flagging the next) unless ``wait``: a source paced by its reader waits until the block is taken or it stops."""
+        block = Block(samples, self._index, self._pos, lost_before or self._lost)
         self._index += 1
         self._pos += len(samples)
+        while True:
+            try:
+                self.queue.put(block, timeout=0.1) if wait else self.queue.put_nowait(block)
+                self._lost = False
+                return
+            except queue.Full:
+                if not wait:
+                    self.dropped_blocks += 1
+                    self._lost = True
+                    return
+                if self._stop.is_set():
+                    return
 
     def read(self, timeout: float = 1.0) -> Block | None:
         try:
@@ -214,14 +280,6 @@ class _QueueSource:
         """CPU seconds the producer thread has used (a simulated or recorded source's; ``None`` for a device, whose
         producer is the audio driver): a producer that still computes (a slow first render) is alive."""
         return thread_cpu_s(getattr(self, "_thread", None))
-
-    def _run_producer(self) -> None:
-        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
-        instead of a stream that just stops."""
-        try:
-            self._produce()
-        except BaseException as e:  # handed to the consumer's thread
-            self.error = e
 
     def __enter__(self):
         self.start()
@@ -238,10 +296,11 @@ class SoundDeviceSource(_QueueSource):
     ----------
     rig : sample rate and chirp.
     device : name substring or index (``sonicskin devices``); default device when ``None``.
-    link : channels of the TX/RX pair.
+    link : channels of the TX/RX pair; ``links``: several pairs on this interface (blocks of shape (n, links)).
     blocksize : frames per callback.
     playback : one period of what to play on the TX channel (default: the rig's chirp).  Tests
         pass a simulated received signal here to run the real audio path through a loopback.
+    rx_channels : the inputs to deliver instead of the links' (the rig check records every input).
     """
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
@@ -258,7 +317,7 @@ class SoundDeviceSource(_QueueSource):
         self._tx = np.zeros((period, n_out), np.float32)
         for lk, sig in zip(self.links, signals):
             self._tx[:, lk.tx] += np.resize(sig, period)  # a shorter period repeats
-        self._rx = list(rx_channels) if rx_channels else [lk.rx for lk in self.links]  # rx_channels: the rig check
+        self._rx = list(rx_channels) if rx_channels else [lk.rx for lk in self.links]
         self._tx_pos = 0
         self.link = self.links[0]
         self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
@@ -295,13 +354,65 @@ class SoundDeviceSource(_QueueSource):
         t.join(timeout=10.0)
 
 
-class SimulatedSource(_QueueSource):
+class _ProducerSource(_QueueSource):
+    """A source whose audio a thread of its own produces (:meth:`_chunks`, cut into blocks here), paced at the sample
+    rate (``realtime``) or as fast as it is read; ``drop_every``: drop one block in that many (fault injection: the
+    consumer must re-lock)."""
 
-    stall_text = ("no audio from the simulated device for {s:g} s: its producer thread stopped delivering without ending "
-                  "the stream (and is not computing); start again")
+    what = "source"  # for the watchdog's message
 
-    """The simulated rig as an audio source: scripted touches from a scenario, rendered ahead in
-    a producer thread and delivered block by block, in real time or as fast as it is read.
+    def __init__(self, rig: Rig, blocksize: int, *, realtime: bool, drop_every: int | None = None):
+        super().__init__(rig, blocksize)
+        self.realtime, self.drop_every = realtime, drop_every
+        self.finished = threading.Event()
+        self._thread = threading.Thread(target=self._run_producer, name=f"sonicskin-{type(self).__name__}", daemon=True)
+
+    @property
+    def stall_text(self) -> str:
+        return (f"no audio from the {self.what} for {{s:g}} s: its producer thread stopped delivering without ending the "
+                f"stream (and is not computing); start again")
+
+    def _chunks(self) -> Iterator[np.ndarray]:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def _run_producer(self) -> None:
+        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
+        instead of a stream that just stops."""
+        try:
+            chunks, pending, t_next = self._chunks(), None, time.perf_counter()
+            for n_block in itertools.count(1):
+                while (pending is None or len(pending) < self.blocksize) and not self._stop.is_set():
+                    chunk = next(chunks, None)
+                    if chunk is None:
+                        break
+                    pending = chunk if pending is None else np.concatenate([pending, chunk])
+                if self._stop.is_set() or pending is None or not len(pending):
+                    break
+                block, pending = pending[:self.blocksize], pending[self.blocksize:]
+                if self.drop_every and n_block % self.drop_every == 0:  # what a driver reports when input is lost
+                    self.overflows += 1
+                    self._index, self._pos, self._lost = self._index + 1, self._pos + len(block), True
+                else:
+                    self._deliver(block, wait=not self.realtime)
+                if self.realtime:
+                    t_next += len(block) / self.rig.fs_hz
+                    time.sleep(max(0.0, t_next - time.perf_counter()))
+            self.finished.set()
+        except BaseException as e:  # handed to the consumer's thread
+            self.error = e
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+class SimulatedSource(_ProducerSource):
+    """The simulated device: scripted touches on the simulated rig, rendered ahead in a producer thread and delivered
+    block by block, in real time or as fast as it is read.  One link, a whole arm and the rig check's interface are
+    configurations of it.
 
     Parameters
     ----------
@@ -314,87 +425,36 @@ class SimulatedSource(_QueueSource):
     offset : the stream starts this many samples into the first chirp (unknown to the consumer).
     """
 
+    what = "simulated device"
+
     def __init__(self, simulator, timeline, *, blocksize: int = 1024, realtime: bool = True,
                  drop_every: int | None = None, offset: int = 4321, chunk_chirps: int = 64):
-        self.multi = isinstance(simulator, (list, tuple))
-        sims, tls = (list(simulator), list(timeline)) if self.multi else ([simulator], [timeline])
+        sims, tls = (list(simulator), list(timeline)) if isinstance(simulator, (list, tuple)) else ([simulator], [timeline])
         if len(sims) != len(tls) or not sims:
             raise ValueError(f"a simulated arm needs one timeline per link: {len(sims)} simulators, {len(tls)} timelines")
         if any(s.rig.mismatch(sims[0].rig) for s in sims):
             raise ValueError("the simulated links of one interface must run one rig (one sample rate and chirp)")
-        super().__init__(sims[0].rig, blocksize)
+        super().__init__(sims[0].rig, blocksize, realtime=realtime, drop_every=drop_every)
         n = min(len(t) for t in tls)
         self.sims, self.timelines = sims, [t if len(t) == n else t.select(np.arange(n)) for t in tls]
         self.sim, self.timeline = sims[0], self.timelines[0]
-        self.realtime, self.drop_every = realtime, drop_every
         self.offset, self.chunk = int(offset) % self.rig.n_chirp, int(chunk_chirps)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run_producer, name="sonicskin-sim-audio", daemon=True)
-        self.finished = threading.Event()
 
-    def _produce(self) -> None:
-        L, B = self.rig.n_chirp, self.blocksize
-        pending = np.zeros((0, len(self.sims)) if self.multi else 0, np.float32)
-        t_next = time.perf_counter()
-        n_block = 0
-        last = None
-        for a in [*range(0, len(self.timeline), self.chunk), None]:
+    def _chunks(self) -> Iterator[np.ndarray]:
+        L, last = self.rig.n_chirp, None
+        for a in range(0, len(self.timeline), self.chunk):
             if self._stop.is_set():
-                break
-            final = a is None
-            if not final:
-                idx = np.arange(a, min(a + self.chunk, len(self.timeline)))
-                chans = [sim.render(tl.select(idx)).ravel() for sim, tl in zip(self.sims, self.timelines)]
-                audio = np.stack(chans, axis=1) if self.multi else chans[0]
-                last = audio[-L:]
-                audio = audio[self.offset:] if a == 0 else audio
-            else:  # the stream goes on a little into the next chirp, as a recording would
-                audio = last[: L // 2] if last is not None else np.zeros((0, len(self.sims)) if self.multi else 0, np.float32)
-            pending = audio if not len(pending) else np.concatenate([pending, audio])
-            while (len(pending) >= B or (final and len(pending))) and not self._stop.is_set():
-                block, pending = pending[:B], pending[B:]
-                n_block += 1
-                if self.drop_every and n_block % self.drop_every == 0:
-                    self.overflows += 1  # what a driver reports when input is lost
-                    self._index += 1
-                    self._pos += len(block)
-                    self._lost = True
-                else:
-                    if self.realtime:
-                        self._deliver(block)
-                    else:
-                        self._put_blocking(block)
-                if self.realtime:
-                    t_next += len(block) / self.rig.fs_hz
-                    delay = t_next - time.perf_counter()
-                    if delay > 0:
-                        time.sleep(delay)
-        self.finished.set()
-
-    def _put_blocking(self, block: np.ndarray) -> None:
-        while not self._stop.is_set():
-            try:
-                self.queue.put(Block(block, self._index, self._pos, self._lost), timeout=0.1)
-                self._lost = False
-                break
-            except queue.Full:
-                continue
-        self._index += 1
-        self._pos += len(block)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
+                return
+            idx = np.arange(a, min(a + self.chunk, len(self.timeline)))
+            chans = [sim.render(tl.select(idx)).ravel() for sim, tl in zip(self.sims, self.timelines)]
+            audio = np.stack(chans, axis=1) if len(chans) > 1 else chans[0]
+            last = audio[-L:]
+            yield audio[self.offset:] if a == 0 else audio
+        if last is not None:  # the stream goes on a little into the next chirp, as a recording would
+            yield last[: L // 2]
 
 
-class RecordingSource(_QueueSource):
-
-    stall_text = ("no audio from the recording for {s:g} s: its reader thread stopped delivering without ending the "
-                  "stream (and is not computing); start again")
-
+class RecordingSource(_ProducerSource):
     """A recorded session of a dataset played as an audio source (its parts in order, block by block),
     so a recording runs through the live loop exactly as it was received.
 
@@ -405,12 +465,11 @@ class RecordingSource(_QueueSource):
     realtime : pace the blocks at the rig's sample rate; otherwise as fast as they are read.
     """
 
+    what = "recording"
+
     def __init__(self, dataset, session: str, *, blocksize: int = 1024, realtime: bool = False):
-        super().__init__(dataset.rig, blocksize)
-        self.dataset, self.session, self.realtime = dataset, session, realtime
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run_producer, name="sonicskin-recording", daemon=True)
-        self.finished = threading.Event()
+        super().__init__(dataset.rig, blocksize, realtime=realtime)
+        self.dataset, self.session = dataset, session
 
     def audio(self) -> np.ndarray:
         """The session's received stream: its parts concatenated."""
@@ -420,31 +479,5 @@ class RecordingSource(_QueueSource):
                  for p in self.dataset.parts(self.session)]
         return np.concatenate(parts)
 
-    def _produce(self) -> None:
-        audio, B = self.audio(), self.blocksize
-        t_next = time.perf_counter()
-        for a in range(0, len(audio), B):
-            if self._stop.is_set():
-                break
-            block = audio[a:a + B]
-            if self.realtime:
-                self._deliver(block)
-                t_next += len(block) / self.rig.fs_hz
-                time.sleep(max(0.0, t_next - time.perf_counter()))
-            else:
-                while not self._stop.is_set():
-                    try:
-                        self.queue.put(Block(block, self._index, self._pos, False), timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                self._index += 1
-                self._pos += len(block)
-        self.finished.set()
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
+    def _chunks(self) -> Iterator[np.ndarray]:
+        yield self.audio()

@@ -24,12 +24,13 @@ that audio interface (``sonicskin devices``).
 
 from __future__ import annotations
 
+import math
 import queue
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .errors import ConfigNotFoundError, SonicskinError
+from .errors import SonicskinError
 from .events import TouchEvent
 
 __all__ = ["listen", "Listener"]
@@ -37,18 +38,11 @@ __all__ = ["listen", "Listener"]
 _END = object()
 
 
-MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz); the CLI's --blocksize has the same cap (acquire)
-
-
-def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocksize, scenario=None, rig=None, fast=False,
+def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
                      on_event=None) -> None:
-    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (a negative blocksize hung the
-    simulated device, 0 divided by zero, strings compared with numbers in the loop's thread, ``fast="no"`` meant
-    true, ``on_event="print"`` failed at the first touch, ``scenario=None`` was a TypeError)."""
-    import math
-
-    from .acquire import check_blocksize
-
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (strings compared with numbers in the
+    loop's thread, ``fast="no"`` meant true, ``on_event="print"`` failed at the first touch, ``scenario=None`` was a
+    TypeError); ``blocksize`` is :func:`sonicskin.session.open_run`'s to check."""
     def number(v):
         return isinstance(v, (int, float)) and not isinstance(v, bool)
 
@@ -66,7 +60,6 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocks
     for name, v in (("tx", tx), ("rx", rx)):
         if not (count(v) and v >= 0):
             raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
-    check_blocksize(blocksize)
     if not isinstance(scenario, (str, Path)):
         raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")
     if not (rig is None or isinstance(rig, (str, Path))):
@@ -75,14 +68,6 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, blocks
         raise SonicskinError(f"fast must be True or False, got {fast!r}")
     if not (on_event is None or callable(on_event)):
         raise SonicskinError(f"on_event must be a function called with each TouchEvent (or None), got {on_event!r}")
-
-
-def _load_config(load, what: str):
-    """A rig or scenario config; a name that is no config is :class:`ConfigNotFoundError` (still a FileNotFoundError)."""
-    try:
-        return load(what)
-    except FileNotFoundError as e:
-        raise ConfigNotFoundError(str(e)) from None
 
 
 class Listener:
@@ -119,101 +104,35 @@ class Listener:
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
                  watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None,
                  view: bool | int | None = None):
-        from .acquire import Link, SimulatedSource, SoundDeviceSource
-        from .live import LiveLoop
-        from .rig import Rig
-        from .runtime import SkinRuntime
+        from .session import open_run  # here: `import sonicskin` loads neither onnxruntime nor scikit-learn
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
-                         blocksize=blocksize, scenario=scenario, rig=rig, fast=fast, on_event=on_event)
+                         scenario=scenario, rig=rig, fast=fast, on_event=on_event)
         self._queue: queue.Queue = queue.Queue()
         self._user_cb = on_event
-        self._mcap = None
         self.duration_s, self.watchdog_s = duration_s, watchdog_s
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
         self.summary: dict | None = None
-        from .arm import arm_file_of, open_arm
-
-        arm_file = arm_file_of(artifact)
-        if arm_file is not None:  # a whole arm: one loop per link over one source, events carry their link
-            arm = open_arm(arm_file, device=device, model=model, rig=rig, fast=fast, blocksize=blocksize)
-            self.links, self.runtime, self.source = arm.links, arm.runtimes[0], arm.source
-            self.loops = arm.loops(emit=lambda line: None, on_event=self._on_event)
-            self.loop = self.loops[0]
-            if mcap is not None:
-                arm.require_frames("mcap=")
-            self._mcap_path = mcap
-            self._start_view(view, arm.scenarios)
-            return
-        if mcap is not None:
-            raise SonicskinError("mcap= writes touches in the robot's frames, which an arm file gives its links: pass the "
-                                 "arm (its arm.yaml, or the folder `sonicskin fit-svm --links` wrote) as the artifact")
-        self._mcap_path = None
-        self.links = None
-        art = Path(artifact)
-        if not (art / "skin.json").is_file():
-            raise SonicskinError(f"{art} is not a sonicskin artifact (no skin.json there); create one with "
-                                 f"`sonicskin fit-svm` or `sonicskin export`")
-        the_rig = _load_config(Rig.load, rig) if rig is not None else None
-        self.runtime = SkinRuntime(art, model, rig=the_rig)
-        if device is None or device == "sim":
-            from .sim import Scenario, Simulator, build_timeline
-
-            sc = _load_config(Scenario.load, scenario)
-            layout = sc.make_layout()
-            if self.runtime.layout != layout:
-                raise SonicskinError(f"the artifact knows {len(self.runtime.layout)} markers but scenario {sc.name!r} has "
-                                     f"{len(layout)} in another layout; pass the scenario it was trained on (scenario=...)")
-            live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
-            the_rig = the_rig or self.runtime.rig
-            self.source = SimulatedSource(Simulator(live_sc, the_rig), build_timeline(live_sc, the_rig), realtime=not fast,
-                                          blocksize=blocksize)
-        else:
-            self.source = SoundDeviceSource(the_rig or self.runtime.rig, device, link=Link(tx=tx, rx=rx), blocksize=blocksize)
-        self.loop = LiveLoop(self.runtime, self.source, emit=lambda line: None, on_event=self._on_event)
-        self.loops = [self.loop]
-        self._start_view(view, [("skin", live_sc)] if device in (None, "sim") else None)
-
-    def _start_view(self, view, scenarios) -> None:
-        """``view``: ``True`` (any free port) or a port: serve the live page (:mod:`sonicskin.view`); :attr:`view_url`."""
-        self.view = self.view_url = None
-        if view is None or view is False:
-            return
-        from .view import parse_view_port, view_loops
-
-        self.view = view_loops(self.loops, scenarios=scenarios, port=parse_view_port(view))
-        self.view_url = self.view.url
+        #: the opened run (:class:`sonicskin.session.Run`): its links, runtimes, source and live loops
+        self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
+                               blocksize=blocksize, mcap=mcap)
+        self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
+        self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
+        self.view_url = self.opened.view.url if self.opened.view is not None else None
 
     def _on_event(self, ev: TouchEvent) -> None:
-        if self._mcap is not None:
-            self._mcap.write(ev)
         self._queue.put(ev)
         if self._user_cb is not None:
             self._user_cb(ev)
 
     def _run(self) -> None:
         try:
-            from .live import run_loops
-
-            if self._mcap_path is not None:
-                import time
-
-                from .rosbag import McapEventWriter
-
-                self._mcap = McapEventWriter(self._mcap_path, t0_unix_s=time.time())
-            with self.source:
-                sums = run_loops(self.loops, self.source, duration_s=self.duration_s, watchdog_s=self.watchdog_s,
-                                 stop=self._stop)
-                self.summary = sums[0] if self.links is None else {lk.name: x for lk, x in zip(self.links, sums)}
+            self.summary = self.opened.run(duration_s=self.duration_s, watchdog_s=self.watchdog_s, stop=self._stop)
         except BaseException as e:  # handed to the caller's thread
             self.error = e
         finally:
-            if self._mcap is not None:
-                self._mcap.close()  # complete however the run ended
-            if self.view is not None:
-                self.view.stop()
             self._queue.put(_END)
 
     # -- control -------------------------------------------------------------------------

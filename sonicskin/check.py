@@ -19,16 +19,18 @@ rest-to-rest repeatability RMS over the usable bins of one rest chirp's dB spect
 touch contrast             the same change for pressed chirps over the rest-to-rest change (dB)
 =========================  =====================================================================
 
-:func:`simulated_capture` and :func:`device_capture` record; :func:`analyse` measures a capture
-and returns a :class:`CheckReport` (``table()``, ``to_json()``, ``plot()``).
+:func:`capture` records, from an audio interface or the :class:`SimulatedDevice` (opened by
+:func:`sonicskin.session.open_source`); :func:`analyse` measures a capture and returns a :class:`CheckReport`
+(``table()``, ``to_json()``, ``plot()``).
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
+import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -36,13 +38,17 @@ import scipy.fft
 import scipy.ndimage
 import scipy.signal
 
+from .acquire import AudioError, AudioSource, Link, blocks, check_blocksize, check_device_rate, list_devices, resolve_device
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
-from .errors import SonicskinError
+from .errors import SonicskinError, UsageError
 from .jsonio import json_safe
 from .rig import Rig
+from .session import SIM, open_source, simulated
+from .sim import Scenario, Simulator
+from .sim.finger import press_profile
+from .sim.scenario import SEGMENTS, Timeline
 
-__all__ = ["Capture", "CheckLine", "CheckReport", "SimulatedDevice", "simulated_capture", "device_capture", "analyse",
-           "FAULTS", "THRESHOLDS"]
+__all__ = ["Capture", "CheckLine", "CheckReport", "SimulatedDevice", "capture", "analyse", "FAULTS", "THRESHOLDS"]
 
 FAULTS = ("none", "disconnected", "clipping", "weak", "wrong-channel", "rate")
 MIN_REST_CHIRPS = 9   # the lock offset takes up to one period; the delay, SNR and repeatability lines need 8 whole chirps
@@ -55,8 +61,6 @@ def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
     short enough to hold in memory (``--rest 0.001`` failed the chirp lock as 'no chirp on any input', blaming the
     cables; ``--rest 1e9`` asked numpy for 1.4 TiB; ``--press 0.05`` reported 'touch contrast: fail', which reads as a
     rig fault, for a press too short to measure)."""
-    import math
-
     for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
                              ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
@@ -65,6 +69,7 @@ def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
         if v < need:
             raise SonicskinError(f"{name} {v:g} s holds fewer than the {n} chirp periods the check needs {what} "
                                  f"({rig.period_s * 1e3:.1f} ms each): give {name} {math.ceil(need * 10) / 10:g} or more")
+
 
 # pass at or above the first value, warn at or above the second, fail below (lower-is-better rows say so)
 THRESHOLDS = {
@@ -175,9 +180,9 @@ class CheckReport:
         return path
 
 
-# -- capture: the simulated device -----------------------------------------------------------------
+# -- capture ----------------------------------------------------------------------------------------------------
 class SimulatedDevice:
-    """The simulated rig as an audio interface for the check, with faults to inject.
+    """The simulated rig as the audio interface the check records from, with faults to inject.
 
     Parameters
     ----------
@@ -187,18 +192,18 @@ class SimulatedDevice:
         only); ``"clipping"`` (input gain 40 x too high); ``"weak"`` (the chirp 100 x, 40 dB, too
         weak for the noise); ``"wrong-channel"`` (the receiver is cabled to input 1, the check listens on
         ``rx``); ``"rate"`` (an interface that runs 44.1/48 kHz only).
-    n_inputs : input channels of the simulated interface.
+    n_inputs : input channels of the simulated interface (as many outputs).
     motors : motor activity 0..1 during the check (PWM lines and mechanical noise); 0: the robot
         powered but still, as the check asks.
     delay_ms : output-to-input latency of the simulated interface.
     """
 
     RATES = (44_100.0, 48_000.0, 96_000.0, 192_000.0)
+    GAIN = {"disconnected": 0.0, "clipping": 40.0, "weak": 1e-2}  # of the received chirp, per fault
+    prompts = False  # the press is scripted
 
     def __init__(self, rig: Rig, scenario="stationary", *, fault: str = "none", n_inputs: int = 2, motors: float = 0.0,
                  delay_ms: float = 2.9, seed: int = 0):
-        from .sim import Scenario, Simulator
-
         if fault not in FAULTS:
             raise SonicskinError(f"unknown simulated fault {fault!r}; choose one of {', '.join(FAULTS)}")
         if isinstance(motors, bool) or not isinstance(motors, (int, float)) or not 0.0 <= motors <= 1.0:  # NaN too
@@ -207,14 +212,12 @@ class SimulatedDevice:
         sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
         self.scenario = sc.replace(seed=sc.seed + 2000 + seed, sessions=1)
         self.sim = Simulator(self.scenario, rig)
-        self.n_inputs, self.motors, self.delay_ms = int(n_inputs), float(motors), float(delay_ms)
+        self.n_inputs = self.n_outputs = int(n_inputs)
+        self.motors, self.delay_ms = float(motors), float(delay_ms)
         self.rates = (44_100.0, 48_000.0) if fault == "rate" else self.RATES
         self.name = f"simulated ({self.scenario.name}{'' if fault == 'none' else ', fault: ' + fault})"
 
-    def timeline(self, n_rest: int, n_press: int, n_tail: int):
-        from .sim.finger import press_profile
-        from .sim.scenario import SEGMENTS, Timeline
-
+    def timeline(self, n_rest: int, n_press: int, n_tail: int) -> Timeline:
         rig, sc = self.rig, self.scenario
         layout = sc.make_layout()
         n = n_rest + n_press + n_tail
@@ -230,107 +233,113 @@ class SimulatedDevice:
                         force_n=F, moving=np.full(n, self.motors), temperature_c=sc.temperature_c(t),
                         subject=np.full(n, sc.subjects[0]))
 
-    def received(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float = 1.0) -> np.ndarray:
-        """What the receiver disc puts out, (n,) float32: the received chirp train, the interface's delay included."""
+    def refused(self, rig: Rig, tx: int) -> str | None:
+        """Why the interface does not run the rig's rate (``None``: it does)."""
+        return None if rig.fs_hz in self.rates else f"the device runs {', '.join(f'{r:g}' for r in self.rates)} Hz"
+
+    def source(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float, blocksize: int = 1024) -> AudioSource:
+        """What the receiver disc puts out, read as fast as it goes: the chirp train at rest, the press, a tail, through
+        the interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
         rig = self.rig
-        n_rest = rig.seconds_to_chirps(settle_s + rest_s)
-        tl = self.timeline(n_rest, rig.seconds_to_chirps(press_s), rig.seconds_to_chirps(tail_s))
-        gain = self.sim.gain
-        try:
-            self.sim.gain = np.float32(gain * {"disconnected": 0.0, "clipping": 40.0, "weak": 1e-2}.get(self.fault, 1.0))
-            frames = self.sim.render(tl)
-        finally:
-            self.sim.gain = gain
         d = int(round(self.delay_ms * 1e-3 * rig.fs_hz)) % rig.n_chirp
-        # Steady state: before chirp 0 the receiver hears the end of the previous (rest) period.
-        return np.concatenate([frames[0][rig.n_chirp - d:] if d else frames[0][:0], frames.ravel()])
+        tl = self.timeline(rig.seconds_to_chirps(settle_s + rest_s) + (d > 0), rig.seconds_to_chirps(press_s),
+                           rig.seconds_to_chirps(tail_s))
+        sim = copy.copy(self.sim)  # the fault's gain on this capture's copy (the simulator's arrays are shared)
+        sim.gain = np.float32(sim.gain * self.GAIN.get(self.fault, 1.0))
+        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
+                           blocksize=blocksize)
+
+    def open(self, rig: Rig, *, rx: int, n: int, blocksize: int, settle_s: float, rest_s: float, press_s: float,
+             tail_s: float, **_) -> tuple[np.ndarray, list[int], AudioSource]:
+        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
+        ``rx``; input 1 when cabled wrongly) and its :meth:`source`."""
+        rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
+        noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
+        column = min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)
+        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s,
+                                            blocksize=blocksize)
 
 
-def simulated_capture(device: SimulatedDevice, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
-                      press_s: float = 3.0) -> Capture:
-    """Run the check's recording on the simulated device (the press is scripted)."""
-    check_windows(device.rig, rest_s, press_s)
-    fs = device.rig.fs_hz
-    rest = (int(settle_s * fs), int((settle_s + rest_s) * fs))
-    press = (rest[1], int((settle_s + rest_s + press_s) * fs))
-    if fs not in device.rates:
-        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
-                       rate_detail=f"the device runs {', '.join(f'{r:g}' for r in device.rates)} Hz")
-    if rx >= device.n_inputs:
-        raise SonicskinError(f"--rx {rx}: the device has {device.n_inputs} inputs (0-{device.n_inputs - 1})")
-    if tx >= device.n_inputs:  # the simulated interface has as many outputs as inputs (--tx was not checked)
-        raise SonicskinError(f"--tx {tx}: the device has {device.n_inputs} outputs (0-{device.n_inputs - 1})")
-    x = device.received(settle_s=settle_s, rest_s=rest_s, press_s=press_s)
-    rng = np.random.default_rng([device.scenario.seed, 17])
-    audio = rng.normal(0, device.sim.noise.sensor_rms, (x.size, device.n_inputs)).astype(np.float32)
-    q = float(2 ** 23 - 1)
-    audio = np.round(audio * q) / q
-    wired = 1 if device.fault == "wrong-channel" else rx  # the cable went to input 1
-    if wired >= device.n_inputs:
-        wired = device.n_inputs - 1
-    audio[:, wired] = x
-    return Capture(audio.astype(np.float32), fs, rx, tx, rest, press, device.name)
+class _Interface:
+    """An audio interface as the check records from it: every input (at most ``max_inputs``), the chirp on ``tx``."""
+
+    prompts = True  # a person presses when asked
+
+    def __init__(self, device, max_inputs: int):
+        self.idx = resolve_device(device)
+        d = list_devices()[self.idx]
+        self.name, self.n_inputs, self.n_outputs = d["name"], min(int(d["inputs"]), max_inputs), int(d["outputs"])
+
+    def refused(self, rig: Rig, tx: int) -> str | None:
+        try:
+            check_device_rate(self.idx, rig, self.n_inputs, tx + 1)
+        except AudioError as e:
+            return str(e)
+        return None
+
+    def open(self, rig: Rig, *, tx: int, rx: int, n: int, blocksize: int, playback, **_):
+        src = open_source(rig, self.idx, [Link(tx=tx, rx=rx)], rx_channels=list(range(self.n_inputs)), blocksize=blocksize,
+                          playback=playback)
+        return np.zeros((n, self.n_inputs), np.float32), slice(None), src
 
 
-# -- capture: a real device (or JACK) ----------------------------------------------------------------
-def device_capture(rig: Rig, device, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
-                   press_s: float = 3.0, tail_s: float = 0.5, prompt=None, playback: np.ndarray | None = None,
-                   on_start=None, blocksize: int = 1024, watchdog_s: float = 3.0, max_inputs: int = 8) -> Capture:
+def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float = 0.5, rest_s: float = 4.0,
+            press_s: float = 3.0, tail_s: float = 0.5, blocksize: int = 1024, scenario="stationary", fault: str = "none",
+            motors: float = 0.0, prompt=None, playback: np.ndarray | None = None, on_start=None, watchdog_s: float = 3.0,
+            max_inputs: int = 8) -> Capture:
     """Play the chirp on ``tx`` and record every input of ``device``; ask for a press after ``rest_s``.
 
-    ``prompt(msg)`` tells the user what to do (default: stderr).  ``playback`` replaces what is
-    played (tests: a simulated received signal through a loopback); ``on_start()`` runs once the
-    stream runs (tests: wire the JACK loopback).
+    ``device``: an audio interface (name or index), or the simulated one: ``"sim"`` (the link of ``scenario`` with the
+    ``fault`` and ``motors`` of :class:`SimulatedDevice`) or a :class:`SimulatedDevice`, whose press is scripted.
+    ``prompt(msg)`` tells the user what to do (default: stderr, on an interface).  ``playback`` replaces what is played
+    (tests: a simulated received signal through a loopback); ``on_start()`` runs once the stream runs (tests: wire the
+    JACK loopback).  A rate the device refuses is a capture that says so (the check's first line fails).
     """
-    from .acquire import AudioError, Link, SoundDeviceSource, check_device_rate, list_devices, resolve_device
-    from .live import DeviceLost
-
-    prompt = prompt or (lambda msg: print(msg, file=sys.stderr, flush=True))
     check_windows(rig, rest_s, press_s)
+    check_blocksize(blocksize, "--blocksize")
+    if not (isinstance(device, SimulatedDevice) or simulated(device)) and fault != "none":
+        raise UsageError("--sim-fault is for the simulated device (--device sim)")
+    if simulated(device):
+        device = SimulatedDevice(rig, scenario, fault=fault, motors=motors)
+    elif not isinstance(device, SimulatedDevice):
+        device = _Interface(device, max_inputs)
+    if prompt is None:  # a person presses on an interface when asked; the simulated press is scripted
+        prompt = (lambda msg: print(msg, file=sys.stderr, flush=True)) if device.prompts else (lambda msg: None)
     fs = rig.fs_hz
-    idx = resolve_device(device)
-    d = list_devices()[idx]
-    n_in = min(int(d["inputs"]), max_inputs)
     rest = (int(settle_s * fs), int((settle_s + rest_s) * fs))
     press = (rest[1], int((settle_s + rest_s + press_s) * fs))
-    if rx >= n_in or tx >= d["outputs"]:
-        raise SonicskinError(f"device {d['name']!r} has {d['inputs']} inputs / {d['outputs']} outputs; --rx {rx} / --tx {tx} "
-                             f"are 0-based channel numbers")
-    try:
-        check_device_rate(idx, rig, n_in, tx + 1)
-    except AudioError as e:
-        return Capture(np.zeros((0, n_in), np.float32), fs, rx, tx, rest, press, d["name"], rate_ok=False, rate_detail=str(e))
     n_total = press[1] + int(tail_s * fs)
-    audio = np.zeros((n_total, n_in), np.float32)
-    src = SoundDeviceSource(rig, idx, link=Link(tx=tx, rx=rx), rx_channels=list(range(n_in)), blocksize=blocksize,
-                            playback=playback)
+    for opt, channel, n, what in (("--rx", rx, device.n_inputs, "inputs"), ("--tx", tx, device.n_outputs, "outputs")):
+        if channel >= n:
+            raise SonicskinError(f"{opt} {channel}: the device has {n} {what} (0-{n - 1})")
+    refused = device.refused(rig, tx)
+    if refused is not None:
+        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
+                       rate_detail=refused)
+    audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, blocksize=blocksize, playback=playback,
+                                      settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s)
     asked = released = False
-    got = 0
     with src:
         if on_start is not None:
             on_start()
         prompt(f"check: playing the chirp; hands off the skin for {settle_s + rest_s:.0f} s")
-        t_last = time.perf_counter()
-        while got < n_total:
-            b = src.read(timeout=0.1)
+        for b in blocks(src, watchdog_s=watchdog_s):
             if b is None:
-                if time.perf_counter() - t_last > watchdog_s:
-                    raise DeviceLost(f"no audio from {d['name']!r} for {watchdog_s:g} s; check the interface and start again")
                 continue
-            t_last = time.perf_counter()
             a, n = b.start, len(b.samples)
-            if a >= n_total:
-                break
             m = min(n, n_total - a)
-            audio[a:a + m] = b.samples[:m].reshape(m, -1)
-            got = a + m
-            if not asked and got >= rest[1] - int(0.3 * fs):
+            if m <= 0:
+                break
+            audio[a:a + m, columns] = b.samples[:m].reshape(m, -1)
+            if not asked and a + m >= rest[1] - int(0.3 * fs):
                 asked = True
                 prompt(f"check: PRESS NOW: one finger, firmly (~5 N), anywhere on the skin, hold for {press_s:.0f} s")
-            if asked and not released and got >= press[1]:
+            if asked and not released and a + m >= press[1]:
                 released = True
                 prompt("check: release")
-    return Capture(audio, fs, rx, tx, rest, press, d["name"], overflows=src.overflows + src.dropped_blocks)
+            if a + m >= n_total:
+                break
+    return Capture(audio, fs, rx, tx, rest, press, device.name, overflows=src.overflows + src.dropped_blocks)
 
 
 # -- analysis ---------------------------------------------------------------------------------------

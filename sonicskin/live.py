@@ -41,17 +41,13 @@ from collections.abc import Callable
 import numpy as np
 import scipy.fft
 
-from .acquire import AudioError
+from .acquire import AudioSource, DeviceLost, blocks
 from .dsp import band_db, find_chirp_offset, frame_faults, rig_chirp
 from .errors import SonicskinError
 from .events import TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
 __all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
-
-
-class DeviceLost(AudioError):
-    """No audio arrived for the watchdog's time: the audio server or the interface stopped."""
 
 
 # Chirp-to-chirp spread (std, dB) of the band features over the boot window, median over the usable bins: a repeating
@@ -275,7 +271,7 @@ class LiveLoop:
     Parameters
     ----------
     runtime : a loaded artifact model (:class:`sonicskin.runtime.SkinRuntime`).
-    source : an audio source (:mod:`sonicskin.acquire`).
+    source : an audio source (:class:`sonicskin.acquire.AudioSource`).
     emit : called with each event's JSON line (default: print to stdout).
     status : write a status line to stderr about once a second.
     on_chirp : called with ``(t_s, predictions)`` for every processed chirp (``None`` during the
@@ -284,7 +280,7 @@ class LiveLoop:
 
     startup_dropped: int | None = None  # audio blocks dropped before the first chirp was framed
 
-    def __init__(self, runtime: SkinRuntime, source, *, emit: Callable[[str], None] | None = None,
+    def __init__(self, runtime: SkinRuntime, source: AudioSource, *, emit: Callable[[str], None] | None = None,
                  status: bool = False, link=None, channel: int = 0,
                  on_chirp: Callable[[float, Predictions | None], None] | None = None,
                  on_event: Callable[[TouchEvent], None] | None = None, warn: Callable[[str], None] | None = None):
@@ -521,75 +517,39 @@ class LiveLoop:
                 "skipped": dict(self.skipped), **self.source.counters()}
 
 
-def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None, max_chirps: int | None = None,
-              idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0, stop=None) -> list[dict]:
+def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float | None = None,
+              max_chirps: int | None = None, idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0,
+              stop=None) -> list[dict]:
     """Feed every block of one source to several loops (one per link of a multi-link rig).
 
     Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
     first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
-    after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  When no
-    block arrives for ``watchdog_s`` seconds and the source has not ended (an audio device, or a simulated
-    or recorded source whose producer thread neither delivers nor computes: a slow render is not a stall, whatever
-    the pace), raises :class:`DeviceLost` (``None``: wait for ever); an exception that ended a producer thread is raised
-    here; when audio arrives but ``watchdog_s`` seconds of it
+    after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  A source that delivers
+    nothing for ``watchdog_s`` seconds raises :class:`DeviceLost`, and the exception that ended its producer thread is
+    raised here (:func:`sonicskin.acquire.blocks`); when audio arrives but ``watchdog_s`` seconds of it
     give a loop no usable chirp (all NaN, silent, clipped, constant, or cut by lost blocks), or a loop's input holds no
     chirp (:meth:`LiveLoop._no_chirp`), raises :class:`InputUnusable`, whatever the source: the model would be blind, or
     see noise, while the loop looked healthy.  ``idle_timeout_s``
     is kept for callers that set it, the wait for a block is never longer than 0.1 s.
     """
-    t_last_status = time.perf_counter()
-    started = time.perf_counter()
-    t_alive = started  # the last block, or the last sign of life of the source's producer thread
-    cpu_seen = None
+    t_last_status = started = time.perf_counter()
     cpu0 = time.process_time()
     stream_s = 0.0
     status = any(lp.status for lp in loops)
-    finished = getattr(source, "finished", None)
-    poll = min(0.1, idle_timeout_s)
     # A faster-than-real-time simulated source (--fast) runs on its own stream clock; everything that
     # claims to be real time (devices, real-time simulation) is also bounded by the wall clock.
-    wall_bound = getattr(source, "realtime", True)
+    wall_bound = source.realtime
     try:
-        while True:
-            now = time.perf_counter()
-            if duration_s is not None and wall_bound and now - started >= duration_s:
+        for block in blocks(source, watchdog_s=watchdog_s, poll_s=min(0.1, idle_timeout_s)):
+            if duration_s is not None and wall_bound and time.perf_counter() - started >= duration_s:
                 break
             if stop is not None and stop.is_set():
                 break
-            block = source.read(timeout=poll)
             if block is None:
-                if finished is not None and finished.is_set():
-                    if source.queue.empty():
-                        break
-                    continue
-                if getattr(source, "error", None) is not None:  # the producer thread died of it
-                    raise source.error
-                # A device can die silently; a simulated source's producer can stall, at real-time pace or --fast.
-                if watchdog_s is not None:
-                    now = time.perf_counter()
-                    cpu = source.producer_cpu_s() if hasattr(source, "producer_cpu_s") else None
-                    if cpu is not None and cpu != cpu_seen:  # still computing (a slow render on a loaded machine)
-                        cpu_seen, t_alive = cpu, now
-                    if now - t_alive > watchdog_s:
-                        if status:
-                            print(file=sys.stderr)
-                        text = getattr(source, "stall_text", None) or ("no audio from the device for {s:g} s (the audio "
-                                                                       "server or the interface stopped, or the cable is "
-                                                                       "out); check it with `sonicskin devices` and start "
-                                                                       "again")
-                        raise DeviceLost(text.format(s=watchdog_s))
                 continue
-            t_alive = time.perf_counter()
             for lp in loops:
-                try:
-                    lp.feed(block)
-                except InputUnusable:  # no chirp in the input (the boot's check or the running one)
-                    if status:
-                        print(file=sys.stderr)
-                    raise
+                lp.feed(block)  # InputUnusable: no chirp in the input (the boot's check or the running one)
                 if watchdog_s is not None and lp.blind_s > max(watchdog_s, 2 * lp.framer.L / source.rig.fs_hz):
-                    if status:
-                        print(file=sys.stderr)
                     raise InputUnusable(lp.unusable_input())
             stream_s = (block.start + len(block.samples)) / source.rig.fs_hz
             if status and time.perf_counter() - t_last_status > 1.0:
@@ -599,6 +559,10 @@ def run_loops(loops: list[LiveLoop], source, *, duration_s: float | None = None,
                 break
     except KeyboardInterrupt:
         pass
+    except DeviceLost:  # InputUnusable too: the status line ends before the error's line
+        if status:
+            print(file=sys.stderr)
+        raise
     for lp in loops:  # a finite source that ended before the watchdog's time, without one usable chirp in it
         if lp.n_chirps == 0 and lp.blind_s > 2 * lp.framer.L / source.rig.fs_hz:
             lp.warn(lp.unusable_input())

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import shutil
 import signal
 import sys
 import threading
@@ -31,13 +32,25 @@ from pathlib import Path
 
 import numpy as np
 
+from .acquire import AudioSource, Link, blocks
 from .dataset import COLUMNS, Dataset, DatasetWriter
 from .dsp import rig_chirp
+from .fit import build_svm_artifact
+from .limits import check_memory
 from .live import Framer
 from .rig import Layout, Rig
+from .session import SIM, open_source, simulated
+from .sim import Simulator, build_timeline, generate
+from .sim.finger import make_subjects, press_profile
+from .sim.scenario import SEGMENTS, Timeline, _motion_level
 
 __all__ = ["ForceSource", "CsvForce", "SerialForce", "TimelineForce", "NoForce", "Recorder", "make_schedule",
-           "person_timeline", "simulated_device", "location_chirps", "recorded_locations", "record_session"]
+           "person_timeline", "simulated_device", "location_chirps", "recorded_locations", "record_session", "train_oneshot"]
+
+# One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
+# an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
+ONESHOT_S_PER_SAMPLE = 118 / (3097 * 20480)
+ONESHOT_BYTES_PER_SAMPLE = 199e6 / (3097 * 20480)
 
 
 class ForceSource:
@@ -75,8 +88,6 @@ class SerialForce(ForceSource):
     """A serial force sensor printing one value in newtons per line (read in a thread)."""
 
     def __init__(self, port: str, baud: int = 115200):
-        import threading
-
         try:
             import serial  # pyserial
         except ImportError:
@@ -162,19 +173,20 @@ class Recorder:
     Parameters
     ----------
     writer : the dataset writer.  session : session folder name.
-    source : an audio source (``start``/``read``/``stop``).
+    source : an audio source (:class:`sonicskin.acquire.AudioSource`), started.
     schedule : prompts from :func:`make_schedule`.
     force : a :class:`ForceSource`; if it has ``contact_cm(t_s)`` (the simulated device), touch rows
         get the true finger position in ``x_cm``/``y_cm``, otherwise the marker's coordinates.
     moving_level : motion level to label the ``moving`` prompt with.
     prompt : called with each prompt's text (default: stderr).
+    watchdog_s : a source that delivers nothing for this long ends the recording (:class:`sonicskin.acquire.DeviceLost`).
     """
 
-    def __init__(self, writer: DatasetWriter, session: str, source, schedule, force: ForceSource, *,
-                 moving_level: float = 1.0, prompt=None, settle_s: float = 0.3):
+    def __init__(self, writer: DatasetWriter, session: str, source: AudioSource, schedule, force: ForceSource, *,
+                 moving_level: float = 1.0, prompt=None, settle_s: float = 0.3, watchdog_s: float = 3.0):
         self.w, self.session, self.source, self.schedule, self.forcesrc = writer, session, source, schedule, force
         self.rig = writer.rig
-        self.moving_level = moving_level
+        self.moving_level, self.watchdog_s = moving_level, watchdog_s
         self.prompt = prompt or (lambda text: print(f"[record] {text}", file=sys.stderr, flush=True))
         self.settle = self.rig.seconds_to_chirps(settle_s)  # reaction time at the start of a touch prompt
         self.parts_written = 0      # finished prompts on disk
@@ -223,11 +235,8 @@ class Recorder:
                 self.prompt(self.schedule[seg_i][3])
 
         try:
-            while seg_i < len(self.schedule):
-                block = self.source.read(timeout=2.0)
+            for block in blocks(self.source, watchdog_s=self.watchdog_s):
                 if block is None:
-                    if getattr(self.source, "finished", None) is not None and self.source.finished.is_set():
-                        break
                     continue
                 if block.discontinuity and (rows or self.parts_written):
                     raise RuntimeError("audio was lost during the recording (overflow); the prompts finished so far "
@@ -250,6 +259,8 @@ class Recorder:
                         close_prompt()
                         if seg_i >= len(self.schedule):
                             break
+                if seg_i >= len(self.schedule):
+                    break
         except KeyboardInterrupt:
             self.interrupted_at = self.schedule[seg_i] if seg_i < len(self.schedule) else None
             raise
@@ -297,9 +308,6 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
 
     Returns a one-session :class:`sonicskin.sim.Timeline`.
     """
-    from .sim.finger import make_subjects, press_profile
-    from .sim.scenario import SEGMENTS, Timeline, _motion_level
-
     layout = scenario.make_layout()
     rng = np.random.default_rng([seed, 17])
     subject = int(scenario.subjects[0])
@@ -335,15 +343,12 @@ def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realti
     The link is the scenario's (same ``link_seed``); the person's presses are drawn anew for each
     session (seed ``scenario.seed + 500 + session_index``); the robot moves only when prompted to.
     """
-    from .acquire import SimulatedSource
-    from .sim import Simulator
-
     moving = any(seg == "moving" for seg, *_ in schedule)
     psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
                            motion={**scenario.motion, "enabled": moving})
     offset %= rig.n_chirp
     tl = person_timeline(psc, rig, schedule, seed=psc.seed, lead_chirps=1 if offset else 0)
-    src = SimulatedSource(Simulator(psc, rig), tl, realtime=realtime, offset=offset)
+    src = open_source(rig, SIM, [Link()], play=lambda _: (Simulator(psc, rig), tl), realtime=realtime, offset=offset)
     return src, TimelineForce(tl, -offset, rig.fs_hz, rig.n_chirp, seed=session_index), tl
 
 
@@ -388,8 +393,6 @@ def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, movin
     The recorder holds one prompt's received audio until the prompt ends (float32, plus the copy that
     is written), and the simulated person's timeline holds ~256 bytes per chirp of the session.
     """
-    from .limits import check_memory
-
     for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
         if not np.isfinite(v):
             raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
@@ -402,7 +405,7 @@ def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, movin
     check_memory(256.0 * total, f"the session's labels ({total:.3g} chirps)", "record fewer or shorter prompts")
 
 
-def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device="sim", resume: bool = False,
+def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, device=SIM, resume: bool = False,
                    overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
@@ -417,8 +420,6 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     :meth:`Recorder.run` figures plus ``session`` and ``locations`` (what was recorded), or
     ``{"locations": []}`` when nothing is missing.
     """
-    from .acquire import Link, SoundDeviceSource
-
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out)
     layout = scenario.make_layout()
@@ -435,7 +436,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     for name, v in (("moving-s", moving_s), ("gap-s", gap_s)):
         if not v >= 0:
             raise ValueError(f"--{name} must be >= 0 s, got {v:g}")
-    if device == "sim" and (force_csv or force_serial):  # was silently ignored (a missing file too)
+    if simulated(device) and (force_csv or force_serial):  # was silently ignored (a missing file too)
         opt = f"--force-csv {force_csv}" if force_csv else f"--force-serial {force_serial}"
         raise ValueError(f"{opt}: the simulated device (--device sim) measures its own force and reads no force sensor; "
                          f"drop {opt.split()[0]}, or record from an audio interface (--device NAME|INDEX)")
@@ -443,8 +444,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     if calibration_s < 3.0:
         log(f"warning: --calibration-s {calibration_s:g} is shorter than Alg. 2's 3 s of hands-off chirps: "
             f"fit-svm will need --mode absolute on this recording")
-    if device != "sim":  # the device and the force sensor open before anything is written
-        src = SoundDeviceSource(rig, device, link=Link(tx=tx, rx=rx))
+    if not simulated(device):  # the device and the force sensor open before anything is written
+        src = open_source(rig, device, [Link(tx=tx, rx=rx)])
         force = CsvForce(force_csv) if force_csv else SerialForce(force_serial) if force_serial else NoForce()
     mode = "resume" if resume else ("overwrite" if overwrite else "create")
     new_dir, new_dataset = not out.exists(), not (out / "dataset.json").exists()
@@ -466,7 +467,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     session = next_session(out)
     schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s,
                              passes=passes)
-    if device == "sim":
+    if simulated(device):
         src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
     log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
         f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s")
@@ -476,8 +477,6 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
             res = rec.run()
     except BaseException as exc:
         if rec.parts_written == 0 and new_dataset:  # nothing recorded: leave no dataset that blocks a retry
-            import shutil
-
             if new_dir:
                 shutil.rmtree(out, ignore_errors=True)
             else:
@@ -498,9 +497,30 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
             report(f"no artifact yet: location(s) {', '.join(map(str, missing[:12]))}{', ...' if len(missing) > 12 else ''} "
                    f"of the layout were never pressed; `--resume` records them, then the artifact is written")
         else:  # the skin trained on everything recorded so far, with what validation expects of it
-            from .fit import build_svm_artifact
-
             build_svm_artifact(out, artifact, min_force_n=min_force_n, progress=False, log=report)
-            report(f"deploy it: sonicskin live --artifact {artifact}" + ("" if device == "sim" else f" --device {device}"))
+            report(f"deploy it: sonicskin live --artifact {artifact}" + ("" if simulated(device) else f" --device {device}"))
     return {**res, "session": session, "locations": todo}
 
+
+def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
+    """One-shot training on the simulated link (cached under ``root``): what ``sonicskin record`` + ``fit-svm`` do on a
+    real rig, for a run without an artifact (``sonicskin live``, :func:`sonicskin.session.open_run`'s ``train``).
+
+    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
+    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
+    log = log or (lambda m: print(m, file=sys.stderr))
+    art = root / f"artifacts/sim-{scenario.name}-svm"
+    if (art / "skin.json").is_file():
+        log(f"no --artifact: using {art}, trained on the simulated {scenario.name!r} link by an earlier run (delete it to "
+            f"train again)")
+        return art
+    data = root / f"data/sim-{scenario.name}-oneshot"
+    samples = len(build_timeline(scenario.replace(sessions=1), rig)) * rig.n_chirp
+    est_s = samples * ONESHOT_S_PER_SAMPLE
+    took = f"about {est_s / 60:.0f} min" if est_s >= 90 else f"about {max(est_s, 1):.0f} s"
+    log(f"no --artifact: training an SVM on the simulated {scenario.name!r} link first, once: {took} on an idle 2-core "
+        f"machine (longer when it is busy), {samples * ONESHOT_BYTES_PER_SAMPLE / 1e6:,.0f} MB of simulated recordings "
+        f"written to {data}, the artifact to {art} (reused by later runs); pass --artifact DIR to run a trained one")
+    generate.simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False, log=log)
+    build_svm_artifact(data, art, progress=False, log=log)
+    return art

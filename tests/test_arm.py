@@ -207,20 +207,19 @@ def test_live_on_an_untrained_simulated_arm_trains_each_link_once(tmp_path, caps
 
 def test_mcap_needs_every_link_in_a_frame(tmp_path):
     """MCAP writes touches in the links' frames: an arm whose links have no surface (a real interface's links file) is
-    refused in one line that names those links and how to place them, for --mcap and mcap= alike."""
-    from sonicskin.arm import ArmRun
+    refused in one line that names those links and how to place them, and so is a single artifact, before any device,
+    artifact or training is touched (``--mcap`` and ``mcap=`` alike: both open the run through session.open_run)."""
+    from sonicskin.session import open_run
 
     f = tmp_path / "links.yaml"
     f.write_text(yaml.safe_dump({"duplex": "none", "links": [{"name": "a", "tx": 0, "rx": 0}, {"name": "b", "tx": 1, "rx": 1}]}))
-    links = load_links(f, FAST)
-    assert all(lk.surface is None for lk in links)
-    run = ArmRun(links, [], None, FAST, f, simulated=False)
-    assert run.scenarios is None
-    for what in ("--mcap", "mcap="):
-        with pytest.raises(ValueError) as e:
-            run.require_frames(what)
-        assert str(e.value).startswith(f"{what} writes each touch in its link's frame")
-        assert "['a', 'b']" in str(e.value) and "docs/robot-frame.md" in str(e.value) and "\n" not in str(e.value)
-    arm6 = load_links("arm6", FAST)
-    ArmRun(arm6, [], None, FAST, "arm6", simulated=True).require_frames("--mcap")  # every arm6 link has its frame
-    assert [n for n, _ in ArmRun(arm6, [], None, FAST, "arm6", simulated=True).scenarios] == [lk.name for lk in arm6]
+    assert all(lk.surface is None for lk in load_links(f, FAST))
+    with pytest.raises(ValueError) as e:
+        open_run(links=f, device=0, rig="fast", mcap=tmp_path / "arm.mcap")
+    assert str(e.value).startswith("--mcap/mcap= writes each touch in its link's frame")
+    assert "['a', 'b']" in str(e.value) and "docs/robot-frame.md" in str(e.value) and "\n" not in str(e.value)
+    with pytest.raises(ValueError) as e:
+        open_run(tmp_path / "no-artifact", mcap=tmp_path / "arm.mcap")
+    assert "which an arm file gives its links: run an arm" in str(e.value) and "\n" not in str(e.value)
+    assert not (tmp_path / "arm.mcap").exists()
+    assert all(lk.surface is not None for lk in load_links("arm6", FAST))  # every arm6 link has its frame

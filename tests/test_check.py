@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from sonicskin.check import Capture, SimulatedDevice, analyse, simulated_capture
+from sonicskin.check import Capture, SimulatedDevice, analyse, capture
 from sonicskin.cli import main
 from sonicskin.dsp import rig_chirp
 from sonicskin.errors import SonicskinError
@@ -26,7 +26,7 @@ def _run(device, fault="none", **kw):
     device.fault = fault
     device.rates = (44_100.0, 48_000.0) if fault == "rate" else SimulatedDevice.RATES
     try:
-        return analyse(simulated_capture(device, **kw), device.rig)
+        return analyse(capture(device.rig, device, **kw), device.rig)
     finally:
         device.fault, device.rates = "none", SimulatedDevice.RATES
 
@@ -65,7 +65,7 @@ def test_delay_is_the_interfaces_latency_plus_the_acoustic_path(rig):
     got = []
     for delay_ms in (2.9, 10.0):
         dev = SimulatedDevice(rig, SC, delay_ms=delay_ms)
-        got.append(analyse(simulated_capture(dev, rest_s=2.0, press_s=1.0), rig).measurements["delay_ms"])
+        got.append(analyse(capture(rig, dev, rest_s=2.0, press_s=1.0), rig).measurements["delay_ms"])
     assert got[1] - got[0] == pytest.approx(7.1, abs=0.02)
     assert 0 < got[0] - 2.9 < 1.0
 
@@ -87,12 +87,12 @@ def test_each_fault_fails_with_its_fix(device, fault, line, fix):
 
 def test_motor_pwm_lines_found_and_judged_against_the_rigs_notches(rig):
     dev = SimulatedDevice(rig, SC, motors=0.3)
-    rep = analyse(simulated_capture(dev, rest_s=3.0, press_s=1.0), rig)
+    rep = analyse(capture(rig, dev, rest_s=3.0, press_s=1.0), rig)
     lines = rep.measurements["pwm_lines_hz"]
     assert lines and all(min(abs(f - c) for c in (30e3, 60e3)) < 2e3 for f in lines)
     assert rep.status("PWM/motor lines") == "pass"  # inside the rig's 30/60 kHz notches
     other = Rig(pwm_hz=(90_000.0,))  # a rig that notches nothing in 20-80 kHz
-    rep2 = analyse(simulated_capture(SimulatedDevice(other, SC, motors=0.3), rest_s=3.0, press_s=1.0), other)
+    rep2 = analyse(capture(other, SimulatedDevice(other, SC, motors=0.3), rest_s=3.0, press_s=1.0), other)
     assert rep2.status("PWM/motor lines") == "warn" and "pwm_hz" in rep2.line("PWM/motor lines").fix
 
 
@@ -113,7 +113,7 @@ def test_cli_check_usage_errors(capsys):
     assert main(["check", "--device", "3", "--sim-fault", "weak"]) == 2
     assert "--sim-fault is for the simulated device" in capsys.readouterr().err
     with pytest.raises(SonicskinError, match="--rx 5: the device has 2 inputs"):
-        simulated_capture(SimulatedDevice(Rig.load("jaco"), SC), rx=5)
+        capture(Rig.load("jaco"), SimulatedDevice(Rig.load("jaco"), SC), rx=5)
 
 
 def test_clipping_is_not_also_counted_as_dropouts_with_a_short_rest(device):

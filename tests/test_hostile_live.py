@@ -251,8 +251,8 @@ def test_a_declared_field_is_still_checked():
 def test_everything_live_links_writes_parses(cli_files, monkeypatch, capsys):
     """Every event of ``live --links`` carries ``"link"``; ``parse_event`` raised ``EventError: unknown fields ['link']``
     on each of them.  Two time-duplexed links (the shipped two-links-time config) on a fake two-channel interface."""
-    from sonicskin.acquire import load_links
     from sonicskin.events import parse_event
+    from sonicskin.links import load_links
     from sonicskin.rig import Rig
     from sonicskin.sim import Scenario, Simulator, build_timeline
 

@@ -310,7 +310,7 @@ def test_end_to_end_through_jack(rig, artifact, jack):
 
 
 def test_links_config(rig):
-    from sonicskin.acquire import load_links
+    from sonicskin.links import load_links
 
     t = load_links("two-links-time", rig)
     assert [(lk.name, lk.slot, lk.n_slots) for lk in t] == [("upper-arm", 0, 2), ("forearm", 1, 2)]
@@ -321,7 +321,7 @@ def test_links_config(rig):
 
 def test_two_time_duplexed_links_from_one_stream(rig, artifact):
     """Two links share one interface, taking turns chirp by chirp; one loop per link reads its own channel."""
-    from sonicskin.acquire import load_links
+    from sonicskin.links import load_links
     from sonicskin.live import run_loops
 
     links = load_links("two-links-time", rig)
@@ -361,12 +361,13 @@ def test_two_time_duplexed_links_from_one_stream(rig, artifact):
 def test_rig_check_through_jack(rig, jack):
     """`sonicskin check` on a real duplex stream: what the simulated receiver would hear (rest, then a
     press) is played on JACK's output, looped back to its input, recorded on every input and measured."""
-    from sonicskin.check import SimulatedDevice, analyse, device_capture
+    from sonicskin.check import SimulatedDevice, analyse, capture
 
     dev = SimulatedDevice(rig, SC)
-    play = dev.received(settle_s=0.5, rest_s=3.0, press_s=2.0, tail_s=1.5)
+    with dev.source(settle_s=0.5, rest_s=3.0, press_s=2.0, tail_s=1.5) as src:  # what the simulated receiver puts out
+        play = np.concatenate([b.samples for b in acquire.blocks(src) if b is not None])
     asked = []
-    cap = device_capture(rig, "system", rest_s=3.0, press_s=2.0, playback=play, blocksize=JACK_PERIOD,
+    cap = capture(rig, "system", rest_s=3.0, press_s=2.0, playback=play, blocksize=JACK_PERIOD,
                          on_start=lambda: (time.sleep(0.2), _wire_loopback()), prompt=asked.append)
     rep = analyse(cap, rig)
     assert any("PRESS NOW" in m for m in asked)
@@ -375,14 +376,8 @@ def test_rig_check_through_jack(rig, jack):
     for name in ("sample rate", "chirp lock", "input level", "SNR per sub-band", "touch contrast"):
         assert rep.status(name) == "pass", rep.table()
     # The loopback adds whole blocks of latency to the simulated interface's 2.9 ms + the acoustic path.
-    extra = rep.measurements["delay_ms"] - analyse(simulated_capture_for(dev), rig).measurements["delay_ms"]
+    extra = rep.measurements["delay_ms"] - analyse(capture(rig, dev, rest_s=3.0, press_s=2.0), rig).measurements["delay_ms"]
     assert extra == pytest.approx(round(extra * rig.fs_hz / 1e3 / JACK_PERIOD) * JACK_PERIOD / rig.fs_hz * 1e3, abs=0.05), extra
-
-
-def simulated_capture_for(dev):
-    from sonicskin.check import simulated_capture
-
-    return simulated_capture(dev, rest_s=3.0, press_s=2.0)
 
 
 # -- a live loop that survives its device (issue 16.5) ------------------------------------------------
@@ -550,11 +545,11 @@ def test_cli_live_on_a_device_that_dies_ends_with_one_line(rig, artifact, monkey
 
 def test_rig_check_through_jack_names_a_rate_the_server_does_not_run(jack):
     """JACK runs at 192 kHz; a 48 kHz rig is refused by the real device, with the fix."""
-    from sonicskin.check import analyse, device_capture
+    from sonicskin.check import analyse, capture
     from sonicskin.rig import Rig
 
     rig48 = Rig(fs_hz=48_000.0, f_lo_hz=5_000.0, f_hi_hz=20_000.0, n_chirp=4096, pwm_hz=(30_000.0,))
-    rep = analyse(device_capture(rig48, "system", prompt=lambda m: None), rig48)
+    rep = analyse(capture(rig48, "system", prompt=lambda m: None), rig48)
     assert rep.status("sample rate") == "fail" and not rep.ok
     assert rep.line("sample rate").fix.startswith("set the interface to 48000 Hz"), rep.table()
 

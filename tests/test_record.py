@@ -277,6 +277,31 @@ def test_a_run_that_records_nothing_leaves_nothing_behind(tmp_path, small, monke
     assert recorded_locations(out) == {1}
 
 
+def test_a_device_that_stops_delivering_ends_the_recording_with_one_line(tmp_path, small, monkeypatch, capsys):
+    """The recorder reads its device through acquire.blocks, as the live loop does: an interface that opens and then
+    delivers nothing (the audio server died) read for ever; now the watchdog ends it in one line, and the dataset
+    it could not record anything into is removed."""
+    import sonicskin.acquire as acquire
+
+    class Dead(acquire._QueueSource):
+        def __init__(self, rig, device=None, **kw):
+            super().__init__(rig, 1024)
+
+        def start(self):
+            pass
+
+        def stop(self):
+            pass
+
+    monkeypatch.setattr(acquire, "SoundDeviceSource", Dead)
+    out = tmp_path / "rec"
+    t0 = time.perf_counter()
+    assert main(["record", "--out", str(out), "--device", "0", "--scenario", small, *FAST]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("sonicskin record: error: no audio from the device for 3 s") and not out.exists()
+    assert time.perf_counter() - t0 >= 3.0  # the watchdog's time (no upper bound: the suite runs at load 5)
+
+
 def test_record_writes_the_deployable_artifact_then_live_runs_it(tmp_path, small, capsys):
     """Issue 27.4: `record` then `live` is the whole bring-up: three passes by default, and once every marker is pressed
     the artifact fit-svm would write, with the validated choices and the learning curve printed on stdout."""

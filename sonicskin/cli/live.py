@@ -5,104 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 from .. import __version__
 from ..errors import UsageError
 from ..jsonio import json_safe
+from ..lsl import LslSink
+from ..rig import CONFIG_DIR, Rig
 from ._common import nonneg_int, positive_float, positive_int, udp_target
-
-# One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
-# an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
-ONESHOT_S_PER_SAMPLE = 118 / (3097 * 20480)
-ONESHOT_BYTES_PER_SAMPLE = 199e6 / (3097 * 20480)
-
-
-def _sim_svm_artifact(scenario, rig, root: Path) -> Path:
-    """One-shot training on the simulated link (cached): what `sonicskin record` + `fit-svm` do on a real rig.
-
-    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
-    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
-    from ..fit import build_svm_artifact
-    from ..sim import build_timeline
-    from ..sim.generate import simulate_dataset
-
-    art = root / f"artifacts/sim-{scenario.name}-svm"
-    if (art / "skin.json").is_file():
-        print(f"no --artifact: using {art}, trained on the simulated {scenario.name!r} link by an earlier run "
-              f"(delete it to train again)", file=sys.stderr)
-        return art
-    data = root / f"data/sim-{scenario.name}-oneshot"
-    samples = len(build_timeline(scenario.replace(sessions=1), rig)) * rig.n_chirp
-    est_s = samples * ONESHOT_S_PER_SAMPLE
-    took = f"about {est_s / 60:.0f} min" if est_s >= 90 else f"about {max(est_s, 1):.0f} s"
-    print(f"no --artifact: training an SVM on the simulated {scenario.name!r} link first, once: {took} on an idle 2-core "
-          f"machine (longer when it is busy), {samples * ONESHOT_BYTES_PER_SAMPLE / 1e6:,.0f} MB of simulated recordings "
-          f"written to {data}, the artifact to {art} (reused by later runs); pass --artifact DIR to run a trained one",
-          file=sys.stderr)
-    simulate_dataset(scenario.replace(sessions=1), rig, data, mode="overwrite", progress=False,
-                     log=lambda m: print(m, file=sys.stderr))
-    build_svm_artifact(data, art, progress=False, log=lambda m: print(m, file=sys.stderr))
-    return art
-
-
-def _start_view(a: argparse.Namespace, loops, scenarios=None):
-    """``--view [PORT]``: the live page of the loops (each link drawn to scale: its scenario's surface on the simulated
-    device, else its artifact's layout), its address on stderr; ``None`` without --view."""
-    if a.view is None:
-        return None
-    from ..view import parse_view_port, view_loops
-
-    view = view_loops(loops, scenarios=scenarios, port=parse_view_port(a.view))
-    print(f"sonicskin live: the live view is at {view.url} (open it in a browser on this machine)", file=sys.stderr,
-          flush=True)
-    return view
-
-
-def _live_links(a: argparse.Namespace) -> int:
-    """``live --links FILE``: several links on one audio interface (a links or arm file), one model and one loop per
-    link; on the simulated device, an arm file's simulated links (each trained on the spot once when it has no
-    artifact, as ``live`` does for one link)."""
-    from ..arm import open_arm
-    from ..live import DeviceLost, UdpSink, run_loops
-
-    arm = open_arm(a.links, device=a.device, model=a.model, rig=a.rig, fast=a.fast, blocksize=a.blocksize,
-                   drop_every=a.drop_every, link_artifacts=a.link_artifact,
-                   train=lambda sc, rig: _sim_svm_artifact(sc, rig, Path(".")))
-    sinks = [_stdout_sink] + ([UdpSink(f"{a.udp[0]}:{a.udp[1]}")] if a.udp else [])
-
-    def emit(line: str) -> None:  # each event names its link (LiveLoop's link=)
-        for sink in sinks:
-            sink(line)
-
-    mcap = None
-    if a.mcap:
-        from ..rosbag import McapEventWriter
-
-        arm.require_frames("--mcap")
-        mcap = McapEventWriter(a.mcap, t0_unix_s=time.time())  # t_s = 0: the stream starts now
-    loops = arm.loops(emit=emit, status=not a.no_status, on_event=mcap.write if mcap else None)
-    view = _start_view(a, loops, arm.scenarios)
-    lost = None
-    try:
-        with arm.source:
-            try:
-                summaries = run_loops(loops, arm.source, duration_s=a.duration, watchdog_s=a.watchdog)
-            except DeviceLost as e:
-                lost, summaries = e, [lp.summary(0.0, 0.0, 0.0) for lp in loops]
-    finally:
-        if mcap is not None:
-            mcap.close()  # complete on every way out (Ctrl-C, a lost device): nothing recorded is lost
-        if view is not None:
-            view.stop()
-    out = {"summary": {lk.name: json_safe(s) for lk, s in zip(arm.links, summaries)}}
-    if mcap is not None:
-        out["mcap"] = {"path": str(a.mcap), "events": mcap.written, "messages": mcap.messages}
-    print(json.dumps(out, allow_nan=False), file=sys.stderr)
-    if lost is not None:
-        raise lost
-    return 0
 
 
 def _stdout_sink(line: str) -> None:
@@ -116,49 +26,36 @@ def _stdout_sink(line: str) -> None:
                          f"is full or gone; write them where there is room (`sonicskin live ... > events.jsonl`)") from None
 
 
-def _live_rig(a: argparse.Namespace):
-    """``--rig``, else the artifact's own rig (as the Python API does), else the shipped jaco rig: an artifact of another
-    rig was refused under the default jaco with no word of --rig."""
-    from ..artifact_files import load_skin
-    from ..rig import Rig
-
-    if a.rig:
-        return Rig.load(a.rig)
-    if a.artifact is not None:
-        return Rig.from_dict(load_skin(a.artifact)["rig"])
-    return Rig.load("jaco")
-
-
 def cmd_live(a: argparse.Namespace) -> int:
-    from ..acquire import Link, SimulatedSource, SoundDeviceSource, check_blocksize
-    from ..live import DeviceLost, LiveLoop, UdpSink
-    from ..runtime import SkinRuntime
+    """One link (``--artifact``) or several on one interface (``--links``, a links or arm file: one model and one loop
+    per link), on the simulated device or an interface (:func:`sonicskin.session.open_run`); without an artifact a
+    simulated link is trained on the spot, once."""
+    # here, not at the top: `sonicskin simulate` and every verb but live load neither onnxruntime nor scikit-learn
+    from ..acquire import DeviceLost, check_blocksize
+    from ..live import UdpSink
+    from ..record import train_oneshot
+    from ..session import open_run, simulated
 
     check_blocksize(a.blocksize, "--blocksize")
     if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
         raise UsageError(f"--lsl {a.lsl!r}: the stream needs a name (e.g. --lsl sonicskin, or --lsl alone for that "
                          f"default)")
-    if a.drop_every is not None and a.device != "sim":
+    sim = simulated(a.device)
+    if a.drop_every is not None and not sim:
         raise UsageError("--drop-every injects lost blocks into the simulated device (--device sim); a real device "
                          "loses its own")
     if a.drop_every == 1:
         raise UsageError("--drop-every 1 drops every audio block, so nothing would reach the loop; give N >= 2 "
                          "(one block lost in N)")
-    if getattr(a, "links", None):
-        return _live_links(a)
-    if a.mcap:
-        raise UsageError("--mcap writes touches in the robot's frames, which an arm file gives its links; run it with "
-                         "--links ARM (e.g. --links arm6, or the ART/arm.yaml that `fit-svm --links` writes)")
-
-    if a.artifact is None and a.model == "net":
+    if not a.links and a.artifact is None and a.model == "net":
         raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
                          "--out DIR`, then --artifact DIR (only --model svm is trained on the spot)")
-    if a.artifact is None and a.device != "sim":
+    if not a.links and a.artifact is None and not sim:
         raise UsageError("a real rig needs a model trained on it: `sonicskin record --out DIR` (it writes DIR-artifact "
                          "when it finishes), then `sonicskin live --device ... --artifact DIR-artifact`")
-    if a.artifact is not None and not (Path(a.artifact) / "skin.json").is_file():
-        raise FileNotFoundError(f"{a.artifact} is not a sonicskin artifact (no skin.json there); create one with "
-                                f"`sonicskin fit-svm` or `sonicskin export`")
+    if not a.links and sim and (a.tx or a.rx):  # were ignored
+        raise UsageError("--tx/--rx choose the channels of a real interface (--device NAME|INDEX); the simulated "
+                         "device has one link: drop them")
     if sys.stdout is None and not (a.udp or a.lsl):  # started with stdout closed (`>&-`): print() drops every event
         raise UsageError("stdout is closed, so the touch events would go nowhere; send them to a file or a pipe "
                          "(`sonicskin live ... > events.jsonl`), or add --udp/--lsl")
@@ -166,65 +63,34 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.udp:
         sinks.append(UdpSink(f"{a.udp[0]}:{a.udp[1]}"))  # resolved here: a bad host is one line before the run
     if a.lsl:
-        from ..lsl import LslSink
-
         sinks.append(LslSink(a.lsl))
-    rig = _live_rig(a)
-    if a.device == "sim":
-        from ..sim import Scenario, Simulator, build_timeline
-
-        if a.tx or a.rx:  # were ignored
-            raise UsageError("--tx/--rx choose the channels of a real interface (--device NAME|INDEX); the simulated "
-                             "device has one link: drop them")
-        sc = Scenario.load(a.scenario)
-        artifact = Path(a.artifact) if a.artifact else _sim_svm_artifact(sc, rig, Path("."))
-        rt = SkinRuntime(artifact, a.model, rig=rig)
-        layout = sc.make_layout()
-        if rt.layout != layout:
-            raise UsageError(f"the artifact knows {len(rt.layout)} markers but scenario {sc.name!r} has {len(layout)} "
-                             f"in another layout; run it on the scenario it was trained on (--scenario), or train "
-                             f"on this one")
-        # The same simulated link (link_seed), a new person-session of scripted touches (seed).
-        live_sc = sc.replace(seed=sc.seed + 1000, sessions=1)
-        timeline = build_timeline(live_sc, rig)
-        source = SimulatedSource(Simulator(live_sc, rig), timeline, realtime=not a.fast, drop_every=a.drop_every,
-                                 blocksize=a.blocksize)
-    else:
-        rt = SkinRuntime(Path(a.artifact), a.model, rig=rig)
-        source = SoundDeviceSource(rig, a.device, link=Link(tx=a.tx, rx=a.rx), blocksize=a.blocksize)
-    loop = LiveLoop(rt, source, emit=lambda line: [s(line) for s in sinks], status=not a.no_status)
-    view = _start_view(a, [loop], [("skin", live_sc)] if a.device == "sim" else None)
+    run = open_run(a.artifact, links=a.links, device=a.device, model=a.model, scenario=a.scenario, rig=a.rig, tx=a.tx,
+                   rx=a.rx, fast=a.fast, blocksize=a.blocksize, drop_every=a.drop_every, link_artifacts=a.link_artifact,
+                   train=train_oneshot, mcap=a.mcap)
+    loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
+    if run.view is not None:
+        print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
+              file=sys.stderr, flush=True)
     lost = None
     try:
-        with source:
-            try:
-                summary = loop.run(duration_s=a.duration, watchdog_s=a.watchdog)
-            except DeviceLost as e:
-                lost, summary = e, loop.summary(0.0, 0.0, 0.0)
-    finally:
-        if view is not None:
-            view.stop()
-    print(json.dumps({"summary": json_safe(summary)}, allow_nan=False), file=sys.stderr)
+        summary = run.run(duration_s=a.duration, watchdog_s=a.watchdog)
+    except DeviceLost as e:
+        lost, summary = e, run.summary([lp.summary(0.0, 0.0, 0.0) for lp in loops])
+    out = {"summary": json_safe(summary)}
+    if run.mcap is not None:
+        out["mcap"] = {"path": str(a.mcap), "events": run.mcap.written, "messages": run.mcap.messages}
+    print(json.dumps(out, allow_nan=False), file=sys.stderr)
     if lost is not None:
         raise lost
     return 0
 
 
 def cmd_check(a: argparse.Namespace) -> int:
-    from ..acquire import check_blocksize
-    from ..check import SimulatedDevice, analyse, device_capture, simulated_capture
-    from ..rig import Rig
+    from ..check import analyse, capture
 
-    check_blocksize(a.blocksize, "--blocksize")
     rig = Rig.load(a.rig)
-    if a.device == "sim":
-        cap = simulated_capture(SimulatedDevice(rig, a.scenario, fault=a.sim_fault, motors=a.sim_motors), tx=a.tx, rx=a.rx,
-                                rest_s=a.rest, press_s=a.press)
-    else:
-        if a.sim_fault != "none":
-            raise UsageError("--sim-fault is for the simulated device (--device sim)")
-        cap = device_capture(rig, a.device, tx=a.tx, rx=a.rx, rest_s=a.rest, press_s=a.press, blocksize=a.blocksize)
-    report = analyse(cap, rig)
+    report = analyse(capture(rig, a.device, tx=a.tx, rx=a.rx, rest_s=a.rest, press_s=a.press, blocksize=a.blocksize,
+                             scenario=a.scenario, fault=a.sim_fault, motors=a.sim_motors), rig)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     print(report.table())
@@ -249,8 +115,6 @@ def cmd_devices(a: argparse.Namespace) -> int:
 
 
 def cmd_info(a: argparse.Namespace) -> int:
-    from ..rig import CONFIG_DIR, Rig
-
     rig = Rig.load(a.rig)
     print(f"sonicskin {__version__}")
     print(f"rig {rig.name}: {rig.fs_hz:g} Hz, chirp {rig.f_lo_hz / 1e3:g}-{rig.f_hi_hz / 1e3:g} kHz, "
@@ -261,6 +125,15 @@ def cmd_info(a: argparse.Namespace) -> int:
         if names:
             print(f"{kind}: {', '.join(names)}")
     return 0
+
+
+def _device_options(p: argparse.ArgumentParser) -> None:
+    """The device and its channels, as ``live`` and ``check`` take them."""
+    p.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    p.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
+    p.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
+    p.add_argument("--blocksize", type=positive_int, default=1024, help="audio block in samples, at most 1048576 "
+                   "(default: 1024)")
 
 
 def add_parsers(sub) -> None:
@@ -275,7 +148,8 @@ def add_parsers(sub) -> None:
                                     "before it starts. The run stops with one line when the device stops delivering "
                                     "(--watchdog), or when its input holds no usable chirp (silent, NaN, clipped, "
                                     "constant, or noise without the chirp).")
-    lv.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    lv.set_defaults(func=cmd_live)
+    _device_options(lv)
     lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm) (default: on the simulated device, "
                                        "an SVM is trained on the spot the first time, about 2 min and 200 MB under ./data "
                                        "and ./artifacts, and reused later)")
@@ -293,10 +167,6 @@ def add_parsers(sub) -> None:
     lv.add_argument("--watchdog", type=positive_float, default=3.0, metavar="S",
                     help="stop with an error when the device (or the simulated one, --fast too) delivers no audio, or no "
                          "usable chirp, for S seconds (default: 3)")
-    lv.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
-    lv.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
-    lv.add_argument("--blocksize", type=positive_int, default=1024,
-                    help="audio block in samples, at most 1048576 (default: 1024)")
     lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time (default: real time)")
     lv.add_argument("--drop-every", type=positive_int, metavar="N",
                     help="simulated device: drop one audio block in N (N >= 2), fault injection (default: none)")
@@ -316,39 +186,31 @@ def add_parsers(sub) -> None:
                          "(docs/robot-frame.md) (default: off)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")
-    lv.set_defaults(func=cmd_live)
-
     ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
                         description="Play the rig's chirp, record every input, ask for one firm press, and print one table: "
                                     "each measurement with pass/warn/fail and its fix. Writes check.png (|H(f)| at rest and "
                                     "pressed, noise floor, PWM bands, the band used) and check.json to --out. Exit code 0 "
                                     "when nothing fails, 1 otherwise. Runs on the simulated device by default.")
-    ck.add_argument("--device", default="sim", help="'sim' or an audio device name/index (default: sim)")
+    ck.set_defaults(func=cmd_check)
+    _device_options(ck)
     ck.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
-    ck.add_argument("--tx", type=nonneg_int, default=0, help="transmit channel, 0-based (default: 0)")
-    ck.add_argument("--rx", type=nonneg_int, default=0, help="receive channel, 0-based (default: 0)")
     ck.add_argument("--rest", type=positive_float, default=4.0, help="seconds of hands-off chirps (default: 4)")
     ck.add_argument("--press", type=positive_float, default=3.0,
                     help="seconds of the press, at least 3 chirp periods (0.4 s on jaco) (default: 3)")
     ck.add_argument("--out", default=".", help="folder for check.png and check.json (default: .)")
-    ck.add_argument("--blocksize", type=positive_int, default=1024,
-                    help="audio block in samples, at most 1048576 (default: 1024)")
     ck.add_argument("--scenario", default="stationary", help="simulated device: the link (default: stationary)")
     ck.add_argument("--sim-fault", default="none", choices=("none", "disconnected", "clipping", "weak", "wrong-channel", "rate"),
                     help="simulated device: inject a fault (default: none)")
     ck.add_argument("--sim-motors", type=float, default=0.0, metavar="LEVEL",
                     help="simulated device: motor activity 0..1 during the check (default: 0, robot still)")
-    ck.set_defaults(func=cmd_check)
-
     dv = sub.add_parser("devices", help="list audio devices",
                         description="List the audio interfaces PortAudio sees (index, name, host API, input and output "
                                     "channels, default rate), for `sonicskin live/record --device NAME|INDEX`. Needs "
                                     "libportaudio2; the simulated device needs none.")
     dv.set_defaults(func=cmd_devices)
-
     i = sub.add_parser("info", help="show the version, the rig and the available configs",
                        description="Print the package version, the rig's sample rate, chirp, period and usable bins, "
                                    "and the names of the shipped rig, scenario, training and links configs (usable as "
                                    "--rig/--scenario/--config NAME, and `live --links NAME`).")
-    i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")
     i.set_defaults(func=cmd_info)
+    i.add_argument("--rig", default="jaco", help="rig name or YAML path (default: jaco)")

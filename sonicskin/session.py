@@ -1,0 +1,218 @@
+"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen` (with
+``sonicskin record`` and ``sonicskin check`` opening their device here too).
+
+:func:`open_run` opens a skin on a device: an artifact, or an arm whose links each have theirs, on the simulated device
+(``"sim"`` or ``None``: each link's scenario plays a new session of scripted touches) or on an audio interface.  A single
+artifact is an arm of one link, so each check of a run is written once, here: the artifact's layout against the
+simulated scenario, the links' frames for an MCAP file, a link without an artifact (trained on the spot on the simulated
+device when asked).  :func:`open_source` is the one place a device or the simulated device opens.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from . import acquire
+from .acquire import AudioSource, Link, check_blocksize
+from .errors import ConfigNotFoundError, UsageError
+from .links import ARM_FILE, load_arm
+from .live import LiveLoop, run_loops
+from .rig import Rig
+from .rosbag import McapEventWriter
+from .runtime import SkinRuntime
+from .sim import Scenario, Simulator, Timeline, build_timeline
+from .view import ViewServer, parse_view_port, view_loops
+
+__all__ = ["SIM", "simulated", "arm_file_of", "load_config", "open_source", "live_scenario", "Run", "open_run"]
+
+SIM = "sim"  #: the simulated device's name (``--device sim``, ``device="sim"``; ``None`` too)
+
+
+def simulated(device) -> bool:
+    """``device`` is the simulated device (``None`` or ``"sim"``), not an audio interface's name or index."""
+    return device is None or device == SIM
+
+
+def arm_file_of(path) -> Path | None:
+    """The arm file a path names: a ``.yaml`` file with ``links:``, or a folder holding ``arm.yaml`` (what ``fit-svm
+    --links`` writes); ``None`` for anything else (a single-link artifact folder)."""
+    p = Path(path)
+    if p.is_dir() and (p / ARM_FILE).is_file():
+        return p / ARM_FILE
+    if p.is_file() and p.suffix in (".yaml", ".yml"):
+        return p
+    return None
+
+
+def load_config(load: Callable, what):
+    """A rig or scenario config (``load``: ``Rig.load``, ``Scenario.load``); a name that is no config is
+    :class:`ConfigNotFoundError` (still a FileNotFoundError)."""
+    try:
+        return load(what)
+    except FileNotFoundError as e:
+        raise ConfigNotFoundError(str(e)) from None
+
+
+def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], tuple[Simulator, Timeline]] | None = None,
+                blocksize: int = 1024, realtime: bool = True, drop_every: int | None = None, offset: int = 4321,
+                **interface) -> AudioSource:
+    """The audio source carrying ``links``: on the simulated device each link's simulated wall plays ``play(link)``, a
+    ``(simulator, timeline)`` pair (real time, or as fast as read; ``drop_every``, ``offset`` as
+    :class:`~sonicskin.acquire.SimulatedSource`'s); otherwise the audio interface ``device`` (a name or an index,
+    ``sonicskin devices``), ``interface`` as :class:`~sonicskin.acquire.SoundDeviceSource` takes it."""
+    if simulated(device):
+        sims, timelines = zip(*(play(lk) for lk in links))
+        return acquire.SimulatedSource(list(sims), list(timelines), blocksize=blocksize, realtime=realtime,
+                                       drop_every=drop_every, offset=offset)
+    return acquire.SoundDeviceSource(rig, device, links=links, blocksize=blocksize, **interface)
+
+
+def live_scenario(scenario: Scenario) -> Scenario:
+    """What a run plays on a simulated link: the same link (its ``link_seed``), a new person-session of scripted touches."""
+    return scenario.replace(seed=scenario.seed + 1000, sessions=1)
+
+
+@dataclasses.dataclass(eq=False)
+class Run:
+    """An opened run: its links (one for a single artifact), a runtime per link, the one source that carries them.
+
+    :meth:`loops` gives it one live loop per link (and the live page), :meth:`run` runs them, once."""
+
+    links: list[Link]
+    runtimes: list[SkinRuntime]
+    source: AudioSource
+    rig: Rig
+    spec: object = None               # the arm or links file it was opened from; None: one artifact
+    scenarios: list | None = None     # (name, scenario) per link on the simulated device: how the live page draws them
+    mcap_path: Path | None = None     # where run() writes every touch as ROS 2 messages
+    live: list[LiveLoop] = dataclasses.field(default_factory=list)  # the loops run() runs
+    view: ViewServer | None = None
+    mcap: McapEventWriter | None = None
+
+    @property
+    def arm(self) -> bool:
+        """Opened from an arm or links file: every event names its link, the summary is keyed by link."""
+        return self.spec is not None
+
+    def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
+              on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
+        """One :class:`~sonicskin.live.LiveLoop` per link, the ones :meth:`run` runs (``emit``, ``status``, ``on_event``
+        as LiveLoop's; every event also goes to the MCAP file), and with ``view`` (``True`` or a port) the live page,
+        :attr:`view` (its ``url``)."""
+        def event(ev) -> None:
+            if self.mcap is not None:
+                self.mcap.write(ev)
+            if on_event is not None:
+                on_event(ev)
+
+        self.live = [LiveLoop(rt, self.source, link=lk if self.arm else None, channel=i, emit=emit, status=status,
+                               on_event=event) for i, (lk, rt) in enumerate(zip(self.links, self.runtimes))]
+        if view is not None and view is not False:
+            self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view))
+        return self.live
+
+    def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
+        """Run the loops until ``duration_s``, ``stop`` (a :class:`threading.Event`) is set, Ctrl-C, or a finite source
+        ends (:func:`sonicskin.live.run_loops`, whose errors it raises); returns :meth:`summary`.  However the run ends,
+        the MCAP file is complete and the live page stopped."""
+        try:
+            if self.mcap_path is not None:
+                self.mcap = McapEventWriter(self.mcap_path, t0_unix_s=time.time())  # t_s = 0: the stream starts now
+            with self.source:
+                return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
+                                              stop=stop))
+        finally:
+            if self.mcap is not None:
+                self.mcap.close()
+            if self.view is not None:
+                self.view.stop()
+
+    def summary(self, sums: list[dict]) -> dict:
+        """The loops' summaries as ``sonicskin live`` prints them: keyed by link on an arm, else the one loop's."""
+        return {lk.name: s for lk, s in zip(self.links, sums)} if self.arm else sums[0]
+
+
+def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scenario="stationary", rig=None,
+             tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
+             link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
+             mcap=None) -> Run:
+    """Open a skin on a device.
+
+    ``artifact``: an artifact folder, one link (channels ``tx``/``rx`` of an interface; on the simulated device it plays
+    ``scenario``, whose layout must be the artifact's); or an arm: its arm file, or the folder ``fit-svm --links`` wrote
+    (holding arm.yaml).  ``links``: an arm or links file by name or path (``live --links``), its links' artifacts the
+    file's ``artifact:`` or ``link_artifacts`` (one per link, in order).  ``device``: ``"sim"`` or ``None``, the simulated
+    device (real time, or as fast as it is read with ``fast``; ``drop_every`` drops one block in N), or an audio
+    interface by name or index.  ``rig``: a rig name or path (default: the arm file's, else the artifact's own, else
+    jaco).  ``train``: called as ``train(scenario, rig)`` for a simulated link without an artifact, its artifact's folder
+    (the CLI: :func:`sonicskin.record.train_oneshot`); without it such a link is a one-line error.  ``mcap``: the MCAP
+    file :meth:`Run.run` writes each touch into, in its link's frame (refused, before anything opens, unless every link
+    has a frame).
+    """
+    check_blocksize(blocksize)
+    sim = simulated(device)
+    given = load_config(Rig.load, rig) if isinstance(rig, (str, Path)) else rig
+    spec = links if links is not None else arm_file_of(artifact) if artifact is not None else None
+    if spec is not None:
+        the_rig, lks = load_arm(spec, given)
+        if sim and any(lk.scenario is None for lk in lks):
+            raise UsageError(f"--links {spec} lists links of a real audio interface (no simulated scenario per link); "
+                             f"pass --device NAME|INDEX (`sonicskin devices`), or run a simulated arm (`sonicskin info` "
+                             f"lists the arms, e.g. --links arm6)")
+    else:  # one artifact: an arm of one link (its rig: the given one, else the artifact's own, else jaco to train one)
+        the_rig = given if given is not None or artifact is not None else Rig.load("jaco")
+        lks = [Link(tx=tx, rx=rx, name="skin", scenario=load_config(Scenario.load, scenario) if sim else None,
+                    artifact=artifact)]
+    if mcap is not None:
+        _require_frames(lks, spec)
+    arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
+    runtimes = [SkinRuntime(Path(art), model, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
+    the_rig = the_rig or runtimes[0].rig
+    if not sim:
+        return Run(lks, runtimes, open_source(the_rig, device, lks, blocksize=blocksize), the_rig, spec, mcap_path=mcap)
+    for lk, rt in zip(lks, runtimes):
+        layout = lk.scenario.make_layout()
+        if rt.layout != layout:
+            raise UsageError(f"{f'link {lk.name!r}: ' if spec else ''}the artifact knows {len(rt.layout)} markers but "
+                             f"scenario {lk.scenario.name!r} has {len(layout)} in another layout; " +
+                             (f"train it on this link (`sonicskin fit-svm --links {spec} ...`)" if spec else
+                              "run it on the scenario it was trained on (--scenario, scenario=), or train on this one"))
+
+    def play(lk: Link) -> tuple[Simulator, Timeline]:
+        sc, link_rig = live_scenario(lk.scenario), lk.rig or the_rig
+        return Simulator(sc, link_rig), build_timeline(sc, link_rig)
+
+    source = open_source(the_rig, device, lks, play=play, blocksize=blocksize, realtime=not fast, drop_every=drop_every)
+    return Run(lks, runtimes, source, the_rig, spec, [(lk.name, live_scenario(lk.scenario)) for lk in lks], mcap)
+
+
+def _require_frames(links: list[Link], spec) -> None:
+    """An MCAP file holds each touch in its link's frame: one line naming the links without a surface, and the fix."""
+    if spec is None:
+        raise UsageError("--mcap/mcap= writes each touch in its link's frame, which an arm file gives its links: run an "
+                         "arm (--links arm6, or the folder `sonicskin fit-svm --links` wrote, holding arm.yaml)")
+    bare = [lk.name for lk in links if lk.surface is None]
+    if bare:
+        raise UsageError(f"--mcap/mcap= writes each touch in its link's frame, and {spec} places no surface on links "
+                         f"{bare}; give them a frame (an arm file's `frame:` with `urdf:`, or `surface:`: "
+                         f"docs/robot-frame.md)")
+
+
+def _artifacts(spec, links: list[Link], rig: Rig, given: list | None, train: Callable | None) -> list[Path]:
+    """Each link's artifact folder: ``given`` (one per link), else the link's own, else trained on the spot."""
+    if given:
+        if len(given) != len(links):
+            raise UsageError(f"--links {spec} has {len(links)} links ({', '.join(lk.name for lk in links)}); pass "
+                             f"--link-artifact DIR once per link, in that order (got {len(given)})")
+        return [Path(x) for x in given]
+    arts = []
+    for lk in links:
+        if lk.artifact is None and not (train is not None and lk.scenario is not None):
+            raise UsageError(f"--links {spec}: link {lk.name!r} has no artifact; train one per link on that link's own "
+                             f"recordings (`sonicskin fit-svm --links {spec} --data DIR --out ART`, then --links "
+                             f"ART/{ARM_FILE}), or pass --link-artifact DIR once per link")
+        arts.append(Path(lk.artifact) if lk.artifact is not None else Path(train(lk.scenario, lk.rig or rig)))
+    return arts
