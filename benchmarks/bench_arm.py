@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from sonicskin.acquire import thread_cpu_s
-from sonicskin.arm import open_arm
 from sonicskin.fit import build_svm_artifact
 from sonicskin.links import ARM_FILE, load_links, write_arm
 from sonicskin.live import run_loops
 from sonicskin.rig import Rig
+from sonicskin.session import open_run as open_arm
 from sonicskin.sim.generate import simulate_dataset
 
 

@@ -79,7 +79,8 @@ class Listener:
         ``sonicskin fit-svm --links`` wrote (holding ``arm.yaml``); then one loop runs per link, each event names its
         link and carries the contact in the link's frame, and :attr:`summary` is keyed by link.
     device : ``None`` or ``"sim"`` (the simulated rig), or an audio device index or name.
-    model : ``"svm"`` or ``"net"``.
+    model : a model kind of the artifact (:mod:`sonicskin.kinds`): the paper's SVM (the default), the LDA or the
+        network.
     duration_s : stop after this many seconds (wall clock); ``None``: until :meth:`stop`.
     scenario : simulated device only: the scenario of the link and its scripted touches (name or YAML);
         its marker layout must be the artifact's.
@@ -99,7 +100,7 @@ class Listener:
     names the fix (:class:`~sonicskin.acquire.AudioError` and ``DeviceLost`` among them).
     """
 
-    def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str = "svm",
+    def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
                  duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
                  watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None,

@@ -211,7 +211,7 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
     return tr.to_dict()
 
 
-def fit_models(data: TrainingData, wanted=("svm",), *, refit: bool = True, options: dict | None = None, log=print
+def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None, log=print
                ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
     """Fit the model kinds ``wanted`` (and those they require) on ``data``; with a validation session and ``refit``,
     fit them again with their choices on the training and validation sessions together.  ``options``: keyword
@@ -263,13 +263,13 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
                                    **({"refit": True} if refit else {}), **(training or {})},
                          models=models, probe_inputs=check[:PROBE_ROWS], selection=sel,
                          drift=drift_reference(data, log) if drift else None)
-        if learning_curve and save_learning_curve(sel, tmp / "learning_curve.png",
+        if learning_curve and save_learning_curve(sel.get(kinds.BASELINE), tmp / "learning_curve.png",
                                                   title=f"{Path(data.dataset.root).name}: SVM accuracy vs presses per location"):
             log(f"wrote {out}/learning_curve.png")
     return skin
 
 
-def fit_artifact(data: TrainingData, out: str | Path, wanted=("svm",), *, refit: bool = True, options: dict | None = None,
+def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None,
                  training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
     """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`).  The network (``"net"`` among
     ``wanted``) needs torch; ``options[net]`` may pass ``model=`` a trained module (a Lightning checkpoint's), whose

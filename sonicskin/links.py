@@ -83,7 +83,7 @@ def file_rig(name_or_path) -> Rig | None:
 
 def load_arm(spec, rig=None) -> tuple[Rig, list[Link]]:
     """The rig and the links of a links or arm file: ``rig`` (a :class:`Rig`, a name or a path), else the rig the file
-    names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.arm.open_arm` read an arm through here."""
+    names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.session.open_run` read an arm through here."""
     the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
     return the_rig, load_links(spec, the_rig)
 

@@ -42,7 +42,7 @@ class SkinRuntime:
     threads : onnxruntime intra-op threads (1: predictable latency next to the audio thread).
     """
 
-    def __init__(self, folder: str | Path, model: str = "net", *, rig: Rig | None = None, layout: Layout | None = None,
+    def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,
                  threads: int = 1):
         import onnxruntime as ort
 

@@ -39,7 +39,7 @@ from .ospa import OSPA
 from .stats import t_interval
 
 __all__ = ["PAPER", "press_ids", "press_passes", "gamma_grid", "make_cv", "select_localizer", "select_force",
-           "select_threshold", "learning_curve_by_pass", "format_selection", "MovingVarOSPA", "KernelWidth"]
+           "select_threshold", "learning_curve_by_pass", "MovingVarOSPA", "KernelWidth"]
 
 #: the paper's values: the fallback when the data cannot validate anything.
 PAPER = {"n_bins": 300, "C": 10.0, "kernel_width": 1.0}
@@ -393,51 +393,6 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
             "missed_touch_rate": float(np.mean(stat[touch] < threshold)), "false_touch_rate": float(np.mean(stat[no_touch] >= threshold))}
 
 
-# -- printing ---------------------------------------------------------------------------------------------
-def format_selection(sel: dict | None) -> list[str]:
-    """The lines every training verb prints: what was chosen, on what, and what to expect."""
-    if not sel:
-        return []
-    out = []
-    loc = sel.get("svm") or {}
-    if loc.get("status") == "validated":
-        p, e = loc["params"], loc["estimate"]
-        lo, hi = e["ci95"]
-        ci = f", 95 % interval over presses {lo:.0%}-{hi:.0%}" if _finite(lo, hi) else ""
-        out.append(f"chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} x 'scale' "
-                   f"(validation accuracy {e['accuracy']:.0%} on {e['n_presses']} presses, {loc['how']}{ci}; "
-                   f"the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%})" if loc.get("paper_accuracy") is not None else
-                   f"chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} (validation accuracy "
-                   f"{e['accuracy']:.0%}, {loc['how']}{ci})")
-        lc = loc.get("learning_curve")
-        if lc and lc["accuracy"]:
-            pts = ", ".join(f"{k}: {a:.0%}" for k, a in zip(lc["presses_per_location"], lc["accuracy"]))
-            out.append(f"learning curve (presses per location: accuracy) {pts}; {lc['verdict']}")
-    elif loc:
-        out.append(f"gamma {loc['params']['n_bins']} (the paper's; {loc['reason']})")
-    f = sel.get("force") or {}
-    if f.get("status") == "validated":
-        lo, hi = f["estimate"]["press_rmse_ci95"]
-        ci = f", mean per-press RMSE 95 % interval {lo:.2f}-{hi:.2f} N" if _finite(lo, hi) else ""
-        name = f"pooled ridge (alpha {f['alpha']:g})" if f["model"] == "pooled-ridge" else "per-location Fourier-1"
-        out.append(f"force: {name}, expected RMSE {f['estimate']['rmse_n']:.2f} N on presses not trained on ({f['how']}{ci}; "
-                   f"Fourier-1 {f['fourier1_rmse_n']:.2f} N, a constant {f['constant_rmse_n']:.2f} N)")
-    elif f.get("reason"):
-        out.append(f"force: {f['reason']}")
-    d = sel.get("detection") or {}
-    if d.get("threshold") is not None and d.get("missed_touch_rate") is not None:
-        out.append(f"detection threshold {d['threshold']:.3f} dB RMS ({d['how']}: missed {d['missed_touch_rate']:.1%}, "
-                   f"false {d['false_touch_rate']:.1%})")
-    n = sel.get("net") or {}
-    if n.get("detector"):
-        out.append(f"network touch decision: {n['detector']} ({n.get('how', '')})")
-    if n.get("location_layer"):
-        out.append(f"network location layer: {n['location_layer']} ({n.get('layer_how', '')})")
-    if n.get("force"):
-        out.append(f"network force: {'its own head' if n['force'] == 'head' else 'the pooled ridge'} ({n.get('force_how', '')})")
-    return out
-
-
 # -- on a dataset's training split -----------------------------------------------------------------------------
 def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Press ids over the whole table and the touch chirps of ``sessions`` (labels only of those sessions)."""
@@ -478,7 +433,7 @@ def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str 
 
 def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarray, val_mask: np.ndarray | None,
                      n_locations: int, location_ids, selection: dict | None = None, min_force_n: float = 0.5,
-                     log=print) -> dict:
+                     key: str = "localizer", log=print) -> dict:
     """The rest of the choice once the model inputs ``X`` (the deployed bins) are fixed: C and kernel width
     (when ``selection`` has no ``svm`` part yet, gamma fixed to the inputs' width), the force model and the
     detection threshold.  ``train_mask``/``val_mask``: rows of the training / validation sessions (usable
@@ -494,8 +449,8 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
     val_name = ", ".join(sorted(set(t["session"][val_mask]))) if val_mask.any() else ""
     rows = np.flatnonzero((train_mask | val_mask) & touch)
     val_rows = val_mask[rows] if val_mask.any() else None
-    if "svm" not in sel:
-        sel["svm"] = select_localizer(X[rows], cls[rows], press[rows], passes[rows], val=val_rows, gammas=[X.shape[1]],
+    if key not in sel:  # the localizer's choice (gamma, C, kernel width) under the model's key
+        sel[key] = select_localizer(X[rows], cls[rows], press[rows], passes[rows], val=val_rows, gammas=[X.shape[1]],
                                       val_name=val_name, n_bins_fallback=X.shape[1], log=log)
     # force: on touch chirps with a force reading
     f = t["force_n"].astype(float)
@@ -515,8 +470,9 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
 
 
 def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
-    """The learning curve of a selection as a PNG (accuracy vs presses per location); False without one."""
-    lc = ((sel or {}).get("svm") or {}).get("learning_curve")
+    """The learning curve of a localizer's selection (``select_localizer``'s) as a PNG (accuracy vs presses per
+    location); False without one."""
+    lc = (sel or {}).get("learning_curve")
     if not lc or not lc["accuracy"]:
         return False
     import matplotlib

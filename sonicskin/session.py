@@ -18,6 +18,7 @@ from pathlib import Path
 from . import acquire
 from .acquire import AudioSource, Link, check_blocksize
 from .errors import ConfigNotFoundError, UsageError
+from .kinds import BASELINE
 from .links import ARM_FILE, load_arm
 from .live import LiveLoop, run_loops
 from .rig import Rig
@@ -135,7 +136,7 @@ class Run:
         return {lk.name: s for lk, s in zip(self.links, sums)} if self.arm else sums[0]
 
 
-def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scenario="stationary", rig=None,
+def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario="stationary", rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
              mcap=None) -> Run:
@@ -169,7 +170,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str = "svm", scena
     if mcap is not None:
         _require_frames(lks, spec)
     arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
-    runtimes = [SkinRuntime(Path(art), model, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
+    runtimes = [SkinRuntime(Path(art), model or BASELINE, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
     the_rig = the_rig or runtimes[0].rig
     if not sim:
         return Run(lks, runtimes, open_source(the_rig, device, lks, blocksize=blocksize), the_rig, spec, mcap_path=mcap)

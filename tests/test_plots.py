@@ -197,7 +197,7 @@ def test_learning_curve_keeps_its_note_inside_and_says_why_three_passes_give_two
     X = y[:, None] * 3.0 + rng.normal(0, 1, (12, 2))
     lc = learning_curve_by_pass(NearestCentroid(), X, y, passes, np.arange(12))
     assert lc["presses_per_location"] == [1, 2] and lc["passes_recorded"] == 3
-    assert save_learning_curve({"svm": {"learning_curve": lc}}, tmp_path / "lc.png")
+    assert save_learning_curve({"learning_curve": lc}, tmp_path / "lc.png")
     fig = saved["lc.png"]
     ax = fig.axes[0]
     assert [int(t) for t in ax.get_xticks()] == [1, 2, 3]

@@ -47,9 +47,10 @@ def cmd_live(a: argparse.Namespace) -> int:
     if a.drop_every == 1:
         raise UsageError("--drop-every 1 drops every audio block, so nothing would reach the loop; give N >= 2 "
                          "(one block lost in N)")
-    if not a.links and a.artifact is None and a.model == "net":
-        raise UsageError("--model net needs a trained network: `sonicskin train`, then `sonicskin export --run RUN "
-                         "--out DIR`, then --artifact DIR (only --model svm is trained on the spot)")
+    if not a.links and a.artifact is None and a.model is not None:
+        raise UsageError(f"--model {a.model} needs an artifact that holds it (the network: `sonicskin train`, then "
+                         f"`sonicskin export --run RUN --out DIR`, then --artifact DIR); without --artifact the paper's "
+                         f"SVM is trained on the spot")
     if not a.links and a.artifact is None and not sim:
         raise UsageError("a real rig needs a model trained on it: `sonicskin record --out DIR` (it writes DIR-artifact "
                          "when it finishes), then `sonicskin live --device ... --artifact DIR-artifact`")
@@ -153,7 +154,8 @@ def add_parsers(sub) -> None:
     lv.add_argument("--artifact", help="artifact folder (sonicskin export / fit-svm) (default: on the simulated device, "
                                        "an SVM is trained on the spot the first time, about 2 min and 200 MB under ./data "
                                        "and ./artifacts, and reused later)")
-    lv.add_argument("--model", choices=("svm", "net"), default="svm", help="which model of the artifact (default: svm)")
+    lv.add_argument("--model", metavar="KIND", help="which model of the artifact: svm (the paper's), lda (the closed-form "
+                                                  "LDA) or net (the network) (default: svm)")
     lv.add_argument("--scenario", default="stationary",
                     help="simulated device: scenario of the link and the touches (default: stationary)")
     lv.add_argument("--rig", help="rig name or YAML path (default: the --artifact's own rig, else jaco)")

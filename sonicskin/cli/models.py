@@ -201,8 +201,8 @@ def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
     folder or its arm.yaml, each link's artifact), one report per link under ``OUT/<link>``."""
     import copy
 
-    from ..arm import arm_file_of
     from ..links import load_arm, missing_datasets
+    from ..session import arm_file_of
 
     if not a.data:
         raise UsageError(f"compare --links {a.links} needs --data DIR, the folder of the links' datasets (DIR/<link>: "

@@ -205,7 +205,8 @@ class SVMKind(ModelKind):
             sel = dict(selection)
         elif select:
             sel = select_on_inputs(d.X, d.table, cls=d.cls, train_mask=train, val_mask=val, n_locations=n,
-                                   location_ids=d.layout.ids, selection=d.selection, min_force_n=d.min_force_n, log=log)
+                                   location_ids=d.layout.ids, selection=d.selection, min_force_n=d.min_force_n,
+                                   key=self.name, log=log)
         else:
             sel = dict(d.selection)
         chosen = select or selection is not None
