@@ -29,7 +29,7 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 from .events import TouchEvent
 from .ros2_msgs import DEFINITIONS
 
@@ -64,7 +64,7 @@ class McapEventWriter:
         from mcap_ros2.writer import Writer
 
         if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
-            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {t0_unix_s!r}")
+            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
         self.path = Path(path)
         try:
             self._file = open(self.path, "wb")

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
@@ -89,21 +89,21 @@ class LinkView:
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
-            raise SonicskinError(f"a link's name must be a non-empty string, got {self.name!r}")
+            raise SonicskinError(f"a link's name must be a non-empty string, got {brief(self.name)}")
         if not isinstance(self.layout, Layout):
-            raise SonicskinError(f"link {self.name!r}: layout must be a sonicskin.rig.Layout (e.g. SkinRuntime(...).layout), "
+            raise SonicskinError(f"link {brief(self.name)}: layout must be a sonicskin.rig.Layout (e.g. SkinRuntime(...).layout), "
                                  f"got {type(self.layout).__name__}")
         kind = self.kind if self.kind is not None else ("tube" if self.layout.circumference_cm else "plate")
         if kind not in ("tube", "plate"):
-            raise SonicskinError(f"link {self.name!r}: kind must be 'tube' or 'plate', got {kind!r}")
+            raise SonicskinError(f"link {brief(self.name)}: kind must be 'tube' or 'plate', got {brief(kind)}")
         if kind == "tube" and not self.layout.circumference_cm:
-            raise SonicskinError(f"link {self.name!r} is a tube but its layout has no circumference_cm; give the layout "
+            raise SonicskinError(f"link {brief(self.name)} is a tube but its layout has no circumference_cm; give the layout "
                                  f"its circumference or draw the link as kind='plate'")
         object.__setattr__(self, "kind", kind)
         for k in ("length_cm", "width_cm"):
             v = getattr(self, k)
             if v is not None and not (_finite(v) and v > 0):
-                raise SonicskinError(f"link {self.name!r}: {k} must be a positive number of cm or None, got {v!r}")
+                raise SonicskinError(f"link {brief(self.name)}: {k} must be a positive number of cm or None, got {brief(v)}")
         for k in ("tx_cm", "rx_cm"):
             v = getattr(self, k)
             if v is not None:
@@ -112,7 +112,7 @@ class LinkView:
                 except (TypeError, ValueError):
                     p = ()
                 if len(p) != 2 or not all(map(math.isfinite, p)):
-                    raise SonicskinError(f"link {self.name!r}: {k} must be (x_cm, y_cm), got {v!r}")
+                    raise SonicskinError(f"link {brief(self.name)}: {k} must be (x_cm, y_cm), got {brief(v)}")
                 object.__setattr__(self, k, p)
 
     @classmethod
@@ -212,7 +212,7 @@ class ViewServer:
         if dup:
             raise SonicskinError(f"link names must be unique, {dup} appear more than once")
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-            raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {port!r}")
+            raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {brief(port)}")
         self.links = {lk.name: lk for lk in links}
         self.host, self.port = host, port
         self._run_id = f"{time.time_ns():x}"  # a page that sees another run id reloads the links
@@ -300,8 +300,8 @@ class ViewServer:
             raise SonicskinError(f"{what} names no link but the view shows {len(self.links)} ({', '.join(self.links)}); "
                                  f"set the event's link (LiveLoop(link=...) does)")
         if name not in self.links:
-            raise SonicskinError(f"{what} names link {name!r}, which the view does not show ({', '.join(self.links)}); "
-                                 f"list it in ViewServer(links=[LinkView({name!r}, layout), ...])")
+            raise SonicskinError(f"{what} names link {brief(name)}, which the view does not show ({', '.join(self.links)}); "
+                                 f"list it in ViewServer(links=[LinkView({brief(name)}, layout), ...])")
         return name
 
     def push_event(self, ev: TouchEvent | dict | str) -> None:
@@ -385,7 +385,7 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
     Chains the loop's ``on_event`` and ``on_chirp`` (callbacks already set keep being called first).  The loop's
     link name (``LiveLoop(link=...)``) must be one of the view's links, or the view must show one link only."""
     name = loop.link_name
-    view._link_of(name, f"the loop of link {name!r}" if name else "the loop")  # fails now, not at the first event
+    view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
     last = [-math.inf, None]  # stream time and (calibrating, refreshes) of the last status shown
 
