@@ -54,8 +54,8 @@ class OnlineReference:
       alike, a hand moves its own chirps by a touch more); the others are left out (:attr:`boot_touched` counts them)
       and the re-boot is disturbed as a boot that lost chirps to faults is: :attr:`boot_disturbed`, the reference from
       its chirps at rest (at least ``beta // 4``, else one new window from the next chirp, whose chirps at rest are
-      taken however few), re-taken from the next ``beta`` chirps the detector calls no-touch.  A hand on the link for the whole window cannot be told from a
-      changed wall and is taken as rest.
+      taken however few), re-taken from the next ``beta`` chirps the detector calls no-touch.  A hand on the link for
+      the whole window cannot be told from a changed wall and is taken as rest.
 
     The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
     with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).

@@ -30,7 +30,6 @@ the file (:class:`~sonicskin.errors.SonicskinError`), and the writer is closed.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import math
 import os
 import re
@@ -43,6 +42,11 @@ from pathlib import Path
 from .errors import SonicskinError, brief
 from .events import TouchEvent
 from .ros2_msgs import DEFINITIONS
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: a second writer on one file is not refused
+    fcntl = None
 
 __all__ = ["McapEventWriter", "MARKER_TOPIC", "topic_for"]
 
@@ -87,7 +91,8 @@ class McapEventWriter:
         except OSError as e:
             raise SonicskinError(f"{path}: cannot write the MCAP file ({e.strerror})") from None
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if fcntl is not None:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             os.close(fd)
             raise SonicskinError(f"{path}: another writer is recording into this MCAP file (it holds the file's lock); "

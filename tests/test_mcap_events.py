@@ -266,3 +266,11 @@ def test_a_writer_whose_run_never_started_leaves_no_stub(tmp_path):
     assert path.read_bytes() == b"an earlier recording"
     McapEventWriter(tmp_path / "b.mcap", t0_unix_s=T0).close()  # a run without a touch: a complete, empty recording
     assert read_ros2_messages(tmp_path / "b.mcap") == []
+    # `live --mcap F --view PORT` with the port taken: the writer made, then the run refused, the process gone
+    import subprocess
+    import sys
+
+    code = ("from sonicskin.rosbag import McapEventWriter\nw = McapEventWriter('c.mcap', t0_unix_s=0)\n"
+            "raise SystemExit('sonicskin live: error: cannot serve the view on 127.0.0.1:8080')")
+    assert subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, timeout=60).returncode == 1
+    assert not (tmp_path / "c.mcap").exists()
