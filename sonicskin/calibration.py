@@ -19,7 +19,7 @@ __all__ = ["OnlineReference", "TouchDetector", "MAX_T_S"]
 #: The largest stream time :class:`OnlineReference` takes: 10**12 s (31,700 years); more is a corrupt clock.
 MAX_T_S = 1e12
 #: A re-boot window's chirps at rest lie within this many first-boot spreads of its chirp closest to the old reference
-#: (simulated links: a touch moves a chirp by 7-13 of them, rest chirps by under 2).
+#: (the simulated stationary link after a 25-min pause: rest chirps within 0.4 of them, chirps of a firm press 8 or more).
 REST_SPREADS = 4.0
 
 

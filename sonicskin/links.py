@@ -46,7 +46,7 @@ from .dataset import check_name
 from .errors import ConfigNotFoundError, brief
 from .rig import ConfigError, Rig, load_yaml, resolve_config
 
-__all__ = ["load_links", "load_arm", "missing_datasets", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
+__all__ = ["load_links", "load_arm", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
 
 #: The arm file :func:`write_arm` writes next to the trained links' artifacts.
 ARM_FILE = "arm.yaml"
@@ -69,12 +69,6 @@ def _resolve(name_or_path) -> Path:
         return resolve_config(name_or_path, "links")
     except FileNotFoundError:
         return resolve_config(name_or_path, "arms")
-
-
-def is_arm(name_or_path) -> bool:
-    """True when the links file places its links on a robot (a frame, surface or simulated scenario per link)."""
-    cfg = load_yaml(_resolve(name_or_path))
-    return any(isinstance(d, dict) and ({"frame", "surface", "scenario"} & set(d)) for d in cfg.get("links") or [])
 
 
 def file_rig(name_or_path) -> Rig | None:

@@ -41,7 +41,6 @@ import threading
 import time
 import weakref
 from collections import deque
-from collections.abc import Callable
 from importlib import resources
 from typing import Any
 
@@ -51,7 +50,7 @@ from .errors import SonicskinError, brief
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
-__all__ = ["LinkView", "ViewServer", "make_view_hook", "loop_status", "attach_view", "view_loops", "parse_view_port",
+__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port",
            "STATUS_KEYS"]
 
 #: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
@@ -426,11 +425,6 @@ class ViewServer:
 
 
 # -- wiring to the live loop ------------------------------------------------------------------------------------------
-def make_view_hook(view: ViewServer) -> Callable[[TouchEvent], None]:
-    """A callable for ``LiveLoop(on_event=...)`` that shows each event in ``view``."""
-    return view.push_event
-
-
 def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
     """The status :meth:`ViewServer.set_status` shows for a :class:`~sonicskin.live.LiveLoop` at stream time ``t_s``
     (``None``: the last event's)."""

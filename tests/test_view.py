@@ -20,7 +20,7 @@ from sonicskin.errors import SonicskinError
 from sonicskin.events import TouchEvent
 from sonicskin.rig import Layout
 from sonicskin.sim import Scenario
-from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, make_view_hook, parse_view_port, view_loops
+from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, parse_view_port, view_loops
 
 REPO = Path(__file__).resolve().parents[1]
 needs_chromium = pytest.mark.skipif(chromium_binary() is None, reason="no chromium binary (Debian: apt-get install chromium; "
@@ -88,7 +88,7 @@ def test_touch_and_release_in_the_state():
     one = ViewServer([LinkView("only", tube.layout)])
     one.push_event(TouchEvent(1.0, "touch", 3, 5.0, 12.0, 1.0, 0.9, "svm", 0.5).to_json())
     assert one.state()["links"]["only"]["touch"]["location"] == 3
-    make_view_hook(one)(TouchEvent(1.1, "release", 3, 5.0, 12.0, 0.0, 0.9, "svm", 0.5).to_dict())
+    one.push_event(TouchEvent(1.1, "release", 3, 5.0, 12.0, 0.0, 0.9, "svm", 0.5).to_dict())
     assert one.state()["links"]["only"]["touch"] is None
 
 
