@@ -117,6 +117,14 @@ class OnlineReference:
         """In a boot calibration: the first, or a re-boot after a pause longer than ``alpha``."""
         return self.features is None or self._rebooting
 
+    @property
+    def boot_cause(self) -> str:
+        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went
+        back 3600 s"``, with ``", 9 touched chirps left out"`` when a hand was in its window."""
+        gap = self.last_gap_s
+        why = "power-on" if gap is None else f"a {gap / 60:.0f} min pause" if gap > 0 else f"the clock went back {-gap:.0f} s"
+        return why + (f", {self.boot_touched} touched chirps left out" if self.boot_touched else "")
+
     def _paused(self, dt_s):
         """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``, or the clock
         going back by more than one chirp period: a re-boot follows (never with ``alpha=None``)."""

@@ -77,8 +77,8 @@ class McapEventWriter:
 
     def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
                  overwrite: bool = False):
-        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
-            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
+        self.written = 0  # events written
+        self.t0_unix_s = t0_unix_s
         if not isinstance(path, (str, os.PathLike)) or not str(path):
             raise SonicskinError(f"the MCAP file must be a file path, got {brief(path)}")
         self.path = Path(path)
@@ -101,15 +101,27 @@ class McapEventWriter:
         self._w = None  # the MCAP writer, started at the first event or at close
         # a writer dropped before it wrote anything (its run failed to start) leaves no empty file behind
         self._abandon = weakref.finalize(self, _abandon, self._file, self.path if created else None)
-        self._t0_ns = round(float(t0_unix_s) * 1e9)
         self._log = log or (lambda m: warnings.warn(m, stacklevel=3))
         self._seq: dict[str, int] = {}
         self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
-        self.written = 0  # events written
         self.skipped = 0  # events without the robot-frame fields
         self.messages = 0
         self._closed = False
         self._lock = threading.Lock()  # one writer for the loops of all links
+
+    @property
+    def t0_unix_s(self) -> float:
+        """The wall-clock time (UNIX seconds) of the stream's ``t_s = 0``; settable until the first event is written (a
+        writer made, and its file claimed, before the stream starts)."""
+        return self._t0_ns / 1e9
+
+    @t0_unix_s.setter
+    def t0_unix_s(self, t0_unix_s: float) -> None:
+        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
+            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
+        if self.written:
+            raise SonicskinError(f"{self.path}: the stream start cannot move once events are written")
+        self._t0_ns = round(float(t0_unix_s) * 1e9)
 
     # -- messages ---------------------------------------------------------------------------------------------------
     def _start(self) -> None:

@@ -434,7 +434,8 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
     if t_s is None:
         t_s = loop.events[-1].t_s if loop.events else None
     age = None if ref.t_set_s is None or t_s is None else max(0.0, float(t_s) - ref.t_set_s)
-    text = "calibrating (hands off)" if stream.calibrating else (drift.status() if drift is not None else "running, no drift tracking")
+    text = (f"calibrating (hands off; {ref.boot_cause})" if stream.calibrating else
+            drift.status() if drift is not None else "running, no drift tracking")
     return {"refreshes": int(ref.refreshes), "stretch": None if drift is None else float(drift.stretch),
             "reference_age_s": age, "chirps": int(loop.n_chirps), "text": text}
 

@@ -193,6 +193,7 @@ def test_a_hand_on_the_link_during_a_reboot_is_left_out_of_the_reference(rng):
     out = _run(a, X, t, _detector)
     assert a.reboots == 1 and a.last_gap_s == pytest.approx(1500 - 1.9)
     assert (a.boot_disturbed, a.boot_touched, a.boot_chirps) == (True, 3, 2)
+    assert a.boot_cause == "a 25 min pause, 3 touched chirps left out"  # what the status line shows
     assert [i for i, o in enumerate(out) if o is None] == [0, 1, 2, 3, 4, 20, 21, 22, 23, 24]
     assert not any(out[25:]) and a.refreshes == 3  # every rest chirp reads quiet; re-taken from chirps 25-29
     np.testing.assert_allclose(a.features, X[25:30].mean(axis=0), rtol=1e-6)
@@ -224,7 +225,7 @@ def test_a_clock_going_back_is_a_new_stream_not_a_frozen_reference():
     X = np.r_[np.zeros((100, 2)), np.full((5 * alpha, 2), 3.0)].astype(np.float32)
     a = OnlineReference(beta, alpha, cps)
     out = _run(a, X, t, _detector)
-    assert a.reboots == 1 and a.last_gap_s == pytest.approx(-3609.9)
+    assert a.reboots == 1 and a.last_gap_s == pytest.approx(-3609.9) and a.boot_cause == "the clock went back 3610 s"
     np.testing.assert_allclose(a.features, [3.0, 3.0])
     assert not any(o for o in out[105:])  # after the re-boot's window, the changed wall reads quiet
     b = OnlineReference(beta, alpha, cps)
@@ -232,7 +233,7 @@ def test_a_clock_going_back_is_a_new_stream_not_a_frozen_reference():
     # a step back within one chirp period (timestamp jitter) is no new stream
     j = OnlineReference(beta, alpha, cps)
     _run(j, np.zeros((20, 2), np.float32), np.r_[np.arange(10) / cps, 0.85 + np.arange(10) / cps], _detector)
-    assert j.reboots == 0 and j.refreshes == 1
+    assert j.reboots == 0 and j.refreshes == 1 and j.boot_cause == "power-on"
 
 
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), -1.0, 1e308, "1.5", None, True, [1.0]])

@@ -253,6 +253,8 @@ def test_a_writer_whose_run_never_started_leaves_no_stub(tmp_path):
     leaves a file it was allowed to overwrite as it was."""
     import gc
 
+    from sonicskin.errors import SonicskinError
+
     path = tmp_path / "a.mcap"
     w = McapEventWriter(path, t0_unix_s=T0)
     assert path.stat().st_size == 0
@@ -264,6 +266,13 @@ def test_a_writer_whose_run_never_started_leaves_no_stub(tmp_path):
     del w
     gc.collect()
     assert path.read_bytes() == b"an earlier recording"
+    w = McapEventWriter(tmp_path / "d.mcap", t0_unix_s=0)  # made (its file claimed) before the stream starts ...
+    w.t0_unix_s = T0  # ... which sets the clock
+    w.write(_events()[0])
+    with pytest.raises(SonicskinError, match="the stream start cannot move once events are written"):
+        w.t0_unix_s = T0 + 1
+    w.close()
+    assert read_ros2_messages(tmp_path / "d.mcap")[0].log_time_ns == round(T0 * 1e9)
     McapEventWriter(tmp_path / "b.mcap", t0_unix_s=T0).close()  # a run without a touch: a complete, empty recording
     assert read_ros2_messages(tmp_path / "b.mcap") == []
     # `live --mcap F --view PORT` with the port taken: the writer made, then the run refused, the process gone

@@ -147,7 +147,7 @@ def test_attach_view_chains_the_loops_callbacks():
     from types import SimpleNamespace
 
     calls = []
-    ref = SimpleNamespace(refreshes=0, t_set_s=None)
+    ref = SimpleNamespace(refreshes=0, t_set_s=None, boot_cause="power-on")
     loop = SimpleNamespace(link_name=None, on_event=lambda ev: calls.append(("event", ev.kind)),
                            on_chirp=lambda t, p: calls.append(("chirp", t)), events=[], n_chirps=0,
                            stream=SimpleNamespace(calibrating=True, reference=ref, drift=None))
@@ -157,6 +157,7 @@ def test_attach_view_chains_the_loops_callbacks():
         loop.n_chirps += 1
         loop.on_chirp(0.2 * k, None)
         assert view.state()["links"]["only"]["status"]["chirps"] == (1 if k < 3 else 4)
+    assert view.state()["links"]["only"]["status"]["text"] == "calibrating (hands off; power-on)"
     loop.stream.calibrating, ref.refreshes, ref.t_set_s = False, 1, 0.7  # the boot's reference: shown at once
     loop.on_chirp(0.8, None)
     st = view.state()["links"]["only"]["status"]
