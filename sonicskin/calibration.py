@@ -12,7 +12,15 @@ from collections.abc import Callable, Iterator
 import numpy as np
 from sklearn.metrics import roc_curve
 
-__all__ = ["OnlineReference", "TouchDetector"]
+from .errors import SonicskinError, brief
+
+__all__ = ["OnlineReference", "TouchDetector", "MAX_T_S"]
+
+#: The largest stream time :class:`OnlineReference` takes: 10**12 s (31,700 years); more is a corrupt clock.
+MAX_T_S = 1e12
+#: A re-boot window's chirps at rest lie within this many first-boot spreads of its chirp closest to the old reference
+#: (the simulated stationary link after a 25-min pause: rest chirps within 0.4 of them, chirps of a firm press 8 or more).
+REST_SPREADS = 4.0
 
 
 class OnlineReference:
@@ -36,7 +44,18 @@ class OnlineReference:
       have warmed or cooled by several kelvin; the detector, still on the old reference, then calls
       every chirp touched and a refresh would never come (two months of Fig. 12: 8 references in 10
       sessions, the network at 35-39 % on the coldest and warmest days).  As at power-on, the chirps of
-      the window get no prediction (:meth:`booting_at`); :attr:`reboots` counts these boots.
+      the window get no prediction (:meth:`booting_at`); :attr:`reboots` counts these boots and :attr:`last_gap_s`
+      holds the pause that caused the last one.  A clock that goes back by more than one chirp period (a reset
+      clock, another stream fed under the same reference) is a new stream: a re-boot too (``last_gap_s`` < 0), never
+      a reference frozen until the clock catches up.
+    - **A hand during a re-boot**: touched chirps in a re-boot's window would make the reference part touch, and the
+      detector then calls every chirp at rest touched, so no refresh would ever come.  The window's chirps at rest are
+      those close to the one closest to the reference before the pause (:meth:`_at_rest`: a pause moves every chirp
+      alike, a hand moves its own chirps by a touch more); the others are left out (:attr:`boot_touched` counts them)
+      and the re-boot is disturbed as a boot that lost chirps to faults is: :attr:`boot_disturbed`, the reference from
+      its chirps at rest (at least ``beta // 4``, else one new window from the next chirp, whose chirps at rest are
+      taken however few), re-taken from the next ``beta`` chirps the detector calls no-touch.  A hand on the link for
+      the whole window cannot be told from a changed wall and is taken as rest.
 
     The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
     with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).
@@ -50,6 +69,9 @@ class OnlineReference:
     score_fn : ``inputs (m, d) -> scores (m, k)``; its mean over the reference chirps is :attr:`scores`.
     labelled : the ``touch`` flags are labels (a training session), not a detector's: a re-boot then waits for
         ``beta`` consecutive labelled no-touch chirps, as the first boot does, instead of taking the first ``beta``.
+
+    Stream time ``t_s`` is checked at the door (:meth:`step`, :meth:`booting_at`): a finite number of seconds in
+    ``0 .. MAX_T_S``, else a :class:`~sonicskin.errors.SonicskinError` with the reference unchanged.
     """
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
@@ -71,6 +93,9 @@ class OnlineReference:
         self.boot_disturbed = False               # the boot window lost chirps to faults (see class doc)
         self.boot_chirps = 0                      # chirps in the boot reference
         self.reboots = 0                          # boots after a stream gap longer than alpha (see class doc)
+        self.last_gap_s: float | None = None      # the gap that caused the last re-boot (< 0: the clock went back)
+        self.boot_touched = 0                     # chirps of this boot's window(s) left out as touched (see class doc)
+        self._spread: float | None = None         # the first boot's spread (see _at_rest)
         self._rebooting = False
         self._last_t: float | None = None
         self._boot_t0: float | None = None
@@ -92,20 +117,39 @@ class OnlineReference:
         """In a boot calibration: the first, or a re-boot after a pause longer than ``alpha``."""
         return self.features is None or self._rebooting
 
+    @property
+    def boot_cause(self) -> str:
+        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went
+        back 3600 s"``, with ``", 9 touched chirps left out"`` when a hand was in its window."""
+        gap = self.last_gap_s
+        why = "power-on" if gap is None else f"a {gap / 60:.0f} min pause" if gap > 0 else f"the clock went back {-gap:.0f} s"
+        return why + (f", {self.boot_touched} touched chirps left out" if self.boot_touched else "")
+
     def _paused(self, dt_s):
-        """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``: a re-boot
-        follows (never with ``alpha=None``)."""
+        """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``, or the clock
+        going back by more than one chirp period: a re-boot follows (never with ``alpha=None``)."""
         if self.alpha is None:
             return np.zeros(np.shape(dt_s), bool)
-        return np.asarray(dt_s) * self.cps > self.alpha
+        chirps = np.asarray(dt_s) * self.cps
+        return (chirps > self.alpha) | (chirps < -1)
 
     def _gap(self, t_s: float) -> bool:
-        """The stream paused longer than ``alpha`` before ``t_s``."""
+        """The stream paused longer than ``alpha`` before ``t_s`` (or its clock went back)."""
         return self._last_t is not None and bool(self._paused(t_s - self._last_t))
+
+    @staticmethod
+    def _time(t_s) -> float:
+        """``t_s`` as seconds, checked before it touches any state (a NaN in the boot window stopped every later chirp)."""
+        if isinstance(t_s, (bool, np.bool_)) or not isinstance(t_s, (int, float, np.integer, np.floating)) \
+                or not 0 <= t_s <= MAX_T_S:
+            raise SonicskinError(f"stream time t_s must be a number of seconds in 0..{MAX_T_S:g}, got {brief(t_s)}: pass "
+                                 "the chirp's time on the stream's clock, or skip a chirp whose time is unknown")
+        return float(t_s)
 
     def booting_at(self, t_s: float) -> bool:
         """The chirp at stream time ``t_s`` belongs to a boot calibration (the first one, or a re-boot after a
         gap): hands off by protocol, fed to :meth:`step` with no prediction."""
+        t_s = self._time(t_s)
         return self.calibrating or self._gap(t_s)
 
     def inputs(self, x: np.ndarray) -> np.ndarray:
@@ -124,6 +168,11 @@ class OnlineReference:
         self._run = []
         self._rebooting = False
 
+    def _reboot(self) -> None:
+        """Start a new boot window from the next chirp (the last boot's state, a disturbed window, is over)."""
+        self._rebooting, self._boot_t0, self._run, self.boot_touched = True, None, [], 0
+        self.boot_disturbed = self._early = False
+
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
         """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection.
 
@@ -131,12 +180,12 @@ class OnlineReference:
         ``None`` during the boot (taken as hands-off).  Returns ``True`` when this chirp completed
         a new reference, in effect from the next chirp on.
         """
-        gap = self._gap(t_s)
-        self._last_t = float(t_s)
-        if gap and self.features is not None:  # a new boot: the last one's state (a disturbed window) is over
-            self._rebooting, self._boot_t0, self._run = True, None, []
-            self.boot_disturbed = self._early = False
+        t_s = self._time(t_s)
+        if self._gap(t_s) and self.features is not None:
+            self._reboot()
             self.reboots += 1
+            self.last_gap_s = t_s - self._last_t
+        self._last_t = t_s
         if self._rebooting:
             if not (self.labelled and touch is not None):  # labels say which chirps are hands-off: wait for them below
                 return self._boot_step(x, t_s)
@@ -157,25 +206,40 @@ class OnlineReference:
 
     def _boot_step(self, x: np.ndarray, t_s: float) -> bool:
         if self._boot_t0 is None:
-            self._boot_t0 = float(t_s)
+            self._boot_t0 = t_s
         # Chirp k of the window starts at t0 + k / cps: the window holds k = 0 .. beta - 1.
-        k = round((t_s - self._boot_t0) * self.cps)
-        if k < self.beta:
+        lost = round((t_s - self._boot_t0) * self.cps) >= self.beta  # the window passed with chirps lost to faults
+        if not lost:
             self._run.append(np.asarray(x, np.float32))
             if len(self._run) < self.beta:
                 return False
-            self.boot_chirps = len(self._run)
-            self._set(np.stack(self._run), t_s)
+        block = np.stack(self._run) if self._run else np.zeros((0, np.size(x)), np.float32)
+        rest = self._at_rest(block)
+        again = self.boot_touched > 0  # an earlier window of this boot was refused: take this one's rest, however few
+        self.boot_touched += int(np.sum(~rest))
+        if lost or not rest.all():
+            self.boot_disturbed = True
+        if rest.sum() >= max(1, self.beta // 4) or (again and rest.any()):  # its clean chirps at rest, never later ones
+            self._early = self.boot_disturbed
+            if self.features is None:  # the first boot: how far from their mean its chirps lie (what _at_rest allows)
+                self._spread = float(np.median(np.abs(block - block.mean(axis=0)), axis=1).max())
+            self.boot_chirps = int(rest.sum())
+            self._set(block[rest], t_s)
             return True
-        # The window has passed with chirps missing (faults): its clean chirps, not the ones after it.
-        if len(self._run) >= max(1, self.beta // 4):
-            self.boot_chirps = len(self._run)
-            self.boot_disturbed = self._early = True
-            self._set(np.stack(self._run), t_s)
-            return True
-        self.boot_disturbed = True  # too few clean chirps: a new window from this chirp on
-        self._boot_t0, self._run = float(t_s), [np.asarray(x, np.float32)]
+        # too few: a new window, from this chirp on (after lost chirps) or from the next
+        self._boot_t0, self._run = (t_s, [np.asarray(x, np.float32)]) if lost else (None, [])
         return False
+
+    def _at_rest(self, block: np.ndarray) -> np.ndarray:
+        """Which chirps of a re-boot window are at rest: those whose distance to the reference before the pause (the
+        median over features of the absolute difference) is within ``REST_SPREADS`` first-boot spreads (the largest
+        such distance of a first-boot chirp to its mean) of the closest one's; a hand on the link moves its chirps
+        away by a touch, on top of what the pause changed for every chirp alike.  All of the first boot's (hands off
+        by protocol, nothing to compare with)."""
+        if self.features is None or self._spread is None or not len(block):
+            return np.ones(len(block), bool)
+        e = np.median(np.abs(block - self.features), axis=1)
+        return e <= e.min() + REST_SPREADS * self._spread
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:

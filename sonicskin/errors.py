@@ -10,7 +10,21 @@ type they replaced (``except FileNotFoundError`` still catches a config that is 
 
 from __future__ import annotations
 
-__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError"]
+import reprlib
+
+__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError", "brief"]
+
+_REPR = reprlib.Repr()
+_REPR.maxlevel = 2
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = _REPR.maxfrozenset = _REPR.maxdeque = _REPR.maxarray = 4
+_REPR.maxstring = _REPR.maxother = _REPR.maxlong = 60
+
+
+def brief(value, limit: int = 100) -> str:
+    """``repr(value)`` for an error message, bounded: a user's value (a YAML alias bomb whose full repr has 9**9
+    elements, a 4 MB string) is shown by its first few elements and characters, never materialised whole."""
+    s = _REPR.repr(value)
+    return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
 class SonicskinError(ValueError):

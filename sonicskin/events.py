@@ -43,7 +43,7 @@ in its module docstring and docs/robot-frame.md), :func:`attach_surface` adds:
 - ``force_vec_n``: ``[x, y, z]``, the force the finger exerts on the link, ``-force_n * normal``, in N in
   that frame (``[0, 0, 0]`` on ``release``; ``null`` when ``force_n`` is null).
 
-``point_m`` and ``normal`` come together; ``force_vec_n`` only with them.
+``point_m`` and ``normal`` come together, with the ``frame_id`` (not empty) they are in; ``force_vec_n`` only with them.
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ import json
 import math
 from typing import Any
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 
 __all__ = ["SCHEMA_VERSION", "READS", "EVENT_SCHEMA", "TouchEvent", "EventError", "validate_event", "parse_event",
            "surface_fields", "attach_surface"]
@@ -91,7 +91,8 @@ EVENT_SCHEMA: dict[str, Any] = {
         "model": {"enum": ["svm", "net"]},
         "latency_ms": {"type": "number", "minimum": 0},
         "link": {"type": "string", "description": "the link that sensed it (live --links); absent on a single link"},
-        "frame_id": {"type": "string", "description": "v2: the link's frame (its URDF link name); absent without a surface"},
+        "frame_id": {"type": "string", "minLength": 1,
+                     "description": "v2: the link's frame (its URDF link name); absent without a surface"},
         "point_m": {**_VEC3, "description": "v2: contact point [x, y, z] in the link frame, m"},
         "normal": {**_VEC3, "description": "v2: unit outward surface normal [x, y, z] at the point, link frame"},
         "force_vec_n": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
@@ -182,7 +183,7 @@ def validate_event(d: Any) -> None:
 
     (The subset of JSON Schema the event schema uses: type, enum, minimum, maximum, required, and
     arrays of 3 numbers; no third-party validator needed at run time.)  Beyond the JSON Schema: ``normal``
-    is a unit vector, and ``point_m``/``normal`` come together.  Fields the schema does not declare are
+    is a unit vector, and ``point_m``/``normal`` come together with ``frame_id``.  Fields the schema does not declare are
     accepted (``additionalProperties``: within a version, fields are only ever added).
     """
     if not isinstance(d, dict):
@@ -195,24 +196,26 @@ def validate_event(d: Any) -> None:
             continue
         x = d[k]
         if k == "v" and (x not in READS or isinstance(x, bool)):
-            raise EventError(f"v must be one of {list(READS)}, got {x!r} (a reader for schema v{SCHEMA_VERSION}: "
+            raise EventError(f"v must be one of {list(READS)}, got {brief(x)} (a reader for schema v{SCHEMA_VERSION}: "
                              "a newer sonicskin reads newer events)")
         if "enum" in rule and x not in rule["enum"]:
-            raise EventError(f"{k} must be one of {rule['enum']}, got {x!r}")
+            raise EventError(f"{k} must be one of {rule['enum']}, got {brief(x)}")
         if "type" in rule and not _type_ok(x, rule["type"]):
-            raise EventError(f"{k} must be {rule['type']}, got {x!r}")
+            raise EventError(f"{k} must be {rule['type']}, got {brief(x)}")
         if isinstance(x, (int, float)) and not isinstance(x, bool):
             if "minimum" in rule and x < rule["minimum"]:
-                raise EventError(f"{k} must be >= {rule['minimum']}, got {x!r}")
+                raise EventError(f"{k} must be >= {rule['minimum']}, got {brief(x)}")
             if "maximum" in rule and x > rule["maximum"]:
-                raise EventError(f"{k} must be <= {rule['maximum']}, got {x!r}")
+                raise EventError(f"{k} must be <= {rule['maximum']}, got {brief(x)}")
+        if isinstance(x, str) and len(x) < rule.get("minLength", 0):
+            raise EventError(f"{k} must be a non-empty string, got {brief(x)}")
         if isinstance(x, list) and (len(x) != rule["minItems"] or not all(_type_ok(a, rule["items"]["type"]) for a in x)):
-            raise EventError(f"{k} must be {rule['minItems']} numbers, got {x!r}")
-    if ("point_m" in d) != ("normal" in d) or ("force_vec_n" in d and "normal" not in d):
-        raise EventError("point_m and normal come together, force_vec_n only with them (schema v2), got "
-                         f"{sorted(k for k in ('point_m', 'normal', 'force_vec_n') if k in d)}")
+            raise EventError(f"{k} must be {rule['minItems']} numbers, got {brief(x)}")
+    if ("point_m" in d) != ("normal" in d) or ("force_vec_n" in d and "normal" not in d) or ("normal" in d) > ("frame_id" in d):
+        raise EventError("point_m and normal come together with the frame_id they are in, force_vec_n only with them "
+                         f"(schema v2), got {sorted(k for k in ('frame_id', 'point_m', 'normal', 'force_vec_n') if k in d)}")
     if "normal" in d and abs(math.hypot(*d["normal"]) - 1) > _UNIT_TOL:
-        raise EventError(f"normal must be a unit vector, got {d['normal']!r} (length {math.hypot(*d['normal']):.4g})")
+        raise EventError(f"normal must be a unit vector, got {brief(d['normal'])} (length {math.hypot(*d['normal']):.4g})")
 
 
 def parse_event(line: str | bytes) -> TouchEvent:

@@ -42,16 +42,25 @@ from typing import Any
 import yaml
 
 from .acquire import Link
-from .errors import ConfigNotFoundError
+from .dataset import check_name
+from .errors import ConfigNotFoundError, brief
 from .rig import ConfigError, Rig, load_yaml, resolve_config
 
-__all__ = ["load_links", "load_arm", "missing_datasets", "is_arm", "write_arm", "link_scenario", "ARM_FILE"]
+__all__ = ["load_links", "load_arm", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
 
 #: The arm file :func:`write_arm` writes next to the trained links' artifacts.
 ARM_FILE = "arm.yaml"
 
 _TOP_KEYS = {"name", "rig", "urdf", "duplex", "links"}
 _LINK_KEYS = {"name", "tx", "rx", "frame", "surface", "scenario", "artifact"}
+
+
+def _text(v, what: str, where) -> str | None:
+    """``v`` when it is ``None`` or a text (a name, a path); else one line naming it (never ``str()`` of a whole
+    nested value: a YAML alias bomb)."""
+    if v is None or isinstance(v, str):
+        return v
+    raise ConfigError(f"{where}: {what} must be a text, got {brief(v)}")
 
 
 def _resolve(name_or_path) -> Path:
@@ -62,22 +71,16 @@ def _resolve(name_or_path) -> Path:
         return resolve_config(name_or_path, "arms")
 
 
-def is_arm(name_or_path) -> bool:
-    """True when the links file places its links on a robot (a frame, surface or simulated scenario per link)."""
-    cfg = load_yaml(_resolve(name_or_path))
-    return any(isinstance(d, dict) and ({"frame", "surface", "scenario"} & set(d)) for d in cfg.get("links") or [])
-
-
 def file_rig(name_or_path) -> Rig | None:
     """The rig an arm file names (``rig:``), else ``None``."""
     where = _resolve(name_or_path)
     cfg = load_yaml(where)
     r = cfg.get("rig")
-    if r is None:
-        return None
     if isinstance(r, dict):
         return Rig.from_dict(r)
-    p = where.parent / str(r)
+    if _text(r, "rig (a rig name, a path or a mapping)", where) is None:
+        return None
+    p = where.parent / r
     return Rig.load(p if p.is_file() else r)
 
 
@@ -102,16 +105,16 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
     if not isinstance(spec, dict):
-        raise ConfigError(f"{where}: scenario must be a scenario name or a mapping {{base: NAME, key: value}}, got {spec!r}")
+        raise ConfigError(f"{where}: scenario must be a scenario name or a mapping {{base: NAME, key: value}}, got {brief(spec)}")
     spec = dict(spec)
-    base = spec.pop("base", "stationary")
+    base = _text(spec.pop("base", "stationary"), "scenario: base", where)
     d = {**Scenario.load(base).to_dict(), "name": name, **spec}
     if "geometry" not in spec and surface is not None:
         d["geometry"] = scenario_geometry(surface)
     from .sim.channel import MATERIALS
 
-    if d.get("material") not in MATERIALS:  # checked here, not when the simulator first renders the link
-        raise ConfigError(f"{where}: scenario: unknown material {d.get('material')!r}; choose one of {sorted(MATERIALS)}")
+    if not isinstance(d.get("material"), str) or d["material"] not in MATERIALS:  # here, not at the first render
+        raise ConfigError(f"{where}: scenario: unknown material {brief(d.get('material'))}; choose one of {sorted(MATERIALS)}")
     try:
         return Scenario.from_dict(d)
     except (ValueError, TypeError) as e:
@@ -146,21 +149,21 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
     items = cfg.get("links") or []
     duplex = cfg.get("duplex", "time")
     if duplex not in ("time", "frequency", "none"):
-        raise ConfigError(f"{where}: duplex must be 'time', 'frequency' or 'none', got {duplex!r}")
+        raise ConfigError(f"{where}: duplex must be 'time', 'frequency' or 'none', got {brief(duplex)}")
     if not items or not isinstance(items, list):
         raise ConfigError(f"{where}: a links config needs a non-empty 'links' list of {{name, tx, rx}}")
     urdf = None
-    if cfg.get("urdf") is not None:
-        urdf = where.parent / str(cfg["urdf"])
+    if _text(cfg.get("urdf"), "urdf", where) is not None:
+        urdf = where.parent / cfg["urdf"]
         if not urdf.is_file():
-            raise ConfigNotFoundError(f"{where}: urdf {cfg['urdf']!r} does not exist next to it ({urdf}); give its path "
+            raise ConfigNotFoundError(f"{where}: urdf {brief(cfg['urdf'])} does not exist next to it ({urdf}); give its path "
                                     f"relative to the arm file")
-    arm_name = str(cfg.get("name", where.stem))
+    arm_name = _text(cfg.get("name", where.stem), "name", where)
     n = len(items)
     out = []
     for i, d in enumerate(items):  # each link a mapping with 0-based integer channels (0.7 was channel 0, silently)
         if not isinstance(d, dict):
-            raise ConfigError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {d!r}")
+            raise ConfigError(f"{where}: link {i}: expected a mapping {{name, tx, rx}}, got {brief(d)}")
         bad = set(d) - _LINK_KEYS
         if bad:
             raise ConfigError(f"{where}: link {i}: unknown keys {sorted(map(str, bad))}; a link has "
@@ -169,11 +172,12 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
             v = d.get(k)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ConfigError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
-                                 f"{'nothing' if k not in d else repr(v)}")
-        if "name" in d and not isinstance(d["name"], str):
-            raise ConfigError(f"{where}: link {i}: name must be a string, got {d['name']!r}")
+                                 f"{'nothing' if k not in d else brief(v)}")
         name = d.get("name", f"link{i}")
-        extra = _placement(d, where=f"{where}: link {name!r}", urdf=urdf, arm_name=arm_name, base=where.parent)
+        if not isinstance(name, str):
+            raise ConfigError(f"{where}: link {i}: name must be a string, got {brief(name)}")
+        check_name(name, "name", where=f"{where}: link {i}")  # it names the link's folder (data/<name>, out/<name>)
+        extra = _placement(d, where=f"{where}: link {brief(name)}", urdf=urdf, arm_name=arm_name, base=where.parent)
         if duplex == "time":
             out.append(Link(int(d["tx"]), int(d["rx"]), i, n, name, **extra))
         elif duplex == "none":
@@ -190,6 +194,12 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
     if duplex == "none" and len(set(tx)) != len(tx):
         raise ConfigError(f"{where}: duplex none: links share transmitter channels {tx}; each link needs its own TX "
                          f"channel (or share the chirp with duplex: time or frequency)")
+    if all(lk.scenario is not None for lk in out):  # the simulated arm: link k is the simulator on channel pair k
+        off = next((lk for k, lk in enumerate(out) if (lk.tx, lk.rx) != (k, k)), None)
+        if off is not None:
+            k = out.index(off)
+            raise ConfigError(f"{where}: link {off.name!r}: tx {off.tx}, rx {off.rx}, but the simulated arm plays link k "
+                              f"(in file order) on its own TX/RX pair k: give tx: {k}, rx: {k}")
     names = [lk.name for lk in out]
     if len(set(names)) != len(names):
         raise ConfigError(f"{where}: link names {names} repeat; every link needs its own name (events carry it)")
@@ -200,14 +210,14 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
     """A link's frame, surface, simulated scenario and artifact (all optional)."""
     frame = d.get("frame")
     if frame is not None and not isinstance(frame, str):
-        raise ConfigError(f"{where}: frame must be the name of the link's frame (a URDF link), got {frame!r}")
+        raise ConfigError(f"{where}: frame must be the name of the link's frame (a URDF link), got {brief(frame)}")
     surface = None
     if d.get("surface") is not None or (urdf is not None and frame is not None):
         from .surface import LinkSurface
 
         over = d.get("surface") or {}
         if not isinstance(over, dict):
-            raise ConfigError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {over!r}")
+            raise ConfigError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {brief(over)}")
         if urdf is not None and frame is not None:
             surface = LinkSurface.from_urdf(urdf, frame, **over)
         else:
@@ -226,8 +236,8 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
         except ValueError as e:
             raise ConfigError(f"{where}: {e}") from None
     artifact = None
-    if d.get("artifact") is not None:
-        artifact = base / str(d["artifact"])
+    if _text(d.get("artifact"), "artifact", where) is not None:
+        artifact = base / d["artifact"]
     return {"frame": frame, "surface": surface, "scenario": scenario, "artifact": artifact}
 
 

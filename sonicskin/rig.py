@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 
 __all__ = ["Rig", "Layout", "ConfigError", "MAX_N_CHIRP", "MAX_FS_HZ", "MAX_LOCATIONS",
            "load_yaml", "config_dir", "config_names", "resolve_config", "CONFIG_KINDS"]
@@ -54,7 +54,7 @@ def config_dir() -> Path:
 def config_names(kind: str) -> list[str]:
     """The bare names of the ``kind`` configs (``rigs``, ``scenarios``, ``links``, ``train``, ``arms``), sorted."""
     if kind not in CONFIG_KINDS:
-        raise ValueError(f"unknown config kind {kind!r}; valid kinds: {', '.join(CONFIG_KINDS)}")
+        raise ValueError(f"unknown config kind {brief(kind)}; valid kinds: {', '.join(CONFIG_KINDS)}")
     return sorted(p.stem for p in (config_dir() / kind).glob("*.yaml"))
 
 
@@ -76,13 +76,13 @@ def resolve_config(name_or_path: str | Path, kind: str) -> Path:
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
         if not p.is_file():
             raise FileNotFoundError(f"{kind} config file {text} does not exist (a bare name like "
-                                    f"{(config_names(kind) or ['NAME'])[0]!r} picks a shipped config)")
+                                    f"{brief((config_names(kind) or ['NAME'])[0])} picks a shipped config)")
         return p
     candidate = config_dir() / kind / f"{text}.yaml"
     if not candidate.is_file():
         known = config_names(kind)
         listed = ", ".join(known) if known else f"none (no {config_dir() / kind}: the package was installed without its configs)"
-        raise FileNotFoundError(f"no {kind} config named {text!r}; known: {listed}; or give a path to a YAML file")
+        raise FileNotFoundError(f"no {kind} config named {brief(text)}; known: {listed}; or give a path to a YAML file")
     return candidate
 
 
@@ -120,7 +120,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
             key = loader.construct_object(key_node, deep=True)
             try:
                 if key in seen:
-                    raise yaml.constructor.ConstructorError(None, None, f"the key {key!r} appears twice", key_node.start_mark)
+                    raise yaml.constructor.ConstructorError(None, None, f"the key {brief(key)} appears twice", key_node.start_mark)
                 seen.add(key)
             except TypeError:  # an unhashable key: SafeLoader reports it below
                 pass
@@ -150,14 +150,22 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     return data
 
 
-def check_keys(cls, d: dict[str, Any], what: str) -> None:
-    """Reject config keys a dataclass does not have, naming the valid ones."""
+def check_keys(cls, d: dict[str, Any], what: str, required: tuple[str, ...] = ()) -> None:
+    """Reject config keys a dataclass does not have, naming the valid ones, and a missing ``required`` key."""
     if not isinstance(d, dict):
         raise ConfigError(f"a {what} must be a mapping of keys to values, got {type(d).__name__}")
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(d) - names
     if unknown:
         raise ConfigError(f"unknown {what} keys {sorted(unknown, key=str)}; valid keys: {sorted(names)}")
+    missing = [k for k in required if k not in d]
+    if missing:
+        raise ConfigError(f"the {what} lacks {', '.join(missing)}: a {what} names {', '.join(required)} (no default "
+                          f"fits every hardware); add {missing[0]}")
+
+
+#: What a rig file must say: the sample rate and the chirp (a default 192 kHz on a 48 kHz interface is silently wrong).
+RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,18 +201,20 @@ class Rig:
         for k in ("fs_hz", "f_lo_hz", "f_hi_hz", "pwm_halfwidth_hz", "amplitude"):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-                raise ConfigError(f"rig {k} must be a finite number, got {v!r}")
+                raise ConfigError(f"rig {k} must be a finite number, got {brief(v)}")
         if isinstance(self.n_chirp, bool) or not isinstance(self.n_chirp, (int, float, np.integer, np.floating)) \
                 or not np.isfinite(self.n_chirp):
-            raise ConfigError(f"rig n_chirp must be a whole number of samples, got {self.n_chirp!r}")
+            raise ConfigError(f"rig n_chirp must be a whole number of samples, got {brief(self.n_chirp)}")
         if not isinstance(self.pwm_hz, (list, tuple)) or len(self.pwm_hz) > 64:
-            raise ConfigError(f"rig pwm_hz must be a list of at most 64 frequencies in Hz, got {self.pwm_hz!r}")
+            raise ConfigError(f"rig pwm_hz must be a list of at most 64 frequencies in Hz, got {brief(self.pwm_hz)}")
         try:
             object.__setattr__(self, "pwm_hz", tuple(float(f) for f in self.pwm_hz))
         except (TypeError, ValueError):
-            raise ConfigError(f"rig pwm_hz must be a list of frequencies in Hz, got {self.pwm_hz!r}") from None
+            raise ConfigError(f"rig pwm_hz must be a list of frequencies in Hz, got {brief(self.pwm_hz)}") from None
         if not all(np.isfinite(self.pwm_hz)):
             raise ConfigError(f"rig pwm_hz must be finite, got {list(self.pwm_hz)}")
+        if not isinstance(self.name, str):
+            raise ConfigError(f"rig name must be a text, got {brief(self.name)}")
         if self.sweep_b64 is not None and not isinstance(self.sweep_b64, str):
             raise ConfigError("rig sweep_b64 must be a base64 text")
         nyq = self.fs_hz / 2
@@ -239,13 +249,18 @@ class Rig:
     # -- construction -----------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Rig:
-        check_keys(cls, d, "rig")
+        check_keys(cls, d, "rig", required=RIG_REQUIRED)
         return cls(**d)
 
     @classmethod
     def load(cls, name_or_path: str | Path = "jaco") -> Rig:
         """Load a shipped rig by name (``configs/rigs/<name>.yaml``) or a YAML file path (:func:`resolve_config`)."""
-        return cls.from_dict(load_yaml(resolve_config(name_or_path, "rigs")))
+        path = resolve_config(name_or_path, "rigs")
+        d = load_yaml(path)
+        try:
+            return cls.from_dict(d)
+        except ValueError as e:
+            raise ConfigError(f"{path}: {e}") from None
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

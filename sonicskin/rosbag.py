@@ -18,20 +18,35 @@ fields (schema v1, a run without a surface) are counted (:attr:`McapEventWriter.
 warning.  Each event's messages close their own MCAP chunk and are flushed to the file, so a process killed hard
 loses nothing written (``mcap recover`` restores the index); :meth:`McapEventWriter.close` (also on Ctrl-C, the
 context manager's exit) writes the summary that makes the file complete.
+
+The file: an existing one is refused unless ``overwrite=True`` (``--overwrite``); it is opened and locked
+(``fcntl.flock``, exclusive, on the file itself) when the writer is made, so a second writer on the same path is
+refused while the first is open; nothing is written (an existing file is not truncated) until the first event or
+:meth:`~McapEventWriter.close`, and a writer dropped unclosed before that (a run that failed to start) removes the
+empty file it created, at garbage collection or interpreter exit.  Any ``OSError`` (a full disk) is one line naming
+the file (:class:`~sonicskin.errors.SonicskinError`), and the writer is closed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import re
 import threading
 import warnings
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 from .events import TouchEvent
 from .ros2_msgs import DEFINITIONS
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: a second writer on one file is not refused
+    fcntl = None
 
 __all__ = ["McapEventWriter", "MARKER_TOPIC", "topic_for"]
 
@@ -56,34 +71,71 @@ class McapEventWriter:
     """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager; see the module docstring).
 
     ``t0_unix_s``: the wall-clock time (UNIX seconds) of the stream's ``t_s = 0``.  ``log``: where the one warning
-    about events without a surface goes (default :func:`warnings.warn`).
+    about events without a surface goes (default :func:`warnings.warn`).  ``overwrite``: replace an existing file
+    (else it is refused).  The file's life cycle: the module docstring.
     """
 
-    def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None):
-        from mcap.writer import CompressionType
-        from mcap_ros2.writer import Writer
-
-        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
-            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {t0_unix_s!r}")
+    def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
+                 overwrite: bool = False):
+        self.written = 0  # events written
+        self.t0_unix_s = t0_unix_s
+        if not isinstance(path, (str, os.PathLike)) or not str(path):
+            raise SonicskinError(f"the MCAP file must be a file path, got {brief(path)}")
         self.path = Path(path)
-        try:
-            self._file = open(self.path, "wb")
+        created = not (overwrite and self.path.exists())
+        try:  # O_EXCL: an existing file (an earlier recording, an arm.yaml) is never replaced unasked
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | (0 if overwrite else os.O_EXCL), 0o644)
+        except FileExistsError:
+            raise SonicskinError(f"{path}: the file exists; pass --overwrite (overwrite=True) to replace it, or choose "
+                                 f"another file") from None
         except OSError as e:
             raise SonicskinError(f"{path}: cannot write the MCAP file ({e.strerror})") from None
-        self._t0_ns = round(float(t0_unix_s) * 1e9)
+        try:
+            if fcntl is not None:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise SonicskinError(f"{path}: another writer is recording into this MCAP file (it holds the file's lock); "
+                                 f"give each recording its own file") from None
+        self._file = os.fdopen(fd, "wb")
+        self._w = None  # the MCAP writer, started at the first event or at close
+        # a writer dropped before it wrote anything (its run failed to start) leaves no empty file behind
+        self._abandon = weakref.finalize(self, _abandon, self._file, self.path if created else None)
         self._log = log or (lambda m: warnings.warn(m, stacklevel=3))
-        # chunk_size=0: every message closes its chunk; with the flush after each event the file holds all of it
-        self._w = Writer(self._file, chunk_size=0, compression=CompressionType.NONE)
-        self._schemas = {name: self._w.register_msgdef(name, text) for name, text in DEFINITIONS.items()}
         self._seq: dict[str, int] = {}
         self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
-        self.written = 0  # events written
         self.skipped = 0  # events without the robot-frame fields
         self.messages = 0
         self._closed = False
         self._lock = threading.Lock()  # one writer for the loops of all links
 
+    @property
+    def t0_unix_s(self) -> float:
+        """The wall-clock time (UNIX seconds) of the stream's ``t_s = 0``; settable until the first event is written (a
+        writer made, and its file claimed, before the stream starts)."""
+        return self._t0_ns / 1e9
+
+    @t0_unix_s.setter
+    def t0_unix_s(self, t0_unix_s: float) -> None:
+        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
+            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
+        if self.written:
+            raise SonicskinError(f"{self.path}: the stream start cannot move once events are written")
+        self._t0_ns = round(float(t0_unix_s) * 1e9)
+
     # -- messages ---------------------------------------------------------------------------------------------------
+    def _start(self) -> None:
+        """Truncate the file (an overwritten one) and write the MCAP header and schemas."""
+        from mcap.writer import CompressionType
+        from mcap_ros2.writer import Writer
+
+        self._abandon.detach()
+        if os.fstat(self._file.fileno()).st_size:
+            self._file.truncate(0)
+        # chunk_size=0: every message closes its chunk; with the flush after each event the file holds all of it
+        self._w = Writer(self._file, chunk_size=0, compression=CompressionType.NONE)
+        self._schemas = {name: self._w.register_msgdef(name, text) for name, text in DEFINITIONS.items()}
+
     def _put(self, topic: str, schema: str, msg: dict, ns: int) -> None:
         seq = self._seq.get(topic, 0)
         self._w.write_message(topic, self._schemas[schema], msg, log_time=ns, publish_time=ns, sequence=seq)
@@ -110,11 +162,24 @@ class McapEventWriter:
         """Write the messages of one event (nothing, counted in :attr:`skipped`, when it has no robot-frame fields).
         Thread-safe: the loops of several links may share one writer."""
         with self._lock:
-            self._write(ev)
+            if self._closed:
+                raise SonicskinError(f"{self.path}: the MCAP writer is closed")
+            self._io(self._write, ev)
+
+    def _io(self, fn, *args) -> None:
+        """``fn(*args)``; an ``OSError`` (a full disk) closes the writer and is one line naming the file."""
+        try:
+            if self._w is None:
+                self._start()
+            fn(*args)
+        except OSError as e:
+            self._closed = True
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise SonicskinError(f"{self.path}: cannot write the MCAP file ({e.strerror or e}); the recording stops here "
+                                 f"(free space on its disk, or record to another file)") from None
 
     def _write(self, ev: TouchEvent) -> None:
-        if self._closed:
-            raise SonicskinError(f"{self.path}: the MCAP writer is closed")
         if ev.frame_id is None or ev.point_m is None or ev.normal is None:
             self.skipped += 1
             if self.skipped == 1:
@@ -150,20 +215,28 @@ class McapEventWriter:
         with self._lock:
             if self._closed:
                 return
-            self._closed = True
-            self._finish()
+            try:
+                self._io(self._finish)
+            finally:
+                self._closed = True
+                self._file.close()
 
     def _finish(self) -> None:
-        try:
-            for frame, ns in sorted(self._touching.items()):
-                self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray",
-                          self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
-            self._w.finish()
-        finally:
-            self._file.close()
+        for frame, ns in sorted(self._touching.items()):
+            self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray",
+                      self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
+        self._w.finish()
+        self._file.flush()
 
     def __enter__(self) -> McapEventWriter:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _abandon(file, created: Path | None) -> None:
+    """A writer dropped before its first message: close its file, remove it when the writer created it (still empty)."""
+    file.close()
+    if created is not None:
+        created.unlink(missing_ok=True)

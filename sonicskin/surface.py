@@ -27,12 +27,13 @@ import dataclasses
 import functools
 import math
 import xml.etree.ElementTree as ET
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 
 __all__ = ["LinkSurface", "SurfaceError", "pose_matrix"]
 
@@ -78,9 +79,9 @@ class LinkSurface:
 
     def __post_init__(self) -> None:
         if not isinstance(self.frame_id, str) or not self.frame_id.strip():
-            raise SurfaceError(f"frame must be the link's frame name (a non-empty string), got {self.frame_id!r}")
-        if self.kind not in _KEYS:
-            raise SurfaceError(f"kind must be 'tube' or 'plate', got {self.kind!r}")
+            raise SurfaceError(f"frame must be the link's frame name (a non-empty string), got {brief(self.frame_id)}")
+        if not isinstance(self.kind, str) or self.kind not in _KEYS:
+            raise SurfaceError(f"kind must be 'tube' or 'plate', got {brief(self.kind)}")
         n = 2 if self.kind == "tube" else 3
         dims = tuple(float(d) for d in self.dims_m)
         names = ("radius_m", "length_m") if self.kind == "tube" else ("width_m", "length_m", "thickness_m")
@@ -88,19 +89,19 @@ class LinkSurface:
             raise SurfaceError(f"a {self.kind} has {n} dimensions {names}, got {len(dims)}")
         for k, d in zip(names, dims):
             if not (math.isfinite(d) and (d > 0 or (k == "thickness_m" and d == 0))):
-                raise SurfaceError(f"{self.kind} {k} must be a positive number of metres, got {d!r}")
+                raise SurfaceError(f"{self.kind} {k} must be a positive number of metres, got {brief(d)}")
         pose = np.array(self.pose, dtype=float)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
                                                                                      atol=1e-6):
             raise SurfaceError("pose must be a finite 4x4 rigid transform (a rotation and a translation)")
         pose.setflags(write=False)
         if self.axis_from not in ("-z", "+z"):
-            raise SurfaceError(f"axis_from must be '-z' or '+z' (the tube's end that holds the transmitter), got {self.axis_from!r}")
+            raise SurfaceError(f"axis_from must be '-z' or '+z' (the tube's end that holds the transmitter), got {brief(self.axis_from)}")
         if self.face not in ("+z", "-z"):
-            raise SurfaceError(f"face must be '+z' or '-z' (the plate's touched face), got {self.face!r}")
+            raise SurfaceError(f"face must be '+z' or '-z' (the plate's touched face), got {brief(self.face)}")
         t0 = self.theta0_deg
         if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
-            raise SurfaceError(f"theta0_deg must be a finite angle in degrees, got {self.theta0_deg!r}")
+            raise SurfaceError(f"theta0_deg must be a finite angle in degrees, got {brief(self.theta0_deg)}")
         object.__setattr__(self, "dims_m", dims)
         object.__setattr__(self, "pose", pose)
         object.__setattr__(self, "theta0_deg", float(self.theta0_deg))
@@ -228,8 +229,8 @@ class LinkSurface:
             except SurfaceError as e:
                 raise SurfaceError(f"{where}: {e}") from None
         kind = d.get("kind")
-        if kind not in _KEYS:
-            raise SurfaceError(f"{where}: kind must be 'tube' or 'plate' (or give urdf: PATH), got {kind!r}")
+        if not isinstance(kind, str) or kind not in _KEYS:
+            raise SurfaceError(f"{where}: kind must be 'tube' or 'plate' (or give urdf: PATH), got {brief(kind)}")
         unknown = sorted(set(d) - _KEYS[kind])
         if unknown:
             raise SurfaceError(f"{where}: unknown key(s) {unknown} for a {kind}; the keys are {sorted(_KEYS[kind])}")
@@ -241,14 +242,14 @@ class LinkSurface:
         def num(k, default=None):
             v = d.get(k, default)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise SurfaceError(f"{where}: {k} must be a finite number, got {v!r}")
+                raise SurfaceError(f"{where}: {k} must be a finite number, got {brief(v)}")
             return float(v)
 
         def vec3(k):
             v = d.get(k, [0.0, 0.0, 0.0])
             if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(
                     isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in v):
-                raise SurfaceError(f"{where}: {k} must be 3 finite numbers ({'m' if k == 'xyz' else 'rad'}), got {v!r}")
+                raise SurfaceError(f"{where}: {k} must be 3 finite numbers ({'m' if k == 'xyz' else 'rad'}), got {brief(v)}")
             return [float(a) for a in v]
 
         dims = (num("radius_m"), num("length_m")) if kind == "tube" else (num("width_m"), num("length_m"), num("thickness_m", 0.0))
@@ -273,6 +274,10 @@ class LinkSurface:
             raise SurfaceError(f"{path}: not a URDF file (XML error: {e})") from None
         if root.tag != "robot":
             raise SurfaceError(f"{path}: not a URDF file (the root element is <{root.tag}>, not <robot>)")
+        twice = [n for n, k in Counter(el.get("name") for el in root.findall("link")).items() if k > 1]
+        if twice:  # yourdfpy would keep the last one silently
+            raise SurfaceError(f"{path}: two <link> elements are named {brief(twice[0])}; a URDF names each link once: "
+                               "rename or remove one")
         try:
             import yourdfpy
         except ImportError:  # the optional extra (pyproject: urdf)
@@ -284,25 +289,25 @@ class LinkSurface:
             raise SurfaceError(f"{path}: not a usable URDF ({type(e).__name__}: {e})") from None
         links = urdf.link_map
         if link_name not in links:
-            raise SurfaceError(f"{path}: no link named {link_name!r}; its links are {sorted(links)}")
+            raise SurfaceError(f"{path}: no link named {brief(link_name)}; its links are {sorted(links)}")
         link = links[link_name]
         shapes = [(s, "collision") for s in link.collisions] or [(s, "visual") for s in link.visuals]
         if not shapes:
-            raise SurfaceError(f"{path}: link {link_name!r} has no collision or visual geometry: give it a <cylinder> or <box>")
+            raise SurfaceError(f"{path}: link {brief(link_name)} has no collision or visual geometry: give it a <cylinder> or <box>")
         geo, which = shapes[0][0].geometry, shapes[0][1]
         origin = shapes[0][0].origin
         pose = np.eye(4) if origin is None else np.asarray(origin, dtype=float)
         if geo is None or (geo.cylinder is None and geo.box is None):
             got = "nothing" if geo is None else next((k for k in ("mesh", "sphere") if getattr(geo, k) is not None), "nothing")
-            raise SurfaceError(f"{path}: link {link_name!r} {which} geometry is a {got}, not a <cylinder> or <box>: a skin "
+            raise SurfaceError(f"{path}: link {brief(link_name)} {which} geometry is a {got}, not a <cylinder> or <box>: a skin "
                                "needs a tube or a plate (add a cylinder/box collision element for the skinned part)")
         kind = "tube" if geo.cylinder is not None else "plate"
         bad = sorted(set(overrides) - _OVERRIDES[kind])
         if bad:
-            raise SurfaceError(f"{path}: link {link_name!r} is a {kind}: unknown option(s) {bad}; a {kind} takes "
+            raise SurfaceError(f"{path}: link {brief(link_name)} is a {kind}: unknown option(s) {bad}; a {kind} takes "
                                f"{sorted(_OVERRIDES[kind])}")
         dims = (geo.cylinder.radius, geo.cylinder.length) if kind == "tube" else tuple(np.asarray(geo.box.size, dtype=float))
         try:
             return cls(link_name, kind, dims, pose, **overrides)
         except SurfaceError as e:
-            raise SurfaceError(f"{path}: link {link_name!r}: {e}") from None
+            raise SurfaceError(f"{path}: link {brief(link_name)}: {e}") from None

@@ -1,8 +1,10 @@
 """A live view of the skin in a web browser: each link's surface unrolled, the touch, the last events, the drift state.
 
 :class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: inline CSS, JS and SVG, no CDN, nothing
-from the internet) and two JSON endpoints from a :class:`http.server.ThreadingHTTPServer` on ``127.0.0.1`` (port 0:
-any free port)::
+from the internet) and two JSON endpoints from an :class:`http.server.HTTPServer` on ``127.0.0.1`` (port 0: any free
+port), answered by a fixed pool of :data:`POOL_THREADS` handler threads (no thread per connection), each connection
+given :data:`CONN_TIMEOUT_S` to send its request; a browser tab that hangs up mid-answer is no error (nothing is
+printed: ``live`` prints its status line on the same stderr)::
 
     GET /            the page
     GET /links.json  the links, once per page load: name, kind, surface size, markers (cm), spacing
@@ -11,7 +13,9 @@ any free port)::
 The page polls ``/state.json`` every 100 ms rather than holding a Server-Sent Events stream: a poll is a short,
 stateless request, so ``stop()`` never waits on an open connection, a page survives a restart of the server (it
 reloads the links when their ``run`` id changes), and a state of a few kB every 100 ms on the loopback costs nothing;
-an event reaches the page within one poll period plus one render.
+an event reaches the page within one poll period plus one render.  A started view that is dropped without
+:meth:`ViewServer.stop` (a ``Listener(view=True)`` never started, then deleted) stops serving when it is garbage
+collected: its server holds it only by a weak reference.
 
 The live loop calls :meth:`ViewServer.push_event` and :meth:`ViewServer.set_status` from its own thread; both copy
 into the shared state under a lock held for a few dict assignments, and the HTTP threads serialise a snapshot taken
@@ -31,20 +35,22 @@ import http.server
 import ipaddress
 import json
 import math
+import queue
+import sys
 import threading
 import time
+import weakref
 from collections import deque
-from collections.abc import Callable
 from importlib import resources
 from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError
+from .errors import SonicskinError, brief
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
-__all__ = ["LinkView", "ViewServer", "make_view_hook", "loop_status", "attach_view", "view_loops", "parse_view_port",
+__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port",
            "STATUS_KEYS"]
 
 #: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
@@ -56,6 +62,8 @@ STATUS_KEYS = {
     "text": "one short line (e.g. the drift tracker's status, 'calibrating')",
 }
 N_EVENTS = 10  # the events the page lists
+POOL_THREADS = 8  # handler threads of one view (a page polls one short request at a time)
+CONN_TIMEOUT_S = 5.0  # a connection that sends no request in this long is closed
 
 
 def _finite(x) -> float | None:
@@ -89,21 +97,21 @@ class LinkView:
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
-            raise SonicskinError(f"a link's name must be a non-empty string, got {self.name!r}")
+            raise SonicskinError(f"a link's name must be a non-empty string, got {brief(self.name)}")
         if not isinstance(self.layout, Layout):
-            raise SonicskinError(f"link {self.name!r}: layout must be a sonicskin.rig.Layout (e.g. SkinRuntime(...).layout), "
+            raise SonicskinError(f"link {brief(self.name)}: layout must be a sonicskin.rig.Layout (e.g. SkinRuntime(...).layout), "
                                  f"got {type(self.layout).__name__}")
         kind = self.kind if self.kind is not None else ("tube" if self.layout.circumference_cm else "plate")
         if kind not in ("tube", "plate"):
-            raise SonicskinError(f"link {self.name!r}: kind must be 'tube' or 'plate', got {kind!r}")
+            raise SonicskinError(f"link {brief(self.name)}: kind must be 'tube' or 'plate', got {brief(kind)}")
         if kind == "tube" and not self.layout.circumference_cm:
-            raise SonicskinError(f"link {self.name!r} is a tube but its layout has no circumference_cm; give the layout "
+            raise SonicskinError(f"link {brief(self.name)} is a tube but its layout has no circumference_cm; give the layout "
                                  f"its circumference or draw the link as kind='plate'")
         object.__setattr__(self, "kind", kind)
         for k in ("length_cm", "width_cm"):
             v = getattr(self, k)
             if v is not None and not (_finite(v) and v > 0):
-                raise SonicskinError(f"link {self.name!r}: {k} must be a positive number of cm or None, got {v!r}")
+                raise SonicskinError(f"link {brief(self.name)}: {k} must be a positive number of cm or None, got {brief(v)}")
         for k in ("tx_cm", "rx_cm"):
             v = getattr(self, k)
             if v is not None:
@@ -112,7 +120,7 @@ class LinkView:
                 except (TypeError, ValueError):
                     p = ()
                 if len(p) != 2 or not all(map(math.isfinite, p)):
-                    raise SonicskinError(f"link {self.name!r}: {k} must be (x_cm, y_cm), got {v!r}")
+                    raise SonicskinError(f"link {brief(self.name)}: {k} must be (x_cm, y_cm), got {brief(v)}")
                 object.__setattr__(self, k, p)
 
     @classmethod
@@ -159,9 +167,61 @@ def _page() -> bytes:
     return resources.files("sonicskin").joinpath("view.html").read_bytes()
 
 
+class _Server(http.server.HTTPServer):
+    """An HTTP server whose requests a fixed pool of daemon threads answers (``ThreadingHTTPServer`` started one
+    thread per connection, an idle one kept forever); a backlog beyond four per thread is closed unanswered."""
+
+    def __init__(self, address, handler, family, threads: int = POOL_THREADS):
+        self.address_family = family
+        self._queue: queue.Queue = queue.Queue(maxsize=4 * threads)
+        self._threads = 0  # a port that cannot be bound closes the server before any thread starts
+        super().__init__(address, handler)
+        self._threads = threads
+        for k in range(threads):
+            threading.Thread(target=self._work, name=f"sonicskin-view-{k}", daemon=True).start()
+
+    def process_request(self, request, client_address) -> None:
+        try:
+            self._queue.put_nowait((request, client_address))
+        except queue.Full:
+            self.shutdown_request(request)
+
+    def _work(self) -> None:
+        while (item := self._queue.get()) is not None:
+            try:
+                self.finish_request(*item)
+            except Exception:
+                self.handle_error(*item)
+            finally:
+                self.shutdown_request(item[0])
+
+    def handle_error(self, request, client_address) -> None:
+        if not isinstance(sys.exc_info()[1], OSError):  # a tab closed mid-answer, a reset, a timeout: no traceback
+            super().handle_error(request, client_address)
+
+    def server_close(self) -> None:
+        super().server_close()
+        while True:  # connections not yet answered are closed; then each thread ends
+            try:
+                self.shutdown_request(self._queue.get_nowait()[0])
+            except queue.Empty:
+                break
+        for _ in range(self._threads):
+            self._queue.put(None)
+
+
+def _serve(server: _Server, stopped: threading.Event) -> None:
+    """Answer requests until ``stopped`` is set (by :meth:`ViewServer.stop`, or when the view is garbage collected)."""
+    try:
+        while not stopped.is_set():
+            server.handle_request()  # returns within server.timeout
+    finally:
+        server.server_close()
+
+
 class _Handler(http.server.BaseHTTPRequestHandler):
     server_version = "sonicskin-view"
-    view: ViewServer  # set on the subclass made per server
+    view_ref: weakref.ref  # set on the subclass made per server: the view, held weakly
 
     def log_message(self, format, *args) -> None:  # noqa: A002 (the base class's name)
         pass
@@ -177,16 +237,20 @@ class _Handler(http.server.BaseHTTPRequestHandler):
             self.wfile.write(body)
 
     def do_GET(self) -> None:  # noqa: N802 (http.server's name)
-        if not self.view._host_ok(self.headers.get("Host", "")):
+        view = self.view_ref()
+        if view is None:
+            self._send(503, b"sonicskin view: stopped\n", "text/plain; charset=utf-8")
+            return
+        if not view._host_ok(self.headers.get("Host", "")):
             self._send(403, b"sonicskin view: open it by its own address (127.0.0.1 or localhost)\n", "text/plain; charset=utf-8")
             return
         path = self.path.split("?", 1)[0]
         if path in ("/", "/index.html"):
-            self._send(200, self.view._page, "text/html; charset=utf-8")
+            self._send(200, view._page, "text/html; charset=utf-8")
         elif path == "/links.json":
-            self._send(200, self.view._links_json, "application/json")
+            self._send(200, view._links_json, "application/json")
         elif path == "/state.json":
-            self._send(200, json.dumps(self.view.state(), allow_nan=False).encode(), "application/json")
+            self._send(200, json.dumps(view.state(), allow_nan=False).encode(), "application/json")
         else:
             self._send(404, b"not found: the view serves /, /links.json and /state.json\n", "text/plain; charset=utf-8")
 
@@ -212,7 +276,7 @@ class ViewServer:
         if dup:
             raise SonicskinError(f"link names must be unique, {dup} appear more than once")
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-            raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {port!r}")
+            raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {brief(port)}")
         self.links = {lk.name: lk for lk in links}
         self.host, self.port = host, port
         self._run_id = f"{time.time_ns():x}"  # a page that sees another run id reloads the links
@@ -224,7 +288,7 @@ class ViewServer:
         self._status: dict[str, dict | None] = dict.fromkeys(self.links)
         self._counts: dict[str, int] = dict.fromkeys(self.links, 0)
         self._events: deque = deque(maxlen=int(n_events))
-        self._server: http.server.ThreadingHTTPServer | None = None
+        self._server: _Server | None = None
         self._thread: threading.Thread | None = None
         self._loopback = False
 
@@ -241,8 +305,8 @@ class ViewServer:
     def start(self) -> ViewServer:
         if self._server is not None:
             return self
-        handler = type("Handler", (_Handler,), {"view": self})
-        family = http.server.ThreadingHTTPServer.address_family
+        handler = type("Handler", (_Handler,), {"view_ref": weakref.ref(self), "timeout": CONN_TIMEOUT_S})
+        family = http.server.HTTPServer.address_family
         try:
             ip = ipaddress.ip_address(self.host)
             self._loopback = ip.is_loopback
@@ -252,14 +316,16 @@ class ViewServer:
                 family = socket.AF_INET6
         except ValueError:
             self._loopback = self.host == "localhost"
-        server_cls = type("Server", (http.server.ThreadingHTTPServer,), {"address_family": family, "daemon_threads": True})
         try:
-            self._server = server_cls((self.host, self.port), handler)
+            self._server = _Server((self.host, self.port), handler, family)
         except OSError as e:
             raise SonicskinError(f"cannot serve the view on {self.host}:{self.port} ({e.strerror or e}); pick another port, "
                                  f"or 0 for any free one") from None
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.2},
-                                        name="sonicskin-view", daemon=True)
+        self._server.timeout = 0.2  # how soon the serving thread sees stop()
+        self._stopped = threading.Event()
+        weakref.finalize(self, self._stopped.set)  # dropped without stop(): stop serving all the same
+        self._thread = threading.Thread(target=_serve, args=(self._server, self._stopped), name="sonicskin-view",
+                                        daemon=True)
         self._thread.start()
         return self
 
@@ -267,8 +333,7 @@ class ViewServer:
         """Stop serving (a page left open says it lost the connection)."""
         if self._server is None:
             return
-        self._server.shutdown()
-        self._server.server_close()
+        self._stopped.set()
         self._thread.join(timeout=5)
         self._server = self._thread = None
 
@@ -300,8 +365,8 @@ class ViewServer:
             raise SonicskinError(f"{what} names no link but the view shows {len(self.links)} ({', '.join(self.links)}); "
                                  f"set the event's link (LiveLoop(link=...) does)")
         if name not in self.links:
-            raise SonicskinError(f"{what} names link {name!r}, which the view does not show ({', '.join(self.links)}); "
-                                 f"list it in ViewServer(links=[LinkView({name!r}, layout), ...])")
+            raise SonicskinError(f"{what} names link {brief(name)}, which the view does not show ({', '.join(self.links)}); "
+                                 f"list it in ViewServer(links=[LinkView({brief(name)}, layout), ...])")
         return name
 
     def push_event(self, ev: TouchEvent | dict | str) -> None:
@@ -360,11 +425,6 @@ class ViewServer:
 
 
 # -- wiring to the live loop ------------------------------------------------------------------------------------------
-def make_view_hook(view: ViewServer) -> Callable[[TouchEvent], None]:
-    """A callable for ``LiveLoop(on_event=...)`` that shows each event in ``view``."""
-    return view.push_event
-
-
 def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
     """The status :meth:`ViewServer.set_status` shows for a :class:`~sonicskin.live.LiveLoop` at stream time ``t_s``
     (``None``: the last event's)."""
@@ -374,7 +434,8 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
     if t_s is None:
         t_s = loop.events[-1].t_s if loop.events else None
     age = None if ref.t_set_s is None or t_s is None else max(0.0, float(t_s) - ref.t_set_s)
-    text = "calibrating (hands off)" if stream.calibrating else (drift.status() if drift is not None else "running, no drift tracking")
+    text = (f"calibrating (hands off; {ref.boot_cause})" if stream.calibrating else
+            drift.status() if drift is not None else "running, no drift tracking")
     return {"refreshes": int(ref.refreshes), "stretch": None if drift is None else float(drift.stretch),
             "reference_age_s": age, "chirps": int(loop.n_chirps), "text": text}
 
@@ -385,7 +446,7 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
     Chains the loop's ``on_event`` and ``on_chirp`` (callbacks already set keep being called first).  The loop's
     link name (``LiveLoop(link=...)``) must be one of the view's links, or the view must show one link only."""
     name = loop.link_name
-    view._link_of(name, f"the loop of link {name!r}" if name else "the loop")  # fails now, not at the first event
+    view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
     last = [-math.inf, None]  # stream time and (calibrating, refreshes) of the last status shown
 

@@ -69,8 +69,17 @@ TINY = {"base": "stationary", "layout": {"kind": "rings", "counts": [3, 2], "spa
        "scenario": {**TINY, "geometry": {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0}}}], {"urdf": "arm6.urdf"},
      "link 'a': the layout's circumference 23.5619 cm is not that of the tube of wrist_link"),
     ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "material": "cheese"}}], {}, "link 'a': scenario:"),
+    # issue 37: a link's name names its folders (data/<name>, out/<name>): a name, never a path
+    ([{"name": "../../fit-escaped", "tx": 0, "rx": 0}], {}, "link 0: name '../../fit-escaped' is not a plain name (letters, "
+                                                           "digits, '.', '_', '-', starting with a letter or digit, at most 64"),
+    ([{"name": "/tmp/abs", "tx": 0, "rx": 0}], {}, "link 0: name '/tmp/abs' is not a plain name"),
+    ([{"name": "", "tx": 0, "rx": 0}], {}, "link 0: name '' is not a plain name"),
+    ([{"name": ".", "tx": 0, "rx": 0}], {}, "link 0: name '.' is not a plain name"),
+    # the simulated arm plays link k on channel pair k: other channels are refused, not silently run on 0/1
+    ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 1}}, {"name": "b", "tx": 7, "rx": 1, "scenario": {**TINY}}],
+     {}, "link 'b': tx 7, rx 1, but the simulated arm plays link k (in file order) on its own TX/RX pair k: give tx: 1, rx: 1"),
 ], ids=["shared-tx", "unknown-key", "same-name", "no-urdf", "layout-off-link", "urdf-not-the-simulated-link",
-        "bad-scenario"])
+        "bad-scenario", "name-escapes", "name-absolute", "name-empty", "name-dot", "sim-channel-7"])
 def test_arm_file_mistakes_are_one_line(tmp_path, capsys, links, top, message):
     shutil.copyfile(config_dir() / "arms" / "arm6.urdf", tmp_path / "arm6.urdf")
     f = _arm_file(tmp_path, links, **top)

@@ -49,7 +49,13 @@ def test_event_round_trip_and_nulls():
     ({"frame_id": "f", "point_m": [0, 0, 0.1], "normal": [0, 0, 2]}, "normal must be a unit vector, got [0, 0, 2] (length 2)"),
     ({"point_m": [0, 0.1], "normal": [0, 0, 1]}, "point_m must be 3 numbers, got [0, 0.1]"),
     ({"point_m": [0, 0, "a"], "normal": [0, 0, 1]}, "point_m must be 3 numbers, got [0, 0, 'a']"),
-    ({"point_m": [0, 0, 0.1]}, "point_m and normal come together, force_vec_n only with them (schema v2), got ['point_m']"),
+    ({"point_m": [0, 0, 0.1]}, "point_m and normal come together with the frame_id they are in, force_vec_n only with them "
+                               "(schema v2), got ['point_m']"),
+    # issue 37: a point in no frame, and a frame without a name, are no robot-frame contact
+    ({"point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "point_m and normal come together with the frame_id they are in, "
+                                                   "force_vec_n only with them (schema v2), got ['normal', 'point_m']"),
+    ({"frame_id": ""}, "frame_id must be a non-empty string, got ''"),
+    ({"frame_id": "", "point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "frame_id must be a non-empty string, got ''"),
     ({"frame_id": ["f"]}, "frame_id must be string, got ['f']"),
 ])
 def test_validator_names_the_problem(change, msg):

@@ -273,6 +273,24 @@ def test_runtime_arrays_are_checked_in_one_line(cli_files, name, act, message):
     assert str(e.value) == message.format(n=len(X), m=len(X) - 5, b=len(rt.spec.bins), band=rt.rig.n_band, L=rt.rig.n_chirp)
 
 
+def test_a_chirp_with_a_bad_time_is_refused_and_the_stream_goes_on(cli_files):
+    """Issue 37: Stream.chirp with a NaN/inf/non-number time raised a raw error after changing state (a NaN in the boot
+    stopped every later chirp); OnlineReference checks the time at the door, so the stream is as if it never came."""
+    from sonicskin.errors import SonicskinError
+
+    rt, X, ts = _stream(cli_files)
+    hit, clean = rt.stream(), rt.stream()
+    beta = hit.reference.beta
+    for i in range(beta + 20):
+        if i in (3, beta + 5):  # inside the boot window, and after it
+            for bad in (float("nan"), float("inf"), "soon"):
+                with pytest.raises(SonicskinError, match="^stream time t_s must be a number of seconds"):
+                    hit.chirp(X[i], bad)
+        a, b = hit.chirp(X[i], ts[i]), clean.chirp(X[i], ts[i])
+        assert (a is None) == (b is None) and (a is None or (a.touch == b.touch).all())
+    assert hit.reference.refreshes == clean.reference.refreshes == 1
+
+
 def test_runtime_replay_of_a_clean_stream_still_runs(cli_files):
     rt, X, ts = _stream(cli_files)
     p = rt.replay(X, ts)

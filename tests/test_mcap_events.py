@@ -195,3 +195,91 @@ def test_the_bytes_are_what_ros2_itself_encodes(tmp_path, distro):
             assert bytes(ts.serialize_cdr(ts.deserialize_cdr(message.data, schema.name), schema.name)) == message.data
             n += 1
     assert n == 3 * len(_events())
+
+
+# -- the output file (issue 37) ----------------------------------------------------------------------------------------
+def test_an_existing_file_is_refused_unless_overwrite(tmp_path):
+    from sonicskin.errors import SonicskinError
+
+    arm = tmp_path / "arm.yaml"
+    arm.write_text("name: trained\n")
+    with pytest.raises(SonicskinError) as e:
+        McapEventWriter(arm, t0_unix_s=T0)
+    assert str(e.value) == f"{arm}: the file exists; pass --overwrite (overwrite=True) to replace it, or choose another file"
+    assert arm.read_text() == "name: trained\n"
+    with McapEventWriter(arm, t0_unix_s=T0, overwrite=True) as w:
+        w.write(_events()[0])
+    assert len(read_ros2_messages(arm)) == 4  # a touch, and its marker deleted on close
+    for bad, shown in ((5, "5"), ("", "''")):  # mcap=5 opened file descriptor 5; '' wrote nothing
+        with pytest.raises(SonicskinError, match=f"^the MCAP file must be a file path, got {shown}$"):
+            McapEventWriter(bad, t0_unix_s=T0)
+
+
+def test_a_second_writer_on_the_same_file_is_refused_while_the_first_is_open(tmp_path):
+    """Two Listeners given one path both ran; the file held one writer's messages.  The first writer's flock refuses
+    the second (even with overwrite=True), and is released when the first closes."""
+    from sonicskin.errors import SonicskinError
+
+    path = tmp_path / "a.mcap"
+    first = McapEventWriter(path, t0_unix_s=T0)
+    first.write(_events()[0])
+    with pytest.raises(SonicskinError) as e:
+        McapEventWriter(path, t0_unix_s=T0, overwrite=True)
+    assert str(e.value) == (f"{path}: another writer is recording into this MCAP file (it holds the file's lock); give "
+                            f"each recording its own file")
+    first.write(_events()[1])
+    first.close()
+    assert len(read_ros2_messages(path)) == 7  # the first writer's file, whole
+    McapEventWriter(path, t0_unix_s=T0, overwrite=True).close()
+    assert read_ros2_messages(path) == []  # replaced by an empty, complete recording
+
+
+def test_a_full_disk_is_one_line_naming_the_file(tmp_path):
+    from sonicskin.errors import SonicskinError
+
+    w = McapEventWriter("/dev/full", t0_unix_s=T0, overwrite=True)
+    with pytest.raises(SonicskinError) as e:
+        w.write(_events()[0])
+    assert str(e.value) == ("/dev/full: cannot write the MCAP file (No space left on device); the recording stops here "
+                            "(free space on its disk, or record to another file)")
+    with pytest.raises(SonicskinError, match="^/dev/full: the MCAP writer is closed$"):
+        w.write(_events()[1])
+    w.close()  # nothing more to say
+
+
+def test_a_writer_whose_run_never_started_leaves_no_stub(tmp_path):
+    """A run refused after its writer was made (a taken --view port) left a 70-byte MCAP that no reader opens.  Nothing
+    is written before the first event or close(); a writer dropped before either removes the empty file it made, and
+    leaves a file it was allowed to overwrite as it was."""
+    import gc
+
+    from sonicskin.errors import SonicskinError
+
+    path = tmp_path / "a.mcap"
+    w = McapEventWriter(path, t0_unix_s=T0)
+    assert path.stat().st_size == 0
+    del w
+    gc.collect()
+    assert not path.exists()
+    path.write_bytes(b"an earlier recording")
+    w = McapEventWriter(path, t0_unix_s=T0, overwrite=True)
+    del w
+    gc.collect()
+    assert path.read_bytes() == b"an earlier recording"
+    w = McapEventWriter(tmp_path / "d.mcap", t0_unix_s=0)  # made (its file claimed) before the stream starts ...
+    w.t0_unix_s = T0  # ... which sets the clock
+    w.write(_events()[0])
+    with pytest.raises(SonicskinError, match="the stream start cannot move once events are written"):
+        w.t0_unix_s = T0 + 1
+    w.close()
+    assert read_ros2_messages(tmp_path / "d.mcap")[0].log_time_ns == round(T0 * 1e9)
+    McapEventWriter(tmp_path / "b.mcap", t0_unix_s=T0).close()  # a run without a touch: a complete, empty recording
+    assert read_ros2_messages(tmp_path / "b.mcap") == []
+    # `live --mcap F --view PORT` with the port taken: the writer made, then the run refused, the process gone
+    import subprocess
+    import sys
+
+    code = ("from sonicskin.rosbag import McapEventWriter\nw = McapEventWriter('c.mcap', t0_unix_s=0)\n"
+            "raise SystemExit('sonicskin live: error: cannot serve the view on 127.0.0.1:8080')")
+    assert subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, timeout=60).returncode == 1
+    assert not (tmp_path / "c.mcap").exists()

@@ -39,3 +39,21 @@ def test_layout_distances_wrap_around_the_tube():
     with pytest.raises(ValueError, match="location id 99 is not in the layout"):
         lay.coords(np.array([99]))
     assert Layout.from_dict(lay.to_dict()) == lay
+
+
+def test_a_rig_file_names_its_sample_rate_and_chirp(tmp_path, capsys):
+    """A rig YAML without fs_hz ran at the default 192 kHz silently (issue 37): the missing field is named, with the file."""
+    from sonicskin.cli import main
+
+    p = tmp_path / "mine.yaml"
+    p.write_text("name: mine\nf_lo_hz: 5000\nf_hi_hz: 20000\nn_chirp: 4096\n")
+    with pytest.raises(ValueError) as e:
+        Rig.load(p)
+    assert str(e.value) == (f"{p}: the rig lacks fs_hz: a rig names fs_hz, f_lo_hz, f_hi_hz, n_chirp (no default fits every "
+                            "hardware); add fs_hz")
+    assert main(["info", "--rig", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "the rig lacks fs_hz" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    p.write_text("fs_hz: 48000\nf_lo_hz: 5000\nf_hi_hz: 20000\nn_chirp: 4096\npwm_hz: []\nname: [a, b]\n")
+    with pytest.raises(ValueError, match=r"rig name must be a text, got \['a', 'b'\]"):
+        Rig.load(p)

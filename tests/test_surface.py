@@ -191,3 +191,14 @@ def test_one_contact_is_the_batched_mapping():
             for (x, y), p, n in zip(xy, P, N):
                 p1, n1 = s.point_normal_one(x, y)
                 assert np.allclose(p1, p, atol=1e-12) and np.allclose(n1, n, atol=1e-12)
+
+
+def test_a_urdf_naming_a_link_twice_is_refused(tmp_path):
+    """Two <link name="a">: yourdfpy kept the later one silently; which shape the skin sits on is then a guess."""
+    p = tmp_path / "twice.urdf"
+    p.write_text('<robot name="r"><link name="a"><collision><geometry><cylinder radius="0.03" length="0.2"/></geometry>'
+                 '</collision></link><link name="a"><collision><geometry><box size="0.1 0.2 0.01"/></geometry></collision>'
+                 '</link></robot>')
+    with pytest.raises(SurfaceError) as e:
+        LinkSurface.from_urdf(p, "a")
+    assert str(e.value) == f"{p}: two <link> elements are named 'a'; a URDF names each link once: rename or remove one"

@@ -1,8 +1,12 @@
 """The live view (sonicskin.view): its state, its HTTP endpoints, bad input, and the page as a person sees it in a real
 headless chromium (DOM read through the DevTools protocol), with scripted events and during a real LiveLoop run."""
 
+import gc
 import json
+import socket
+import struct
 import threading
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -10,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cdp_helpers import Browser, chromium_binary
-from test_live import _live_timeline, artifact  # noqa: F401 (the module fixture: a 3-marker SVM artifact on jaco)
+from test_live import SC, _live_timeline, artifact  # noqa: F401 (the module fixture: a 3-marker SVM artifact on jaco)
 
 from sonicskin.errors import SonicskinError
 from sonicskin.events import TouchEvent
 from sonicskin.rig import Layout
 from sonicskin.sim import Scenario
-from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, make_view_hook, parse_view_port, view_loops
+from sonicskin.view import STATUS_KEYS, LinkView, ViewServer, attach_view, loop_status, parse_view_port, view_loops
 
 REPO = Path(__file__).resolve().parents[1]
 needs_chromium = pytest.mark.skipif(chromium_binary() is None, reason="no chromium binary (Debian: apt-get install chromium; "
@@ -84,7 +88,7 @@ def test_touch_and_release_in_the_state():
     one = ViewServer([LinkView("only", tube.layout)])
     one.push_event(TouchEvent(1.0, "touch", 3, 5.0, 12.0, 1.0, 0.9, "svm", 0.5).to_json())
     assert one.state()["links"]["only"]["touch"]["location"] == 3
-    make_view_hook(one)(TouchEvent(1.1, "release", 3, 5.0, 12.0, 0.0, 0.9, "svm", 0.5).to_dict())
+    one.push_event(TouchEvent(1.1, "release", 3, 5.0, 12.0, 0.0, 0.9, "svm", 0.5).to_dict())
     assert one.state()["links"]["only"]["touch"] is None
 
 
@@ -143,7 +147,7 @@ def test_attach_view_chains_the_loops_callbacks():
     from types import SimpleNamespace
 
     calls = []
-    ref = SimpleNamespace(refreshes=0, t_set_s=None)
+    ref = SimpleNamespace(refreshes=0, t_set_s=None, boot_cause="power-on")
     loop = SimpleNamespace(link_name=None, on_event=lambda ev: calls.append(("event", ev.kind)),
                            on_chirp=lambda t, p: calls.append(("chirp", t)), events=[], n_chirps=0,
                            stream=SimpleNamespace(calibrating=True, reference=ref, drift=None))
@@ -153,6 +157,7 @@ def test_attach_view_chains_the_loops_callbacks():
         loop.n_chirps += 1
         loop.on_chirp(0.2 * k, None)
         assert view.state()["links"]["only"]["status"]["chirps"] == (1 if k < 3 else 4)
+    assert view.state()["links"]["only"]["status"]["text"] == "calibrating (hands off; power-on)"
     loop.stream.calibrating, ref.refreshes, ref.t_set_s = False, 1, 0.7  # the boot's reference: shown at once
     loop.on_chirp(0.8, None)
     st = view.state()["links"]["only"]["status"]
@@ -184,6 +189,75 @@ def test_endpoints_and_a_busy_port():
     with pytest.raises(urllib.error.URLError):  # stopped: nothing listens any more
         urllib.request.urlopen(view_url := f"http://127.0.0.1:{port}/state.json", timeout=2)
     assert view_url
+
+
+def _refused(url: str, within_s: float = 5.0) -> bool:
+    """Nothing answers ``url`` any more (polled, the server stops within its poll period)."""
+    deadline = time.monotonic() + within_s
+    while time.monotonic() < deadline:
+        try:
+            urllib.request.urlopen(url, timeout=2).close()
+        except (urllib.error.URLError, ConnectionError):
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_a_tab_closed_mid_answer_prints_nothing(capfd):
+    """Issue 37: every browser tab closed mid-answer printed a BrokenPipeError/ConnectionResetError traceback into
+    live's stderr, the stream that carries its status line."""
+    with ViewServer(_links()) as view:
+        addr = view._server.server_address[:2]
+        for k in range(20):
+            s = socket.create_connection(addr, timeout=5)
+            s.sendall(b"GET " + (b"/" if k % 2 else b"/links.json") + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+            s.close()  # a reset, as a closed tab's
+        assert _get(view.url + "state.json")[0] == 200
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and "Error" not in err, err[:2000]
+
+
+def test_idle_connections_share_a_bounded_pool_and_time_out(monkeypatch):
+    """Issue 37: one thread per connection, an idle one kept forever.  Now a fixed pool answers, and a connection that
+    sends nothing is closed after CONN_TIMEOUT_S, so the view answers again."""
+    import sonicskin.view as view_module
+
+    monkeypatch.setattr(view_module, "CONN_TIMEOUT_S", 0.5)
+    with ViewServer(_links()) as view:
+        before = threading.active_count()
+        idle = [socket.create_connection(view._server.server_address[:2], timeout=5) for _ in range(20)]
+        time.sleep(0.3)
+        assert threading.active_count() == before  # no thread per connection
+        assert _get(view.url + "state.json")[0] == 200  # answered once the idle ones timed out
+        assert all(s.recv(1) == b"" for s in idle)  # each closed by the server
+        for s in idle:
+            s.close()
+
+
+def test_a_dropped_view_stops_serving():
+    view = ViewServer(_links()).start()
+    url = view.url + "state.json"
+    assert _get(url)[0] == 200
+    del view
+    gc.collect()
+    assert _refused(url)
+
+
+def test_a_listener_never_started_does_not_keep_serving_its_view(artifact, tmp_path):  # noqa: F811 (the imported fixture)
+    """Issue 37: a Listener(view=True) that was never started and was deleted kept its view serving."""
+    import yaml
+
+    from sonicskin.api import Listener
+
+    sc = tmp_path / "sc.yaml"
+    sc.write_text(yaml.safe_dump(SC.to_dict()))
+    lst = Listener(artifact, scenario=sc, fast=True, view=True)
+    url = lst.view_url + "state.json"
+    assert _get(url)[0] == 200
+    del lst
+    gc.collect()
+    assert _refused(url)
 
 
 def test_events_from_many_threads_while_pages_read():

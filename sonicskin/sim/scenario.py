@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import brief
 from ..rig import MAX_LOCATIONS, Layout, Rig, _resolve_config, check_keys, load_yaml
 from .finger import make_subjects, press_profile
 
@@ -105,10 +106,12 @@ class Scenario:
         if any(not 0 <= s < 12 for s in self.subjects):
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
         if self.order not in ("random", "sequential"):
-            raise ValueError(f"order must be 'random' or 'sequential', got {self.order!r}")
+            raise ValueError(f"order must be 'random' or 'sequential', got {brief(self.order)}")
+        from .noise import NoiseConfig
         from .thermal import HotMeltBond
 
         check_keys(HotMeltBond, self.bond, "bond")
+        check_keys(NoiseConfig, self.noise, "noise")  # here, before a value of an unknown key is kept (and copied)
         if self.touch_s <= 0 or self.calibration_s <= 0:
             raise ValueError("touch_s and calibration_s must be positive")
         if min(self.gap_s, self.moving_s, self.session_interval_s, self.start_s) < 0 or self.part_s <= 0:
@@ -117,7 +120,7 @@ class Scenario:
         layout_count(self)
         level = self.motion.get("level", 1.0)
         if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
-            raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {level!r}")
+            raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {brief(level)}")
         if self.loss_factor is not None and not 0 < self.loss_factor < 1:
             raise ValueError(f"loss_factor is the wall's eta, 0 < eta < 1, got {self.loss_factor}")
 
@@ -131,7 +134,7 @@ class Scenario:
         if kind == "grid":
             return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0),
                                circumference_cm=circ)
-        raise ValueError(f"layout kind must be 'rings' or 'grid', got {kind!r}")
+        raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(kind)}")
 
     @property
     def circumference_cm(self) -> float | None:
@@ -266,22 +269,22 @@ def _check_types(cls, d: dict) -> None:
             continue
         if f.name in ("sessions", "repeats", "seed", "link_seed") or (f.name == "train_repeats" and v is not None):
             if isinstance(v, bool) or not isinstance(v, int):
-                raise ValueError(f"scenario {f.name} must be a whole number, got {v!r}")
+                raise ValueError(f"scenario {f.name} must be a whole number, got {brief(v)}")
         elif isinstance(default, float):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"scenario {f.name} must be a finite number, got {v!r}")
+                raise ValueError(f"scenario {f.name} must be a finite number, got {brief(v)}")
         elif f.name in ("tx_cm", "rx_cm", "peak_force_n"):
             if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
                     isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
-                raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {v!r}")
+                raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {brief(v)}")
         elif f.name == "subjects":
             if not (isinstance(v, (list, tuple)) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
-                raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {v!r}")
+                raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {brief(v)}")
         elif isinstance(f.default, str) or f.name == "name":
             if not isinstance(v, str):
-                raise ValueError(f"scenario {f.name} must be a text, got {v!r}")
+                raise ValueError(f"scenario {f.name} must be a text, got {brief(v)}")
         elif f.default is dataclasses.MISSING and not isinstance(v, dict):
-            raise ValueError(f"scenario {f.name} must be a mapping {{key: value}}, got {v!r}")
+            raise ValueError(f"scenario {f.name} must be a mapping {{key: value}}, got {brief(v)}")
 
 
 #: The keys of a scenario's mappings: name -> (required, optional).  Anything else is a typo that would
@@ -307,7 +310,7 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
         raise ValueError(f"unknown {what} keys {unknown}; valid keys: {sorted(valid)}")
     missing = [k for k in required if k not in d]
     if missing:
-        raise ValueError(f"{what} {d!r} lacks {missing}")
+        raise ValueError(f"{what} {brief(d)} lacks {missing}")
 
 
 def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
@@ -319,12 +322,12 @@ def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
     for k, v in d.items():
         if kinds.get(k) is int:
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
-                raise ValueError(f"{what}.{k} must be a whole number >= 0, got {v!r}")
+                raise ValueError(f"{what}.{k} must be a whole number >= 0, got {brief(v)}")
         elif k in kinds:
             if not _number(v):
-                raise ValueError(f"{what}.{k} must be a finite number, got {v!r}")
+                raise ValueError(f"{what}.{k} must be a finite number, got {brief(v)}")
             if (k in positive and not v > 0) or (nonneg(k) and v < 0):
-                raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {v!r}")
+                raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {brief(v)}")
 
 
 def _check_parts(sc: Scenario) -> None:
@@ -334,16 +337,16 @@ def _check_parts(sc: Scenario) -> None:
     check_name(sc.name, "scenario name")  # `simulate` writes to data/<name> by default: a name stays a name
     g = sc.geometry
     kind = g.get("kind", "tube")
-    if kind not in _GEOMETRY_KEYS:
-        raise ValueError(f"geometry kind must be 'tube' or 'plate', got {kind!r}")
+    if not isinstance(kind, str) or kind not in _GEOMETRY_KEYS:
+        raise ValueError(f"geometry kind must be 'tube' or 'plate', got {brief(kind)}")
     _keys(f"geometry ({kind})", g, *_GEOMETRY_KEYS[kind], kind=True)
     for k in _GEOMETRY_KEYS[kind][0]:
         if not (_number(g[k]) and g[k] > 0):
-            raise ValueError(f"geometry {k} must be a positive number of cm, got {g[k]!r}")
+            raise ValueError(f"geometry {k} must be a positive number of cm, got {brief(g[k])}")
     lay = sc.layout
     lkind = lay.get("kind", "rings")
-    if lkind not in _LAYOUT_KEYS:
-        raise ValueError(f"layout kind must be 'rings' or 'grid', got {lkind!r}")
+    if not isinstance(lkind, str) or lkind not in _LAYOUT_KEYS:
+        raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(lkind)}")
     _keys(f"layout ({lkind})", lay, *_LAYOUT_KEYS[lkind], kind=True)
     if lkind == "grid":
         counts = [lay["nx"], lay["ny"]]
@@ -351,24 +354,24 @@ def _check_parts(sc: Scenario) -> None:
         rings = lay.get("counts", [16, 15])
         counts = list(rings) if isinstance(rings, (list, tuple)) and rings else [None]
     if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in counts):
-        raise ValueError(f"layout {lay!r}: marker counts (counts, nx, ny) are whole numbers >= 1")
+        raise ValueError(f"layout {brief(lay)}: marker counts (counts, nx, ny) are whole numbers >= 1")
     for k in ("spacing_cm", "x0_cm", "y0_cm"):
         if k in lay and not _number(lay[k]):
-            raise ValueError(f"layout {k} must be a number of cm, got {lay[k]!r}")
+            raise ValueError(f"layout {k} must be a number of cm, got {brief(lay[k])}")
     if "spacing_cm" in lay and not lay["spacing_cm"] > 0:
-        raise ValueError(f"layout spacing_cm must be > 0 (markers apart), got {lay['spacing_cm']!r}")
+        raise ValueError(f"layout spacing_cm must be > 0 (markers apart), got {brief(lay['spacing_cm'])}")
     _keys("motion", sc.motion, (), _MOTION_KEYS)
     if not isinstance(sc.motion.get("enabled", False), bool):
-        raise ValueError(f"motion.enabled must be true or false, got {sc.motion['enabled']!r}")
+        raise ValueError(f"motion.enabled must be true or false, got {brief(sc.motion['enabled'])}")
     if "perturbation" in sc.motion and not (_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
-        raise ValueError(f"motion.perturbation must be a number >= 0, got {sc.motion['perturbation']!r}")
+        raise ValueError(f"motion.perturbation must be a number >= 0, got {brief(sc.motion['perturbation'])}")
     _keys("temperature", sc.temperature, (), _TEMPERATURE_KEYS)
     for k, v in sc.temperature.items():
         if not _number(v):
-            raise ValueError(f"temperature.{k} must be a finite number, got {v!r}")
+            raise ValueError(f"temperature.{k} must be a finite number, got {brief(v)}")
     for k in ("warmup_tau_s", "swing_period_s"):
         if k in sc.temperature and not sc.temperature[k] > 0:
-            raise ValueError(f"temperature.{k} must be > 0 s, got {sc.temperature[k]!r}")
+            raise ValueError(f"temperature.{k} must be > 0 s, got {brief(sc.temperature[k])}")
     from ..dataset import TEMPERATURE_C
 
     T = sc.temperature
@@ -386,7 +389,7 @@ def _check_parts(sc: Scenario) -> None:
     _keys("channel", sc.channel, (), allowed)
     for k, v in sc.channel.items():
         if not (_number(v) and v >= 0):
-            raise ValueError(f"channel.{k} must be a number >= 0, got {v!r}")
+            raise ValueError(f"channel.{k} must be a number >= 0, got {brief(v)}")
     from .noise import NoiseConfig
     from .thermal import HotMeltBond
 
@@ -395,7 +398,7 @@ def _check_parts(sc: Scenario) -> None:
     r = sc.channel.get("transducer_radius_m", 5e-3)
     if not 0 < r <= MAX_DISC_RADIUS_M:
         raise ValueError(f"channel.transducer_radius_m is the piezo discs' bonded radius in metres, 0 < r <= {MAX_DISC_RADIUS_M:g}, "
-                         f"got {r!r}")
+                         f"got {brief(r)}")
     if len(set(sc.subjects)) != len(sc.subjects):
         raise ValueError(f"subjects {list(sc.subjects)} name a person twice; list each simulated person once")
     apart = max(MIN_TX_RX_CM, 2 * r * 100)
@@ -421,7 +424,7 @@ def layout_count(sc: Scenario) -> int:
     try:
         n = sum(int(c) for c in lay.get("counts", (16, 15))) if kind == "rings" else int(lay["nx"]) * int(lay["ny"])
     except (KeyError, TypeError, ValueError):
-        raise ValueError(f"layout {lay!r}: rings need counts [n, ...], a grid nx and ny (whole numbers)") from None
+        raise ValueError(f"layout {brief(lay)}: rings need counts [n, ...], a grid nx and ny (whole numbers)") from None
     if not 1 <= n <= MAX_LOCATIONS:
         raise ValueError(f"the layout has {n} markers; a scenario has 1..{MAX_LOCATIONS}")
     return n
@@ -451,10 +454,10 @@ def check_size(sc: Scenario, rig: Rig) -> int:
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
     check_memory(256.0 * total + 64.0 * rig.seconds_to_chirps(max(sc.touch_s, sc.moving_s)),
-                 f"the ground truth of scenario {sc.name!r} ({total:.3g} chirps in {sc.sessions} sessions)", fix)
+                 f"the ground truth of scenario {brief(sc.name)} ({total:.3g} chirps in {sc.sessions} sessions)", fix)
     per_part = rig.seconds_to_chirps(sc.part_s)
     block = min(max(first, other), per_part * max(1, 1024 // per_part))
-    check_memory(64.0 * rig.n_chirp * block, f"rendering scenario {sc.name!r} in blocks of {block} chirps", fix)
+    check_memory(64.0 * rig.n_chirp * block, f"rendering scenario {brief(sc.name)} in blocks of {block} chirps", fix)
     return int(total)
 def is_family(name_or_path: str | Path) -> bool:
     """Whether ``name_or_path`` is a scenario family (a YAML with ``family:``) rather than one scenario."""
@@ -550,7 +553,7 @@ class RandomFamily:
         from .channel import MATERIALS
 
         if self.family != "random":
-            raise ValueError(f"unknown scenario family {self.family!r}; the simulator knows 'random'")
+            raise ValueError(f"unknown scenario family {brief(self.family)}; the simulator knows 'random'")
         bad = [m for m in self.materials if m not in MATERIALS]
         if bad:
             raise ValueError(f"random family: unknown materials {bad}; choose from {sorted(MATERIALS)}")
