@@ -89,7 +89,8 @@ class Listener:
     fast : simulated device only: run faster than real time (``True`` or ``False``).
     on_event : a function called in the listener's thread with each :class:`TouchEvent`; keep it short.
     mcap : with an arm: also write every touch as ROS 2 messages in the link frames into this MCAP file
-        (:class:`sonicskin.rosbag.McapEventWriter`; ``sonicskin live --links ARM --mcap FILE``).
+        (:class:`sonicskin.rosbag.McapEventWriter`; ``sonicskin live --links ARM --mcap FILE``); an existing file is
+        refused unless ``overwrite``.
     view : ``True`` or a port: show the skin live in a browser (``sonicskin live --view``); its address is
         :attr:`view_url`, served until the run ends.
     watchdog_s : a device (or the simulated one, at any pace) that delivers no audio for this long ends the run with
@@ -103,7 +104,7 @@ class Listener:
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
                  duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
-                 watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None,
+                 watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None, overwrite: bool = False,
                  view: bool | int | None = None):
         from .session import open_run  # here: `import sonicskin` loads neither onnxruntime nor scikit-learn
 
@@ -118,7 +119,7 @@ class Listener:
         self.summary: dict | None = None
         #: the opened run (:class:`sonicskin.session.Run`): its links, runtimes, source and live loops
         self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
-                               blocksize=blocksize, mcap=mcap)
+                               blocksize=blocksize, mcap=mcap, overwrite=overwrite)
         self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
         self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
         self.view_url = self.opened.view.url if self.opened.view is not None else None

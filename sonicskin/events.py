@@ -88,7 +88,7 @@ EVENT_SCHEMA: dict[str, Any] = {
         "y_cm": {**_NUM_OR_NULL, "description": "along the link axis from the transmitter end, cm"},
         "force_n": {**_NUM_OR_NULL, "minimum": 0, "description": "normal force, N; 0 on release, null: no force model"},
         "confidence": {"type": "number", "minimum": 0, "maximum": 1},
-        "model": {"enum": ["svm", "net"]},
+        "model": {"type": "string", "minLength": 1},
         "latency_ms": {"type": "number", "minimum": 0},
         "link": {"type": "string", "description": "the link that sensed it (live --links); absent on a single link"},
         "frame_id": {"type": "string", "minLength": 1,

@@ -348,8 +348,11 @@ class LiveLoop:
         p = self.stream.chirp(x, t_s)  # Alg. 2 reference (and drift tracking), model, detection, force
         ref = self.stream.reference
         if ref.reboots != reboots:
-            self.warn(f"the stream paused for more than {ref.alpha / ref.cps / 60:.0f} min: boot calibration again from "
-                      f"the next {ref.beta / ref.cps:.1f} s (hands off the link, as at power-on)")
+            gap = ref.last_gap_s or 0.0
+            why = (f"the stream clock went back {-gap:.0f} s" if gap < 0 else f"the stream paused for {gap / 60:.0f} min "
+                   f"(more than alpha, {ref.alpha / ref.cps / 60:.0f} min)")
+            self.warn(f"{why}: boot calibration again from the next {ref.beta / ref.cps:.1f} s (hands off the link, as at "
+                      f"power-on)")
         drift = self.stream.drift
         if drift is not None and ref.refreshes != refreshes and drift.warning and drift.warning != self._drift_warned:
             self._drift_warned = drift.warning  # once per new finding, at the reference that found it
@@ -358,7 +361,8 @@ class LiveLoop:
             self._boot_check()
         if was_calibrating and not self.stream.calibrating and ref.boot_disturbed:
             c = self.source.counters()
-            lost = (f"{self.boot_faults} faulty chirp(s) (NaN, dropout, silence, a constant level or clipping)"
+            lost = (f"{ref.boot_touched} chirp(s) that read a hand on the link" if ref.boot_touched else
+                    f"{self.boot_faults} faulty chirp(s) (NaN, dropout, silence, a constant level or clipping)"
                     if self.boot_faults else  # none faulty: the chirps were cut by lost audio (a slow start, a busy machine)
                     f"chirps cut by lost audio ({c['overflows'] + c['dropped_blocks']} overflows or dropped blocks, "
                     f"{self.framer.relocks} re-locks)")

@@ -228,6 +228,14 @@ class McapEventWriter:
         self._w.finish()
         self._file.flush()
 
+    def discard(self) -> None:
+        """A run that never started: close the file, and remove it when this writer created it and wrote nothing."""
+        with self._lock:
+            if not self._closed and self._w is None:
+                self._closed = True
+                self._abandon()
+        self.close()
+
     def __enter__(self) -> McapEventWriter:
         return self
 

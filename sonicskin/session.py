@@ -88,7 +88,6 @@ class Run:
     rig: Rig
     spec: object = None               # the arm or links file it was opened from; None: one artifact
     scenarios: list | None = None     # (name, scenario) per link on the simulated device: how the live page draws them
-    mcap_path: Path | None = None     # where run() writes every touch as ROS 2 messages
     live: list[LiveLoop] = dataclasses.field(default_factory=list)  # the loops run() runs
     view: ViewServer | None = None
     mcap: McapEventWriter | None = None
@@ -112,7 +111,12 @@ class Run:
         self.live = [LiveLoop(rt, self.source, link=lk if self.arm else None, channel=i, emit=emit, status=status,
                                on_event=event) for i, (lk, rt) in enumerate(zip(self.links, self.runtimes))]
         if view is not None and view is not False:
-            self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view))
+            try:
+                self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view))
+            except BaseException:  # e.g. a taken port: the run never starts, so nothing of it is written
+                if self.mcap is not None:
+                    self.mcap.discard()
+                raise
         return self.live
 
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
@@ -120,8 +124,8 @@ class Run:
         ends (:func:`sonicskin.live.run_loops`, whose errors it raises); returns :meth:`summary`.  However the run ends,
         the MCAP file is complete and the live page stopped."""
         try:
-            if self.mcap_path is not None:
-                self.mcap = McapEventWriter(self.mcap_path, t0_unix_s=time.time())  # t_s = 0: the stream starts now
+            if self.mcap is not None:
+                self.mcap.t0_unix_s = time.time()  # t_s = 0: the stream starts now
             with self.source:
                 return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
                                               stop=stop))
@@ -139,7 +143,7 @@ class Run:
 def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario="stationary", rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
-             mcap=None) -> Run:
+             mcap=None, overwrite: bool = False) -> Run:
     """Open a skin on a device.
 
     ``artifact``: an artifact folder, one link (channels ``tx``/``rx`` of an interface; on the simulated device it plays
@@ -151,7 +155,8 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
     jaco).  ``train``: called as ``train(scenario, rig)`` for a simulated link without an artifact, its artifact's folder
     (the CLI: :func:`sonicskin.record.train_oneshot`); without it such a link is a one-line error.  ``mcap``: the MCAP
     file :meth:`Run.run` writes each touch into, in its link's frame (refused, before anything opens, unless every link
-    has a frame).
+    has a frame; an existing file unless ``overwrite``: :class:`~sonicskin.rosbag.McapEventWriter`, opened and locked
+    here, written from the first touch on).
     """
     check_blocksize(blocksize)
     sim = simulated(device)
@@ -167,13 +172,24 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         the_rig = given if given is not None or artifact is not None else Rig.load("jaco")
         lks = [Link(tx=tx, rx=rx, name="skin", scenario=load_config(Scenario.load, scenario) if sim else None,
                     artifact=artifact)]
+    writer = None
     if mcap is not None:
         _require_frames(lks, spec)
+        writer = McapEventWriter(mcap, t0_unix_s=time.time(), overwrite=overwrite)  # a bad or taken path: refused now
+    try:
+        return _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer)
+    except BaseException:
+        if writer is not None:
+            writer.discard()  # nothing recorded: no file left behind
+        raise
+
+
+def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer) -> Run:
     arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
     runtimes = [SkinRuntime(Path(art), model or BASELINE, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
     the_rig = the_rig or runtimes[0].rig
     if not sim:
-        return Run(lks, runtimes, open_source(the_rig, device, lks, blocksize=blocksize), the_rig, spec, mcap_path=mcap)
+        return Run(lks, runtimes, open_source(the_rig, device, lks, blocksize=blocksize), the_rig, spec, mcap=writer)
     for lk, rt in zip(lks, runtimes):
         layout = lk.scenario.make_layout()
         if rt.layout != layout:
@@ -187,7 +203,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         return Simulator(sc, link_rig), build_timeline(sc, link_rig)
 
     source = open_source(the_rig, device, lks, play=play, blocksize=blocksize, realtime=not fast, drop_every=drop_every)
-    return Run(lks, runtimes, source, the_rig, spec, [(lk.name, live_scenario(lk.scenario)) for lk in lks], mcap)
+    return Run(lks, runtimes, source, the_rig, spec, [(lk.name, live_scenario(lk.scenario)) for lk in lks], mcap=writer)
 
 
 def _require_frames(links: list[Link], spec) -> None:

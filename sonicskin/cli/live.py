@@ -67,7 +67,7 @@ def cmd_live(a: argparse.Namespace) -> int:
         sinks.append(LslSink(a.lsl))
     run = open_run(a.artifact, links=a.links, device=a.device, model=a.model, scenario=a.scenario, rig=a.rig, tx=a.tx,
                    rx=a.rx, fast=a.fast, blocksize=a.blocksize, drop_every=a.drop_every, link_artifacts=a.link_artifact,
-                   train=train_oneshot, mcap=a.mcap)
+                   train=train_oneshot, mcap=a.mcap, overwrite=a.overwrite)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
         print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
@@ -186,6 +186,7 @@ def add_parsers(sub) -> None:
                     help="with --links on an arm: also write every touch as ROS 2 messages (contact point and wrench in "
                          "the link's frame, markers) into the MCAP file FILE, for `ros2 bag play` and Foxglove "
                          "(docs/robot-frame.md) (default: off)")
+    lv.add_argument("--overwrite", action="store_true", help="replace an existing --mcap file (default: refuse it)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")
     ck = sub.add_parser("check", help="rig check: chirp, delay, level, SNR, PWM lines, repeatability, touch contrast",
