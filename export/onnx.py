@@ -5,6 +5,9 @@ other kind exports itself, :mod:`sonicskin.kinds`)."""
 
 from __future__ import annotations
 
+import contextlib
+import io
+import logging
 import warnings
 from pathlib import Path
 
@@ -27,11 +30,16 @@ def export_net(model: torch.nn.Module, path: Path, X_check: np.ndarray) -> dict:
     :class:`~sonicskin.parity.ParityError` (one line)."""
     model = model.eval()
     example = torch.from_numpy(X_check[:2].astype(np.float32))
-    with warnings.catch_warnings():  # the TorchScript exporter's deprecation notice
+    onnx_log = logging.getLogger("torch.onnx")
+    level = onnx_log.level
+    onnx_log.setLevel(logging.ERROR)  # "torchvision is not installed. Skipping ..."
+    # the TorchScript exporter's deprecation notice and progress lines
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
         warnings.simplefilter("ignore")
         torch.onnx.export(model, (example,), str(path), input_names=["features"], output_names=["logits", "force"],
                           dynamic_axes={"features": {0: "batch"}, "logits": {0: "batch"}, "force": {0: "batch"}},
                           dynamo=False, opset_version=17)
+    onnx_log.setLevel(level)
     sess = ort_session(path)
     with torch.no_grad():
         ref_logits, ref_force = (t.numpy() for t in model(torch.from_numpy(X_check.astype(np.float32))))

@@ -8,13 +8,12 @@ every labelled press, exported to ONNX (:mod:`sonicskin.export.onnx`).
 
 from __future__ import annotations
 
-import contextlib
-import io
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
+from sonicskin.export.onnx import export_net
 
 from sonicskin.dataset import Dataset
 from sonicskin.errors import ArtifactError
@@ -55,12 +54,7 @@ class NetTrainer(NetKind):
         return train_network(data, fitted=fitted, select=select, seed=seed, epochs=epochs, layer=layer, **options)
 
     def export(self, fit, path, X_check):
-        from sonicskin.export.onnx import export_net
-
-        from .cli import quiet_third_party
-
-        with quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):  # torch.onnx's progress lines
-            return export_net(fit.model, path, X_check)
+        return export_net(fit.model, path, X_check)
 
 
 def _plain_hparams(h) -> dict:
