@@ -19,7 +19,7 @@ from sonicskin.dataset import Dataset
 from sonicskin.errors import ArtifactError
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_artifact, prepare, summary_lines
-from sonicskin.force import PooledForce
+from sonicskin.force import PooledForce, energy_db, force_from_dict
 from sonicskin.head import DETECTOR_BINS
 from sonicskin.integrity import check_layout, check_rig
 from sonicskin.kinds import BASELINE, NETWORK, Fitted
@@ -30,6 +30,9 @@ from .augment import make_augmenter
 from .checkpoint import load_checkpoint
 from .data import session_fingerprints
 from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams
+
+#: the network's force when the SVM's validated force model (per-location Fourier-1 or a pooled ridge) does best
+SVM_FORCE = "the SVM's"
 
 __all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force",
            "artifact_from_checkpoint"]
@@ -180,27 +183,31 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
     alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
     if chosen is None and val.any():
         sel.update(choose_force(model, X, cls, force, fit_rows=train, val_rows=val, location_ids=ids, alpha=alpha,
-                                how=f"validation on {', '.join(data.split.val)}"))
+                                svm=svm, how=f"validation on {', '.join(data.split.val)}"))
     elif str(sel.get("force", "")).startswith("pooled-ridge"):  # chosen on held-out presses: refitted on these
         fr = train & (cls < n) & np.isfinite(force)
         k = 300 if "first 300" in sel["force"] else X.shape[1]
         model.set_force(PooledForce(alpha).fit(X[fr][:, :k], force[fr], ids[cls[fr]]).padded(X.shape[1]).folded(ids))
+    svm_force = sel.get("force") == SVM_FORCE and svm is not None and svm.n_in <= model.n_in
     if seed is not None:
         sel["train_seed"] = int(seed)
     hp = dict(hparams or {})
     if hp.get("epochs"):
         sel["epochs"] = int(hp["epochs"])
     sel["hparams"] = {k: v for k, v in hp.items() if k not in ("n_in", "n_locations", "n_centres", "epochs")}
-    entry = {"hparams": hp, **({"detector": detector} if detector is not None else {})}
+    entry = {"hparams": hp, **({"detector": detector} if detector is not None else {}),
+             **({"force": svm.entry["force"], "force_bins": int(svm.n_in), "energy_ref_db": svm.entry["energy_ref_db"]}
+                if svm_force else {})}
     return Fitted(model, entry, int(model.n_in), {NETWORK: sel}, train_time_s)
 
 
-def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
+def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0, svm=None,
                  first: tuple = (None, 300), how: str = "validation") -> dict:
-    """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
+    """The network's force chosen on presses it did not train on (``val_rows``): its own head, a pooled ridge
     (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
     (the best OSPA bins, as the SVM's force and detector read them: a ridge over thousands of bins fits one session's
-    presses more loosely).  Sets the model's force (:meth:`models.SkinNet.set_force`)."""
+    presses more loosely), or ``svm``'s own force model (fitted on the same rows; the network's head then applies it,
+    :meth:`sonicskin.kinds.net.NetHead.force`).  A ridge is set on the model (:meth:`models.SkinNet.set_force`)."""
     ids = np.asarray(location_ids)
     n_loc, n_in = len(ids), X.shape[1]
     f = np.asarray(force, np.float64)
@@ -218,6 +225,12 @@ def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alph
         if name not in cand:
             pf = PooledForce(alpha).fit(X[fr][:, :k], f[fr], ids[cls[fr]]).padded(n_in)
             cand[name] = (np.clip(pf.predict(None, ids[cls[vr]], inputs=X[vr]), 0, None), pf.folded(ids))
+    fitted_force = svm is not None and (svm.entry["force"]["curves"] or svm.entry["force"]["model"] == PooledForce.NAME)
+    if fitted_force and svm.n_in <= n_in:  # the SVM has a force model (a force sensor) on bins the network reads
+        xs = X[vr][:, :svm.n_in].astype(np.float64)
+        E = energy_db(xs, np.arange(svm.n_in)) - svm.entry["energy_ref_db"]
+        pred = force_from_dict(svm.entry["force"]).predict(E, ids[cls[vr]], inputs=xs)
+        cand[SVM_FORCE] = (np.clip(np.nan_to_num(pred), 0, None), None)
     rmse = {k: float(np.sqrt(np.mean((p - f[vr]) ** 2))) for k, (p, _) in cand.items()}
     best = min(rmse, key=rmse.get)
     if cand[best][1] is not None:

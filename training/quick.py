@@ -15,8 +15,7 @@ import torch
 from sonicskin import threads
 from sonicskin.head import DETECTOR_BINS
 from sonicskin.kinds import CLOSED_FORM
-from sonicskin.kinds.net import NetHead, touch_logit
-from sonicskin.selection import select_threshold
+from sonicskin.kinds.net import NetHead
 
 from .module import SkinLitModule
 
@@ -138,26 +137,23 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
 
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
-                    reference: np.ndarray, how: str, max_extra_miss: float = 0.005) -> dict:
+                    reference: np.ndarray, how: str) -> dict:
     """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks),
-    each candidate run by the head the runtime runs (:meth:`sonicskin.kinds.net.NetHead.touch`): its own head, its
-    head with a bias recalibrated there (Youden's J), the SVM's input-RMS detector (``threshold``, ``reference``), or
-    either of head and input-RMS.  Among the decisions that miss at most ``max_extra_miss`` more touches than the
-    input-RMS detector, the lowest balanced error wins."""
+    each candidate run by the head the runtime runs (:meth:`sonicskin.kinds.net.NetHead.touch`): the SVM's input-RMS
+    detector (``threshold``, ``reference``: the network then detects exactly as the SVM does), or either of it and the
+    network's own touch logit (never a miss more than the SVM).  The lower balanced error wins, ties the SVM's.  The
+    head's logit alone, even recalibrated on the validation session, missed up to 18 % of a held-out rig's touches
+    where the SVM missed none (random seed 7015, issue 26), so it is reported, not chosen."""
     reference = np.asarray(reference, np.float64).ravel()
     bins = min(DETECTOR_BINS, reference.size)
 
-    def head(mode, bias=0.0):
-        cfg = {"mode": mode, "bias": bias, "threshold": float(threshold), "reference": reference.tolist(), "bins": bins}
+    def head(mode):
+        cfg = {"mode": mode, "bias": 0.0, "threshold": float(threshold), "reference": reference.tolist(), "bins": bins}
         return cfg, NetHead({"detector": cfg}, _NoLayout(logits.shape[1] - 1)).touch(logits, X)[0]
 
-    tl = touch_logit(logits)
-    bias = -select_threshold(tl[touch], tl[quiet], how="")["threshold"]
-    cands = {"head": head("head"), "head-recalibrated": head("head", float(bias)), "input-rms": head("input-rms"),
-             "either": head("either")}
+    cands = {k: head(k) for k in ("input-rms", "either", "head")}
     rates = {k: (float(np.mean(~d[touch])), float(np.mean(d[quiet]))) for k, (_, d) in cands.items()}
-    limit = rates["input-rms"][0] + max_extra_miss
-    best = min((k for k in cands if rates[k][0] <= limit), key=lambda k: (rates[k][0] + rates[k][1]) / 2)
+    best = min(("input-rms", "either"), key=lambda k: (rates[k][0] + rates[k][1]) / 2)
     return {"detector": best, "how": f"{how}: missed {rates[best][0]:.1%}, false {rates[best][1]:.1%}; "
             f"input-RMS alone missed {rates['input-rms'][0]:.1%}, the head alone {rates['head'][0]:.1%}",
             "rates": {k: {"missed": v[0], "false": v[1]} for k, v in rates.items()}, "config": cands[best][0]}

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp
 
+from ..force import energy_db, force_from_dict
 from ..head import DETECTOR_BINS, Predictions, input_rms
 from ..head.heads import centroid, softmax
 from ..rig import Layout
@@ -33,8 +34,9 @@ class NetHead:
     ``logits`` are log-probabilities of the N locations and (last) no touch.  Touch: by the entry's ``detector``
     (:data:`NET_DETECTORS`; absent: the head's own ``p(touch) >= 0.5``), the input-RMS statistic measured from the
     stream's no-touch inputs as the SVM head measures it.  Location: the most likely marker; confidence its
-    probability given a touch; force: the force output at that marker.  Training chooses the detector by calling
-    :meth:`touch` on validation outputs, so what it chooses is what runs.
+    probability given a touch; force: the force output at that marker, or (an entry with ``force``) the closed-form
+    force model the SVM validated, on the first ``force_bins`` inputs (:meth:`force`).  Training chooses the detector
+    and the force by calling :meth:`touch` and :meth:`force` on validation outputs, so what it chooses is what runs.
     """
 
     calibrated = False  # Alg. 2 gives it the stream's no-touch inputs, not score vectors
@@ -50,6 +52,16 @@ class NetHead:
         ref = d.get("reference")
         self.reference = None if ref is None else np.asarray(ref, np.float64)
         self.detector_bins = int(d.get("bins", len(ref) if ref is not None else DETECTOR_BINS))
+        self.force_model = force_from_dict(entry["force"]) if "force" in entry else None
+        self.force_bins, self.energy_ref_db = int(entry.get("force_bins", 0)), float(entry.get("energy_ref_db", 0.0))
+
+    def force(self, force_all: np.ndarray, idx: np.ndarray, inputs: np.ndarray) -> np.ndarray:
+        """The force (N) at the markers ``idx``: the graph's force output there, or the closed-form model's."""
+        if self.force_model is None:
+            return np.take_along_axis(np.asarray(force_all, np.float64), idx[:, None], axis=1)[:, 0]
+        x = np.asarray(inputs, np.float64)[:, :self.force_bins]
+        E = energy_db(x, np.arange(x.shape[1])) - self.energy_ref_db
+        return self.force_model.predict(E, self.ids[idx], inputs=x)
 
     def touch(self, logits: np.ndarray, inputs: np.ndarray, input_reference: np.ndarray | None = None):
         """``(touch, by_rms)`` per chirp: the decision and its input-RMS part (``None`` for mode ``head``)."""
@@ -68,7 +80,7 @@ class NetHead:
         place = p[:, :-1]
         idx = np.argmax(place, axis=1)
         touch, by_rms = self.touch(logits, inputs, input_reference)
-        f = np.take_along_axis(np.asarray(force_all, np.float64), idx[:, None], axis=1)[:, 0]
+        f = self.force(force_all, idx, inputs)
         conf = place[np.arange(len(idx)), idx] / np.maximum(place.sum(axis=1), 1e-12)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
         # Alg. 2's no-touch chirps by the physical statistic alone: the head's logit, trained on one session, calls rest
@@ -80,7 +92,7 @@ class NetHead:
 
 class NetKind(ModelKind):
     name, label, graph, file = "net", "network", "skinnet", "net.onnx"
-    keys = frozenset({"hparams", "detector"})
+    keys = frozenset({"hparams", "detector", "force", "force_bins", "energy_ref_db"})
     selection_keys = ("net",)
     requires = (BASELINE, CLOSED_FORM)  # its frozen layers are the artifact's SVM and LDA; its detector thresholds the SVM's statistic
     can_fit = False  # sonicskin.training.kind (the entry point) can
@@ -114,6 +126,10 @@ class NetKind(ModelKind):
                 doc.num(v, f"{f}.reference[{i}]", lo=-doc.MAX_SCORE, hi=doc.MAX_SCORE)
         if "bins" in d:
             doc.int(d["bins"], f"{f}.bins", lo=1, hi=n_in)
+        if "force" in m:  # the SVM's closed-form force model on the first force_bins inputs
+            k = doc.int(doc.get(m, "force_bins", field), f"{field}.force_bins", lo=1, hi=n_in)
+            doc.num(doc.get(m, "energy_ref_db", field), f"{field}.energy_ref_db", lo=-doc.MAX_SCORE, hi=doc.MAX_SCORE)
+            doc.force(m["force"], f"{field}.force", layout_ids, k)
 
     def head(self, entry, layout):
         return NetHead(entry, layout)
@@ -126,7 +142,8 @@ class NetKind(ModelKind):
         if n.get("location_layer"):
             out.append(f"network location layer: {n['location_layer']} ({n.get('layer_how', '')})")
         if n.get("force"):
-            out.append(f"network force: {'its own head' if n['force'] == 'head' else 'the pooled ridge'} ({n.get('force_how', '')})")
+            what = {"head": "its own head", "the SVM's": "the SVM's force model"}.get(n["force"], "the pooled ridge")
+            out.append(f"network force: {what} ({n.get('force_how', '')})")
         return out
 
 
