@@ -55,16 +55,6 @@ class SkinNet(nn.Module):
         self.register_buffer("mean", torch.zeros(n_in))
         self.register_buffer("std", torch.ones(n_in))
         self.n_in, self.n_locations = n_in, n_locations
-        # A validated pooled force model replacing the head (:meth:`set_force`); None: the trained head.
-        self.force_linear: dict | None = None
-
-    def set_force(self, pooled: dict | None) -> None:
-        """Replace the force head by a pooled linear model ``F_k = x . coef + loc[k]`` (the SVM's validated
-        :class:`sonicskin.force.PooledForce`, folded: ``loc[k] = loc_coef[k] + intercept``); ``None``: the head."""
-        if pooled is not None and (len(pooled["coef"]) != self.n_in or len(pooled["loc"]) != self.n_locations):
-            raise ValueError(f"pooled force needs {self.n_in} coefficients and {self.n_locations} location terms")
-        self.force_linear = None if pooled is None else {"coef": [float(v) for v in pooled["coef"]],
-                                                         "loc": [float(v) for v in pooled["loc"]]}
 
     @staticmethod
     def _logsig(x: torch.Tensor) -> torch.Tensor:
@@ -93,11 +83,7 @@ class SkinNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (n, n_in) features -> (logits (n, N + 1), force (n, N) in newtons)."""
-        logits, force = self._forward(x)
-        if self.force_linear is not None:
-            w = torch.as_tensor(self.force_linear["coef"], dtype=x.dtype)
-            force = (x @ w)[:, None] + torch.as_tensor(self.force_linear["loc"], dtype=x.dtype)[None, :]
-        return logits, force
+        return self._forward(x)
 
     def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         z = self.standardize(x)

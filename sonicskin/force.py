@@ -247,10 +247,6 @@ class PooledForce:
         self.coef_ = np.r_[self.coef_, np.zeros(n_in - self.coef_.size)]
         return self
 
-    def folded(self, location_ids) -> dict:
-        """``{"coef", "loc"}``: the network's force head replaced by this model (``loc[k] = loc_coef[k] + intercept``)."""
-        return {"coef": self.coef_, "loc": [self.loc_coef_[int(k)] + self.intercept_ for k in location_ids]}
-
     def to_dict(self) -> dict[str, Any]:
         return {"model": self.NAME, "curves": {}, "pooled": {"alpha": self.alpha, "coef": [float(c) for c in self.coef_],
                 "loc_coef": {str(k): v for k, v in self.loc_coef_.items()}, "intercept": self.intercept_}}

@@ -145,22 +145,30 @@ def test_mlp_layer_learns_separable_markers():
     assert np.mean(logits[:, :K].argmax(1) == y) == 1.0
 
 
-def test_choose_force_picks_the_ridge_on_the_first_inputs_when_only_they_carry_force():
-    """Force is linear in the first 5 inputs; the other 200 are noise.  On presses the ridges were not fitted on,
-    the ridge over the first inputs only is the better one (a known answer), and it is set on the model."""
-    from sonicskin.training.fit import choose_force
+def test_the_network_takes_the_svms_force_model_when_it_does_better_and_its_head_applies_it():
+    """Force is linear in the first 5 inputs; the network's head (one epoch) knows nothing of it: on presses neither
+    was fitted on, the SVM's pooled ridge wins (a known answer), and the network's head then gives exactly its force."""
+    from sonicskin.training.fit import SVM_FORCE, choose_force, svm_force
+
+    from sonicskin.force import PooledForce
+    from sonicskin.kinds import Fitted
+    from sonicskin.kinds.net import NetHead
+    from sonicskin.rig import Layout
 
     rng = np.random.default_rng(5)
     K, n = 3, 240
     y = np.arange(n) % K
     F_true = rng.uniform(1, 8, n)
-    X = np.column_stack([np.outer(F_true, [1.0, 0.5, -0.3, 0.8, 0.2]) + 0.05 * rng.normal(size=(n, 5)), 3.0 * rng.normal(size=(n, 200))])
+    X = np.column_stack([np.outer(F_true, [1.0, 0.5, -0.3, 0.8, 0.2]) + 0.05 * rng.normal(size=(n, 5)), 3.0 * rng.normal(size=(n, 20))])
     fit, val = np.arange(n) < 40, np.arange(n) >= 120
+    ridge = PooledForce(1.0).fit(X[fit][:, :5], F_true[fit], y[fit])
+    svm = Fitted(None, {"force": ridge.to_dict(), "energy_ref_db": 0.0}, 5, {})
     Xa, cls, force, _ = _with_rest(X[:40], y[:40])
-    pred = fit_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=2)
-    res = choose_force(pred.model, X, y, F_true, fit_rows=fit, val_rows=val, location_ids=np.arange(K), alpha=1.0, first=(None, 5))
-    assert res["force"] == "pooled-ridge (first 5 inputs)"
-    assert res["force_rmse"]["pooled-ridge (first 5 inputs)"] < 0.5 * res["force_rmse"]["pooled-ridge"]
-    _, f = pred(X[val])
-    np.testing.assert_allclose(f[np.arange(val.sum()), y[val]], np.clip(f[np.arange(val.sum()), y[val]], 0, None))
-    assert np.sqrt(np.mean((f[np.arange(val.sum()), y[val]] - F_true[val]) ** 2)) < 0.5
+    pred = fit_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=1)
+    res = choose_force(pred.model, X, y, F_true, val_rows=val, location_ids=np.arange(K), svm=svm)
+    assert res["force"] == SVM_FORCE and res["force_rmse"][SVM_FORCE] < 0.5 * res["force_rmse"]["head"]
+    head = NetHead({"force": ridge.to_dict(), "force_bins": 5, "energy_ref_db": 0.0}, Layout.grid(3, 1, 1.0))
+    lg, f_all = pred(X[val])
+    p = head.decide([lg, f_all], X[val].astype(np.float32))
+    want = svm_force(svm, X[val], p.location)
+    np.testing.assert_allclose(p.force_n[p.touch], np.clip(want, 0, None)[p.touch], rtol=1e-6)

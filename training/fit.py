@@ -33,6 +33,9 @@ from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net
 
 #: the network's force when the SVM's validated force model (per-location Fourier-1 or a pooled ridge) does best
 SVM_FORCE = "the SVM's"
+#: its force without a validation session: measured on the design rigs of the random family, one session each
+#: (benchmarks/bench_default.py, stored result ``default``)
+UNVALIDATED_FORCE = SVM_FORCE
 
 __all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force",
            "artifact_from_checkpoint"]
@@ -144,7 +147,8 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
     recalibrated there, the SVM's input-RMS detector and either of them
     (:func:`sonicskin.training.quick.choose_detector`); without one its head cannot be judged on data it did not
     train on, so it is combined with the input-RMS detector (``either``: never more misses than the SVM's).  Force:
-    its own head or a pooled ridge, whichever has the lower RMSE on the validation presses (:func:`choose_force`).
+    its own head or the SVM's validated force model, whichever has the lower RMSE on the validation presses
+    (:func:`choose_force`; without them :data:`UNVALIDATED_FORCE`).
     ``chosen``: both choices made by an earlier pass (a refit), applied with this data's SVM threshold and ridge."""
     sel = {k: v for k, v in (selection or {}).items() if k not in ("hparams", "fold_model")}
     model = model.eval()
@@ -180,15 +184,13 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
         sel.update(detector_mode=detector["mode"], bias=detector["bias"])
         if detector["mode"] == "head" and not detector["bias"]:
             detector = None  # the graph's own p(touch) >= 0.5: nothing for the head to add
-    alpha = ((svm.selection.get("force") or {}).get("alpha") or 10.0) if svm is not None else 10.0
     if chosen is None and val.any():
-        sel.update(choose_force(model, X, cls, force, fit_rows=train, val_rows=val, location_ids=ids, alpha=alpha,
-                                svm=svm, how=f"validation on {', '.join(data.split.val)}"))
-    elif str(sel.get("force", "")).startswith("pooled-ridge"):  # chosen on held-out presses: refitted on these
-        fr = train & (cls < n) & np.isfinite(force)
-        k = 300 if "first 300" in sel["force"] else X.shape[1]
-        model.set_force(PooledForce(alpha).fit(X[fr][:, :k], force[fr], ids[cls[fr]]).padded(X.shape[1]).folded(ids))
-    svm_force = sel.get("force") == SVM_FORCE and svm is not None and svm.n_in <= model.n_in
+        sel.update(choose_force(model, X, cls, force, val_rows=val, location_ids=ids, svm=svm,
+                                how=f"validation on {', '.join(data.split.val)}"))
+    elif chosen is None and has_force(svm):
+        sel.update(force=UNVALIDATED_FORCE, force_how="no validation session: the default measured across the random "
+                                                      "rig family (benchmarks/bench_default.py)")
+    use_svm = sel.get("force") == SVM_FORCE and has_force(svm) and svm.n_in <= model.n_in
     if seed is not None:
         sel["train_seed"] = int(seed)
     hp = dict(hparams or {})
@@ -197,45 +199,38 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
     sel["hparams"] = {k: v for k, v in hp.items() if k not in ("n_in", "n_locations", "n_centres", "epochs")}
     entry = {"hparams": hp, **({"detector": detector} if detector is not None else {}),
              **({"force": svm.entry["force"], "force_bins": int(svm.n_in), "energy_ref_db": svm.entry["energy_ref_db"]}
-                if svm_force else {})}
+                if use_svm else {})}
     return Fitted(model, entry, int(model.n_in), {NETWORK: sel}, train_time_s)
 
 
-def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0, svm=None,
-                 first: tuple = (None, 300), how: str = "validation") -> dict:
-    """The network's force chosen on presses it did not train on (``val_rows``): its own head, a pooled ridge
-    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
-    (the best OSPA bins, as the SVM's force and detector read them: a ridge over thousands of bins fits one session's
-    presses more loosely), or ``svm``'s own force model (fitted on the same rows; the network's head then applies it,
-    :meth:`sonicskin.kinds.net.NetHead.force`).  A ridge is set on the model (:meth:`models.SkinNet.set_force`)."""
+def choose_force(model, X, cls, force, *, val_rows, location_ids, svm=None, how: str = "validation") -> dict:
+    """The network's force chosen on presses neither was trained on (``val_rows``): ``svm``'s validated force model
+    (per-location Fourier-1 or a pooled ridge over the SVM's bins, fitted on the same training rows; the network's head
+    then applies it, :meth:`sonicskin.kinds.net.NetHead.force`) or the network's own force head, whichever has the lower
+    RMSE at the true marker (ties: the SVM's)."""
     ids = np.asarray(location_ids)
-    n_loc, n_in = len(ids), X.shape[1]
     f = np.asarray(force, np.float64)
-    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
-    vr = val_rows & (cls < n_loc) & np.isfinite(f)
-    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
-        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
-    model.set_force(None)
+    vr = val_rows & (cls < len(ids)) & np.isfinite(f)
+    if vr.sum() < 2 or not has_force(svm) or svm.n_in > X.shape[1]:
+        return {"force": "head", "force_how": "not validated (too few presses with a force reading, or no SVM force model)"}
     with torch.no_grad():
-        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
-    cand = {"head": (np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None), None)}
-    for k in first:
-        k = n_in if k is None else min(int(k), n_in)
-        name = "pooled-ridge" if k == n_in else f"pooled-ridge (first {k} inputs)"
-        if name not in cand:
-            pf = PooledForce(alpha).fit(X[fr][:, :k], f[fr], ids[cls[fr]]).padded(n_in)
-            cand[name] = (np.clip(pf.predict(None, ids[cls[vr]], inputs=X[vr]), 0, None), pf.folded(ids))
-    fitted_force = svm is not None and (svm.entry["force"]["curves"] or svm.entry["force"]["model"] == PooledForce.NAME)
-    if fitted_force and svm.n_in <= n_in:  # the SVM has a force model (a force sensor) on bins the network reads
-        xs = X[vr][:, :svm.n_in].astype(np.float64)
-        E = energy_db(xs, np.arange(svm.n_in)) - svm.entry["energy_ref_db"]
-        pred = force_from_dict(svm.entry["force"]).predict(E, ids[cls[vr]], inputs=xs)
-        cand[SVM_FORCE] = (np.clip(np.nan_to_num(pred), 0, None), None)
-    rmse = {k: float(np.sqrt(np.mean((p - f[vr]) ** 2))) for k, (p, _) in cand.items()}
+        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()[np.arange(vr.sum()), cls[vr]]
+    pred = {SVM_FORCE: svm_force(svm, X[vr], ids[cls[vr]]), "head": head}
+    rmse = {k: float(np.sqrt(np.mean((np.clip(np.nan_to_num(p), 0, None) - f[vr]) ** 2))) for k, p in pred.items()}
     best = min(rmse, key=rmse.get)
-    if cand[best][1] is not None:
-        model.set_force(cand[best][1])
     return {"force": best, "force_how": f"{how}: " + ", ".join(f"{k} {v:.2f} N" for k, v in rmse.items()), "force_rmse": rmse}
+
+
+def has_force(svm) -> bool:
+    """The SVM has a force model (its data had a force sensor)."""
+    return svm is not None and bool(svm.entry["force"]["curves"] or svm.entry["force"]["model"] == PooledForce.NAME)
+
+
+def svm_force(svm, X: np.ndarray, location) -> np.ndarray:
+    """The SVM's force model at ``location`` on chirps ``X`` (their first ``svm.n_in`` inputs), as the head applies it."""
+    xs = np.asarray(X, np.float64)[:, :svm.n_in]
+    E = energy_db(xs, np.arange(svm.n_in)) - svm.entry["energy_ref_db"]
+    return force_from_dict(svm.entry["force"]).predict(E, location, inputs=xs)
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
