@@ -147,15 +147,25 @@ def run(name: str, entry: dict, log=None) -> dict:
     return rec
 
 
-def block(rec: dict) -> list[str]:
-    """The document lines of one stored result (between its markers)."""
+STALE = ("**The code has changed since this run** (`python tools/results.py status`): these numbers are of the commit "
+         "named below, not of the code beside them.")
+
+
+def block(rec: dict, stale: bool = False) -> list[str]:
+    """The document lines of one stored result (between its markers); ``stale``: its code has changed since (said
+    above the stamp, so a page never shows old numbers as current)."""
     body = rec["stdout"].split("\n")
     if rec["format"] == "text":
         body = ["```text", *body, "```"]
     day = rec["started"][:10]
     where = f"commit {rec['commit'][:7]}" + (" plus uncommitted changes" if rec["dirty"] else "")
-    return [*body, "", f"{STAMP_PREFIX} {rec['name']}` ({where}) on {rec['machine']}, load {rec['load']:.1f} at the start "
-                   f"(1-min average), {day}; it ran {_duration(rec['wall_s'])} ({_duration(rec['cpu_s'])} of CPU).</sub>"]
+    return [*body, "", *([STALE, ""] if stale else []),
+            f"{STAMP_PREFIX} {rec['name']}` ({where}) on {rec['machine']}, load {rec['load']:.1f} at the start "
+            f"(1-min average), {day}; it ran {_duration(rec['wall_s'])} ({_duration(rec['cpu_s'])} of CPU).</sub>"]
+
+
+def _stale(rec: dict, now: str) -> bool:
+    return rec["code_digest"] != now or bool(rec["dirty"])
 
 
 def regions(lines: list[str], doc: str = "README.md") -> list[tuple[str, int, int]]:
@@ -177,15 +187,17 @@ def regions(lines: list[str], doc: str = "README.md") -> list[tuple[str, int, in
     return out
 
 
-def render(text: str, doc: str = "README.md") -> str:
-    """``text`` (one document) with every result region rewritten from its stored record."""
-    reg = index()
+def render(text: str, doc: str = "README.md", *, stale: bool = True) -> str:
+    """``text`` (one document) with every result region rewritten from its stored record (``stale``: with the line
+    saying when its code has changed since)."""
+    reg, now = index(), code_digest() if stale else ""
     lines = text.split("\n")
     for name, start, end in reversed(regions(lines, doc)):
         if name not in reg:
             raise ResultError(f"{doc}:{start + 1}: result {name!r} is not registered in docs/results/index.yaml")
         rec = stored(name)
-        lines[start + 1:end] = block(rec) if rec else [f"*(not measured yet: `python tools/results.py run {name}`)*"]
+        lines[start + 1:end] = (block(rec, stale and _stale(rec, now)) if rec else
+                                [f"*(not measured yet: `python tools/results.py run {name}`)*"])
     return "\n".join(lines)
 
 
@@ -218,8 +230,8 @@ def problems(texts: dict[str, str] | str) -> list[str]:
                 p = ROOT / dest
                 if not p.is_file() or hashlib.sha256(p.read_bytes()).hexdigest() != sha:
                     out.append(f"{dest}: not the figure result {name!r} stored; python tools/results.py run {name}")
-        try:
-            if render(text, doc) != text:
+        try:  # as rendered, with or without the stale line (the code may change after a render)
+            if text not in (render(text, doc), render(text, doc, stale=False)):
                 out.append(f"{doc}: a result block differs from its stored result: run `python tools/results.py render`")
         except ResultError as e:
             out.append(str(e))
