@@ -14,9 +14,10 @@ each session's labelled no-touch reference, or absolute as a table of touches on
 - the package's SVM (C 10, ``gamma="scale"``, OSPA's 300 bins);
 - the network's MLP layers trained on augmented presses (``--no-net`` leaves them out);
 
-and the force RMSE (N, at the true marker, touch chirps with a force reading) of the network as the package deploys it
-without validation (its LDA layer, :func:`sonicskin.fit.fit_models`): its own force head, the SVM's model (the paper's
-per-location Fourier-1 of the energy over the SVM's bins) and a pooled ridge over the first 300 inputs.
+and the force RMSE (N, at the true marker, touch chirps with a force reading) of the candidates for the force model
+without validation: the network's own force head (the network as the package fits it, :func:`sonicskin.fit.fit_models`),
+the paper's per-location Fourier-1 of the energy over the SVM's bins, a pooled ridge over the first 300 inputs
+(alpha 10, 100, 1000) and the pooled SVR floor.
 
 Printed: mean, worst and 10th percentile over rigs per candidate and mode, and the paired difference of each against
 the default (:data:`sonicskin.kinds.lda.DEFAULTS`) with a 95 % t interval over rigs.  The held-out seeds are refused.
@@ -58,12 +59,15 @@ def one_rig(ds, mode: str, net: bool) -> dict:
     out["package SVM (300 bins)"] = float(np.mean(svm.predict(d.X[te][:, :300]) == d.cls[te]))
     if net:
         import torch
+        from sklearn.pipeline import make_pipeline
+        from sklearn.preprocessing import StandardScaler
+        from sklearn.svm import SVR
         from sonicskin.training.augment import make_augmenter
         from sonicskin.training.quick import DEFAULTS as NET
         from sonicskin.training.quick import fit_net, layer_hparams
 
         from sonicskin.fit import fit_models
-        from sonicskin.force import PooledForce, energy_db, force_from_dict
+        from sonicskin.force import PerLocationForce, PooledForce, energy_db
 
         rows = d.rows("train")
         for layer in ("MLP, every bin", "MLP, 1000 bins"):
@@ -71,20 +75,23 @@ def one_rig(ds, mode: str, net: bool) -> dict:
             pred = fit_net(d.X[rows], d.cls[rows], d.force[rows], n_locations=n, augmenter=make_augmenter(d, rows), **hp)
             out[f"network, {layer}"] = float(np.mean(pred(d.X[te])[0][:, :n].argmax(1) == d.cls[te]))
         _, fits = fit_models(d, ["net"], refit=False, log=lambda *_: None)
-        f_te = te & np.isfinite(d.force)
-        if f_te.any():
-            ids, F = np.asarray(d.layout.ids), d.force[f_te].astype(np.float64)
-            netm, svm = fits["net"].model, fits["svm"]
+        fr, f_te = rows & (d.cls < n) & np.isfinite(d.force), te & np.isfinite(d.force)
+        if f_te.any() and fr.sum() >= 8:
+            ids, F, k = np.asarray(d.layout.ids), d.force[f_te].astype(np.float64), fits["svm"].n_in
+            netm = fits["net"].model
             with torch.no_grad():
                 head = netm(torch.from_numpy(np.ascontiguousarray(d.X[f_te][:, :netm.n_in], np.float32)))[1].numpy()
-            xs = d.X[f_te][:, :svm.n_in].astype(np.float64)
-            paper = force_from_dict(svm.entry["force"]).predict(energy_db(xs, np.arange(svm.n_in)) - svm.entry["energy_ref_db"],
-                                                                ids[d.cls[f_te]], inputs=xs)
-            fr = rows & (d.cls < n) & np.isfinite(d.force)
-            ridge = PooledForce(10.0).fit(d.X[fr][:, :300], d.force[fr], ids[d.cls[fr]]).predict(None, ids[d.cls[f_te]],
-                                                                                               inputs=d.X[f_te][:, :300])
-            for name, p in (("force: network head", head[np.arange(len(F)), d.cls[f_te]]), ("force: SVM's (paper)", paper),
-                            ("force: pooled ridge 300", ridge)):
+            e_ref = fits["svm"].entry["energy_ref_db"]
+            cand = {"force: the network's own head": head[np.arange(len(F)), d.cls[f_te]],
+                    "force: per-location Fourier-1 (paper)": PerLocationForce("fourier1").fit(
+                        energy_db(d.X[fr][:, :k], np.arange(k)) - e_ref, d.force[fr], ids[d.cls[fr]]).predict(
+                        energy_db(d.X[f_te][:, :k], np.arange(k)) - e_ref, ids[d.cls[f_te]])}
+            for alpha in (10.0, 100.0, 1000.0):
+                cand[f"force: pooled ridge 300, alpha {alpha:g}"] = PooledForce(alpha).fit(
+                    d.X[fr][:, :300], d.force[fr], ids[d.cls[fr]]).predict(None, ids[d.cls[f_te]], inputs=d.X[f_te][:, :300])
+            cand["force: pooled SVR floor (every bin)"] = make_pipeline(StandardScaler(), SVR()).fit(
+                d.X[fr], d.force[fr]).predict(d.X[f_te])
+            for name, p in cand.items():
                 out[name] = float(np.sqrt(np.mean((np.clip(np.nan_to_num(p), 0, None) - F) ** 2)))
     dk, dnorm = DEFAULTS[mode]
     out["default"] = out[f"LDA, {candidate_name(d.X.shape[1] if dk is None else min(dk, d.X.shape[1]), d.X.shape[1], dnorm)}"]
@@ -120,10 +127,10 @@ def main(argv=None) -> int:
                   f"{d.mean() * 100:+.1f} [{lo * 100:+.1f}, {hi * 100:+.1f}] |")
         forces = [k for k in rows[0] if k.startswith("force")]
         if forces:
-            print("\n| force model (RMSE, N) | mean | worst | minus the network head, 95 % CI |\n|---|---|---|---|")
+            print("\n| force model (RMSE, N) | mean | worst | minus the network's own head, 95 % CI |\n|---|---|---|---|")
             for k in forces:
                 v = np.array([r.get(k, np.nan) for r in rows])
-                d = v - np.array([r.get("force: network head", np.nan) for r in rows])
+                d = v - np.array([r.get("force: the network's own head", np.nan) for r in rows])
                 ok = np.isfinite(d)
                 lo, hi = t_interval(d[ok]) if np.any(d[ok]) else (0.0, 0.0)
                 print(f"| {k[7:]} | {np.nanmean(v):.2f} | {np.nanmax(v):.2f} | {np.nanmean(d):+.2f} [{lo:+.2f}, {hi:+.2f}] |")
