@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import numpy as np
-from sklearn.metrics import roc_curve
 
 from .errors import SonicskinError, brief
 
@@ -308,6 +307,8 @@ class TouchDetector:
         if self.threshold is not None:
             thr = float(self.threshold)
         else:
+            from sklearn.metrics import roc_curve
+
             y = np.r_[np.ones(st.size), np.zeros(sq.size)]
             fpr, tpr, thr_c = roc_curve(y, np.r_[st, sq])
             k = int(np.argmax(tpr - fpr))

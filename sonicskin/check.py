@@ -42,6 +42,7 @@ from .acquire import AudioError, AudioSource, Link, blocks, check_blocksize, che
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
 from .errors import SonicskinError, UsageError
 from .jsonio import json_safe
+from .plots import pyplot
 from .rig import Rig
 from .session import SIM, open_source, simulated
 from .sim import Scenario, Simulator
@@ -142,11 +143,7 @@ class CheckReport:
 
     def plot(self, path: str | Path) -> Path:
         """check.png: |H(f)| at rest and pressed, the noise floor, PWM notches and lines, the band used."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
+        plt = pyplot()
         fig, ax = plt.subplots(figsize=(10, 4.5), constrained_layout=True)
         rig = self.rig
         ax.axvspan(rig.f_lo_hz / 1e3, rig.f_hi_hz / 1e3, color="tab:green", alpha=0.07, label="chirp band (used)")

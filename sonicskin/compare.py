@@ -14,7 +14,9 @@ from .dataset import Dataset, FeatureTable, write_file
 from .feature_cache import load_features_cached
 from .features import touch_mask
 from .integrity import check_layout, check_rig
+from .jsonio import json_safe
 from .metrics import force_report, localization_report, speed_ratio
+from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names, pyplot
 from .runtime import Predictions, SkinRuntime
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
@@ -295,18 +297,11 @@ def format_comparison(res: dict, title: str = "") -> str:
 
 
 def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> list[Path]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .jsonio import json_safe
-
     # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
     write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))
-    from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names
-
     names = location_names(res.get("data"), layout)
     label = kinds.labels()
     models = [k for k in kinds.names() if k in res["models"]]

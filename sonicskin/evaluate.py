@@ -11,16 +11,27 @@ and the three findings the paper builds on, measured on the same split:
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from .calibration import OnlineReference
+from .compare import chirps_per_location, counts_line, coverage_note, replay_sessions, split_line, stream_metrics
 from .dataset import Dataset, FeatureTable, write_file
+from .features import MIN_REST_CHIRPS, FeatureSpec, rest_beta, usable_bins
+from .fit import fit_artifact, prepare
 from .force import PerLocationForce, energy_db
+from .jsonio import json_safe
 from .kinds import BASELINE
 from .metrics import force_report
+from .plots import cdf_panel, confusion_panel, detection_panel, location_names, pyplot
+from .rig import Rig
+from .runtime import SkinRuntime
+from .split import Split
 
 __all__ = ["split_sessions", "evaluate_svm"]
 
@@ -63,7 +74,8 @@ def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
-                 val_sessions=(), artifact: str | Path | None = None, log=print) -> dict:
+                 val_sessions=(), artifact: str | Path | None = None, alpha_s: float = FeatureSpec.alpha_s,
+                 beta_s: float = FeatureSpec.beta_s, log=print) -> dict:
     """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
 
     The paper's SVM (OSPA's ``n_bins`` on the absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
@@ -76,18 +88,9 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant force) force is reported as
     absent.  Streams whose rest is shorter than Alg. 2's beta use the rest they have, down to
     :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the caller, not in ``table``) are only
-    named in the report.  ``artifact``: keep the paper's artifact there (default: a temporary folder).
+    named in the report.  ``artifact``: keep the paper's artifact there (default: a temporary folder).  ``alpha_s``,
+    ``beta_s``: Alg. 2's refresh interval and reference length.
     """
-    import dataclasses
-    import tempfile
-
-    from .calibration import OnlineReference
-    from .compare import chirps_per_location, coverage_note, replay_sessions, stream_metrics
-    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
-    from .fit import fit_artifact, prepare
-    from .runtime import SkinRuntime
-    from .split import Split
-
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()
@@ -102,7 +105,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                          f"{', ...' if len(never) > 12 else ''}); the SVM needs a press at every location: train on "
                          f"sessions that touch every location (--train)")
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
-    cal = OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
+    cal = OnlineReference.from_seconds(beta_s=beta_s, alpha_s=alpha_s, chirps_per_s=ds.rig.chirps_per_s)
     beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
     rest = beta is not None  # every stream has a no-touch reference: detection and Alg. 2 are measurable
     if not rest:
@@ -113,7 +116,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     quiet = lambda m: None  # noqa: E731
 
     def paper_data(**kw):
-        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, log=quiet, **kw)
+        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s,
+                    beta_s=beta_s, log=quiet, **kw)
         if rest and beta < cal.beta:  # Alg. 2's reference averages the rest every stream has
             d.spec = dataclasses.replace(d.spec, beta_s=beta / ds.rig.chirps_per_s)
         if not rest:  # no hands-off chirps in some stream: no detector, no Alg. 2 reference
@@ -160,11 +164,6 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
     """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin (no
     matched filter), online calibration vs the training reference only, E^O vs the total band energy for force, and
     Alg. 2 applied to the features."""
-    from .compare import replay_sessions
-    from .fit import fit_artifact, prepare
-    from .rig import Rig
-    from .runtime import SkinRuntime
-
     out = {}
     quiet = lambda m: None  # noqa: E731
     loc = te["location"]
@@ -201,7 +200,7 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
         # Alg. 2 applied to the features: the same bins minus the stream's running no-touch reference (the training
         # session's from its labelled rest, the test streams' from the SVM's own detection).
         d = prepare(data.dataset, table=data.table, split=data.split, bins=data.spec.bins, mode="relative",
-                    min_force_n=data.min_force_n, log=quiet)
+                    min_force_n=data.min_force_n, alpha_s=data.spec.alpha_s, beta_s=data.spec.beta_s, log=quiet)
         fit_artifact(d, tmp / "relative", options=PAPER_SVM, log=quiet)
         pr = replay_sessions(SkinRuntime(tmp / "relative", BASELINE), te, sorted(set(te["session"])))
         p_rel = pr.location
@@ -225,8 +224,6 @@ def _force_line(F: dict, label: str = "force (E^O)") -> str:
 
 
 def format_report(res: dict) -> str:
-    from .compare import counts_line, split_line
-
     L, D, F = res["localization"], res["detection"], res["force"]
     det = (f"  detection     {D['reason']}" if D.get("measurable") is False else
            f"  detection     false touches {D['false_touch_rate']:.1%}   missed touches {D['missed_touch_rate']:.1%}   "
@@ -271,18 +268,11 @@ def format_report(res: dict) -> str:
 
 def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
     """Write ``report.json`` and PNG plots (confusion matrix, error CDF)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .jsonio import json_safe
-
     write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
-    from .plots import cdf_panel, confusion_panel, detection_panel, location_names
-
     fig, ax = plt.subplots(1, 3, figsize=(17, 5), width_ratios=[1.1, 1, 0.8])
     confusion_panel(fig, ax[0], res["localization"]["confusion"], location_names(res.get("dataset"), layout),
                     f"SVM: accuracy {res['localization']['accuracy']:.1%}")

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .calibration import OnlineReference
-from .dataset import FeatureTable
 
-__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "training_targets", "select_bins", "usable_bins",
+if TYPE_CHECKING:
+    from .dataset import FeatureTable
+
+__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "training_targets", "usable_bins",
            "rest_beta", "MIN_REST_CHIRPS"]
 
 MODES = ("absolute", "relative")
@@ -126,27 +129,6 @@ def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
         (log or (lambda m: warnings.warn(m, stacklevel=3)))(msg)
         return n_allowed
     return want
-
-
-def select_bins(t: FeatureTable, rig, n_bins: int | None = 300, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
-    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
-    the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
-    best first.
-
-    Without no-touch chirps (a table of touches only) the moving variance is taken as 1, as
-    :class:`~sonicskin.ospa.OSPA` documents: the bins with the largest touch variance are kept.
-    ``n_bins`` larger than the rig's bins is clamped (:func:`usable_bins`).
-    """
-    from .ospa import OSPA
-
-    touch = touch_mask(t, min_force_n)
-    moving = (t["location"] < 0) & (t["moving"] > 0)
-    ref = moving if moving.sum() >= 2 else quiet_mask(t)
-    if touch.sum() < 2:
-        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
-    gamma = usable_bins(rig, n_bins, log=log)
-    X_ref = t.X[ref] if ref.sum() >= 2 else None
-    return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_
 
 
 # A no-touch reference averages at least this many chirps.  Alg. 2's beta is 3 s (28 chirps on the

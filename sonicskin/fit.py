@@ -33,7 +33,8 @@ from .artifact import PROBE_ROWS, atomic_artifact, skin_json
 from .dataset import Dataset, FeatureTable
 from .drift import DriftError, DriftTracker
 from .feature_cache import load_features_cached
-from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, select_bins, training_targets, usable_bins
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, training_targets, usable_bins
+from .ospa import select_bins
 from .selection import press_ids, press_passes, save_learning_curve, select_gamma_on_table
 from .split import Split
 
@@ -117,7 +118,8 @@ class TrainingData:
         if not self.split.val:
             return self
         split = Split(self.split.train + self.split.val, (), self.split.test)
-        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s}
+        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s,
+             "beta_s": self.spec.beta_s}
         d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False,
                     **o)
         d.selection = dict(self.selection)
@@ -127,8 +129,8 @@ class TrainingData:
 
 def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
             val_sessions=None, test_subjects=None, split: Split | None = None, table: FeatureTable | None = None,
-            bins=None, alpha_s: float = 1200.0, rig=None, min_force_n: float = 0.5, allow_no_test: bool = False,
-            wide: bool = False, progress: bool = True, log=None) -> TrainingData:
+            bins=None, alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s, rig=None,
+            min_force_n: float = 0.5, allow_no_test: bool = False, wide: bool = False, progress: bool = True, log=None) -> TrainingData:
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
     inputs of every chirp.
 
@@ -137,7 +139,8 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
     the band bins explicitly instead (e.g. every band bin, the paper's no-OSPA ablation).  ``split``/``table``:
     given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (what the network may read:
     its location layer is validated on prefixes of them), and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``;
-    a prefix, since OSPA ranks the bins once).  ``alpha_s``: Alg. 2's refresh interval.  ``rig``: the rig the artifact declares
+    a prefix, since OSPA ranks the bins once).  ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted
+    length of its reference (shorter when some session has less rest).  ``rig``: the rig the artifact declares
     (default: the dataset's; the paper's no-matched-filter ablation passes it without its PWM notches).  Relative
     inputs need Alg. 2's rest in every session: shorter rest is used down to
     :data:`~sonicskin.features.MIN_REST_CHIRPS` (with a warning), a table of touches only falls back to absolute
@@ -161,7 +164,7 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
         bins = select_bins(tr, ds.rig, int(ds.rig.allowed_mask.sum()) if wide else n_svm, min_force_n)
     else:
         n_svm = len(bins)
-    spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=float(alpha_s))
+    spec = FeatureSpec(tuple(int(b) for b in bins), mode, beta_s=float(beta_s), alpha_s=float(alpha_s))
     if mode == "relative":
         beta0 = spec.reference(ds.rig.chirps_per_s).beta
         beta = rest_beta(t, beta0)
@@ -302,14 +305,15 @@ def summary_lines(out: str | Path, skin: dict) -> list[str]:
 
 
 def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
-                       min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
+                       min_force_n: float = 0.5, progress: bool = True, log=print, **alg2) -> dict:
     """``fit-svm`` (and ``record``): an SVM-only artifact from a dataset, torch-free, trained on every session (or
     ``train_sessions``) with no validation or test split.  ``n_bins=None`` chooses gamma (with C, kernel width, force
     model) by validation on the training sessions' presses (:mod:`sonicskin.selection`), or keeps the paper's 300
-    with a warning when it cannot validate.  ``out`` is replaced as a whole when everything is written."""
+    with a warning when it cannot validate.  ``alg2``: ``alpha_s``/``beta_s`` of :func:`prepare`.  ``out`` is replaced
+    as a whole when everything is written."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     d = prepare(ds, n_bins=n_bins, mode=mode, train_sessions=list(train_sessions or ds.sessions), val_sessions=[],
-                min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log)
+                min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log, **alg2)
     skin = fit_artifact(d, out, learning_curve=True, log=log)
     for line in summary_lines(out, skin):
         log(line)

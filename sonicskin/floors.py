@@ -20,6 +20,9 @@ import time
 
 import numpy as np
 
+from .features import FeatureSpec, touch_mask
+from .ospa import select_bins
+
 __all__ = ["plain_floors", "FLOOR_NAMES"]
 
 #: floor key -> how reports name it
@@ -29,8 +32,6 @@ FLOOR_NAMES = {"svc": "SVC floor (all bins)", "lda": "shrinkage LDA floor (all b
 
 def boot_relative(t, rig) -> np.ndarray:
     """Every usable bin of every chirp minus its session's boot reference (the first ``beta`` chirps)."""
-    from .features import FeatureSpec
-
     beta = FeatureSpec((0,), "relative").reference(rig.chirps_per_s).beta
     X = t.X[:, rig.allowed_mask].astype(np.float64)
     for s in np.unique(t["session"]):
@@ -46,8 +47,6 @@ def plain_floors(t, rig, *, train, test, min_force_n: float = 0.5) -> dict:
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import Normalizer, StandardScaler
     from sklearn.svm import SVC, SVR
-
-    from .features import select_bins, touch_mask
 
     X = boot_relative(t, rig)
     touch = touch_mask(t, min_force_n)

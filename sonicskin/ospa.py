@@ -9,7 +9,9 @@ from sklearn.base import BaseEstimator
 from sklearn.feature_selection import SelectorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-__all__ = ["OSPA"]
+from .features import quiet_mask, touch_mask, usable_bins
+
+__all__ = ["OSPA", "select_bins"]
 
 
 class OSPA(SelectorMixin, BaseEstimator):
@@ -95,3 +97,22 @@ class OSPA(SelectorMixin, BaseEstimator):
         tags = super().__sklearn_tags__()
         tags.input_tags.allow_nan = False
         return tags
+
+
+def select_bins(t, rig, n_bins: int | None = None, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
+    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
+    the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
+    best first.
+
+    Without no-touch chirps (a table of touches only) the moving variance is taken as 1, as
+    :class:`~sonicskin.ospa.OSPA` documents: the bins with the largest touch variance are kept.
+    ``n_bins`` larger than the rig's bins is clamped (:func:`usable_bins`).
+    """
+    touch = touch_mask(t, min_force_n)
+    moving = (t["location"] < 0) & (t["moving"] > 0)
+    ref = moving if moving.sum() >= 2 else quiet_mask(t)
+    if touch.sum() < 2:
+        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
+    gamma = usable_bins(rig, n_bins, log=log)
+    X_ref = t.X[ref] if ref.sum() >= 2 else None
+    return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_

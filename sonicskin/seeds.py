@@ -29,6 +29,7 @@ from .feature_cache import load_features_cached
 from .fit import fit_models, prepare, write_artifact
 from .jsonio import json_safe
 from .kinds import BASELINE, CLOSED_FORM, NETWORK
+from .plots import pyplot
 from .rig import Rig
 from .runtime import SkinRuntime
 from .split import Split
@@ -242,10 +243,7 @@ def format_markdown(res: dict) -> str:
 
 def save_seeds(res: dict, out: str | Path) -> list[Path]:
     """``seeds.json``, ``seeds.md`` and ``seeds.png`` (paired differences with their intervals)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "seeds.json").write_text(json.dumps(json_safe(res), indent=1, allow_nan=False))  # a NaN (no force sensor) as null

@@ -25,6 +25,7 @@ search's ``best_params_`` and a compact ``cv_results_`` table are returned as pl
 from __future__ import annotations
 
 import math
+import textwrap
 import warnings
 
 import numpy as np
@@ -34,8 +35,11 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from .force import PerLocationForce, PooledForce
+from .features import FeatureSpec, quiet_mask, touch_mask
+from .force import PerLocationForce, PooledForce, energy_db
+from .head import DETECTOR_BINS, touch_statistic
 from .ospa import OSPA
+from .plots import pyplot
 from .stats import t_interval
 
 __all__ = ["PAPER", "press_ids", "press_passes", "gamma_grid", "make_cv", "select_localizer", "select_force",
@@ -377,15 +381,10 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
                             threshold: float) -> dict | None:
     """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every
     no-touch chirp a negative, the session's own rest the reference); ``None`` without rest and touches there."""
-    from .features import quiet_mask
-    from .head import touch_statistic
-
     q, touch = quiet_mask(t) & val_mask, (cls < n_locations) & val_mask
     no_touch = (t["location"] < 0) & val_mask
     if q.sum() < 2 or not touch.any():
         return None
-    from .head import DETECTOR_BINS
-
     stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations,
                            min(DETECTOR_BINS, X.shape[1]))
     names = ", ".join(sorted(set(t["session"][val_mask])))
@@ -396,8 +395,6 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
 # -- on a dataset's training split -----------------------------------------------------------------------------
 def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Press ids over the whole table and the touch chirps of ``sessions`` (labels only of those sessions)."""
-    from .features import touch_mask
-
     seg = t["segment"] if "segment" in t.labels else None
     press = press_ids(t["location"], t["session"], seg)
     return press, touch_mask(t, min_force_n) & np.isin(t["session"], list(sessions))
@@ -409,8 +406,6 @@ def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str 
 
     ``t`` may hold other sessions too (test sessions): only rows of ``train_sessions`` and
     ``val_sessions`` are read.  Inputs are the model inputs over every usable bin (``mode``)."""
-    from .features import FeatureSpec, quiet_mask
-
     use = np.isin(t["session"], list(train_sessions) + list(val_sessions))
     tt = t.select(use)
     allowed = np.flatnonzero(rig.allowed_mask)
@@ -438,8 +433,6 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
     (when ``selection`` has no ``svm`` part yet, gamma fixed to the inputs' width), the force model and the
     detection threshold.  ``train_mask``/``val_mask``: rows of the training / validation sessions (usable
     chirps); nothing else of ``t`` is read."""
-    from .force import energy_db
-
     sel = dict(selection or {})
     val_mask = np.zeros(len(X), bool) if val_mask is None else np.asarray(val_mask, bool)
     seg = t["segment"] if "segment" in t.labels else None
@@ -475,13 +468,7 @@ def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
     lc = (sel or {}).get("learning_curve")
     if not lc or not lc["accuracy"]:
         return False
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import textwrap
-
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     k, a, s = (np.asarray(lc[x], float) for x in ("presses_per_location", "accuracy", "std"))
     ax.errorbar(k, 100 * a, yerr=100 * s, fmt="o-", capsize=3, label="mean ± std over held-out passes")

@@ -59,7 +59,7 @@ def test_split_with_no_validation_tests_every_other_session(four_sessions):
 
 def test_val_none_and_test_reach_training_as_an_empty_validation(four_sessions, capsys):
     from sonicskin.cli import build_parser
-    from sonicskin.cli.models import _train_args
+    from sonicskin.cli.train import _train_args
 
     def overrides(*argv):
         a, extra = build_parser().parse_known_args(["compare", "--data", str(four_sessions), *argv])

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sonicskin.dataset import FeatureTable
-from sonicskin.features import MIN_REST_CHIRPS, rest_beta, select_bins
+from sonicskin.features import MIN_REST_CHIRPS, rest_beta
+from sonicskin.ospa import select_bins
 from sonicskin.kinds.closed import score_entry
 from sonicskin.kinds.svm import SVMHead, fit_pipeline, ovo_decision, ovr_scores_from_ovo
 from sonicskin.metrics import force_report

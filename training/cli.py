@@ -196,6 +196,7 @@ _FLOAT_RANGES = {  # (lo, lo_open, hi)
     "model.force_weight": (0.0, False, 1e6), "model.kernel_lr": (0.0, False, 10.0), "model.tau": (0.0, True, 1e6),
     "model.rest_mix": (0.0, False, 1.0), "model.noise_db": (0.0, False, 100.0),
     "data.noise_db": (0.0, False, 100.0), "data.min_force_n": (0.0, False, 1e4), "trainer.gradient_clip_val": (0.0, False, 1e9),
+    "data.alpha_s": (0.0, True, 1e7), "data.beta_s": (0.0, True, 3600.0),
 }
 MAX_EPOCHS = 1_000_000
 MAX_BATCH = 1_000_000

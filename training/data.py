@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -10,6 +11,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from sonicskin.dataset import Dataset
+from sonicskin.feature_cache import load_features_cached
+from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_models, prepare
 from sonicskin.kinds import CLOSED_FORM
 from sonicskin.rig import Rig
@@ -20,8 +24,6 @@ __all__ = ["SkinDataModule"]
 def session_fingerprints(root: str | Path, sessions) -> dict[str, str]:
     """sha256 of each session's ``session.json`` (the manifest binding its parts by their sha256): which recording a
     checkpoint was trained on, so ``export --data`` can tell a copy of it from other data under the same names."""
-    import hashlib
-
     return {str(s): hashlib.sha256((Path(root) / str(s) / "session.json").read_bytes()).hexdigest() for s in sessions}
 
 
@@ -51,11 +53,14 @@ class SkinDataModule(L.LightningDataModule):
         Chirps per optimisation step.
     noise_db : float
         Std of Gaussian noise added to training features (augmentation), in dB; passed to ``model.noise_db``.
+    alpha_s, beta_s : float
+        Alg. 2's refresh interval and reference length in seconds (relative inputs; :class:`~sonicskin.features.FeatureSpec`).
     """
 
     def __init__(self, data: str, n_bins: int | None = None, mode: str = "relative", train_sessions: list[str] | None = None,
                  val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
-                 min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3):
+                 min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3,
+                 alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s):
         super().__init__()
         self.save_hyperparameters()
         meta = json.loads((Path(data) / "dataset.json").read_text()) if (Path(data) / "dataset.json").is_file() else None
@@ -85,9 +90,6 @@ class SkinDataModule(L.LightningDataModule):
     def prepare_data(self) -> None:
         # Lightning calls this once per machine before `setup` on every rank: the feature cache is built here,
         # so DDP ranks read it instead of all computing (and writing) it at once.
-        from sonicskin.dataset import Dataset
-        from sonicskin.feature_cache import load_features_cached
-
         load_features_cached(Dataset(self.hparams.data), progress=False)
 
     def setup(self, stage: str | None = None) -> None:
@@ -95,7 +97,8 @@ class SkinDataModule(L.LightningDataModule):
             return
         h = self.hparams
         p = prepare(h.data, n_bins=h.n_bins, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
-                    test_subjects=h.test_subjects, min_force_n=h.min_force_n, log=lambda m: print(f"sonicskin: {m}"))
+                    test_subjects=h.test_subjects, min_force_n=h.min_force_n, alpha_s=h.alpha_s, beta_s=h.beta_s,
+                    log=lambda m: print(f"sonicskin: {m}"))
         self.prepared = p
         _, self.fitted = fit_models(p, (CLOSED_FORM,), refit=False, log=lambda m: None)
         p.selection = {k: v for f in self.fitted.values() for k, v in f.selection.items()} | p.selection

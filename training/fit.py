@@ -264,8 +264,8 @@ def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | P
     check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     check_same_sessions(meta, ds, ckpt)
     split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
-    d = prepare(ds, split=split, bins=spec.bins, mode=spec.mode, alpha_s=spec.alpha_s, min_force_n=meta["min_force_n"],
-                progress=False, log=log)
+    d = prepare(ds, split=split, bins=spec.bins, mode=spec.mode, alpha_s=spec.alpha_s, beta_s=spec.beta_s,
+                min_force_n=meta["min_force_n"], progress=False, log=log)
     if d.spec != spec:
         raise ArtifactError(f"dataset {ds.root} gives other model inputs than checkpoint {Path(ckpt).name} was trained on "
                             f"({d.spec.mode}, beta {d.spec.beta_s:g} s vs {spec.mode}, beta {spec.beta_s:g} s); pass the "

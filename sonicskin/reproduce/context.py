@@ -20,10 +20,12 @@ import numpy as np
 from .. import kinds
 from ..dataset import Dataset, FeatureTable
 from ..feature_cache import load_features_cached
-from ..features import select_bins
+from ..features import FeatureSpec
 from ..fit import prepare, write_artifact
 from ..head import Predictions
 from ..kinds import BASELINE, CLOSED_FORM, NETWORK
+from ..ospa import select_bins
+from ..plots import pyplot as plt
 from ..rig import Rig
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
@@ -52,13 +54,6 @@ def net_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as pyplot
-    return pyplot
 
 
 def datasets(quick: bool) -> dict[str, tuple[str, dict]]:
@@ -159,7 +154,7 @@ class Context:
             self._orders[key] = have = select_bins(t.select(train), ds.rig, max(n, min(1000, int(ds.rig.allowed_mask.sum()))))
         return have[:n]
 
-    def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = 1200.0, keep: np.ndarray | None = None,
+    def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = FeatureSpec.alpha_s, keep: np.ndarray | None = None,
              notches: bool = True, n_svm: int | None = None):
         """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``.  ``keep``: only
         these training chirps train (a resample).  ``notches=False``: the artifact's rig has no PWM notches (the

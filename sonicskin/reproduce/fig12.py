@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features import touch_mask
+from ..features import FeatureSpec, touch_mask
 from ..kinds import NETWORK
+from ..plots import MODEL_STYLE
 from .context import MODEL, NEVER_S, Context, deployed_data, first_session_split, plt
 
 ALPHAS = {"5 min": 300.0, "20 min": 1200.0, "60 min": 3600.0, "never": None}
@@ -56,8 +57,6 @@ def run(ctx: Context) -> dict:
 def draw(res: dict):
     """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves are identical
     share one line and one legend entry, so no entry names a hidden line."""
-    from ..plots import MODEL_STYLE
-
     groups: dict = {}
     for key, v in res.items():
         if " alpha=" in key:
@@ -89,7 +88,7 @@ def _label(members) -> str:
 
 def two_months(ctx: Context) -> dict:
     ds, later, train, bins, out = _drift_run(ctx, "drift-2months", "days", 86400, lambda t: np.ones(len(t["session"]), bool))
-    for name, alpha in (("with updating", 1200.0), ("without", NEVER_S)):
+    for name, alpha in (("with updating", FeatureSpec.alpha_s), ("without", NEVER_S)):
         d = deployed_data(ctx, ds, train, alpha_s=alpha) if ctx.net else ctx.data(ds, train=train, bins=bins, alpha_s=alpha)
         for k in ctx.kinds:
             out[f"{k} {name}"] = _per_session(ctx, k, d, train, later)

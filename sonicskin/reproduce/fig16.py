@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..plots import MODEL_STYLE
 from .context import MATERIALS, MODEL, Context, deployed_data, first_session_split, plt
 
 
@@ -19,8 +20,6 @@ def run(ctx: Context) -> dict:
 
 def draw(res: dict, kinds: list[str]):
     """Accuracy and force RMSE per material, both models side by side; the legend sits above the bars."""
-    from ..plots import MODEL_STYLE
-
     fig, ax = plt().subplots(1, 2, figsize=(11, 4.2))
     names = list(res)
     x = np.arange(len(names))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kinds import NETWORK
+from ..plots import cdf_panel, confusion_panel
 from .context import MODEL, Context, deployed_data, first_session_split, plt
 
 
@@ -30,8 +31,6 @@ def run(ctx: Context) -> dict:
     for k in ctx.kinds:
         res["fig15"][k] = ctx.evaluate(k, d, test)
     layers["fig15"] = _net_layer(ctx, d)
-    from ..plots import cdf_panel, confusion_panel
-
     for fig_name in ("fig14", "fig15") if ctx.plots else ():
         kinds = list(res[fig_name])
         same = len(kinds) > 1 and all(np.array_equal(res[fig_name][kinds[0]]["confusion"], res[fig_name][k]["confusion"])
