@@ -23,7 +23,7 @@ import numpy as np
 from . import __version__, kinds
 from .artifact_files import model_file
 from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, nonfinite_field, validate_skin
-from .dataset import write_file
+from .dataset import refuse_inside_dataset, write_file
 from .errors import ArtifactError
 from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
 from .jsonio import json_safe
@@ -117,8 +117,6 @@ def atomic_artifact(out: str | Path) -> Iterator[Path]:
     is refused rather than replaced.  The swap is one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
     else two renames (a crash between them keeps the old artifact as ``.<name>.old-<pid>`` beside it).
     """
-    from .dataset import refuse_inside_dataset
-
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
     if out.exists() or out.is_symlink():

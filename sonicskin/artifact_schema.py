@@ -68,8 +68,11 @@ from pathlib import Path
 from typing import Any
 
 from . import kinds
+from .drift import DriftError, DriftTracker
 from .errors import ArtifactError
+from .features import MODES, FeatureSpec
 from .force import MODELS, PooledForce
+from .rig import Layout, Rig
 
 __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin",
            "nonfinite_field"]
@@ -186,8 +189,6 @@ def _unique(doc: _Doc, values: list, field: str) -> None:
 
 
 def _check_rig(doc: _Doc, rig: Any):
-    from .rig import Rig
-
     rig = doc.obj(rig, "rig")
     doc.keys(rig, set(_RIG_REQUIRED) | set(_RIG_OPTIONAL), "rig")
     for k in _RIG_REQUIRED:
@@ -212,8 +213,6 @@ def _check_rig(doc: _Doc, rig: Any):
 
 
 def _check_layout(doc: _Doc, layout: Any):
-    from .rig import Layout
-
     layout = doc.obj(layout, "layout")
     doc.keys(layout, {"ids", "xy_cm", "circumference_cm"}, "layout")
     ids = doc.list(doc.get(layout, "ids", "layout"), "layout.ids", nonempty=True)
@@ -230,8 +229,6 @@ def _check_layout(doc: _Doc, layout: Any):
 
 
 def _check_features(doc: _Doc, feats: Any, n_band: int, rig=None):
-    from .features import MODES, FeatureSpec
-
     feats = doc.obj(feats, "features")
     doc.keys(feats, {"bins", "mode", "beta_s", "alpha_s"}, "features")
     bins = doc.list(doc.get(feats, "bins", "features"), "features.bins", nonempty=True)
@@ -434,8 +431,6 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
     _check_training(doc, doc.get(meta, "training", ""))
     if "drift" in meta:  # drift tracking's training reference (sonicskin.drift.DriftTracker.to_dict), version 3
-        from .drift import DriftError, DriftTracker
-
         try:
             DriftTracker.from_dict(meta["drift"], rig)
         except DriftError as e:

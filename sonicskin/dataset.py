@@ -46,6 +46,7 @@ import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
 from .errors import SonicskinError
+from .limits import check_memory
 from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
@@ -430,8 +431,6 @@ def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, opti
     :func:`sonicskin.limits.check_memory`).  Object arrays (pickles) are refused.
     Raises :class:`DatasetError` (one line naming the file and the array).
     """
-    from .limits import check_memory
-
     path = Path(path)
     out: dict[str, np.ndarray] = {}
     try:

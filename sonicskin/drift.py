@@ -52,6 +52,7 @@ import scipy.optimize
 import scipy.signal
 
 from .errors import SonicskinError
+from .sim.channel import MATERIALS
 
 __all__ = ["DriftError", "DriftEstimate", "DriftTracker", "estimate_stretch", "warp_band", "warp_index",
            "band_segments", "stretch_to_kelvin", "material_kappa", "DEFAULT_MAX_SEARCH", "DEFAULT_SMOOTH_HZ",
@@ -79,8 +80,6 @@ class DriftError(SonicskinError):
 
 def material_kappa(material: str) -> float:
     """Relative modal frequency shift per kelvin of a simulated wall material (``MATERIALS[name].kappa_per_k``)."""
-    from .sim.channel import MATERIALS
-
     if not isinstance(material, str) or material not in MATERIALS:
         raise DriftError(f"unknown material {material!r} for the stretch's temperature equivalent; "
                          f"known: {', '.join(sorted(MATERIALS))} (or pass kappa_per_k)")

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset import Dataset, FeatureTable
+from . import __version__, dataset, dsp
+from .dataset import COLUMNS, Dataset, FeatureTable
 
 __all__ = ["load_features_cached"]
 
@@ -21,8 +22,6 @@ __all__ = ["load_features_cached"]
 def _code_version() -> bytes:
     """What the cached values depend on in the code: the package version and the bytes of the modules
     that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
-    from . import __version__, dataset, dsp
-
     h = hashlib.sha256(f"sonicskin {__version__}".encode())
     for mod in (dataset, dsp):
         try:
@@ -72,8 +71,6 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
     with its key kept was trusted (``fit-svm`` then wrote another ``svm.onnx`` from the same recordings).  Here the
     label rows are checked against the label CSVs (a session's last one or two rows may be missing: a recording that
     stops inside its last chirp), and the whole content against the digest stored when the cache was written."""
-    from .dataset import COLUMNS
-
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""

@@ -19,6 +19,7 @@ from typing import Any
 from . import kinds
 from .artifact_schema import REEXPORT, _short
 from .errors import ArtifactError
+from .rig import Layout, Rig
 
 __all__ = ["BINDING_KEY", "canonical", "artifact_digest", "binding", "read_binding", "stamp_binding", "run_probe",
            "check_integrity", "check_session", "check_rig", "check_layout"]
@@ -232,8 +233,6 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
 
 def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") -> None:
     """Refuse to run an artifact on a rig it was not trained for (sample rate, chirp, bands)."""
-    from .rig import Rig
-
     diffs = Rig.from_dict(meta["rig"]).mismatch(rig)
     if diffs:
         raise ArtifactError(f"{what} was trained for another rig ({'; '.join(diffs)}){f' than {here}' if here else ''}; "
@@ -248,8 +247,6 @@ def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = 
     positions too (the model's locations would be reported at the wrong places).
     """
     import numpy as np
-
-    from .rig import Layout
 
     mine = Layout.from_dict(meta["layout"])
     if mine.ids != layout.ids:

@@ -45,6 +45,9 @@ from .acquire import Link
 from .dataset import check_name
 from .errors import ConfigNotFoundError, brief
 from .rig import ConfigError, Rig, load_yaml, resolve_config
+from .sim import Scenario
+from .sim.channel import MATERIALS
+from .surface import LinkSurface
 
 __all__ = ["load_links", "load_arm", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
 
@@ -99,8 +102,6 @@ def missing_datasets(links: list[Link], data: Path) -> list[str]:
 def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
     """The simulated link of a link: a scenario name, or a mapping ``{base: NAME, key: value, ...}`` (keys of
     :class:`sonicskin.sim.Scenario`).  Without ``geometry`` the surface's shape is simulated."""
-    from .sim import Scenario
-
     if isinstance(spec, str):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
@@ -111,7 +112,6 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
     d = {**Scenario.load(base).to_dict(), "name": name, **spec}
     if "geometry" not in spec and surface is not None:
         d["geometry"] = scenario_geometry(surface)
-    from .sim.channel import MATERIALS
 
     if not isinstance(d.get("material"), str) or d["material"] not in MATERIALS:  # here, not at the first render
         raise ConfigError(f"{where}: scenario: unknown material {brief(d.get('material'))}; choose one of {sorted(MATERIALS)}")
@@ -131,8 +131,6 @@ def scenario_geometry(surface) -> dict:
 
 def scenario_surface(scenario, frame: str):
     """The surface of a simulated link placed by nothing else: its scenario's shape, centred in a frame of its own."""
-    from .surface import LinkSurface
-
     g = scenario.geometry
     if g.get("kind", "tube") == "tube":
         return LinkSurface(frame, "tube", (g["radius_cm"] / 100, g["length_cm"] / 100))
@@ -213,8 +211,6 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
         raise ConfigError(f"{where}: frame must be the name of the link's frame (a URDF link), got {brief(frame)}")
     surface = None
     if d.get("surface") is not None or (urdf is not None and frame is not None):
-        from .surface import LinkSurface
-
         over = d.get("surface") or {}
         if not isinstance(over, dict):
             raise ConfigError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {brief(over)}")

@@ -17,6 +17,7 @@ import numpy as np
 from . import kinds
 from .artifact_files import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
+from .drift import DriftTracker
 from .dsp import log_magnitude_db
 from .errors import ArtifactError
 from .features import FeatureSpec
@@ -112,8 +113,6 @@ class SkinRuntime:
         """A new stream: Alg. 2's online reference and the per-chirp path (see :class:`sonicskin.head.Stream`)."""
         drift = None
         if self.drift is not None:
-            from .drift import DriftTracker
-
             drift = DriftTracker.from_dict(self.drift, self.rig)
         return Stream(self.run, self.head, self.spec, self.rig, drift=drift)
 

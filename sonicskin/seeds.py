@@ -23,15 +23,18 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import replay_sessions, stream_metrics
+from .compare import replay_sessions, split_line, stream_metrics
 from .dataset import Dataset
 from .feature_cache import load_features_cached
 from .fit import fit_models, prepare, write_artifact
+from .floors import plain_floors
 from .jsonio import json_safe
 from .kinds import BASELINE, CLOSED_FORM, NETWORK
 from .plots import pyplot
 from .rig import Rig
 from .runtime import SkinRuntime
+from .sim.generate import simulate_dataset
+from .sim.scenario import Scenario
 from .split import Split
 from .stats import t_interval
 
@@ -59,9 +62,6 @@ LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "continuous_erro
 def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print, **overrides) -> Dataset:
     """Scenario ``name`` simulated with ``seed`` on ``rig`` (default: jaco) under ``cache/<name>-seed<seed>``
     (``cache/<rig>/<name>-seed<seed>`` for another rig; made on first use).  ``overrides`` replace scenario fields."""
-    from .sim.generate import simulate_dataset
-    from .sim.scenario import Scenario
-
     rig = rig or Rig.load("jaco")
     path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
@@ -88,8 +88,6 @@ def _floors(ds: Dataset, t, split) -> dict:
     """The plain scikit-learn floors on the same split (:func:`sonicskin.floors.plain_floors`): ``accuracy`` (SVC on
     every usable bin), ``lda_accuracy``, ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR) and
     ``force_rmse_constant_n`` (the training mean)."""
-    from .floors import plain_floors
-
     f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
     out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
            "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
@@ -235,8 +233,6 @@ def format_markdown(res: dict) -> str:
     splits = {name: next((r["split"] for rows in sc.get("runs", {}).values() for r in rows if "split" in r), None)
               for name, sc in res["scenarios"].items()}
     if any(splits.values()):
-        from .compare import split_line
-
         lines += [""] + [f"- {name}: {split_line(sp)}" for name, sp in splits.items() if sp]
     return "\n".join(lines)
 

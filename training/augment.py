@@ -34,6 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from sonicskin.force import PooledForce
+from sonicskin.selection import press_ids
+
 __all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "choose_force"]
 
 #: augmentations and their default size (see the module notes)
@@ -164,8 +167,6 @@ def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alph
     one session's presses more loosely than over the few hundred the SVM's force reads.  Sets the model's force."""
     import torch
 
-    from sonicskin.force import PooledForce
-
     ids = np.asarray(location_ids)
     n_loc, n_in = len(ids), X.shape[1]
     f = np.asarray(force, np.float64)
@@ -200,8 +201,6 @@ def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: 
     the boot reference when it never moves, its markers' positions), over all of the data's inputs (OSPA order), drawn
     over the first ``n_cols``.  Returns the augmenter and, for each of the ``rows``, its row in the augmenter (-1: not
     a touch chirp)."""
-    from sonicskin.selection import press_ids
-
     t = data.table
     rows = np.asarray(rows, bool)
     n_loc = data.n_locations

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sonicskin.artifact_schema import _check_features, _check_layout, _check_rig, _Doc
 from sonicskin.errors import SonicskinError
 
 from .module import SkinLitModule
@@ -108,8 +109,6 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
 def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
     """The sonicskin metadata with the artifact schema's own checks (rig, layout, features), and against the
     network it describes (input width = bins, outputs = locations): one line naming the field."""
-    from sonicskin.artifact_schema import _check_features, _check_layout, _check_rig, _Doc
-
     class Doc(_Doc):
         def fail(self, field, problem, fix=None):
             raise CheckpointError(f"{self.source}: its sonicskin metadata {field} {problem}; {HINT}")

@@ -21,9 +21,11 @@ from collections.abc import Iterator
 import lightning as L
 from lightning.pytorch.cli import LightningCLI
 
+from sonicskin import threads
 from sonicskin.errors import UsageError
 
 from .data import SkinDataModule
+from .fit import choose_auto_layer
 from .module import LAYER_KINDS, SkinLitModule
 
 __all__ = ["SkinCLI", "EpochBar", "main", "quiet_third_party"]
@@ -319,8 +321,6 @@ class SkinCLI(LightningCLI):
 
     def before_fit(self) -> None:
         if self.model.hparams.layer == "auto":  # the location layer, chosen on data it does not train on
-            from .fit import choose_auto_layer
-
             choose_auto_layer(self.model, self.datamodule, epochs=self.trainer.max_epochs or 40)
 
     def add_arguments_to_parser(self, parser) -> None:
@@ -338,8 +338,6 @@ def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
     """
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
-
-    from sonicskin import threads
 
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     refuse_unlisted_classes(list(args or []))  # before jsonargparse imports any class a file names

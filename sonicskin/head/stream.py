@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..dsp import log_magnitude_db
 from ..errors import ArtifactError
 from .predictions import Predictions
 
@@ -103,8 +104,6 @@ class Stream:
 
     def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
         """One chirp-aligned frame (n_chirp,) at stream time ``t_s``; ``None`` during the boot calibration."""
-        from ..dsp import log_magnitude_db
-
         frame = np.asarray(frame)
         if frame.shape != (self.rig.n_chirp,):
             raise ArtifactError(f"expected one chirp-aligned frame of {self.rig.n_chirp} samples (the artifact's rig), "

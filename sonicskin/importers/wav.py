@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
-from ..dataset import COLUMNS, DatasetWriter
-from ..dsp import frame_stream
+from ..dataset import COLUMNS, DatasetWriter, load_json
+from ..dsp import frame_faults, frame_stream, rig_chirp
 from ..limits import check_memory
 from ..rig import Rig
 from ._common import ImportDataError, _first_touch, _staged, _write_session
@@ -88,8 +88,6 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
     """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
     the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
     (or the file holds no received sweep) and every feature would be silently meaningless.  No sweep may be clipped."""
-    from ..dsp import frame_faults, rig_chirp
-
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
     if n < 2:
@@ -201,7 +199,6 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                                       where=str(labels), log=log)
     for r, i in zip(rows, ids):
         r["location"] = int(i)
-    from ..dsp import rig_chirp
 
     ref = rig_chirp(rig)
     for p in files:
@@ -218,8 +215,6 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()},
               "files": [p.name for p in files], "labels_sha256": hashlib.sha256(labels.read_bytes()).hexdigest()}
     if mode == "resume" and (out / "dataset.json").is_file():
-        from ..dataset import load_json
-
         old = load_json(out / "dataset.json").get("source", {})
         if isinstance(old, dict) and "files" not in old:
             raise ImportDataError(f"cannot resume {out}: it was imported by an older sonicskin that did not record which "

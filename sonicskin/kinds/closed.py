@@ -8,7 +8,7 @@ import numpy as np
 
 from ..calibration import TouchDetector
 from ..force import PerLocationForce, PooledForce, energy_db
-from ..head import DETECTOR_BINS, touch_statistic
+from ..head import DETECTOR_BINS, DETECTORS, touch_statistic
 
 __all__ = ["score_entry", "check_score_entry", "SCORE_KEYS"]
 
@@ -55,8 +55,6 @@ def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray
 
 def check_score_entry(doc, m: dict, f: str, *, n_in: int, layout_ids: list) -> None:
     """The closed-form fields of entry ``m`` (at ``f``, e.g. ``models.svm``)."""
-    from ..head import DETECTORS
-
     n_loc = len(layout_ids)
     if n_loc < 2:
         doc.fail(f"{f}.n_locations", "must be >= 2 for a closed-form model (it separates locations)")

@@ -17,6 +17,7 @@ import os
 import time
 from pathlib import Path
 
+from .. import threads
 from ..feature_cache import load_features_cached
 from ..jsonio import OMIT, json_safe
 from ..rig import Rig
@@ -39,8 +40,6 @@ GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
 def default_jobs() -> int:
     """Worker processes for ``reproduce``: the cores this process may use divided by the thread setting
     (:mod:`sonicskin.threads`), at most 4 (each worker holds its datasets' features in memory)."""
-    from .. import threads
-
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -50,8 +49,6 @@ def default_jobs() -> int:
 
 def _simulate_task(out, quick, rig, seed, name, n_threads):
     """Worker: simulate (if not there yet) and featurise one dataset of one simulator seed."""
-    from .. import threads
-
     threads.configure(n_threads)
     lines: list[str] = []
     ctx = Context(Path(out), quick, lines.append, rig)
@@ -65,8 +62,6 @@ def _simulate_task(out, quick, rig, seed, name, n_threads):
 def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
     """Run experiments ``names`` of one simulator seed in one process (one shared :class:`_Ctx`).
     Returns (seed, results, log lines, figures written, per-experiment (wall, CPU) seconds, sharing counts)."""
-    from .. import threads
-
     if n_threads is not None:
         threads.configure(n_threads)
     lines: list[str] = []
@@ -94,8 +89,6 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
     and featurised (one task per dataset and seed), then the experiments run (one task per seed and group of
     experiments that share data).  Each number is the same whatever ``jobs`` is: tasks only read what they share."""
     from tqdm.auto import tqdm
-
-    from .. import threads
 
     t0 = time.perf_counter()
     out = Path(out)

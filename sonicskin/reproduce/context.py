@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import kinds
+from ..compare import replay_sessions, stream_metrics
 from ..dataset import Dataset, FeatureTable
 from ..feature_cache import load_features_cached
 from ..features import FeatureSpec
@@ -27,6 +28,7 @@ from ..kinds import BASELINE, CLOSED_FORM, NETWORK
 from ..ospa import select_bins
 from ..plots import pyplot as plt
 from ..rig import Rig
+from ..runtime import SkinRuntime
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
 from ..split import Split
@@ -204,9 +206,6 @@ class Context:
     def predict(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> Predictions:
         """Predictions of the ``test`` rows of the data's table, replayed as the live loop runs: each session is a
         stream (``one_stream``: the whole recording from power-on is one stream, sessions are gaps in it)."""
-        from ..compare import replay_sessions
-        from ..runtime import SkinRuntime
-
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, mask_key(test), one_stream)
         if key in self._preds:
@@ -224,8 +223,6 @@ class Context:
     def evaluate(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> dict:
         """Localization, detection and force of the deployed model on the ``test`` rows
         (:func:`sonicskin.compare.stream_metrics`, as ``compare`` reports them)."""
-        from ..compare import stream_metrics
-
         data = data_key[0]
         p = self.predict(kind, data_key, test, seed=seed, one_stream=one_stream)
         te = data.table.select(test)

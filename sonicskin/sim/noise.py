@@ -19,6 +19,8 @@ import functools
 
 import numpy as np
 
+from ..rig import check_keys
+
 __all__ = ["NoiseConfig", "white_spectrum", "tone_spectrum", "motion_noise_spectrum"]
 
 
@@ -43,8 +45,6 @@ class NoiseConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None) -> NoiseConfig:
-        from ..rig import check_keys
-
         d = dict(d or {})
         check_keys(cls, d, "noise")
         return cls(**d)

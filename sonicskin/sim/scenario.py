@@ -22,9 +22,14 @@ from typing import Any
 
 import numpy as np
 
+from ..dataset import TEMPERATURE_C, check_name
 from ..errors import brief
+from ..limits import check_memory
 from ..rig import MAX_LOCATIONS, Layout, Rig, _resolve_config, check_keys, load_yaml
+from .channel import MATERIALS, ChannelModel
 from .finger import make_subjects, press_profile
+from .noise import NoiseConfig
+from .thermal import HotMeltBond
 
 __all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS", "RandomFamily", "family_seeds", "is_family"]
 
@@ -107,9 +112,6 @@ class Scenario:
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
         if self.order not in ("random", "sequential"):
             raise ValueError(f"order must be 'random' or 'sequential', got {brief(self.order)}")
-        from .noise import NoiseConfig
-        from .thermal import HotMeltBond
-
         check_keys(HotMeltBond, self.bond, "bond")
         check_keys(NoiseConfig, self.noise, "noise")  # here, before a value of an unknown key is kept (and copied)
         if self.touch_s <= 0 or self.calibration_s <= 0:
@@ -332,8 +334,6 @@ def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
 
 def _check_parts(sc: Scenario) -> None:
     """The scenario's mappings: known keys, numbers where numbers go, sizes > 0, transducers apart, markers on the link."""
-    from ..dataset import check_name
-
     check_name(sc.name, "scenario name")  # `simulate` writes to data/<name> by default: a name stays a name
     g = sc.geometry
     kind = g.get("kind", "tube")
@@ -372,7 +372,6 @@ def _check_parts(sc: Scenario) -> None:
     for k in ("warmup_tau_s", "swing_period_s"):
         if k in sc.temperature and not sc.temperature[k] > 0:
             raise ValueError(f"temperature.{k} must be > 0 s, got {brief(sc.temperature[k])}")
-    from ..dataset import TEMPERATURE_C
 
     T = sc.temperature
     lo = T.get("ambient_c", 23.0) + min(0.0, T.get("warmup_c", 0.0)) - abs(T.get("swing_c", 0.0))
@@ -382,17 +381,12 @@ def _check_parts(sc: Scenario) -> None:
                          f"{TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C a link can be at; give degrees Celsius")
     import inspect
 
-    from .channel import ChannelModel
-
     allowed = [n for n, prm in inspect.signature(ChannelModel).parameters.items() if prm.kind is prm.KEYWORD_ONLY
                and n not in ("tx_m", "rx_m", "seed")]
     _keys("channel", sc.channel, (), allowed)
     for k, v in sc.channel.items():
         if not (_number(v) and v >= 0):
             raise ValueError(f"channel.{k} must be a number >= 0, got {brief(v)}")
-    from .noise import NoiseConfig
-    from .thermal import HotMeltBond
-
     _field_values("noise", sc.noise, NoiseConfig, positive=(), nonneg=lambda k: k.endswith(("_rms", "_hz", "_per_chirp")))
     _field_values("bond", sc.bond, HotMeltBond, positive=("fr_hz", "tan_delta"), nonneg=lambda k: False)
     r = sc.channel.get("transducer_radius_m", 5e-3)
@@ -448,8 +442,6 @@ def check_size(sc: Scenario, rig: Rig) -> int:
     Returns the total number of chirps.  The estimate: ~256 bytes per chirp of ground truth (plus one
     press profile), and one rendering block (about 1024 chirps, or one part) of spectra and frames.
     """
-    from ..limits import check_memory
-
     first, other = session_chirps(sc, rig)
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
@@ -550,8 +542,6 @@ class RandomFamily:
         return fam
 
     def validate(self) -> None:
-        from .channel import MATERIALS
-
         if self.family != "random":
             raise ValueError(f"unknown scenario family {brief(self.family)}; the simulator knows 'random'")
         bad = [m for m in self.materials if m not in MATERIALS]
@@ -572,8 +562,6 @@ class RandomFamily:
 
     def draw(self, seed: int) -> Scenario:
         """The rig and protocol of ``seed`` (deterministic)."""
-        from .channel import MATERIALS
-
         rng = np.random.default_rng([int(seed), 2026, 15])
 
         def uni(r):
