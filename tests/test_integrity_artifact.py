@@ -549,7 +549,7 @@ def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeyp
 
 
 def test_interrupted_export_keeps_the_old_artifact(sealed, cli_files, tmp_path, monkeypatch):
-    import sonicskin.export.onnx as X
+    import sonicskin.training.fit as X  # the network's kind exports through the export_net it imported
     from sonicskin.training.fit import artifact_from_checkpoint
 
     ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])

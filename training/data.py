@@ -53,8 +53,10 @@ class SkinDataModule(L.LightningDataModule):
         Chirps per optimisation step.
     noise_db : float
         Std of Gaussian noise added to training features (augmentation), in dB; passed to ``model.noise_db``.
-    alpha_s, beta_s : float
-        Alg. 2's refresh interval and reference length in seconds (relative inputs; :class:`~sonicskin.features.FeatureSpec`).
+    alpha_s : float
+        Alg. 2's refresh interval: the no-touch reference of relative inputs is renewed every ``alpha_s`` seconds.
+    beta_s : float
+        Alg. 2's reference length in seconds (shorter when some session has less rest).
     """
 
     def __init__(self, data: str, n_bins: int | None = None, mode: str = "relative", train_sessions: list[str] | None = None,
