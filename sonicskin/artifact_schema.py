@@ -3,60 +3,11 @@
 Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
 :func:`sonicskin.artifact_files.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
 writes with :func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
-naming the field (``models.svm.threshold``), what is wrong and what to do.  Reading the files of an artifact folder
-is :mod:`sonicskin.artifact_files`; binding the model files to this document, :mod:`sonicskin.integrity`.
-
-
-    format              "sonicskin-artifact"
-    version             3 (2 still read; older refused with 'export again')
-    sonicskin_version   string
-    rig                 fs_hz, f_lo_hz, f_hi_hz, n_chirp, pwm_hz, pwm_halfwidth_hz (required),
-                        amplitude, name, sweep_b64 (optional); finite, in range (see Rig)
-    layout              ids: N >= 1 unique ints >= 0; xy_cm: N pairs of finite cm;
-                        circumference_cm: null or finite > 0
-    features            bins: B >= 1 unique ints, 0 <= b < rig.n_band; mode: absolute | relative;
-                        beta_s: finite, 0 < beta_s <= 3600 (s); alpha_s: finite, beta_s <= alpha_s <= 1e7 (s)
-    min_force_n         finite >= 0 (N)
-    calibration         optional copy of beta_s / alpha_s, equal to the features' ones
-    training            provenance: data (string), split {train, val, test: [session names]}, other keys free
-    digest              64 lowercase hex digits: sha256 of the canonical JSON of this document without
-                        ``digest`` (which holds every model file's sha256): one digest binds the artifact
-    drift               optional (version 3): drift tracking's training rest spectrum over the band and its limits
-                        (sonicskin.drift.DriftTracker.to_dict); the stream estimates the channel's frequency
-                        stretch against it at every Alg. 2 reference and maps each chirp back
-    selection           optional: what model selection chose on the training/validation presses and its
-                        validation estimate (svm, force, detection, net; see sonicskin.selection), reported only
-    models              {kind: entry} of the model kinds (sonicskin.kinds: net, svm, lda), at least one:
-      file              a plain file name inside the artifact folder (no directories, no symlink out of it),
-                        at most 256 MB
-      sha256            64 lowercase hex digits of that file
-      probe             {inputs: 1..64 rows of B finite numbers, outputs: one entry per graph output, null or
-                        the export-time output rows}: re-run at load, the model must reproduce them
-      kind              the kind's graph: "skinnet" (net) | "svc-ovo" (svm) | "shrinkage-lda" (lda)
-      n_in              <= B: the model reads the first n_in bins (OSPA order);  n_locations == N
-      parity            optional dict of export parity figures;  hparams: optional dict (net)
-      net only (version 3):
-        detector          optional {mode: "head" | "input-rms" | "either", bias: finite, threshold: 0..1e3 (dB RMS),
-                          reference: optional 1..B finite numbers, bins: optional int 1..B}: the touch decision the
-                          network head applies to the graph's outputs (absent: the graph's own p(touch) >= 0.5)
-      svm and lda (closed-form kinds, sonicskin.kinds.closed):
-        reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
-        threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
-        detection         optional bool (default true); false: trained on touches only, no detector
-        detector          "input-rms" | "paper" (version 3: the paper's max calibrated score);  detector_bins:
-                          optional int 1..B (the input-RMS statistic reads the first ones; default all)
-      lda only:
-        norm              "none" | "level" | "unit": each chirp as measured, its mean dB removed, or unit length
-        energy_ref_db     finite, |e| <= 1e4
-        train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
-        force             model (a force curve model); curves: {} or one per layout id, each
-                          {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi};
-                          or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
-                          per layout id, intercept}
-
-and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, n_in)`` (the model's
-``n_in`` first bins of ``features.bins``); the net outputs logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM
-a label and ``N (N - 1) / 2`` pairwise values (2 columns when ``N = 2``).
+naming the field (``models.svm.threshold``), what is wrong and what to do.  The checks below are the schema: the
+top-level blocks (``format``, ``version``, ``rig``, ``layout``, ``features``, ``training``, ``drift``, ``selection``,
+``models``, ``digest``), each model kind's entry (:meth:`sonicskin.kinds.ModelKind.check_entry`) and its probe; the
+files themselves are described in docs/artifact.md.  Reading the files of an artifact folder is
+:mod:`sonicskin.artifact_files`; binding the model files to this document, :mod:`sonicskin.integrity`.
 """
 
 from __future__ import annotations

@@ -86,12 +86,6 @@ def resolve_config(name_or_path: str | Path, kind: str) -> Path:
     return candidate
 
 
-_resolve_config = resolve_config  # the old private name, for callers not yet updated
-
-#: Kept for older callers; new code calls :func:`config_dir` / :func:`config_names`.
-CONFIG_DIR = config_dir()
-
-
 MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a config
 
 

@@ -282,7 +282,7 @@ def _options(text: str) -> dict[str, str]:
 def test_train_help_describes_every_option_with_the_default_train_uses(capsys):
     pytest.importorskip("lightning")
     from sonicskin.cli import main
-    from sonicskin.rig import CONFIG_DIR
+    from sonicskin.rig import config_dir
 
     try:
         assert main(["train", "--help"]) in (0, None)
@@ -296,7 +296,7 @@ def test_train_help_describes_every_option_with_the_default_train_uses(capsys):
     # --data means one thing on `sonicskin train`: LightningCLI's --data CONFIG says it is not reachable here.
     assert "dataset folder" in opts["--data"]
     assert text.count("\n  --data CONFIG ") == 1 and "not on `sonicskin train`" in text
-    cfg = yaml.safe_load((CONFIG_DIR / "train" / "moving.yaml").read_text())
+    cfg = yaml.safe_load((config_dir() / "train" / "moving.yaml").read_text())
     checked = 0
     for group in ("model", "data"):
         for key, want in cfg[group].items():

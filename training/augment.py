@@ -34,10 +34,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from sonicskin.force import PooledForce
 from sonicskin.selection import press_ids
 
-__all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "choose_force"]
+__all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter"]
 
 #: augmentations and their default size (see the module notes)
 AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "gain": 0.3, "tilt": 0.3, "motion": 1.0}
@@ -111,14 +110,6 @@ class Augmenter:
         if positions_cm is not None:
             self.neigh = neighbour_rings(positions_cm, K, circumference_cm)
 
-    def restricted(self, k: int) -> Augmenter:
-        """The same augmenter returning only the first ``k`` of its input columns."""
-        import copy
-
-        out = copy.copy(self)
-        out.cols = self.cols[:k]
-        return out
-
     def draw(self, rng: np.random.Generator, rows: np.ndarray | None = None) -> np.ndarray:
         """Augmented copies of the touch chirps ``rows`` (default: all), over the input columns."""
         rows = np.arange(len(self.X)) if rows is None else np.asarray(rows, int)
@@ -155,44 +146,6 @@ class Augmenter:
             pick = rng.integers(len(self.rest), size=n)
             X += rng.uniform(0.0, s["motion"], n)[:, None] * self.rest[pick]
         return X[:, self.cols]
-
-
-# -- the network's force ---------------------------------------------------------------------------------------
-def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
-                 first: tuple = (None, 300), how: str = "validation") -> dict:
-    """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
-    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
-    (the best OSPA bins; zero weight on the rest, so :meth:`models.SkinNet.set_force` takes it unchanged).
-    :func:`training.quick.choose_net_force` with the choice of inputs added: a ridge over thousands of bins fits
-    one session's presses more loosely than over the few hundred the SVM's force reads.  Sets the model's force."""
-    import torch
-
-    ids = np.asarray(location_ids)
-    n_loc, n_in = len(ids), X.shape[1]
-    f = np.asarray(force, np.float64)
-    fr = fit_rows & (cls < n_loc) & np.isfinite(f)
-    vr = val_rows & (cls < n_loc) & np.isfinite(f)
-    if fr.sum() < 8 or vr.sum() < 2 or np.unique(cls[fr]).size < n_loc:
-        return {"force": "head", "force_how": "not validated (too few presses with a force reading)"}
-    model.set_force(None)
-    with torch.no_grad():
-        head = model(torch.from_numpy(np.ascontiguousarray(X[vr], np.float32)))[1].numpy()
-    cand = {"head": (np.clip(head[np.arange(vr.sum()), cls[vr]], 0, None), None)}
-    for k in first:
-        k = n_in if k is None else min(int(k), n_in)
-        name = "pooled-ridge" if k == n_in else f"pooled-ridge (first {k} inputs)"
-        if name in cand:
-            continue
-        pf = PooledForce(alpha).fit(X[fr][:, :k], f[fr], ids[cls[fr]])
-        coef = np.zeros(n_in)
-        coef[:k] = pf.coef_
-        pred = np.clip(X[vr] @ coef + np.array([pf.loc_coef_.get(int(i), 0.0) for i in ids[cls[vr]]]) + pf.intercept_, 0, None)
-        cand[name] = (pred, {"coef": coef, "loc": [pf.loc_coef_[int(i)] + pf.intercept_ for i in ids]})
-    rmse = {k: float(np.sqrt(np.mean((p - f[vr]) ** 2))) for k, (p, _) in cand.items()}
-    best = min(rmse, key=rmse.get)
-    if cand[best][1] is not None:
-        model.set_force(cand[best][1])
-    return {"force": best, "force_how": f"{how}: " + ", ".join(f"{k} {v:.2f} N" for k, v in rmse.items()), "force_rmse": rmse}
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):

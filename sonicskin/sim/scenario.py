@@ -25,7 +25,7 @@ import numpy as np
 from ..dataset import TEMPERATURE_C, check_name
 from ..errors import brief
 from ..limits import check_memory
-from ..rig import MAX_LOCATIONS, Layout, Rig, _resolve_config, check_keys, load_yaml
+from ..rig import MAX_LOCATIONS, Layout, Rig, check_keys, load_yaml, resolve_config
 from .channel import MATERIALS, ChannelModel
 from .finger import make_subjects, press_profile
 from .noise import NoiseConfig
@@ -87,7 +87,7 @@ class Scenario:
         """A scenario YAML, with ``seed`` (presses, noise) replaced when given.  A scenario *family*
         (a YAML with ``family:``, e.g. ``random``) draws a whole new rig from ``seed`` (default: its
         first design seed), see :class:`RandomFamily`."""
-        d = load_yaml(_resolve_config(name_or_path, "scenarios"))
+        d = load_yaml(resolve_config(name_or_path, "scenarios"))
         if "family" in d:
             fam = RandomFamily.from_dict(d)
             return fam.draw(fam.design_seeds[0] if seed is None else int(seed))
@@ -453,13 +453,13 @@ def check_size(sc: Scenario, rig: Rig) -> int:
     return int(total)
 def is_family(name_or_path: str | Path) -> bool:
     """Whether ``name_or_path`` is a scenario family (a YAML with ``family:``) rather than one scenario."""
-    return "family" in load_yaml(_resolve_config(name_or_path, "scenarios"))
+    return "family" in load_yaml(resolve_config(name_or_path, "scenarios"))
 
 
 def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
     """The family's ``design`` seeds (free to develop on), ``heldout`` seeds (never tuned on) and ``previous``
     (an earlier held-out set, seen by earlier rounds: evaluated, no longer unseen)."""
-    fam = RandomFamily.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
+    fam = RandomFamily.from_dict(load_yaml(resolve_config(name_or_path, "scenarios")))
     return {"design": fam.design_seeds, "heldout": fam.heldout_seeds, "previous": fam.previous_seeds}
 
 
