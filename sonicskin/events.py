@@ -6,44 +6,9 @@ Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, 
 writer writes :data:`SCHEMA_VERSION`; this reader accepts versions 1 and 2 (:data:`READS`).  Fields
 are only ever *added* within a version, so a reader accepts an event with fields it does not know
 (a later writer's), ignores them and keeps them (:attr:`TouchEvent.extra`, written back by
-:meth:`TouchEvent.to_json`).
-
-Semantics (version 1, unchanged in version 2)
----------------------------------------------
-- ``t_s``: stream time in seconds of the chirp's first sample, counted from the first sample the
-  audio device delivered (one clock per run; not wall time).  Consecutive chirps are
-  ``n_chirp / fs_hz`` apart (106.7 ms on the paper's rig).
-- ``kind``: ``"touch"`` for every chirp the detector calls touched; ``"release"`` once, for the
-  first untouched chirp after a run of touched ones.  A press of 1 s therefore gives about nine
-  ``touch`` events and one ``release``.  A ``release`` carries the last location estimate of the
-  chirp it was computed on and ``force_n`` 0.
-- ``location``: the id of the most likely marker of the artifact's layout (its ``layout.ids``).
-- ``x_cm``, ``y_cm``: the touch position on the *unrolled surface* of the link, in cm, in the
-  layout's frame: ``x`` along the circumference (wrapping at ``layout.circumference_cm`` on a tube),
-  ``y`` along the link's axis from its end that holds the transmitter.  It is the probability-
-  weighted centroid of the three most likely markers, so it lies between markers.
-- ``force_n``: the estimated normal force in newtons (0 on ``release``; ``null`` when the
-  artifact has no force model).
-- ``confidence``: in [0, 1].  Network: the probability of the chosen marker given that there is a
-  touch.  SVM: the share of the pairwise (one-vs-one) votes the chosen marker won.  It ranks how
-  sure the model is about *where*, not whether there is a touch (the detector decides that).
-- ``model``: ``"svm"`` or ``"net"``, the artifact model that produced the event.
-- ``latency_ms``: processing time from the chirp's last sample being available to the event.
-- ``link`` (optional): the name of the link that sensed it, on a multi-link rig (``sonicskin live
-  --links``: the links config's ``name``); absent on a single link.
-
-Added in version 2: the robot's frame (optional; absent when the run places no surface)
----------------------------------------------------------------------------------------
-When the link's skin is placed on its surface (:class:`sonicskin.surface.LinkSurface`, conventions
-in its module docstring and docs/robot-frame.md), :func:`attach_surface` adds:
-
-- ``frame_id``: the link's frame, the name its URDF gives the link.
-- ``point_m``: ``[x, y, z]``, the contact point (``x_cm``, ``y_cm`` on the surface) in metres in that frame.
-- ``normal``: ``[x, y, z]``, the unit outward surface normal there, in that frame.
-- ``force_vec_n``: ``[x, y, z]``, the force the finger exerts on the link, ``-force_n * normal``, in N in
-  that frame (``[0, 0, 0]`` on ``release``; ``null`` when ``force_n`` is null).
-
-``point_m`` and ``normal`` come together, with the ``frame_id`` (not empty) they are in; ``force_vec_n`` only with them.
+:meth:`TouchEvent.to_json`).  Version 2 adds the robot's frame (``frame_id``, ``point_m``, ``normal``,
+``force_vec_n``; :func:`attach_surface`) when the link's skin is placed on its surface.  Every field's unit,
+frame and meaning: docs/api.md (the event table) and docs/robot-frame.md.
 """
 
 from __future__ import annotations
@@ -103,7 +68,7 @@ EVENT_SCHEMA: dict[str, Any] = {
 
 @dataclasses.dataclass(frozen=True)
 class TouchEvent:
-    """One event of the stream (see the module docstring for units and frames)."""
+    """One event of the stream (units and frames: docs/api.md)."""
 
     t_s: float
     kind: str             # "touch" | "release"
