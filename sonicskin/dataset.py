@@ -14,15 +14,9 @@ the session stream, in seconds.  Parts are written atomically (temporary file, t
 the CSV last), so an interrupted run keeps every part already written and a reader never
 sees half a part.  Label columns: see :data:`COLUMNS`.
 
-Integrity: when a session is complete its ``session.json`` is a manifest that binds the parts to
-each other and to ``dataset.json``: every part with its chirp count and the sha256 of its FLAC and
-CSV bytes, and the sha256 of ``dataset.json``'s content (canonical JSON).  The reader checks the
-manifest (a missing, swapped, added or edited part is refused), then the label rows of the whole
-session (every chirp labelled once, in order, numbered without a gap; values in range; each row on a
-chirp of the stream).  A session without ``session.json`` is an unfinished recording: its parts are
-read (a FLAC without its CSV at the end is the part a killed run was writing; a part missing before
-later ones is damage and refused) and checked by their label rows only.  Session names are plain names
-(:data:`SAFE_NAME`): a writer never writes outside its dataset folder.
+A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``
+(sha256s); without it the session is an unfinished recording, read part by part.  What is hashed and checked where:
+docs/artifact.md (the data side in full).
 """
 
 from __future__ import annotations
@@ -125,13 +119,7 @@ def _sha(data: bytes) -> str:
 
 
 def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -> None:
-    """Every label column in range: one line naming the first bad row and column, else nothing.
-
-    location -1 or a layout id; force_n NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite
-    in [0, 1]; t_s/time_s finite, t_s >= 0; x_cm/y_cm NaN or finite; temperature_c NaN or finite in
-    range; subject >= 0; segment one of :data:`SEGMENTS`; a touched chirp (location >= 0) in a ``touch``
-    segment with finite coordinates.
-    """
+    """Every label column in range (the ranges below): one line naming the first bad row and column, else nothing."""
     n = len(lab["chirp"])
 
     def bad(col: str, mask: np.ndarray, want: str) -> None:
@@ -177,11 +165,9 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
     """The right to write the dataset folder ``root``, exclusive between processes: an ``fcntl.flock`` on the
-    folder itself (created if missing), held for the block; reentrant within a process.
-
-    Two ``sonicskin simulate --out X`` at once: the second is refused here, before it touches anything, and its
-    clean-up can never remove the first one's files (it used to: "already holds a dataset", then the first died
-    with ``No such file or directory: X/s000`` and nothing was left).  Where ``fcntl`` is missing, no lock.
+    folder itself (created if missing), held for the block; reentrant within a process.  A second writer of the
+    same folder is refused before it touches anything, so its clean-up never removes the first one's files.  Where
+    ``fcntl`` is missing, no lock.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -298,18 +284,10 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
 
 
 class DatasetWriter:
-    """Create (or resume) a dataset folder and append session parts to it.
-
-    Parameters
-    ----------
-    root : folder to write.
-    rig, layout : stored in ``dataset.json``; resuming checks they match.
-    source : free metadata (scenario config, recorder settings).
-    mode : ``"create"`` (fails if the folder holds a dataset), ``"overwrite"`` or ``"resume"``.
-
-    Every label row is checked before it is written (:func:`check_label_values`), session names
-    must be plain names (:func:`check_name`), and :meth:`finish_session` writes the session's
-    manifest: each part's chirp count and the sha256 of the bytes written.
+    """Create (or resume) the dataset folder ``root`` and append session parts to it.  ``rig`` and ``layout`` are
+    stored in ``dataset.json`` (resuming checks they match), ``source`` is free metadata; ``mode``: ``"create"``
+    (refused when the folder holds a dataset), ``"overwrite"`` or ``"resume"``.  Label rows are checked before they
+    are written; :meth:`finish_session` writes the session's manifest.
     """
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,
@@ -423,13 +401,9 @@ def _npy_header(fh) -> tuple[tuple[int, ...], np.dtype]:
 
 def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, optional: tuple[str, ...] = (),
              max_bytes: int | None = None, what: str = "table") -> dict[str, np.ndarray]:
-    """Read only the arrays ``names`` of an ``.npz``, each checked from its header before it is loaded.
-
-    ``names``: array name -> (dtype kinds allowed, e.g. ``"fiu"``, and ndim or ``None``).  Arrays not
-    asked for are never read (an unused 3 GB array costs nothing); each array's size from its header
-    (and the zip member's declared size) must fit ``max_bytes`` (default: what memory can hold,
-    :func:`sonicskin.limits.check_memory`).  Object arrays (pickles) are refused.
-    Raises :class:`DatasetError` (one line naming the file and the array).
+    """Read only the arrays ``names`` (name -> (dtype kinds allowed, e.g. ``"fiu"``, and ndim or ``None``)) of an
+    ``.npz``, each checked from its header before it is loaded: its size must fit ``max_bytes`` (default: what
+    memory can hold), object arrays (pickles) are refused.  Raises :class:`DatasetError` naming the file and array.
     """
     path = Path(path)
     out: dict[str, np.ndarray] = {}
