@@ -1,27 +1,11 @@
 """``sonicskin check``: is this rig fit to learn touches from?  One table, each line pass/warn/fail with its fix.
 
-The check plays the rig's chirp on the transmitter for a few seconds of rest, then asks for a
-firm press (the simulated device scripts one), records every input channel, and measures:
-
-=========================  =====================================================================
-sample rate                the device accepts the rig's rate for input and output
-chirp lock                 matched-filter peak over its median (dB) on the receive channel; a
-                           lock on another input instead is "the wrong channel"
-output-to-input delay      where the chirp starts in the input (ms, modulo one chirp period) and
-                           its wander between chirps (samples, peak to peak)
-input level / clipping     peak and RMS in dBFS, share of samples at full scale
-SNR per sub-band           single-chirp SNR, coherent mean of the rest chirps against their
-                           chirp-to-chirp variance, median over the bins of each sub-band
-PWM / motor lines          narrow lines of the noise spectrum in the chirp band, and whether
-                           the rig's PWM notches cover them
-rest-to-rest repeatability RMS over the usable bins of one rest chirp's dB spectrum minus the
-                           rest mean (dB)
-touch contrast             the same change for pressed chirps over the rest-to-rest change (dB)
-=========================  =====================================================================
-
-:func:`capture` records, from an audio interface or the :class:`SimulatedDevice` (opened by
-:func:`sonicskin.session.open_source`); :func:`analyse` measures a capture and returns a :class:`CheckReport`
-(``table()``, ``to_json()``, ``plot()``).
+The check plays the rig's chirp for a few seconds of rest, then asks for a firm press (the simulated device scripts
+one), records every input channel, and measures: the sample rate, the chirp lock (and a lock on another input:
+"the wrong channel"), the output-to-input delay and its wander, the input level and clipping, the SNR per
+sub-band, PWM/motor lines against the rig's notches, rest-to-rest repeatability and the touch contrast
+(docs/bring-up.md).  :func:`capture` records, from an audio interface or the :class:`SimulatedDevice`;
+:func:`analyse` measures a capture and returns a :class:`CheckReport` (``table()``, ``to_json()``, ``plot()``).
 """
 
 from __future__ import annotations

@@ -1,35 +1,11 @@
 """Links and arm files: several robot links, each with its own TX/RX pair, on one audio interface.
 
-A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp::
-
-    duplex: time            # time | frequency | none
-    links:
-      - {name: upper-arm, tx: 0, rx: 0}
-      - {name: forearm, tx: 1, rx: 1}
-
-``time``: link k chirps in period k of every ``N`` (each link's rate drops to 1/N).  ``frequency``: the band is split
-into ``N`` sub-bands, all chirping at once.  ``none``: every link has its own output *and* input channel and the full
-band, all chirping at once: the robot's joints decouple adjacent links acoustically (paper Sec. IV), so a whole arm
-senses at the full chirp rate on every link.
-
-An *arm file* (``configs/arms``) is a links file whose links also say where they are on the robot and, for the
-simulated arm, what they are made of::
-
-    name: arm6
-    rig: fast                    # the rig every link runs (one interface, one sample rate)
-    urdf: arm6.urdf              # optional, relative to this file: the links' frames and geometry
-    duplex: none
-    links:
-      - name: forearm
-        tx: 3
-        rx: 3
-        frame: forearm_link      # the URDF link (its collision cylinder or box is the touched surface)
-        surface: {...}           # instead of (or overriding) the URDF: sonicskin.surface.LinkSurface.from_dict
-        scenario: {base: moving, material: aluminium, seed: 41, ...}   # the simulated link (a scenario or overrides)
-        artifact: forearm        # the link's trained artifact, relative to this file (fit-svm --links writes it)
-
-A scenario without ``geometry`` takes the surface's (a URDF cylinder of radius r and length L is the simulated tube).
-:func:`write_arm` writes the arm file of a trained arm: the same links with their artifacts, next to them.
+A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``, link k
+chirps in period k of every N; ``frequency``, the band split into N sub-bands; ``none``, every link its own output
+and input channel and the full band).  An *arm file* (``configs/arms``) is a links file whose links also say where
+they are on the robot (a URDF frame, a surface) and, simulated, what they are made of (a scenario); a scenario
+without ``geometry`` takes the surface's.  :func:`write_arm` writes the arm file of a trained arm, each link with
+its artifact.  The keys: docs/arm.md.
 """
 
 from __future__ import annotations

@@ -1,30 +1,15 @@
 """Touch events as ROS 2 messages in an MCAP file (``ros2 bag play FILE``, Foxglove), without ROS installed.
 
 :class:`McapEventWriter` writes each event that carries the robot-frame fields (schema v2,
-:func:`sonicskin.events.attach_surface`) as ROS 2 messages, CDR-encoded by ``mcap-ros2-support``:
-
-- ``/sonicskin/<frame>/contact_point``: ``geometry_msgs/msg/PointStamped``, the contact point in the link frame.
-- ``/sonicskin/<frame>/contact_wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact's wrench about the link
-  frame's origin: force ``F = -force_n * normal`` (the finger on the link), torque ``p x F`` (exact without a
-  contact frame).  Zero on a release (the contact ended); not written when the artifact has no force model.
-- ``/sonicskin/markers``: ``visualization_msgs/msg/MarkerArray``; on a touch an arrow (namespace
-  ``sonicskin/<frame>``, id 0) pushing on the point along the normal, 1 cm + 2 cm per N long, and a sphere
-  (id 1, 1 cm) at the point; on a release the DELETE of both.
-
-``<frame>`` is the event's ``frame_id`` (the URDF link name; a character a ROS name cannot hold becomes ``_``).
-Every header has ``frame_id`` = the link's frame and ``stamp`` = ``t0_unix_s + t_s`` (``builtin_interfaces/Time``);
-the MCAP log time is the same instant, so a player replays at the skin's pace.  Events without the robot-frame
-fields (schema v1, a run without a surface) are counted (:attr:`McapEventWriter.skipped`), not written, with one
-warning.  Each event's messages close their own MCAP chunk and are flushed to the file, so a process killed hard
-loses nothing written (``mcap recover`` restores the index); :meth:`McapEventWriter.close` (also on Ctrl-C, the
-context manager's exit) writes the summary that makes the file complete.
-
-The file: an existing one is refused unless ``overwrite=True`` (``--overwrite``); it is opened and locked
-(``fcntl.flock``, exclusive, on the file itself) when the writer is made, so a second writer on the same path is
-refused while the first is open; nothing is written (an existing file is not truncated) until the first event or
-:meth:`~McapEventWriter.close`, and a writer dropped unclosed before that (a run that failed to start) removes the
-empty file it created, at garbage collection or interpreter exit.  Any ``OSError`` (a full disk) is one line naming
-the file (:class:`~sonicskin.errors.SonicskinError`), and the writer is closed.
+:func:`sonicskin.events.attach_surface`) as ``/sonicskin/<frame>/contact_point`` (PointStamped),
+``/sonicskin/<frame>/contact_wrench`` (WrenchStamped: ``F = -force_n * normal``, torque ``p x F``) and
+``/sonicskin/markers`` (MarkerArray: an arrow and a sphere at the point, deleted on a release), CDR-encoded by
+``mcap-ros2-support``, stamped ``t0_unix_s + t_s``; the topics: docs/robot-frame.md.  Events without those fields
+are counted (:attr:`McapEventWriter.skipped`), with one warning.  Each event's messages close their own chunk and are
+flushed, so a process killed hard loses nothing written (``mcap recover`` restores the index); :meth:`close` writes
+the summary.  An existing file is refused unless ``overwrite=True``; the file is opened and locked (``flock``) when
+the writer is made, written from the first event on, and removed again when the writer is dropped before that.  An
+``OSError`` (a full disk) is one line naming the file, and closes the writer.
 """
 
 from __future__ import annotations

@@ -1,31 +1,18 @@
 """A live view of the skin in a web browser: each link's surface unrolled, the touch, the last events, the drift state.
 
-:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: inline CSS, JS and SVG, no CDN, nothing
-from the internet) and two JSON endpoints from an :class:`http.server.HTTPServer` on ``127.0.0.1`` (port 0: any free
-port), answered by a fixed pool of :data:`POOL_THREADS` handler threads (no thread per connection), each connection
-given :data:`CONN_TIMEOUT_S` to send its request; a browser tab that hangs up mid-answer is no error (nothing is
-printed: ``live`` prints its status line on the same stderr)::
+:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: no CDN, nothing from the internet) and
+two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
 
     GET /            the page
     GET /links.json  the links, once per page load: name, kind, surface size, markers (cm), spacing
     GET /state.json  what changes: the touch on each link, each link's status, the last events, a sequence number
 
-The page polls ``/state.json`` every 100 ms rather than holding a Server-Sent Events stream: a poll is a short,
-stateless request, so ``stop()`` never waits on an open connection, a page survives a restart of the server (it
-reloads the links when their ``run`` id changes), and a state of a few kB every 100 ms on the loopback costs nothing;
-an event reaches the page within one poll period plus one render.  A started view that is dropped without
-:meth:`ViewServer.stop` (a ``Listener(view=True)`` never started, then deleted) stops serving when it is garbage
-collected: its server holds it only by a weak reference.
-
-The live loop calls :meth:`ViewServer.push_event` and :meth:`ViewServer.set_status` from its own thread; both copy
-into the shared state under a lock held for a few dict assignments, and the HTTP threads serialise a snapshot taken
-under the same lock, so the loop never waits on a browser.  :func:`attach_view` wires a
-:class:`~sonicskin.live.LiveLoop` to a view (its events, and its reference and drift state twice a second of stream
-time).
-
-Frames: ``x_cm`` around the circumference of the unrolled surface (wrapping at the circumference on a tube), ``y_cm``
-along the link's axis from the transmitter end, as in :mod:`sonicskin.events`; the page draws ``x`` to the right and
-``y`` up, every link at the same cm-per-pixel scale.
+The page polls ``/state.json`` every 100 ms (a short stateless request: ``stop()`` never waits on an open
+connection, a page survives a restart of the server).  The live loop calls :meth:`ViewServer.push_event` and
+:meth:`ViewServer.set_status` from its own thread; both copy into the shared state under a lock the HTTP threads
+snapshot under, so the loop never waits on a browser (:func:`attach_view` wires a
+:class:`~sonicskin.live.LiveLoop`).  A dropped, unstopped view stops serving when it is garbage collected.  Frames:
+as in :mod:`sonicskin.events`; the page draws ``x`` to the right and ``y`` up, every link at one scale.
 """
 
 from __future__ import annotations

@@ -1,33 +1,14 @@
-"""Augmentation along what varies between presses at one marker, measured from the user's own session (issue 26).
+"""Augmentation along what varies between presses at one marker, measured from the user's own session.
 
 With one press per marker the network sees one cloud of chirps per marker.  :class:`Augmenter` draws new touch
 chirps along the nuisance directions a later press will move along, each measured from the training session
-itself or fixed by physics, never from a test session:
-
-``press``
-    the force ramp within each press: a chirp moved toward (or past) another chirp of the same press,
-    ``x_i + lam (x_j - x_i)``, ``lam`` in ``[-e, 1 + e]``: a firmer or softer moment of the same touch.
-``strength``
-    the whole relative spectrum scaled by ``exp(N(0, sigma))``: a small touch changes the channel by
-    ``dH ~ K(w) G_tx G_rx``, linear in the finger's impedance ``K`` (mostly its damping, which grows with force
-    and differs from person to person), so in the small-change regime the relative dB pattern scales with it.
-``aim``
-    the fingertip landing off the marker: the chirp moved toward a neighbouring marker's mean pattern by
-    ``alpha (mu_j - mu_k)``, ``alpha ~ |N(0, aim_cm / distance)|`` (linear interpolation of the pattern
-    between markers; the finger's own contact patch already averages the pattern over ~1 cm).
-``stretch``
-    warm-up: the wall's modes move with ``sqrt(E)``, so the whole channel's frequency axis is stretched by
-    ``s`` (-3.5e-4 per K on the simulated CFRP wall); the relative pattern is resampled at ``f (1 + s)``,
-    ``s ~ U(-stretch, stretch)``, over every usable bin.
-``gain``, ``tilt``
-    a constant and a frequency-linear dB offset (transducer gain, bond and coupling change between the boot
-    reference and the chirp), ``N(0, gain_db)``, ``N(0, tilt_db)`` across the band.
-``motion``
-    a hands-off chirp of the training session recorded while the robot moved, minus their mean, added at a
-    random level ``U(0, motion_level)``: motion and noise as this rig records them.
-
-Every augmentation is linear in the chirp except ``stretch`` (a resampling) and ``strength`` (a product); all
-work on relative dB over every usable bin and the model's inputs are selected afterwards.
+itself or fixed by physics, never from a test session (sizes: :data:`AUGMENTATIONS`): ``press``, a chirp moved
+toward (or past) another chirp of the same press, ``x_i + lam (x_j - x_i)`` (a firmer or softer moment);
+``strength``, the relative spectrum scaled by ``exp(N(0, sigma))`` (a small touch's change is linear in the finger's
+impedance); ``aim``, moved toward a neighbouring marker's mean pattern (the fingertip landing off the marker);
+``stretch``, resampled at ``f (1 + s)`` (warm-up stretches the wall's modes); ``gain`` and ``tilt``, a constant and a
+frequency-linear dB offset; ``motion``, a hands-off chirp of the moving robot (minus their mean) added at a random
+level.  All work on relative dB over every usable bin; the model's inputs are selected afterwards.
 """
 
 from __future__ import annotations

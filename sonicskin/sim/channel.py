@@ -1,28 +1,18 @@
 """Acoustic channel of a thin-walled robot link: modal synthesis of bending (A0 Lamb) waves.
 
-The link wall is a thin plate: a tube of circumference ``C`` unrolled with periodic edges
-(above its ring frequency a tube behaves like this plate) or a flat plate, simply supported
-at its ends.  Bending waves follow Mindlin plate theory (shear and rotary inertia), whose
-flexural branch is slower than Kirchhoff's at 80 kHz.  The transfer function between two
-points is the modal sum
+The wall is a thin plate (a tube unrolled with periodic edges, or a flat plate), simply supported at its ends, with
+Mindlin dispersion.  The transfer function between two points is the modal sum
 
     G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2),
 
-with mass-normalised mode shapes.  Transducers and the finger are discs, so each point's
-mode shape is averaged over the disc: for a mode of wavenumber ``k`` that is
-``2 J1(k a) / (k a)``.  A finger is a contact patch of radius ``a(F)`` with a dynamic
-stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)`` (tissue damping, added mass, contact
-stiffness, all growing with the contact area); the touched response follows exactly from
-the untouched one by a Woodbury update.  A single rigid piston (rank one,
-``G_rs - G_rc K G_cs / (1 + K G_cc)``) would average the wall's motion over the whole pad, and
-for pads wider than half a wavelength (a firm press at 60-80 kHz) it would make the finger
-vanish; a finger is a soft, distributed load, so the pad is split into P sub-contacts (a centre
-and a ring) each carrying its share of the impedance, coupled exactly through the wall:
+each point's mode shape averaged over its disc (``2 J1(k a) / (k a)``).  A finger is a contact patch of radius
+``a(F)`` with dynamic stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)``, split into P sub-contacts coupled exactly
+through the wall (a Woodbury update of the untouched response):
 
-    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s.
+    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s,
 
-The update is computed at a few contact radii per press and interpolated in radius, so once a
-press is set up each chirp costs O(bins).
+computed at a few contact radii per press and interpolated in radius (each chirp then costs O(bins)).  The physics
+and its sources: docs/simulator.md.
 """
 
 from __future__ import annotations
