@@ -1,22 +1,12 @@
 """``sonicskin record``: the guided one-shot training session on a robot (paper Sec. III-A).
 
-The recorder prompts the user through: hands off (Alg. 2's calibration), hands off while the
-robot moves (OSPA's moving variance), then each location in turn ("touch location 7 with
-varying force for 3 s"), and writes the received stream and per-chirp labels in the dataset
-format as it goes: one part per prompt, each written atomically, so Ctrl-C loses at most the
-prompt in progress.  A chirp's label is the prompt that was showing when it was received.
-``--resume`` starts a new session that records only the requested locations the dataset has
-no touch chirps for yet (:func:`recorded_locations`): an interrupted prompt, or a prompt the
-user did not press.
-
-On the simulated device a simulated person follows exactly the prompts given
-(:func:`person_timeline`), and the simulated sensors also report where the finger really was:
-touch rows then carry that position in ``x_cm``/``y_cm`` (on a real rig: the marker's).
-
-Force ground truth comes from a :class:`ForceSource`: a CSV log (``t_s,force_n`` since the start
-of the recording), a serial sensor (one number per line, e.g. a SingleTact via an Arduino), the
-simulated sensor of the simulated device, or none (forces are then NaN and only location is
-trained).
+The recorder prompts the user through hands off (Alg. 2's calibration), hands off while the robot moves (OSPA's
+moving variance), then each location in turn, and writes the received stream and per-chirp labels as it goes, one
+part per prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was
+received.  ``--resume`` records only the locations the dataset has no touch chirps for yet.  On the simulated
+device a simulated person follows the prompts (:func:`person_timeline`) and touch rows carry where the finger
+really was.  Force comes from a :class:`ForceSource`: a CSV log, a serial sensor, the simulated sensor, or none
+(NaN: location only).
 """
 
 from __future__ import annotations
@@ -164,22 +154,13 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
 class Recorder:
     """Record a schedule from a source into a dataset session.
 
-    Prompt ``i`` of the schedule covers ``n_i`` chirp periods of the stream, starting where prompt
-    ``i - 1`` ended (the first starts at the first whole chirp).  Each chirp is labelled from the
-    prompt whose time span holds it, by its position in the stream, so a chirp the framing skips
-    never shifts the prompts after it.  A touch prompt labels its chirps with the location after
-    ``settle_s`` (the user's reaction time); every prompt is written as one part when it ends.
-
-    Parameters
-    ----------
-    writer : the dataset writer.  session : session folder name.
-    source : an audio source (:class:`sonicskin.acquire.AudioSource`), started.
-    schedule : prompts from :func:`make_schedule`.
-    force : a :class:`ForceSource`; if it has ``contact_cm(t_s)`` (the simulated device), touch rows
-        get the true finger position in ``x_cm``/``y_cm``, otherwise the marker's coordinates.
-    moving_level : motion level to label the ``moving`` prompt with.
-    prompt : called with each prompt's text (default: stderr).
-    watchdog_s : a source that delivers nothing for this long ends the recording (:class:`sonicskin.acquire.DeviceLost`).
+    Prompt ``i`` covers ``n_i`` chirp periods of the stream, starting where prompt ``i - 1`` ended; each chirp is
+    labelled from the prompt whose span holds it (a chirp the framing skips never shifts the prompts after it), a
+    touch prompt's chirps with the location after ``settle_s`` (the user's reaction time); each prompt is written as
+    one part when it ends.  ``source``: a started :class:`sonicskin.acquire.AudioSource`; ``schedule``: from
+    :func:`make_schedule`; ``force``: a :class:`ForceSource` (with ``contact_cm(t_s)``, the simulated device, touch
+    rows get the true finger position); ``watchdog_s``: no audio for this long ends the recording
+    (:class:`sonicskin.acquire.DeviceLost`).
     """
 
     def __init__(self, writer: DatasetWriter, session: str, source: AudioSource, schedule, force: ForceSource, *,
@@ -295,18 +276,11 @@ def _sigint_deferred():
 
 
 def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):
-    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order.
-
-    Every prompt becomes a segment of exactly its length: hands off for calibration, gaps and
-    skipped locations do not exist here (the person only hears the prompts given); the robot
-    moves only during the ``moving`` prompt; each touch prompt is one press-hold-release of the
-    scenario's first subject at the prompted marker (aim bias and jitter of that person, peak
-    force from ``scenario.peak_force_n``).  ``lead_chirps`` extra no-touch chirps go in front:
-    the stream starts inside chirp 0, so the recorder's first whole chirp is usually chirp 1 (chirp 0
-    when the stream starts within the link's delay): the person is never ahead of a prompt and at
-    most one chirp behind it, well inside the recorder's reaction time.
-
-    Returns a one-session :class:`sonicskin.sim.Timeline`.
+    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order: a one-session
+    :class:`sonicskin.sim.Timeline`.  Each prompt is a segment of exactly its length; the robot moves only during the
+    ``moving`` prompt; each touch prompt is one press of the scenario's first subject at the prompted marker.
+    ``lead_chirps`` no-touch chirps go in front (the stream starts inside chirp 0), so the person is never ahead of
+    a prompt and at most one chirp behind it.
     """
     layout = scenario.make_layout()
     rng = np.random.default_rng([seed, 17])

@@ -1,25 +1,12 @@
 """Model selection on the user's own presses: gamma, C, kernel width, force model and detection threshold.
 
-Every default of the paper (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location)
-was tuned where the answer is visible.  On a new rig the right values depend on the rig and on how
-much data there is, so they are chosen here by validation on the *training* data only:
-
-- with a validation session: train on the training sessions, score on the validation session
-  (:class:`~sklearn.model_selection.PredefinedSplit`);
-- otherwise, with at least two presses per location: cross-validation over *passes* (the k-th press
-  of every location forms pass k; folds are passes, so the chirps of one press are never on both
-  sides and every location is trained in every fold);
-- otherwise the paper's values, with a warning that says why.
-
-A *press* is a run of consecutive touch chirps at one location within one session and segment
-(:func:`press_ids`); the test sessions never reach this module (its callers pass the training and
-validation sessions only; ``tests/test_selection.py`` changes a test session and checks that the
-choice is bit-identical).
-
-The search is scikit-learn's :class:`~sklearn.model_selection.GridSearchCV` over a
-``Pipeline([ospa, scale, width, svc])`` whose OSPA step's ``gamma`` is a parameter; the fitted
-search's ``best_params_`` and a compact ``cv_results_`` table are returned as plain JSON data for
-``skin.json``.
+The paper's defaults (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location) are chosen here by
+validation on the *training* data only: on a validation session when there is one
+(:class:`~sklearn.model_selection.PredefinedSplit`), else by cross-validation over *passes* (the k-th press of every
+location forms pass k, so one press is never on both sides), else the paper's values with a warning.  A *press* is
+a run of consecutive touch chirps at one location within one session and segment (:func:`press_ids`); test sessions
+never reach this module.  The search is :class:`~sklearn.model_selection.GridSearchCV` over a
+``Pipeline([ospa, scale, width, svc])``; its choice and a compact ``cv_results_`` table are returned as JSON data.
 """
 
 from __future__ import annotations

@@ -1,24 +1,11 @@
 """A link's skin placed on its real surface: layout coordinates (cm, unrolled) -> point and normal in the link's frame.
 
 A :class:`LinkSurface` names the robot frame (``frame_id``, the URDF link) and the shape the skin covers, a tube
-(URDF ``<cylinder>``) or a plate (URDF ``<box>``), with the shape's pose in that frame.  These conventions are the
-contract between a layout and the robot (docs/robot-frame.md):
-
-Tube (a cylinder of radius ``r`` and length ``L``, axis = the shape's local z, centred on its origin)
-    - ``y_cm`` (along the axis from the transmitter end) -> ``z = y/100 - L/2`` when the transmitter end is the
-      shape's ``-z`` end (``axis_from: -z``, the default), ``z = L/2 - y/100`` when it is the ``+z`` end.
-    - ``x_cm`` (arc length around the circumference) -> ``theta = theta0 + x/100/r`` (counter-clockwise about the
-      shape's +z; ``theta0`` is where ``x = 0`` lies, measured from the shape's +x axis).
-    - point ``(r cos theta, r sin theta, z)``, outward normal ``(cos theta, sin theta, 0)``.
-Plate (a box of size ``(W, L, h)``, centred on its origin)
-    - the touched face is ``+z`` (``face: +z``): point ``(x/100 - W/2, y/100 - L/2, h/2)``, normal ``(0, 0, 1)``;
-      with ``face: -z`` the point is ``(x/100 - W/2, y/100 - L/2, -h/2)`` and the normal ``(0, 0, -1)``.
-Then the shape's pose (``xyz`` in m, ``rpy`` in rad, URDF's fixed-axis roll-pitch-yaw, ``R = Rz(yaw) Ry(pitch)
-Rx(roll)``; from a URDF: the geometry's ``<origin>``) maps point and normal into the link frame.
-
-Built from a short YAML mapping (:meth:`LinkSurface.from_dict`) or from a URDF link's collision (else visual)
-geometry (:meth:`LinkSurface.from_urdf`, parsed with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one
-line naming the problem and the fix.
+(URDF ``<cylinder>``: ``y_cm`` along its z axis from the transmitter end, ``axis_from``; ``x_cm`` the arc length
+from ``theta0``) or a plate (URDF ``<box>``: the touched ``face``), with the shape's pose (``xyz``, ``rpy``) in that
+frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Built from a short
+YAML mapping (:meth:`LinkSurface.from_dict`) or a URDF link's collision (else visual) geometry
+(:meth:`LinkSurface.from_urdf`, with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one line.
 """
 
 from __future__ import annotations
