@@ -15,27 +15,14 @@ __all__ = ["SkinNet"]
 class SkinNet(nn.Module):
     """``n_in -> (N + 1 location logits, N forces)``.
 
-    The location head has one class per touch location plus a last *no-touch* class; the force
-    head predicts the force (N) as if the touch were at each location, and the caller reads the
-    entry of the (predicted or true) location, which mirrors the paper's per-location force
-    models.  Feature normalisation (mean/std from the training split) is part of the module, so
-    the exported ONNX graph takes raw features.
-
-    Without a kernel layer (``n_centres=0``) it is an MLP: trunk -> (location + no-touch logits, forces).
-    With one, the trunk gives the touch probability, the kernel layer's SVM votes (sharpened, see
-    :class:`~models.kernel.KernelVotes`) where the touch is, and the force head reads the trunk and
-    the RBF activations; call :meth:`init_from_svm` before training so the layer starts as the SVM.
-
-    Parameters
-    ----------
-    n_in : number of input features (OSPA's gamma).
-    n_locations : N.
-    hidden : widths of the trunk's layers.
-    dropout : dropout after each trunk layer (training only).
-    input_dropout : dropout on the input bins (training only): no single bin can be relied on,
-        as when motion noise corrupts a few of them.
-    n_centres : RBF units of the kernel layer (the SVM's support vectors); 0 = MLP only.
-    tau : softness of the kernel layer's votes.
+    The location head has one class per touch location plus a last *no-touch* class; the force head predicts the
+    force (N) as if the touch were at each location (the caller reads the entry of the location), mirroring the
+    paper's per-location force models.  Feature normalisation is part of the module, so the ONNX graph takes raw
+    features.  Without a kernel layer (``n_centres=0``) it is an MLP; with one, the trunk gives the touch
+    probability, the kernel layer's sharpened SVM votes (:class:`~models.kernel.KernelVotes`, softness ``tau``) say
+    where, and the force head reads the trunk and the RBF activations (call :meth:`init_from_svm` before training).
+    ``hidden``: the trunk's widths; ``dropout`` after each trunk layer and ``input_dropout`` on the inputs
+    (training only: no single bin can be relied on).
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),

@@ -25,52 +25,26 @@ REST_SPREADS = 4.0
 class OnlineReference:
     """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
 
-    - **Boot**: the first ``beta`` chirps of the stream are taken as hands-off (the protocol starts
-      every stream with hands off); their mean is the first reference.  The hands-off window is a
-      span of *stream time* (``beta`` chirp periods from the first chirp), not a chirp count: when
-      faults (NaN samples, dropouts, a re-lock) cost chirps inside it, the reference is the mean of
-      the clean chirps of the window (at least ``beta // 4``; fewer, and the window starts again),
-      never chirps after it (where the first press may already be), and the boot is marked
-      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it
-      at once, without waiting ``alpha``.  When the caller *knows* which chirps are no-touch (the
-      labelled training session), it passes ``touch`` flags during the boot too, and the boot waits
-      for ``beta`` consecutive no-touch chirps.
-    - **Refresh**: once ``alpha`` chirps of stream time have passed since the reference took
-      effect, the next ``beta`` consecutive chirps the detector calls no-touch become the new one.
-    - **Re-boot**: a gap in the stream longer than ``alpha`` (the device was off, or the recording
-      paused) starts a new boot: the first ``beta`` chirps after it are hands-off by the same protocol
-      as at power-on and become the reference whatever the detector says.  After days off the wall may
-      have warmed or cooled by several kelvin; the detector, still on the old reference, then calls
-      every chirp touched and a refresh would never come (two months of Fig. 12: 8 references in 10
-      sessions, the network at 35-39 % on the coldest and warmest days).  As at power-on, the chirps of
-      the window get no prediction (:meth:`booting_at`); :attr:`reboots` counts these boots and :attr:`last_gap_s`
-      holds the pause that caused the last one.  A clock that goes back by more than one chirp period (a reset
-      clock, another stream fed under the same reference) is a new stream: a re-boot too (``last_gap_s`` < 0), never
-      a reference frozen until the clock catches up.
-    - **A hand during a re-boot**: touched chirps in a re-boot's window would make the reference part touch, and the
-      detector then calls every chirp at rest touched, so no refresh would ever come.  The window's chirps at rest are
-      those close to the one closest to the reference before the pause (:meth:`_at_rest`: a pause moves every chirp
-      alike, a hand moves its own chirps by a touch more); the others are left out (:attr:`boot_touched` counts them)
-      and the re-boot is disturbed as a boot that lost chirps to faults is: :attr:`boot_disturbed`, the reference from
-      its chirps at rest (at least ``beta // 4``, else one new window from the next chirp, whose chirps at rest are
-      taken however few), re-taken from the next ``beta`` chirps the detector calls no-touch.  A hand on the link for
-      the whole window cannot be told from a changed wall and is taken as rest.
+    - **Boot**: the first ``beta`` chirp periods of stream time are hands-off (the protocol starts every stream so);
+      their mean is the first reference.  Chirps lost to faults inside the window leave the mean of its clean chirps
+      (at least ``beta // 4``, else the window starts again), never chirps after it, and mark
+      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it at once.  With
+      labelled ``touch`` flags (a training session) the boot waits for ``beta`` consecutive no-touch chirps.
+    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive chirps the detector
+      calls no-touch become the new one.
+    - **Re-boot**: a gap longer than ``alpha`` (the device off, a paused recording), or a clock that goes back by more
+      than a chirp (``last_gap_s`` < 0), starts a new boot as at power-on, whatever the detector says (after days off
+      the wall has changed and the old reference would call every chirp touched).  :attr:`reboots` counts them.
+    - **A hand during a re-boot**: the window's chirps at rest are those close to the one closest to the reference
+      before the pause (:meth:`_at_rest`: a pause moves every chirp alike, a hand its own chirps by a touch more); the
+      others are left out (:attr:`boot_touched`) and the re-boot is disturbed, as above.
 
-    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
-    with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).
-
-    Parameters
-    ----------
-    beta_chirps : chirps averaged into one reference (paper: 3 s = 28 chirps).
-    alpha_chirps : chirps between refreshes (paper: 20 min); ``None`` never refreshes.
-    chirps_per_s : the stream clock: a ``t_s`` difference times this is a chirp count.
-    relative : :meth:`inputs` subtracts the feature reference (``False``: absolute inputs).
-    score_fn : ``inputs (m, d) -> scores (m, k)``; its mean over the reference chirps is :attr:`scores`.
-    labelled : the ``touch`` flags are labels (a training session), not a detector's: a re-boot then waits for
-        ``beta`` consecutive labelled no-touch chirps, as the first boot does, instead of taking the first ``beta``.
-
-    Stream time ``t_s`` is checked at the door (:meth:`step`, :meth:`booting_at`): a finite number of seconds in
-    ``0 .. MAX_T_S``, else a :class:`~sonicskin.errors.SonicskinError` with the reference unchanged.
+    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and, with ``score_fn``
+    (``inputs (m, d) -> scores (m, k)``), the mean model *scores* of the same chirps (:attr:`scores`, the SVM's
+    ``S_c``).  ``beta_chirps`` are averaged into one reference (paper: 3 s), ``alpha_chirps`` pass between refreshes
+    (paper: 20 min; ``None``: never), ``chirps_per_s`` is the stream clock; ``labelled``: the ``touch`` flags are
+    labels, so a re-boot waits for ``beta`` labelled no-touch chirps too.  A ``t_s`` that is not a finite number of
+    seconds in ``0 .. MAX_T_S`` is a :class:`~sonicskin.errors.SonicskinError`, the reference unchanged.
     """
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
