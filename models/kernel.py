@@ -27,18 +27,10 @@ def _pairs(n_classes: int) -> tuple[np.ndarray, np.ndarray]:
 class KernelVotes(nn.Module):
     """``z -> phi = exp(-gamma |z - c_s|^2) -> d = W phi + b (one value per pair of locations) -> scores``.
 
-    ``scores_k = scale * (v_k + 2 c_k / (3 (|c_k| + 1)))`` with ``v_k = sum_pairs(+-sign(d))``, libsvm's
-    vote count (a pair's winner gets +1, its loser -1), and ``c_k = sum_pairs(+-d)`` the summed
-    confidences that break ties: ``2 * ovr - (K - 1)`` for scikit-learn's one-vs-rest scores ``ovr``
-    (:func:`sonicskin.baseline.ovr_scores_from_ovo`), so the winner is the SVM's.  The votes pass
-    gradients as ``tanh(d / tau)`` would (straight-through), so the layer can be trained.
-
-    Parameters
-    ----------
-    n_in : input width (standardised features).
-    n_centres : number of RBF units (the SVM's support vectors).
-    n_locations : K.
-    tau : softness of the votes' gradient (decision-value units).
+    ``scores_k = scale * (v_k + 2 c_k / (3 (|c_k| + 1)))``: libsvm's vote count ``v_k`` plus the summed confidences
+    ``c_k`` that break ties (``2 * ovr - (K - 1)`` for scikit-learn's one-vs-rest scores), so the winner is the
+    SVM's.  The votes pass gradients as ``tanh(d / tau)`` would (straight-through), so the layer can be trained;
+    ``n_centres`` RBF units (the SVM's support vectors) on ``n_in`` standardised inputs, ``n_locations`` = K.
     """
 
     def __init__(self, n_in: int, n_centres: int, n_locations: int, tau: float = 0.1):

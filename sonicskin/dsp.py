@@ -29,23 +29,10 @@ class FrameError(ValueError):
 
 def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
           phase_rad: float = 0.0) -> np.ndarray:
-    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T``.
+    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64.
 
-    The instantaneous frequency sweeps ``f_lo_hz -> f_hi_hz`` over ``T = n_samples / sr``,
-    i.e. ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper writes ``Omega_1 + a T = Omega_2``,
-    which is the same sweep with ``a`` defined on the frequency, not the phase).
-
-    Parameters
-    ----------
-    sr : sample rate in Hz.
-    f_lo_hz, f_hi_hz : start and end frequency in Hz.
-    n_samples : chirp length in samples (one period of the chirp train).
-    amplitude : peak amplitude.
-    phase_rad : initial phase ``phi``.
-
-    Returns
-    -------
-    s : ndarray, shape (n_samples,), float64
+    The instantaneous frequency sweeps ``f_lo_hz -> f_hi_hz``, i.e. ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper
+    writes ``Omega_1 + a T = Omega_2``: the same sweep with ``a`` defined on the frequency, not the phase).
     """
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
@@ -113,19 +100,9 @@ def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods:
 
 
 def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | None = None) -> tuple[np.ndarray, int]:
-    """Cut a received chirp train into whole, chirp-aligned frames.
-
-    Parameters
-    ----------
-    stream : (n_samples,) received audio starting at an unknown point of the chirp train.
-    reference : (L,) the transmitted chirp.
-    offset : start of the first whole chirp if already known; found by cross-correlation otherwise.
-
-    Returns
-    -------
-    frames : (n_frames, L) float32 view-free copy; the partial chirps before ``offset`` and at
-        the end are dropped.
-    offset : the sample index of the first frame in ``stream``.
+    """Cut a received chirp train ``stream`` (starting at an unknown point of the train) into whole, chirp-aligned
+    frames of the transmitted chirp ``reference``'s length: ``(frames (n_frames, L) float32, offset)``.  ``offset``,
+    the start of the first whole chirp, is found by cross-correlation unless given; partial chirps are dropped.
     """
     L = reference.shape[-1]
     if offset is None:

@@ -78,18 +78,13 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                  beta_s: float = FeatureSpec.beta_s, log=print) -> dict:
     """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
 
-    The paper's SVM (OSPA's ``n_bins`` on the absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
-    per-location Fourier-1 force, the paper's detector: the largest calibrated score ``max(S - S_c)`` above a
-    threshold) is fitted by the one fit (:mod:`sonicskin.fit`), exported, and every test session replayed through
-    the artifact as the live loop runs it (:class:`sonicskin.head.Stream`).  ``mode="relative"`` calibrates the
-    scores online (Alg. 2: ``S_c`` from the stream's no-touch chirps), ``"absolute"`` keeps the training session's
-    reference throughout.  ``n_bins``: OSPA's gamma (default the paper's 300, clamped to the rig's bins).  On data
-    without hands-off chirps (a table of touches only) localization and force are trained and reported, detection
-    and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant force) force is reported as
-    absent.  Streams whose rest is shorter than Alg. 2's beta use the rest they have, down to
-    :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the caller, not in ``table``) are only
-    named in the report.  ``artifact``: keep the paper's artifact there (default: a temporary folder).  ``alpha_s``,
-    ``beta_s``: Alg. 2's refresh interval and reference length.
+    The paper's SVM (OSPA's ``n_bins`` on absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
+    per-location Fourier-1 force, the detector ``max(S - S_c)`` above a threshold) is fitted by :mod:`sonicskin.fit`,
+    exported, and every test session replayed through the artifact as the live loop runs it.  ``mode="relative"``
+    calibrates the scores online (Alg. 2, ``alpha_s``/``beta_s``), ``"absolute"`` keeps the training reference.
+    Without hands-off chirps detection and Alg. 2 are reported as not measurable, without a force sensor force as
+    absent.  ``val_sessions`` (held out by the caller) are only named in the report; ``artifact``: keep the paper's
+    artifact there (default: a temporary folder).
     """
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")

@@ -1,22 +1,14 @@
 """One fit: a dataset's feature table and a split -> every model kind fitted, chosen on the validation presses,
 refitted on every labelled press -> one artifact.
 
-Every verb that trains goes through here: ``fit-svm``, ``record``, ``export`` (a Lightning checkpoint's network
-beside the closed-form models), ``compare``, ``seeds``, ``evaluate`` and ``reproduce``.  The steps:
-
-1. :func:`prepare` -> :class:`TrainingData`: the features table, the split (sessions or people, never chirps),
-   OSPA's bins chosen on the training sessions (gamma validated when not given), the model inputs of every chirp
-   (:class:`~sonicskin.features.FeatureSpec`), the class and force targets;
-2. each model kind (:mod:`sonicskin.kinds`, those it requires first) fits itself on the training chirps, choosing its
-   options on the validation presses (:meth:`TrainingData.folds`) or taking its measured default;
-3. with a validation session, the chosen configurations are **refitted on the training and validation sessions
-   together** (:meth:`TrainingData.refit`, scikit-learn's ``refit=True``): the estimates stay those of the held-out
-   pass, the deployed models have seen every labelled press (``refit=False`` keeps the training sessions' models);
-4. :func:`write_artifact`: every model exported to ONNX with its parity check, ``skin.json`` sealed, swapped in
-   atomically.
-
-Nothing of a test session's labels reaches any step: only the rows of ``split.train`` and ``split.val`` are read
-for fitting and choosing (``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
+Every verb that trains goes through here (``fit-svm``, ``record``, ``export``, ``compare``, ``seeds``, ``evaluate``,
+``reproduce``): :func:`prepare` -> :class:`TrainingData` (the split by sessions or people, OSPA's bins chosen on the
+training sessions, the model inputs of every chirp, the targets); each model kind (:mod:`sonicskin.kinds`) fits
+itself, choosing its options on the validation presses (:meth:`TrainingData.folds`); with a validation session the
+choices are **refitted on the training and validation sessions together** (:meth:`TrainingData.refit`; the
+estimates stay the held-out pass's); :func:`write_artifact` exports every model with its parity check and seals
+``skin.json``.  Only the rows of ``split.train`` and ``split.val`` are read for fitting and choosing
+(``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
 """
 
 from __future__ import annotations
@@ -134,17 +126,13 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
     inputs of every chirp.
 
-    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, kept in ``selection["svm"]``) by validation
-    on the training and validation sessions (:func:`sonicskin.selection.select_gamma_on_table`).  ``bins`` gives
-    the band bins explicitly instead (e.g. every band bin, the paper's no-OSPA ablation).  ``split``/``table``:
-    given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (what the network may read:
-    its location layer is validated on prefixes of them), and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``;
-    a prefix, since OSPA ranks the bins once).  ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted
-    length of its reference (shorter when some session has less rest).  ``rig``: the rig the artifact declares
-    (default: the dataset's; the paper's no-matched-filter ablation passes it without its PWM notches).  Relative
-    inputs need Alg. 2's rest in every session: shorter rest is used down to
-    :data:`~sonicskin.features.MIN_REST_CHIRPS` (with a warning), a table of touches only falls back to absolute
-    inputs.
+    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, ``selection["svm"]``) by validation on the
+    training and validation sessions; ``bins`` gives the band bins instead (every band bin: the no-OSPA ablation);
+    ``split``/``table``: given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (the
+    network's layer reads a validated prefix) and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``).
+    ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted length of its reference (shorter when some
+    session has less rest, down to :data:`~sonicskin.features.MIN_REST_CHIRPS`; a table of touches only falls back to
+    absolute inputs).  ``rig``: the rig the artifact declares (default: the dataset's).
     """
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = table if table is not None else load_features_cached(ds, progress=progress)

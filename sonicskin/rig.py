@@ -164,21 +164,13 @@ RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp")
 
 @dataclasses.dataclass(frozen=True)
 class Rig:
-    """Acquisition parameters of one transmitter/receiver pair.
+    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).
 
-    Parameters
-    ----------
-    fs_hz : sample rate of the audio interface (paper: 192 kHz).
-    f_lo_hz, f_hi_hz : chirp start and end frequency (paper: 20 and 80 kHz).
-    n_chirp : samples per chirp; one chirp is one FFT frame (paper: 20480, T = 106.7 ms).
-    pwm_hz : centres of the motor-PWM bands the matched filter drops (paper: 30/60/90 kHz).
-    pwm_halfwidth_hz : half width of each dropped band.  3.25 kHz leaves 5014 bins in
-        20-80 kHz, the paper's "max number of 5013 frequency bins after the first step of OSPA".
-    amplitude : peak amplitude of the transmitted chirp, full scale = 1.
-    name : free label.
-    sweep_b64 : a transmitted sweep other than Eq. 1's linear chirp (recordings imported from other
-        rigs): one period of float32 samples, base64; ``n_chirp`` is its length and
-        ``f_lo_hz``/``f_hi_hz`` its band.  ``None``: the linear chirp of Eq. 1.
+    ``fs_hz``: the interface's sample rate; ``f_lo_hz``, ``f_hi_hz``: the chirp's band; ``n_chirp``: samples per
+    chirp, one FFT frame (20480 = 106.7 ms); ``pwm_hz``: centres of the motor-PWM bands the matched filter drops,
+    ``pwm_halfwidth_hz`` wide each side (3.25 kHz leaves the paper's 5014 bins in 20-80 kHz); ``amplitude``: the
+    transmitted peak, full scale 1; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp (imported
+    recordings), one period of float32 samples in base64 (``None``: Eq. 1).
     """
 
     fs_hz: float = 192_000.0

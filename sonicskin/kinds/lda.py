@@ -65,23 +65,12 @@ def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
 
 class ShrinkageLDA(LinearClassifierMixin, BaseEstimator):
     """Linear discriminant analysis with a shrunk within-class covariance: scikit-learn's
-    ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage=shrinkage)`` (same covariance: per class standardised,
-    Ledoit-Wolf shrunk, rescaled and averaged with the class priors; same ``coef_`` and ``intercept_`` up to rounding,
-    ``tests/test_lda.py``), solved with the Woodbury identity in the space of the training samples, so 5,000 bins and a
-    few hundred chirps take milliseconds instead of the d x d covariance's seconds and hundreds of MB.
-
-    Parameters
-    ----------
-    shrinkage : "auto" or float in [0, 1], default="auto"
-        Ledoit-Wolf per class (on standardised features, as scikit-learn), or a fixed shrinkage of each class's
-        empirical covariance toward ``trace / d`` times the identity.
-    priors : array of shape (n_classes,), optional
-        Class priors; default the class proportions.
-
-    Attributes
-    ----------
-    classes_, means_ (n_classes, d), priors_, shrinkage_ (per class), coef_ (n_classes, d) or (1, d) for two
-    classes, intercept_, n_features_in_.
+    ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage=shrinkage)`` (same covariance, same ``coef_`` and
+    ``intercept_`` up to rounding, ``tests/test_lda.py``), solved with the Woodbury identity in the space of the
+    training samples, so 5,000 bins and a few hundred chirps take milliseconds instead of seconds and hundreds of MB.
+    ``shrinkage``: "auto" (Ledoit-Wolf per class on standardised features) or a fixed value in [0, 1]; ``priors``:
+    default the class proportions.  Fitted: ``classes_``, ``means_``, ``priors_``, ``shrinkage_`` (per class),
+    ``coef_``, ``intercept_``, ``n_features_in_``.
     """
 
     def __init__(self, shrinkage="auto", priors=None):

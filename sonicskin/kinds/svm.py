@@ -24,21 +24,10 @@ __all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decisio
 
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
-    """Per-class scores from the ``K (K-1) / 2`` pairwise SVM decision values.
-
-    The same transform scikit-learn applies for ``decision_function_shape="ovr"``: votes plus the summed
-    pairwise confidences squashed into ``(-1/3, 1/3)``, vectorised.  Computing it outside the model keeps the
-    ONNX graph tiny (2 nodes for ovo vs ~2,400 for ovr).
-
-    Parameters
-    ----------
-    ovo : (n, K (K-1) / 2) pairwise decision values, libsvm pair order; for K = 2 also scikit-learn's
-        1-D binary decision values or skl2onnx's ``[d, -d]``.
-    n_classes : K.
-
-    Returns
-    -------
-    scores : (n, K) float64.
+    """Per-class scores (n, K) from the ``K (K-1) / 2`` pairwise SVM decision values ``ovo`` (libsvm pair order; for
+    K = 2 also scikit-learn's 1-D values or skl2onnx's ``[d, -d]``): scikit-learn's ``decision_function_shape="ovr"``
+    transform (votes plus the summed confidences squashed into ``(-1/3, 1/3)``), outside the model so the ONNX graph
+    stays tiny (2 nodes for ovo vs ~2,400 for ovr).
     """
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
