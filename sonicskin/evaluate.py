@@ -22,7 +22,7 @@ import numpy as np
 from .calibration import OnlineReference
 from .compare import chirps_per_location, counts_line, coverage_note, replay_sessions, split_line, stream_metrics
 from .dataset import Dataset, FeatureTable, write_file
-from .features import MIN_REST_CHIRPS, FeatureSpec, rest_beta, usable_bins
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, touch_mask, usable_bins
 from .fit import fit_artifact, prepare
 from .force import PerLocationForce, energy_db
 from .jsonio import json_safe
@@ -45,16 +45,6 @@ def split_sessions(table: FeatureTable, train_sessions: list[str]) -> tuple[Feat
     if tr.all():
         raise ValueError("every session is a training session; leave at least one to test on")
     return table.select(tr), table.select(~tr)
-
-
-def _quiet(t: FeatureTable) -> np.ndarray:
-    return (t["location"] < 0) & (t["moving"] == 0)
-
-
-def _touch(t: FeatureTable, min_force_n: float) -> np.ndarray:
-    """Touch chirps: a location and at least ``min_force_n``, or any force without a force sensor (NaN)."""
-    f = t["force_n"]
-    return (t["location"] >= 0) & ((f >= min_force_n) | np.isnan(f))
 
 
 NOT_MEASURABLE = "not measurable on this data"
@@ -92,7 +82,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     sessions = sorted(set(table["session"]))
     train_sessions = train_sessions or sessions[:1]
     tr, te = split_sessions(table, train_sessions)
-    trained = set(np.unique(tr["location"][_touch(tr, min_force_n)]).tolist())
+    trained = set(np.unique(tr["location"][touch_mask(tr, min_force_n)]).tolist())
     never = [str(i) for i in ds.layout.ids if int(i) not in trained]
     if never:  # the SVM has no class for them: every test touch there would be an error the accuracy alone hides
         raise ValueError(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the "
@@ -135,7 +125,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions), "test_sessions": test_sessions,
                      "n_train": len(tr), "n_test": len(te), "train_time_s": skin["training"][f"{BASELINE}_train_time_s"],
                      "n_bins": len(data.spec.bins), "beta_chirps": beta}
-        touch = _touch(te, min_force_n)
+        touch = touch_mask(te, min_force_n)
         res["localization"] = m["localization"]
         res["errors_cm"] = m["errors_cm"]
         res["val_sessions"] = list(val_sessions)
@@ -146,7 +136,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                              "train_missed_touch_rate": svm["train_missed_touch_rate"]}
                             if rest and m["detection"].get("measurable", True)
                             else {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"})
-        absent = _force_absent(tr, _touch(tr, min_force_n)) or _force_absent(te, touch)
+        absent = _force_absent(tr, touch_mask(tr, min_force_n)) or _force_absent(te, touch)
         res["force"] = {"measurable": False, "reason": absent} if absent else m["force"]
         if ablations:
             res["ablations"] = _ablations(ds, tr, te, p, offline, touch, svm, data, paper_data, Path(tmp), beta, rest=rest,
@@ -178,8 +168,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
     if force and rest:
         # Force from total band energy E vs E^O over the OSPA bins (per-location Fourier-1 at the true location).
         all_bins = np.arange(ds.rig.n_band)
-        ref_tr = tr.X[_quiet(tr)].mean(axis=0)
-        tr_touch = _touch(tr, data.min_force_n)
+        ref_tr = tr.X[quiet_mask(tr)].mean(axis=0)
+        tr_touch = touch_mask(tr, data.min_force_n)
         has_f = tr_touch & np.isfinite(tr["force_n"])
         E_tr = energy_db(tr.X[has_f], all_bins, ref_tr)
         fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][has_f], tr["location"][has_f])

@@ -360,10 +360,6 @@ def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str
             "false_touch_rate": float(np.mean(sq >= thr))}
 
 
-def _finite(*v) -> bool:
-    return all(x is not None and np.isfinite(x) for x in v)
-
-
 def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.ndarray, n_locations: int,
                             threshold: float) -> dict | None:
     """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every

@@ -1,12 +1,10 @@
-"""What the verbs' implementations share: ``--set`` overrides checked against a dataclass, the split options'
-checks, gamma within the dataset's bins, and output folders that a failed run leaves as they were."""
+"""What the verbs' implementations share: the split and Alg. 2 options' checks, gamma within the dataset's bins, and
+output folders that a failed run leaves as they were."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
-import math
 import shutil
 import sys
 import warnings
@@ -16,50 +14,6 @@ from pathlib import Path
 from ..dataset import Dataset, writer_lock
 from ..errors import UsageError
 from ..features import DEFAULT_N_BINS, FeatureSpec
-
-
-def check_overrides(cls, items: list[tuple[str, object]], what: str) -> dict:
-    """``--set`` overrides checked against the fields of dataclass ``cls``: known key, value of the
-    field's type (an int for an int field, a list for a tuple, a mapping for a dict...)."""
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    out = {}
-    for k, v in items or []:
-        if k not in fields:
-            raise UsageError(f"--set {k}: unknown {what} key; valid keys: {', '.join(sorted(fields))}")
-        f = fields[k]
-        default = f.default_factory() if f.default is dataclasses.MISSING else f.default
-        ok = _same_kind(default, v)
-        if not ok:
-            raise UsageError(f"--set {k}={v!r}: expected {_kind_name(default)} (like {default!r})")
-        out[k] = v
-    return out
-
-
-def _same_kind(default, v) -> bool:
-    if isinstance(default, bool):
-        return isinstance(v, bool)
-    if isinstance(default, int):
-        return isinstance(v, int) and not isinstance(v, bool)
-    if isinstance(default, float):
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-    if isinstance(default, str):
-        return isinstance(v, str)
-    if isinstance(default, (tuple, list)):
-        return isinstance(v, list) and len(v) == len(default) if isinstance(default, tuple) and len(default) == 2 \
-            else isinstance(v, list)
-    if isinstance(default, dict):
-        return isinstance(v, dict)
-    return default is None or v is not None
-
-
-def _kind_name(default) -> str:
-    for t, name in ((bool, "true or false"), (int, "a whole number"), (float, "a number"), (str, "a text"),
-                    (dict, "a mapping {key: value}")):
-        if isinstance(default, t):
-            return name
-    if isinstance(default, tuple) and len(default) == 2:
-        return "a list of two values [a, b]"
-    return "a list [a, b, ...]"
 
 
 def check_split_options(a: argparse.Namespace) -> None:

@@ -19,14 +19,14 @@ from ..links import load_arm
 from ..rig import Rig, config_names
 from ..sim import generate
 from ..sim.scenario import Scenario
-from ._common import check_overrides, clean_on_failure, writer_mode
+from ._common import clean_on_failure, writer_mode
 
 
 def cmd_simulate(a: argparse.Namespace) -> int:
     if a.links:
         return _simulate_arm(a)
     sc = Scenario.load(a.scenario, seed=a.seed)  # a scenario family (random) draws the rig of that seed
-    over = check_overrides(Scenario, a.set, "scenario")
+    over = dict(a.set or ())  # checked as the scenario's own keys (Scenario.from_dict)
     if a.sessions is not None:
         over["sessions"] = a.sessions
     if over:

@@ -26,7 +26,6 @@ from .thermal import HotMeltBond, project_field, warmup_field
 
 __all__ = ["Simulator"]
 
-_FULL_SCALE = 2 ** 23 - 1
 _BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce simulates several datasets per link)
 
 
