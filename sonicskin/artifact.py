@@ -7,14 +7,12 @@ torch-free, so a machine without torch can still build an artifact from a record
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import glob
 import hashlib
 import json
 import os
 import re
 import shutil
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,7 +21,7 @@ import numpy as np
 from . import __version__, kinds
 from .artifact_files import model_file
 from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, nonfinite_field, validate_skin
-from .dataset import refuse_inside_dataset, write_file
+from .dataset import refuse_inside_dataset, swap_folders, write_file
 from .errors import ArtifactError
 from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
 from .jsonio import json_safe
@@ -111,11 +109,8 @@ ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.
 @contextlib.contextmanager
 def atomic_artifact(out: str | Path) -> Iterator[Path]:
     """Write an artifact into a new sibling folder, then swap it in: an interrupted or failed run leaves ``out``
-    as it was (the old, loadable artifact, or nothing).
-
-    ``out`` may be absent, empty, or an artifact folder (``skin.json`` and ONNX files only); anything else in it
-    is refused rather than replaced.  The swap is one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
-    else two renames (a crash between them keeps the old artifact as ``.<name>.old-<pid>`` beside it).
+    as it was (the old, loadable artifact, or nothing; :func:`sonicskin.dataset.swap_folders`).  ``out`` may be
+    absent, empty, or an artifact folder (``skin.json`` and ONNX files only); anything else in it is refused.
     """
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
@@ -133,7 +128,7 @@ def atomic_artifact(out: str | Path) -> Iterator[Path]:
     tmp.mkdir()
     try:
         yield tmp
-        _swap_in(tmp, out)
+        swap_folders(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -155,30 +150,3 @@ def _alive(pid: int) -> bool:
     except OSError:
         return True
     return True
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where that is not available."""
-    if sys.platform != "linux":
-        return False
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return False
-    AT_FDCWD, RENAME_EXCHANGE = -100, 2
-    return fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0
-
-
-def _swap_in(tmp: Path, out: Path) -> None:
-    if not out.exists():
-        os.rename(tmp, out)
-        return
-    if _exchange(tmp, out):  # tmp now holds the old artifact
-        shutil.rmtree(tmp, ignore_errors=True)
-        return
-    old = out.parent / f".{out.name}.old-{os.getpid()}"
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(out, old)
-    os.rename(tmp, out)
-    shutil.rmtree(old, ignore_errors=True)

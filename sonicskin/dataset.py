@@ -23,12 +23,14 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import ctypes
 import hashlib
 import io
 import json
 import os
 import re
 import shutil
+import sys
 import warnings
 import weakref
 import zipfile
@@ -215,24 +217,31 @@ def refuse_inside_dataset(out: str | Path, what: str) -> None:
                            f"dataset's folder; choose an --out outside it")
 
 
-def swap_folders(new: Path, old: Path) -> None:
-    """Put the folder ``new`` in place of ``old`` (an existing folder, removed): one ``renameat2(RENAME_EXCHANGE)``
-    where Linux offers it, so ``old``'s path never lacks a dataset, else remove then rename."""
-    import ctypes
-    import sys
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where that is not available."""
+    if sys.platform != "linux":
+        return False
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    return fn(-100, os.fsencode(a), -100, os.fsencode(b), 2) == 0  # AT_FDCWD, RENAME_EXCHANGE
 
-    swapped = False
-    if sys.platform == "linux":
-        try:
-            fn = ctypes.CDLL(None, use_errno=True).renameat2
-            swapped = fn(-100, os.fsencode(new), -100, os.fsencode(old), 2) == 0  # AT_FDCWD, RENAME_EXCHANGE
-        except (OSError, AttributeError):
-            swapped = False
-    if swapped:
-        shutil.rmtree(new)  # the old folder, now at new's path
-        return
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(new, old)
+
+def swap_folders(new: Path, old: Path) -> None:
+    """Put the folder ``new`` in place of ``old`` (removed): one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
+    so ``old``'s path is never empty, else two renames (a crash between them keeps the old folder as
+    ``.<name>.old-<pid>`` beside it)."""
+    if not old.exists():
+        os.rename(new, old)
+    elif _exchange(new, old):  # new now holds the old folder
+        shutil.rmtree(new, ignore_errors=True)
+    else:
+        aside = old.parent / f".{old.name}.old-{os.getpid()}"
+        shutil.rmtree(aside, ignore_errors=True)
+        os.rename(old, aside)
+        os.rename(new, old)
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _empty_folder(root: Path) -> None:
