@@ -1,15 +1,12 @@
 """Audio acquisition: the only module that touches audio hardware (through sounddevice).
 
-A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks through :meth:`~AudioSource.read`; the
-transmitter plays the chirp back to back.  :class:`SoundDeviceSource` is a duplex PortAudio stream whose callback
-only copies into a queue (all work happens in the consumer, as in sounddevice's ``rec_unlimited.py``);
+A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks while the transmitter plays the chirp back
+to back: :class:`SoundDeviceSource` (a duplex PortAudio stream whose callback only copies into a queue),
 :class:`SimulatedSource` (the simulated device: one link, a whole arm, the rig check's interface) and
-:class:`RecordingSource` (a recorded session) are the same contract, produced by a thread of their own, so every
-command runs on a machine with no sound card.  :func:`blocks` is how every consumer reads one (the live loop, the
-recorder, the rig check): with its watchdog, and the error that ended a producer raised in the consumer's thread.
-
-Overflows (the consumer fell behind, or the driver dropped input) are counted and flagged on
-the next block as a discontinuity, never fatal; the live loop re-locks its framing on them.
+:class:`RecordingSource` (a recorded session), the last two produced by a thread of their own, so every command
+runs without a sound card.  Every consumer reads one through :func:`blocks` (its watchdog, and the producer's error
+raised in the consumer's thread).  Overflows and dropped blocks are counted and flag the next block as a
+discontinuity, never fatal: the live loop re-locks its framing on them.
 """
 
 from __future__ import annotations
@@ -67,12 +64,9 @@ class Block:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """One transmitter/receiver pair: 0-based channel indices on the audio interface.
-
-    Several links on one interface (one per robot link, paper Sec. IV) share the chirp by
-    *time* duplexing (``slot``: link k transmits in chirp periods where ``period % n_slots == slot``)
-    or *frequency* duplexing (each link its own rig with a disjoint chirp band).
-    """
+    """One transmitter/receiver pair: 0-based channel indices on the audio interface.  Several links on one
+    interface share the chirp by *time* duplexing (link k transmits in periods where ``period % n_slots == slot``) or
+    *frequency* duplexing (each link its own rig with a disjoint chirp band)."""
 
     tx: int = 0
     rx: int = 0
@@ -199,12 +193,9 @@ class AudioSource(Protocol):
 
 def blocks(source: AudioSource, *, watchdog_s: float | None = 3.0, poll_s: float = 0.1) -> Iterator[Block | None]:
     """Every block of a started source as it arrives, and ``None`` after each ``poll_s`` without one (the consumer's
-    moment to look at its clock).
-
-    Ends when a finite source has delivered everything.  Raises the exception that ended the source's producer
-    thread, and :class:`DeviceLost` (the source's :attr:`~AudioSource.stall_text`) when no block arrives for
-    ``watchdog_s`` seconds while the source has not ended and its producer does not compute either (a slow render is
-    not a stall, whatever the pace; ``None``: wait for ever)."""
+    moment to look at its clock); ends when a finite source has delivered everything.  Raises the exception that
+    ended the source's producer, and :class:`DeviceLost` (:attr:`~AudioSource.stall_text`) when no block arrives for
+    ``watchdog_s`` while the producer does not compute either (a slow render is not a stall; ``None``: no watchdog)."""
     t_alive, cpu_seen = time.perf_counter(), None
     while True:
         block = source.read(timeout=poll_s)
@@ -290,17 +281,10 @@ class _QueueSource:
 
 
 class SoundDeviceSource(_QueueSource):
-    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx``.
-
-    Parameters
-    ----------
-    rig : sample rate and chirp.
-    device : name substring or index (``sonicskin devices``); default device when ``None``.
-    link : channels of the TX/RX pair; ``links``: several pairs on this interface (blocks of shape (n, links)).
-    blocksize : frames per callback.
-    playback : one period of what to play on the TX channel (default: the rig's chirp).  Tests
-        pass a simulated received signal here to run the real audio path through a loopback.
-    rx_channels : the inputs to deliver instead of the links' (the rig check records every input).
+    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx`` (``links``: several pairs,
+    blocks of shape (n, links); ``rx_channels``: the inputs to deliver instead, the rig check records every input).
+    ``device``: name substring or index (``None``: the default); ``playback``: one period to play instead of the
+    rig's chirp (tests: a simulated received signal through a loopback).
     """
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
@@ -410,19 +394,11 @@ class _ProducerSource(_QueueSource):
 
 
 class SimulatedSource(_ProducerSource):
-    """The simulated device: scripted touches on the simulated rig, rendered ahead in a producer thread and delivered
-    block by block, in real time or as fast as it is read.  One link, a whole arm and the rig check's interface are
-    configurations of it.
-
-    Parameters
-    ----------
-    simulator : :class:`sonicskin.sim.Simulator` of the link, or a list of them: a whole arm, one input channel per link
-        (links decoupled by the joints, each its own TX/RX pair, all chirping at once: blocks of shape (n, links)).
-    timeline : the chirps to play (one session of :func:`sonicskin.sim.build_timeline`), or one per simulator (the
-        stream ends with the shortest).
-    realtime : pace the blocks at the rig's sample rate; otherwise deliver as fast as read.
-    drop_every : drop one block in every ``drop_every`` (fault injection: the consumer must re-lock).
-    offset : the stream starts this many samples into the first chirp (unknown to the consumer).
+    """The simulated device: scripted touches rendered ahead in a producer thread and delivered block by block, in
+    real time (``realtime``) or as fast as read.  ``simulator``: a :class:`sonicskin.sim.Simulator`, or a list of them
+    (a whole arm, one input channel per link, all chirping at once); ``timeline``: one session to play, or one per
+    simulator (the stream ends with the shortest); ``drop_every``: drop one block in so many (fault injection);
+    ``offset``: the stream starts this many samples into the first chirp.
     """
 
     what = "simulated device"
@@ -455,15 +431,8 @@ class SimulatedSource(_ProducerSource):
 
 
 class RecordingSource(_ProducerSource):
-    """A recorded session of a dataset played as an audio source (its parts in order, block by block),
-    so a recording runs through the live loop exactly as it was received.
-
-    Parameters
-    ----------
-    dataset : :class:`sonicskin.dataset.Dataset`.
-    session : the session to play.
-    realtime : pace the blocks at the rig's sample rate; otherwise as fast as they are read.
-    """
+    """A recorded ``session`` of a :class:`sonicskin.dataset.Dataset` played as an audio source, its parts in order,
+    so a recording runs through the live loop exactly as it was received (``realtime``: at the sample rate)."""
 
     what = "recording"
 
