@@ -147,12 +147,9 @@ class OnlineReference:
         self.boot_disturbed = self._early = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
-        """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection.
-
-        Call it *after* the model has seen the chirp under the current reference; ``touch`` is
-        ``None`` during the boot (taken as hands-off).  Returns ``True`` when this chirp completed
-        a new reference, in effect from the next chirp on.
-        """
+        """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection (``None`` during the boot),
+        *after* the model has seen it under the current reference.  True when this chirp completed a new reference, in
+        effect from the next chirp on."""
         t_s = self._time(t_s)
         if self._gap(t_s) and self.features is not None:
             self._reboot()
@@ -204,11 +201,9 @@ class OnlineReference:
         return False
 
     def _at_rest(self, block: np.ndarray) -> np.ndarray:
-        """Which chirps of a re-boot window are at rest: those whose distance to the reference before the pause (the
-        median over features of the absolute difference) is within ``REST_SPREADS`` first-boot spreads (the largest
-        such distance of a first-boot chirp to its mean) of the closest one's; a hand on the link moves its chirps
-        away by a touch, on top of what the pause changed for every chirp alike.  All of the first boot's (hands off
-        by protocol, nothing to compare with)."""
+        """Which chirps of a re-boot window are at rest: within ``REST_SPREADS`` first-boot spreads of the closest
+        one's distance to the reference before the pause (a hand moves its chirps by a touch on top of what the pause
+        changed for every chirp).  All of the first boot's."""
         if self.features is None or self._spread is None or not len(block):
             return np.ones(len(block), bool)
         e = np.median(np.abs(block - self.features), axis=1)
@@ -216,16 +211,11 @@ class OnlineReference:
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:
-        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp,
-        with the model run on whole blocks of chirps that share one reference.
-
-        ``predict(inputs)`` runs the model on a block and returns an object with a boolean
-        ``touch`` array (and whatever the caller wants back; a ``reference_touch`` array, where not ``None``, is what
-        the reference skips instead of ``touch``).  Yields ``(lo, hi, out)``: chirps
-        ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``; ``out`` is ``None`` for the
-        chirps of a boot calibration (the first ``beta``, and ``beta`` after every gap longer than
-        ``alpha``: no prediction).  ``boot_touch`` gives known no-touch flags for the first boot (a
-        labelled stream).
+        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp, the model run on
+        whole blocks of chirps that share one reference.  ``predict(inputs)`` returns an object with a boolean
+        ``touch`` array (and a ``reference_touch`` one, where not ``None``, for what the reference skips instead).
+        Yields ``(lo, hi, out)``: chirps ``lo:hi`` are the first ``hi - lo`` rows of ``out``, ``None`` for the chirps
+        of a boot.  ``boot_touch``: known no-touch flags for the first boot (a labelled stream).
         """
         X = np.asarray(X, np.float32)
         time_s = np.asarray(time_s, float)
@@ -259,16 +249,9 @@ class OnlineReference:
 
 
 class TouchDetector:
-    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C).
-
-    ``fit`` picks the threshold that maximises ``TPR - FPR`` (Youden's J) on training chirps.
-
-    Attributes
-    ----------
-    threshold_ : float
-    false_touch_rate_ : share of no-touch training chirps above the threshold.
-    missed_touch_rate_ : share of touch training chirps below it.
-    """
+    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C): ``fit`` picks the
+    ``threshold_`` that maximises ``TPR - FPR`` (Youden's J) on training chirps; ``false_touch_rate_`` and
+    ``missed_touch_rate_`` are the training chirps on the wrong side of it."""
 
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold

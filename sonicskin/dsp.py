@@ -43,10 +43,8 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
 
 @functools.lru_cache(maxsize=8)
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep.
-
-    Computed once per rig (it is on every chirp's path); the array is read-only.
-    """
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep (once per rig,
+    read-only)."""
     stored = rig.sweep()
     if stored is not None:
         x = stored.astype(np.float64)
@@ -66,18 +64,9 @@ def chirp_spectrum(rig: Rig) -> np.ndarray:
 
 
 def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
-    """Sample index in ``[0, L)`` where the first whole chirp of a periodic chirp train starts.
-
-    The stream is cut into up to ``max_periods`` periods of ``L = len(reference)`` samples;
-    each period is circularly cross-correlated with the reference (the chirp train is
-    periodic, so a circular shift of one period is the offset), the envelopes of the
-    matched-filter outputs are averaged, and the peak is the offset.  Averaging makes the
-    estimate robust to noise bursts in single periods.
-
-    Parameters
-    ----------
-    stream : (n_samples,) received audio, at least one period long.
-    reference : (L,) the transmitted chirp.
+    """Sample index in ``[0, L)`` where the first whole chirp of a periodic chirp train ``stream`` starts: up to
+    ``max_periods`` periods are circularly cross-correlated with ``reference`` (length L) and their matched-filter
+    envelopes averaged (robust to noise bursts in single periods); the peak is the offset.
     """
     L = reference.shape[-1]
     x = np.asarray(stream, dtype=np.float64)
@@ -115,10 +104,8 @@ def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | Non
 
 
 def frame_faults(frames: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> np.ndarray:
-    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped.
-
-    A frame counts as clipped when more than 0.1 % of its samples reach ``clip_level`` of full scale.
-    """
+    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped (more than
+    0.1 % of the samples at ``clip_level`` of full scale)."""
     x = np.asarray(frames)
     faults = np.zeros(x.shape[0], dtype=np.int8)
     finite = np.isfinite(x).all(axis=-1)
@@ -139,11 +126,8 @@ _FAULT_TEXT = {
 
 
 def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
-    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp).
-
-    Raises :class:`FrameError` naming the problem and the fix: wrong shape or frame length,
-    non-finite samples, silence, clipping.
-    """
+    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp); a :class:`FrameError` names
+    the problem and the fix (shape, frame length, non-finite samples, silence, clipping)."""
     x = np.asarray(frames)
     if x.ndim == 1:
         x = x[None, :]
@@ -188,18 +172,8 @@ def _inv_power_s(rig: Rig) -> np.ndarray:
 
 
 def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.ndarray:
-    """Features of a batch of chirp frames: ``20 log10 |H(f)|`` on the band bins, float32.
-
-    Parameters
-    ----------
-    frames : (n, rig.n_chirp) chirp-aligned received frames.
-    rig : the rig the frames were recorded with.
-    check : validate the frames first (see :func:`check_frames`).
-
-    Returns
-    -------
-    X : (n, rig.n_band) float32.  Column ``j`` is rfft bin ``rig.band_bins[j]``.
-    """
+    """Features of a batch of chirp-aligned frames (n, rig.n_chirp): ``20 log10 |H(f)|`` on the band bins,
+    (n, rig.n_band) float32, column ``j`` the rfft bin ``rig.band_bins[j]`` (``check``: :func:`check_frames` first)."""
     if check:
         frames = check_frames(frames, rig)
     x = np.asarray(frames, dtype=np.float32)
