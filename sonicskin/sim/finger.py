@@ -18,19 +18,10 @@ __all__ = ["Subject", "make_subjects", "press_profile"]
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One simulated person's finger.
-
-    radius_1n_m : contact radius at 1 N; the radius grows as ``(F / 1 N) ** radius_exp``
-        (sub-linear, Hertz-like: 0.15-0.33).
-    damping_1n : tissue damping at 1 N in N s / m (scales with contact area).
-    mass_1n_kg : tissue mass moving with the wall at 1 N (scales with contact area).
-    stiffness_1n : contact stiffness at 1 N in N / m (scales with radius).
-    aim_bias_m : where this person habitually presses relative to a marker (x, y).
-    aim_jitter_m : spread of single presses around that point.
-    max_force_n : typical peak force of this person's presses.
-    damping_exp : ``q``, the skin damping's (real contact area's) growth with force, ``c ~ F^q``.
-    occlusion_tau_s, occlusion_r0 : the real contact's growth while a press is held (module notes).
-    """
+    """One simulated person's finger: at 1 N its contact radius (growing as ``(F / 1 N) ** radius_exp``), tissue
+    damping (N s/m, growing as ``F ** damping_exp``), moving tissue mass and contact stiffness; ``aim_bias_m`` and
+    ``aim_jitter_m``, where this person presses relative to a marker; ``max_force_n``, their typical peak force;
+    ``occlusion_tau_s``, ``occlusion_r0``, the real contact's growth while a press is held."""
 
     name: str
     radius_1n_m: float
@@ -57,10 +48,7 @@ class Subject:
         return 1 - (1 - self.occlusion_r0) * np.exp(-t / self.occlusion_tau_s)
 
     def dynamic_stiffness(self, force_n: np.ndarray, f_hz: np.ndarray, occlusion: np.ndarray | float = 1.0) -> np.ndarray:
-        """``K(w) = k(F) + i w c(F, t) - w^2 m(F)`` per chirp and frequency, shape (n, n_f); zero where F = 0.
-
-        ``occlusion`` : ``g(t)`` of the press (1: saturated real contact).
-        """
+        """``K(w) = k(F) + i w c(F, t) - w^2 m(F)`` (n, n_f), zero where F = 0; ``occlusion``: the press's ``g(t)``."""
         F = np.atleast_1d(np.asarray(force_n, float))
         Fp = np.maximum(F, 1e-3)
         area = (self.radius_m(F) / self.radius_1n_m) ** 2  # relative gross contact area

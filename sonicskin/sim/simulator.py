@@ -30,15 +30,8 @@ _BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce s
 
 
 class Simulator:
-    """The simulated rig of one scenario.
-
-    Parameters
-    ----------
-    scenario : what the link is and what happens on it.
-    rig : acquisition parameters (sample rate, chirp).
-    target_rms : level of the untouched received signal (full scale = 1).
-    quantize_bits : ADC resolution (the paper's interface: 24 bit); ``None`` keeps float.
-    """
+    """The simulated rig of one scenario on ``rig``: the untouched received signal at ``target_rms`` of full scale,
+    quantised to ``quantize_bits`` (the paper's interface: 24; ``None``: float)."""
 
     def __init__(self, scenario: Scenario, rig: Rig, *, target_rms: float = 0.05, quantize_bits: int | None = 24):
         if scenario.material not in MATERIALS:
@@ -83,11 +76,8 @@ class Simulator:
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f).
-
-        Every modal frequency moves to ``f_n (1 + kappa dT)``: with kappa < 0 a warmer (softer)
-        wall rings lower.  (Writing it ``G_0(f (1 + kappa dT))`` would move them up.)
-        """
+        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f): every
+        modal frequency moves to ``f_n (1 + kappa dT)`` (kappa < 0: a warmer wall rings lower)."""
         f = self.channel.f_hz
         pos = (f[None, :] / (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
         pos = np.clip(pos, 0, f.size - 1.000001)
@@ -108,12 +98,8 @@ class Simulator:
     _Y_GRID = np.linspace(0.0, 1.0, 41)
 
     def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
-        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer),
-        and the TX and RX bond temperatures (C).
-
-        The label ``tl.temperature_c`` is the link's middle; the warm-up field of the scenario
-        (:func:`~sonicskin.sim.thermal.warmup_field`) adds the non-uniform part around it.
-        """
+        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer), and the TX
+        and RX bond temperatures (C), the scenario's warm-up field around the label ``tl.temperature_c`` (the middle)."""
         T = self.scenario.temperature
         L = self.geometry.length_m
         ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
@@ -253,13 +239,9 @@ class Simulator:
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), written
-        into ``out`` (n, n_chirp) float32 when given.
-
-        An int32 ``out`` receives the same frames as a 24-bit file holds them, left-aligned in 32 bits
-        (soundfile's int convention): ``min(round(x 2^23), 2^23 - 1) << 8`` of each float sample ``x``,
-        libsndfile's own float -> PCM_24 conversion.  :func:`~sonicskin.sim.generate.simulate_dataset`
-        writes those to FLAC directly (the same file samples, without libsndfile's slower conversion)."""
+        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), into ``out`` when
+        given.  An int32 ``out`` receives them as a 24-bit file holds them, left-aligned in 32 bits (libsndfile's own
+        float -> PCM_24 conversion), which :func:`~sonicskin.sim.generate.simulate_dataset` writes to FLAC directly."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
@@ -317,14 +299,10 @@ _WB_DTYPE = np.complex64
 
 
 def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
-    """Change of H by a distributed contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s``.
-
-    Gp : (R, 2P + P(P+1)/2, n_f) projected patch rows (:meth:`ChannelModel.patch_weights`) per contact radius.
-    K : (R, O, n_f) dynamic stiffness per sub-contact for O real-contact shares at each radius.
-    Returns (R, O, n_f) complex64.  The P x P systems of every radius, share and frequency are solved
-    together by Gaussian elimination written over whole arrays (P = 4: a few dozen array operations
-    instead of one LAPACK call per frequency).  ``I + K G_pp`` is complex symmetric with a dominant
-    identity where the finger is light; it is solved without pivoting in complex128 for headroom.
+    """Change of H by a distributed contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s``, (R, O, n_f):
+    ``Gp`` the projected patch rows per contact radius (:meth:`ChannelModel.patch_weights`), ``K`` the dynamic
+    stiffness per sub-contact for O real-contact shares.  Every P x P system is solved at once by Gaussian
+    elimination over whole arrays (complex symmetric with a dominant identity: no pivoting, complex128).
     """
     R, _, F = Gp.shape
     n_o = K.shape[1]
