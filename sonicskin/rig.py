@@ -1,10 +1,8 @@
 """Rig description: sample rate, chirp, bands and the touch-location layout.
 
-A *rig* is everything about the hardware that a model depends on: the sample
-rate, the transmitted chirp (Eq. 1 of the paper) and the frequency bands the
-matched filter of OSPA step 1 drops.  It is loaded from YAML (``configs/rigs``, see :func:`resolve_config`)
-and stored inside every dataset and deployment artifact, so a model is never
-run on a rig it was not trained for.
+A *rig* is everything about the hardware a model depends on: the sample rate, the transmitted chirp (Eq. 1) and the
+bands the matched filter of OSPA step 1 drops.  Loaded from YAML (:func:`resolve_config`) and stored in every
+dataset and artifact, so a model never runs on a rig it was not trained for.
 """
 
 from __future__ import annotations
@@ -38,13 +36,8 @@ CONFIG_KINDS = ("rigs", "scenarios", "links", "arms", "train")
 
 
 def config_dir() -> Path:
-    """The folder that bare config names resolve in.
-
-    A wheel ships the repository's top-level ``configs/`` as package data, ``sonicskin/configs``
-    (``[tool.setuptools.package-dir]`` in pyproject.toml), read here with :mod:`importlib.resources`.
-    A source checkout (an editable install, or ``PYTHONPATH`` pointing at the repository) has no
-    ``sonicskin/configs``; its configs are the ``configs/`` folder next to the package.
-    """
+    """The folder bare config names resolve in: the wheel's package data ``sonicskin/configs``, else (a source
+    checkout) the repository's ``configs/`` next to the package."""
     shipped = importlib.resources.files(__package__) / "configs"
     if shipped.is_dir():
         return Path(str(shipped))  # pip installs wheels unpacked, so this is a real folder
@@ -59,18 +52,9 @@ def config_names(kind: str) -> list[str]:
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """The YAML file a config argument refers to.
-
-    A bare name (``jaco``, ``moving``) is one of the package's configs (:func:`config_names`); a
-    file name (``my-rig.yaml``) or a path (``configs/rigs/jaco.yaml``, ``./rig``) is read from the
-    filesystem as it stands.
-
-    Raises
-    ------
-    FileNotFoundError
-        A bare name that is not a shipped config (the message lists the known names), or a path
-        that does not exist.
-    """
+    """The YAML file a config argument refers to: a bare name (``jaco``) is a shipped config (:func:`config_names`),
+    a file name or path is read as it stands.  A name that is no config, or a missing path: :class:`FileNotFoundError`
+    (the message lists the known names)."""
     text = str(name_or_path)
     p = Path(name_or_path)
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
@@ -90,12 +74,9 @@ MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a conf
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping of plain values, with one-line errors (:class:`ConfigError`) that name the file.
-
-    Refused: a file over :data:`MAX_YAML_BYTES`, text that is not UTF-8, YAML syntax errors (with the
-    line), tags that construct objects (``!!python/object``: plain values only), a key given twice
-    in one mapping, and a top level that is not a mapping.
-    """
+    """Read a YAML mapping of plain values; one-line :class:`ConfigError` naming the file for a file over
+    :data:`MAX_YAML_BYTES`, text that is not UTF-8, a syntax error (with the line), an object-building tag, a key
+    given twice, or a top level that is not a mapping."""
     import yaml
 
     path = Path(path)
@@ -319,12 +300,8 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Predefined touch locations: ids and surface coordinates in cm.
-
-    Coordinates are on the unrolled surface: ``x_cm`` around the circumference, ``y_cm``
-    along the link axis.  When ``circumference_cm`` is set, distances wrap around it, so
-    two markers on either side of the seam are close, as they are on the tube.
-    """
+    """Predefined touch locations: ids and coordinates in cm on the unrolled surface (``x_cm`` around the
+    circumference, ``y_cm`` along the axis); with ``circumference_cm`` distances wrap around it."""
 
     ids: tuple[int, ...]
     xy_cm: np.ndarray  # (n, 2)

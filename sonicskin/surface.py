@@ -194,12 +194,10 @@ class LinkSurface:
     # -- constructors -----------------------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
-        """A surface from a short YAML mapping, keys checked strictly (``where`` prefixes the error line).
-
-        Tube: ``{frame, kind: tube, radius_m, length_m, xyz, rpy, theta0_deg, axis_from}``; plate: ``{frame, kind:
-        plate, width_m, length_m, thickness_m, xyz, rpy, face}`` (``xyz``/``rpy`` default 0, ``thickness_m`` 0).  Or a
-        URDF link: ``{urdf: PATH, frame: LINK}`` plus ``theta0_deg``/``axis_from``/``face`` (PATH relative to
-        ``base_dir``).
+        """A surface from a short YAML mapping, keys checked strictly (``where`` prefixes the error line): a tube
+        ``{frame, kind: tube, radius_m, length_m, xyz, rpy, theta0_deg, axis_from}``, a plate ``{frame, kind: plate,
+        width_m, length_m, thickness_m, xyz, rpy, face}``, or a URDF link ``{urdf: PATH, frame: LINK}`` plus its
+        overrides (PATH relative to ``base_dir``).
         """
         if not isinstance(d, dict):
             raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "
@@ -248,10 +246,8 @@ class LinkSurface:
 
     @classmethod
     def from_urdf(cls, path: str | Path, link_name: str, **overrides) -> LinkSurface:
-        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's origin.
-
-        ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say.
-        """
+        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's
+        origin; ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say."""
         path = Path(path)
         if not path.is_file():
             raise SurfaceError(f"{path}: no such URDF file")

@@ -1,17 +1,11 @@
 """Scenario configs: what happens on the simulated rig, chirp by chirp.
 
-A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer
-positions), the touch layout, who touches, how hard, whether the robot moves, and how the
-temperature evolves.  :func:`build_timeline` turns it into a per-chirp table of ground truth;
-:class:`sonicskin.sim.simulator.Simulator` renders that table into received audio.
-
-Each *session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta),
-``moving_s`` of no-touch while the robot moves (OSPA's moving variance; only when motion is
-on), then one press-hold-release at each location (``repeats`` times, in random order) with
-``gap_s`` of no-touch between presses.
-
-A scenario *family* (``configs/scenarios/random.yaml``, :class:`RandomFamily`) draws a whole scenario
-from a seed: ``Scenario.load("random", seed=N)`` is rig N, one we did not design on.
+A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer positions), the touch
+layout, who touches, how hard, whether the robot moves, and how the temperature evolves; :func:`build_timeline`
+turns it into a per-chirp table of ground truth, which :class:`sonicskin.sim.simulator.Simulator` renders.  Each
+*session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta), ``moving_s`` of no-touch
+while the robot moves (when motion is on), then one press at each location (``repeats`` times, in random order)
+with ``gap_s`` between presses.  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed.
 """
 
 from __future__ import annotations
@@ -437,11 +431,8 @@ def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
 
 
 def check_size(sc: Scenario, rig: Rig) -> int:
-    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything.
-
-    Returns the total number of chirps.  The estimate: ~256 bytes per chirp of ground truth (plus one
-    press profile), and one rendering block (about 1024 chirps, or one part) of spectra and frames.
-    """
+    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything (~256
+    bytes per chirp of ground truth, one rendering block of spectra and frames); returns the total number of chirps."""
     first, other = session_chirps(sc, rig)
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
@@ -472,20 +463,13 @@ def _pair(v, what: str) -> tuple[float, float]:
 
 @dataclasses.dataclass(frozen=True)
 class RandomFamily:
-    """Rigs we did not design on: every seed draws another link, people, motion and warm-up.
-
-    Each draw is an ordinary :class:`Scenario` (so the simulator, the dataset writer and every verb
-    see nothing new): a material of :data:`sonicskin.sim.channel.MATERIALS` with its sourced
-    stiffness, density, thickness and thermal coefficients; a tube or a flat plate of random size;
-    transducers near either end at random positions; the material's loss factor times a log-uniform
-    factor (``loss_factor_scale``; the literature ranges in DESIGN.md span about a factor 2 either
-    way); a random modal irregularity (manufacturing, fittings); a grid of ``grid_n`` x ``grid_n``
-    markers between the transducers; one person per session (drawn from the 12 simulated people);
-    motion on or off with a random level; a random ambient temperature, warm-up and start time.
-    Every session presses each marker once (random order): s000 trains, s001 validates, the rest test.
-
-    ``design_seeds`` may be used for development; ``heldout_seeds`` were fixed before anything was
-    tuned on this family and are only ever evaluated (``benchmarks/bench_random_rigs.py``).
+    """Rigs we did not design on: every seed draws another link, people, motion and warm-up, as an ordinary
+    :class:`Scenario`: a material of :data:`sonicskin.sim.channel.MATERIALS`, a tube or a plate of random size,
+    transducers near either end, the material's loss factor times a log-uniform factor, a random modal irregularity,
+    a grid of markers between the transducers, one person per session, motion on or off, a random ambient
+    temperature, warm-up and start time.  Every session presses each marker once: s000 trains, s001 validates, the
+    rest test.  ``design_seeds`` may be developed on; ``heldout_seeds`` are only ever evaluated
+    (``benchmarks/bench_random_rigs.py``).
     """
 
     family: str = "random"
