@@ -43,17 +43,11 @@ def _default_probe(n_in: int) -> np.ndarray:
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
               probe_inputs: np.ndarray | None = None, selection: dict | None = None, drift: dict | None = None) -> dict:
-    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters); ``drift``:
-    drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`).
-
-    The document is checked against :mod:`sonicskin.artifact_schema` and every ONNX file against it (input
-    width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
-    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.integrity.check_integrity`
-    checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
-    in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
-    and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as
-    ``probe_inputs`` (an RBF SVM is flat far from its data); without them an entry's earlier probe rows are
-    kept, else seeded random rows are used.
+    """Write ``out/skin.json`` (``models``: name -> entry; ``drift``: drift tracking's training reference), checked
+    against :mod:`sonicskin.artifact_schema` and every ONNX file against it first, then sealed: each ONNX file gets
+    its binding in its ``metadata_props``, each entry the file's sha256 and ``probe`` (``probe_inputs`` rows, real
+    model inputs: an RBF SVM is flat far from its data; else the earlier probe rows, else seeded random rows, and the
+    outputs on them), the document its ``digest``.
     """
     out = Path(out)
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,

@@ -163,20 +163,10 @@ class CheckReport:
 
 # -- capture ----------------------------------------------------------------------------------------------------
 class SimulatedDevice:
-    """The simulated rig as the audio interface the check records from, with faults to inject.
-
-    Parameters
-    ----------
-    rig : the rig to run.
-    scenario : the simulated link (name or YAML, or a :class:`sonicskin.sim.Scenario`).
-    fault : ``"none"``; ``"disconnected"`` (the output is not connected: the receiver hears noise
-        only); ``"clipping"`` (input gain 40 x too high); ``"weak"`` (the chirp 100 x, 40 dB, too
-        weak for the noise); ``"wrong-channel"`` (the receiver is cabled to input 1, the check listens on
-        ``rx``); ``"rate"`` (an interface that runs 44.1/48 kHz only).
-    n_inputs : input channels of the simulated interface (as many outputs).
-    motors : motor activity 0..1 during the check (PWM lines and mechanical noise); 0: the robot
-        powered but still, as the check asks.
-    delay_ms : output-to-input latency of the simulated interface.
+    """The simulated rig as the audio interface the check records from (``n_inputs`` inputs and as many outputs,
+    ``delay_ms`` of latency, ``motors`` 0..1 of motor activity), with a ``fault`` to inject: ``"disconnected"`` (the
+    receiver hears noise only), ``"clipping"`` (input gain 40 x), ``"weak"`` (the chirp 40 dB too weak),
+    ``"wrong-channel"`` (the receiver on input 1) or ``"rate"`` (44.1/48 kHz only).
     """
 
     RATES = (44_100.0, 48_000.0, 96_000.0, 192_000.0)
@@ -268,13 +258,10 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
             press_s: float = 3.0, tail_s: float = 0.5, blocksize: int = 1024, scenario="stationary", fault: str = "none",
             motors: float = 0.0, prompt=None, playback: np.ndarray | None = None, on_start=None, watchdog_s: float = 3.0,
             max_inputs: int = 8) -> Capture:
-    """Play the chirp on ``tx`` and record every input of ``device``; ask for a press after ``rest_s``.
-
-    ``device``: an audio interface (name or index), or the simulated one: ``"sim"`` (the link of ``scenario`` with the
-    ``fault`` and ``motors`` of :class:`SimulatedDevice`) or a :class:`SimulatedDevice`, whose press is scripted.
-    ``prompt(msg)`` tells the user what to do (default: stderr, on an interface).  ``playback`` replaces what is played
-    (tests: a simulated received signal through a loopback); ``on_start()`` runs once the stream runs (tests: wire the
-    JACK loopback).  A rate the device refuses is a capture that says so (the check's first line fails).
+    """Play the chirp on ``tx`` and record every input of ``device`` (an interface, ``"sim"`` or a
+    :class:`SimulatedDevice`); ask for a press after ``rest_s`` (``prompt(msg)``; default: stderr on an interface).
+    ``playback`` replaces what is played and ``on_start()`` runs once the stream runs (tests: a JACK loopback).  A
+    rate the device refuses is a capture that says so.
     """
     check_windows(rig, rest_s, press_s)
     check_blocksize(blocksize, "--blocksize")

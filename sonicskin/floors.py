@@ -1,17 +1,9 @@
 """The plain scikit-learn floors every accuracy claim is printed beside (a result below them is not a result).
 
-On one split of one dataset, each model fitted on the touch chirps of the training sessions and scored on every touch
-chirp of the test sessions (the floors are given the touch decision), with default parameters:
-
-- ``svc``: ``StandardScaler + SVC()`` on every usable bin (the rig's matched-filter mask);
-- ``lda``: ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto")`` on every usable bin (a within-marker
-  covariance shared by every marker: what varies between presses, estimated from all of them);
-- ``normalized_svc``: ``Normalizer + StandardScaler + SVC(C=10)`` on OSPA's 300 bins (each chirp's relative spectrum
-  scaled to unit length: the touch's shape, not its strength);
-- force: ``StandardScaler + SVR()`` pooled over every location on every usable bin, and the training mean.
-
-Inputs: dB minus each session's boot reference (the mean of its first ``beta`` chirps, the same no-touch reference the
-runtime boots on; no label reaches it).
+Fitted on the training sessions' touch chirps, scored on every test touch chirp, default parameters: ``svc``
+(``StandardScaler + SVC()``) and ``lda`` (``LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto")``) on every
+usable bin, ``normalized_svc`` (``Normalizer + StandardScaler + SVC(C=10)``) on OSPA's 300 bins; force: a pooled
+``StandardScaler + SVR()`` and the training mean.  Inputs: dB minus each session's boot reference.
 """
 
 from __future__ import annotations

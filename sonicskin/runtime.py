@@ -1,10 +1,8 @@
 """Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches.
 
-An artifact is a folder with ``skin.json`` (rig, layout, OSPA bins, feature mode, calibration,
-detector threshold, per-location force curves, checksums) and the ONNX models it names
-(``net.onnx``, ``svm.onnx``).  :class:`SkinRuntime` checks the artifact against the rig it is
-asked to run on, against its checksums, the binding inside each model file (bins, mode, rig, layout,
-parameters), its digest and its probe outputs before anything runs (:func:`sonicskin.integrity.check_integrity`).
+:class:`SkinRuntime` checks an artifact (``skin.json`` and the ONNX models it names) against the rig it is asked to
+run on and against its integrity (checksums, bindings, digest, probes: :func:`sonicskin.integrity.check_integrity`)
+before anything runs.
 """
 
 from __future__ import annotations
@@ -30,17 +28,9 @@ __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FO
 
 
 class SkinRuntime:
-    """Load ``folder`` and serve one of its models.
-
-    Parameters
-    ----------
-    folder : the artifact folder.
-    model : a model kind of the artifact (:mod:`sonicskin.kinds`: ``"svm"``, ``"lda"``, ``"net"``).
-    rig : the rig it will run on (a :class:`Rig`, a rig name or a YAML path); defaults to the artifact's own.  A
-        different sample rate, chirp or band raises :class:`ArtifactError`.
-    layout : the marker layout of the surface it will run on (e.g. a scenario's ``make_layout()``);
-        other ids or positions than the artifact's raise :class:`ArtifactError`.  ``None``: not checked.
-    threads : onnxruntime intra-op threads (1: predictable latency next to the audio thread).
+    """Load ``folder`` and serve its ``model`` (a kind, :mod:`sonicskin.kinds`).  ``rig`` (a Rig, name or YAML;
+    default the artifact's) and ``layout`` (e.g. a scenario's ``make_layout()``; ``None``: not checked) must be the
+    artifact's, else :class:`ArtifactError`.  ``threads``: onnxruntime intra-op threads.
     """
 
     def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,

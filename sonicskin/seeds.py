@@ -1,17 +1,10 @@
 """Network vs SVM over several simulator seeds and training seeds, with a paired confidence interval.
 
-One run of a scenario is an anecdote: the network's training seed moves its accuracy by about
-2 points, and two simulated recordings of the same scenario differ by more.  Here every scenario
-is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
-training split (the network once per ``train_seeds``; the SVM is deterministic), exported to one
-ONNX artifact and evaluated by replaying each test session as the live loop runs it
-(:meth:`sonicskin.runtime.SkinRuntime.replay`: boot calibration on the first 3 s, refreshes from
-each model's own detection; no test label reaches a model).
-
-The paired difference is net minus SVM on the same simulated data.  The unit of the interval
-is the simulator seed (independent data): per seed the network's metric is averaged over its
-training seeds and the SVM's subtracted, and a Student t interval is taken over those
-differences.  Pairs of one seed share data and the SVM, so they are not counted as independent.
+Every scenario is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
+training split (the network once per ``train_seeds``), exported to one artifact and evaluated by replaying each
+test session as the live loop runs it.  The paired difference is net minus SVM on the same data; the unit of the
+interval is the simulator seed (per seed the network's mean over its training seeds minus the SVM's), a Student t
+interval over those differences.
 """
 
 from __future__ import annotations

@@ -1,11 +1,7 @@
-"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen` (with
-``sonicskin record`` and ``sonicskin check`` opening their device here too).
-
-:func:`open_run` opens a skin on a device: an artifact, or an arm whose links each have theirs, on the simulated device
-(``"sim"`` or ``None``: each link's scenario plays a new session of scripted touches) or on an audio interface.  A single
-artifact is an arm of one link, so each check of a run is written once, here: the artifact's layout against the
-simulated scenario, the links' frames for an MCAP file, a link without an artifact (trained on the spot on the simulated
-device when asked).  :func:`open_source` is the one place a device or the simulated device opens.
+"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen`
+(``record`` and ``check`` open their device here too).  :func:`open_run` opens an artifact, or an arm whose links
+each have theirs (a single artifact is an arm of one link, so each check of a run is written once), on the
+simulated device or an audio interface; :func:`open_source` is the one place a device opens.
 """
 
 from __future__ import annotations
@@ -146,17 +142,13 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
              mcap=None, overwrite: bool = False) -> Run:
     """Open a skin on a device.
 
-    ``artifact``: an artifact folder, one link (channels ``tx``/``rx`` of an interface; on the simulated device it plays
-    ``scenario``, whose layout must be the artifact's); or an arm: its arm file, or the folder ``fit-svm --links`` wrote
-    (holding arm.yaml).  ``links``: an arm or links file by name or path (``live --links``), its links' artifacts the
-    file's ``artifact:`` or ``link_artifacts`` (one per link, in order).  ``device``: ``"sim"`` or ``None``, the simulated
-    device (real time, or as fast as it is read with ``fast``; ``drop_every`` drops one block in N), or an audio
-    interface by name or index.  ``rig``: a rig name or path (default: the arm file's, else the artifact's own, else
-    jaco).  ``train``: called as ``train(scenario, rig)`` for a simulated link without an artifact, its artifact's folder
-    (the CLI: :func:`sonicskin.record.train_oneshot`); without it such a link is a one-line error.  ``mcap``: the MCAP
-    file :meth:`Run.run` writes each touch into, in its link's frame (refused, before anything opens, unless every link
-    has a frame; an existing file unless ``overwrite``: :class:`~sonicskin.rosbag.McapEventWriter`, opened and locked
-    here, written from the first touch on).
+    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario``, whose layout
+    must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
+    links file (``live --links``), its links' artifacts the file's or ``link_artifacts``.  ``device``: ``"sim"``/
+    ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
+    jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
+    ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
+    ``overwrite``), opened and locked here.
     """
     check_blocksize(blocksize)
     sim = simulated(device)
