@@ -25,12 +25,9 @@ __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_laten
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
                   boot: bool = True) -> dict:
-    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the
-    whole per-chirp path from band features (reference, model, detection, force; :meth:`SkinStream.chirp`).
-
-    ``X_band``/``time_s``: a recorded stream; its first ``beta`` chirps boot the reference.  ``boot=False``
-    (a stream of touches only, absolute inputs): no reference, the path is inputs -> model -> touch/force.
-    """
+    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole per-chirp
+    path from band features (:meth:`SkinStream.chirp`), on a recorded stream ``X_band``/``time_s`` (its first
+    ``beta`` chirps boot the reference; ``boot=False``, touches only: no reference)."""
     st = rt.stream()
     k = 0
     while boot and st.calibrating and k < len(X_band):
@@ -60,15 +57,10 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
 
 
 def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions, *, drift: dict | None = None) -> Predictions:
-    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it.
-
-    The live loop boots Alg. 2's reference on the stream's first ``beta`` chirps, which the recording
-    protocol keeps hands-off.  A stream that starts with less rest than that (a table of touches only, or
-    rest too short for a reference, where training fell back to absolute inputs) has nothing to boot on:
-    with absolute inputs every chirp is scored as it is (the training reference, no boot calibration);
-    relative inputs cannot be formed there and are refused in one line.  ``drift``: a dict that receives, per
-    session, what drift tracking found there (:meth:`sonicskin.drift.DriftTracker.report`; artifacts with drift
-    tracking only).
+    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it (Alg. 2 boots on
+    each stream's first ``beta`` chirps).  A stream with less rest than that has nothing to boot on: absolute inputs
+    are scored as they are, relative ones refused in one line.  ``drift``: a dict that receives what drift tracking
+    found per session (:meth:`sonicskin.drift.DriftTracker.report`).
     """
     parts = []
     beta = rt.spec.reference(rt.rig.chirps_per_s).beta
@@ -154,16 +146,10 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` (its kinds, :mod:`sonicskin.kinds`) on the test sessions of its split (or
-    ``sessions``).
-
-    Each test session is replayed as a stream through :meth:`SkinRuntime.replay`, as the live
-    loop runs it: the first ``beta`` seconds boot the reference, refreshes follow each model's own
-    touch detection.  No test label reaches a model or its reference.  A session of touches only
-    (no rest) is scored on every chirp (:func:`replay_sessions`).
-
-    The result names the artifact's ``train`` and ``val`` sessions and the ``test`` sessions scored
-    here; ``trained_on_test`` lists test sessions the artifact was trained or validated on.
+    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as a
+    stream as the live loop runs it (no test label reaches a model or its reference; a session of touches only is
+    scored on every chirp).  The result names the ``train``, ``val`` and ``test`` sessions; ``trained_on_test`` the
+    test sessions the artifact was trained or validated on.
     """
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError

@@ -1,9 +1,6 @@
-"""What both models see: the OSPA-selected bins, absolute or relative to the no-touch reference.
-
-``mode="absolute"``: dB magnitudes of the selected bins (the paper's input).
-``mode="relative"``: the same minus the running no-touch reference of the stream, i.e. Alg. 2's
-online updating applied to the *features* (mean of 3 s of rest, refreshed every 20 min), so
-a slow drift of the channel is removed before either model sees it.
+"""What both models see: the OSPA-selected bins, absolute (dB, the paper's input) or relative: minus the
+stream's running no-touch reference (Alg. 2's online updating applied to the *features*), so a slow drift of the
+channel is removed before either model sees it.
 """
 
 from __future__ import annotations
@@ -75,18 +72,11 @@ class FeatureSpec:
 
 def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
                       calibrator: OnlineReference, *, online: bool = True) -> np.ndarray:
-    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps.
-
-    Alg. 2 through :class:`~sonicskin.calibration.OnlineReference` (the object the live loop
-    runs), fed with the labels instead of a detector: the boot reference is the first ``beta``
-    consecutive ``quiet`` chirps of each session (the protocol's hands-off calibration) and
-    refreshes take the next ``beta`` quiet chirps once ``alpha`` has passed.  This is for the
-    *training* session(s), whose labels are the protocol; test streams are replayed with the
-    model's own detection (:meth:`sonicskin.runtime.SkinRuntime.replay`) and never see labels.
-    Chirps before the first reference use it too (training only).
-
-    ``calibrator`` gives beta, alpha and the clock (a fresh reference is made per session);
-    ``online=False`` keeps the boot reference throughout.
+    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps: Alg. 2
+    (:class:`~sonicskin.calibration.OnlineReference`, fed labels instead of a detector: boot on the first ``beta``
+    consecutive ``quiet`` chirps, refreshes every ``alpha``).  For *training* sessions only; test streams are
+    replayed with the model's own detection.  ``calibrator`` gives beta, alpha and the clock; ``online=False`` keeps
+    the boot reference throughout.
     """
     beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
     X = np.asarray(X, np.float32)
@@ -117,11 +107,8 @@ def training_targets(t: FeatureTable, layout, min_force_n: float = 0.5) -> tuple
 
 
 def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
-    """OSPA's gamma for this rig: ``n_bins``, or every bin the matched filter leaves when fewer are there.
-
-    ``None`` asks for the paper's 300.  A larger gamma than the rig has bins (a 165-bin table) is
-    clamped with a warning, so a default never turns into an error.
-    """
+    """OSPA's gamma for this rig: ``n_bins`` (``None``: the paper's 300), clamped with a warning to the bins the
+    matched filter leaves, so a default never turns into an error."""
     n_allowed = int(rig.allowed_mask.sum())
     want = DEFAULT_N_BINS if n_bins is None else int(n_bins)
     if want > n_allowed:

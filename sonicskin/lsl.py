@@ -1,13 +1,8 @@
 """Touch events as a Lab Streaming Layer stream (optional: ``pip install 'sonicskin[lsl]'``).
 
-LSL is what lab recorders (LabRecorder, XDF files), MNE-LSL, OpenViBE and many robot/EEG
-tool-chains already read.  A skin publishes one irregular-rate *string* stream, type
-``TouchEvents``, one channel: each sample is one event's JSON (the contract of
-:mod:`sonicskin.events`, schema version in the stream's ``desc/schema_version`` and in every
-event).  LSL stamps every sample with its own clock (``pylsl.local_clock``) so recordings of
-several streams line up; the event's ``t_s`` (stream time of the chirp) is inside the JSON.
-
-pylsl's wheel bundles ``liblsl`` (checked on Linux x86-64, pylsl 1.18.6); no system library needed.
+One irregular-rate *string* stream, type ``TouchEvents``, one channel: each sample is one event's JSON
+(:mod:`sonicskin.events`), the schema version in ``desc/schema_version``; LSL stamps every sample with its own
+clock, so recordings of several streams line up.  pylsl's wheel bundles ``liblsl``.
 """
 
 from __future__ import annotations

@@ -44,16 +44,11 @@ def decisions_parity(got: dict[str, np.ndarray], ref: dict[str, np.ndarray], *, 
                      every_chirp: tuple[str, ...] = ()) -> dict:
     """Parity figures of an export: outputs ``got`` (onnxruntime) against ``ref`` (the original), by output name.
 
-    The location label is the argmax of output ``label`` (its columns ``label_cols``); ``touch``: the touch decision
-    statistic of both (got, ref), a touch where it is >= 0.  Every output ``k`` gets ``max_abs_<k>`` and its bound
-    ``<k>_tol`` (:func:`parity_bound` of the reference), ``labels_equal``/``touch_equal`` whether the decisions agree,
-    and ``ok`` whether all of it holds.  Two kinds of chirps are judged less strictly:
-
-    - ``near_ties``: the original decides by less than the label output's bound (its two best locations, or its touch
-      statistic and 0, that close): rounding may move the decision, so only the outputs are judged there;
-    - ``votes_flipped``: chirps of ``vote_tie`` (a pairwise vote within rounding of zero) whose outputs differ beyond
-      their bound: the vote went the other way, which moves scores by a whole vote.  Only the outputs named in
-      ``every_chirp`` (those a vote cannot move: the force, decision values) are judged there.
+    The location is the argmax of output ``label`` (columns ``label_cols``); ``touch``: the touch statistic of both
+    (a touch where >= 0).  Every output ``k`` gets ``max_abs_<k>`` and its bound ``<k>_tol``
+    (:func:`parity_bound`), ``labels_equal``/``touch_equal`` and ``ok``.  ``near_ties`` (the original decides by
+    less than the label output's bound) are judged on their outputs only; ``votes_flipped`` (chirps of ``vote_tie``,
+    a pairwise vote within rounding of zero) on the outputs of ``every_chirp`` only (those a vote cannot move).
     """
     ref_l = np.asarray(ref[label], np.float64)[:, label_cols]
     got_l = np.asarray(got[label], np.float64)[:, label_cols]

@@ -1,10 +1,6 @@
-"""Model outputs -> :class:`Predictions`: the one place a touch, a location, a position and a force are decided.
-
-A head is built from an artifact's model entry (``skin.json``) and its marker layout; :meth:`decide`
-takes the outputs of the model's ONNX graph on a block of model inputs and the stream's Alg. 2
-reference.  Nothing here runs a model: :class:`sonicskin.runtime.SkinRuntime` runs the graph,
-:class:`~sonicskin.head.stream.Stream` keeps the reference.
-"""
+"""Model outputs -> :class:`Predictions`: the one place a touch, a location, a position and a force are decided,
+from an artifact's model entry and marker layout (:meth:`decide`: the graph's outputs and the stream's Alg. 2
+reference).  Nothing here runs a model."""
 
 from __future__ import annotations
 
@@ -28,15 +24,11 @@ DETECTORS = ("input-rms", "paper")
 
 def touch_statistic(V_cal: np.ndarray, n_locations: int, n_bins: int | None = None, *, detector: str = "input-rms"
                     ) -> np.ndarray:
-    """The touch detection statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`).
-
-    ``input-rms`` (default): the RMS change (dB) of the model inputs from the no-touch reference.  The paper
-    thresholds the calibrated per-location score ``max(S - S_c)`` (``paper``).  An RBF SVM trained on touches only
-    gives the same decision values (its intercepts) to every input far from its training touches, at rest or under
-    an unusually firm press, so a press at the location that wins the vote at rest goes unseen (measured: a 12 N
-    press missed for 2 s on a 3-marker rig).  How far the OSPA bins moved from rest is what a touch does
-    physically; that is thresholded.  ``n_bins``: over the first ``n_bins`` inputs only (the best bins, see
-    :data:`DETECTOR_BINS`); ``None``: all.
+    """The touch statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`):
+    ``input-rms`` (default), the RMS change (dB) of the first ``n_bins`` model inputs from the no-touch reference
+    (how far the bins moved is what a touch does physically; an RBF SVM gives the same scores to every input far
+    from its training touches, so a firm press at the location that wins at rest went unseen); ``paper``, the
+    calibrated per-location score ``max(S - S_c)``.
     """
     V_cal = np.asarray(V_cal, np.float64)
     if detector == "paper":
@@ -80,13 +72,10 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 
 class ScoreHead:
-    """The decisions of a closed-form model from its per-location scores (the SVM's, the LDA's).
-
-    Location: the argmax of the raw per-location scores ``S`` (subtracting ``S_c`` scrambles their argmax: measured
-    96 % raw vs 33 % calibrated on the simulated moving robot).  Touch: the detector (:data:`DETECTORS`) on ``V - S_c``,
-    ``V = [S, inputs]`` (Alg. 2: ``S_c`` from the stream, or the training session's).  Force: the artifact's force
-    model at the chosen location.  A subclass says how its outputs give ``S`` (:meth:`location_scores`), its
-    confidence and the weights of its position estimate.
+    """The decisions of a closed-form model from its per-location scores ``S`` (the SVM's, the LDA's).  Location:
+    the argmax of the raw ``S`` (subtracting ``S_c`` scrambles it); touch: the detector (:data:`DETECTORS`) on
+    ``V - S_c``, ``V = [S, inputs]``; force: the artifact's force model at that location.  A subclass says how its
+    outputs give ``S`` (:meth:`location_scores`), its confidence and its position weights.
     """
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)

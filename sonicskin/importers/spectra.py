@@ -26,13 +26,9 @@ MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table 
 
 def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
                   log=print) -> Rig:
-    """The rig whose FFT bins are a table's frequency axis.
-
-    The bin spacing is ``fs / frame``.  Give ``fs_hz`` or ``frame`` (samples per FFT frame) when
-    you know them; otherwise ``fs`` is the lowest standard audio rate above twice the top frequency
-    for which ``fs / spacing`` is a whole number of samples.  The axis may be off the bin grid
-    by up to half a bin (bin edges instead of centres, a rounding of a few Hz): each column is
-    assigned to its nearest bin.  The rig's band is exactly the table's columns.
+    """The rig whose FFT bins are a table's frequency axis (bin spacing ``fs / frame``): given ``fs_hz`` or
+    ``frame``, else the lowest standard audio rate above twice the top frequency for which ``fs / spacing`` is whole.
+    Each column goes to its nearest bin (an axis up to half a bin off the grid); the band is the table's columns.
     """
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size < 2:
@@ -141,16 +137,9 @@ def _check_array_names(table: Path) -> None:
 
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
-    """Import a table of magnitude spectra with labels (see the module docstring); returns the dataset.
-
-    Parameters
-    ----------
-    table : ``.npz`` file.
-    out : dataset folder to write.
-    rig : use this rig (its band must lie inside the table, give or take one table bin); default:
-        derived from the frequency axis (:func:`rig_from_axis`, with ``fs_hz``/``frame``).
-    linear : the magnitudes are linear (``|H|``), not dB; converted with ``20 log10``.
-    mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
+    """Import the ``.npz`` ``table`` of magnitude spectra with labels into the dataset folder ``out``; returns the
+    dataset.  ``rig``: used instead of the one derived from the axis (its band inside the table); ``linear``: the
+    magnitudes are ``|H|``, not dB; ``mode``: ``"create"``, ``"overwrite"`` or ``"resume"``.
     """
     table, out = Path(table), Path(out)
     _check_array_names(table)

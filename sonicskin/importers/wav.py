@@ -158,11 +158,8 @@ def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
 def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, sweep_wav: str | Path | None = None,
                chirp_hz: tuple[float, float] | None = None, period_s: float | None = None, amplitude: float = 1.0,
                channel: int = 0, pwm_hz=(), pwm_halfwidth_hz: float = 0.0, mode: str = "create", log=print) -> Path:
-    """Import WAV recordings into a dataset folder; returns it.
-
-    ``mode``: ``"create"`` (refuses an existing dataset), ``"overwrite"`` or ``"resume"`` (keeps the
-    recordings imported already).  A failed import leaves no new dataset behind.
-    """
+    """Import WAV recordings into a dataset folder; returns it.  ``mode``: ``"create"``, ``"overwrite"`` or
+    ``"resume"`` (keeps the recordings imported already); a failed import leaves no new dataset behind."""
 
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
     if not wav_dir.is_dir():

@@ -1,14 +1,10 @@
 """The closed-form model: shrinkage LDA on OSPA's best bins, each chirp's level removed or scaled to unit length.
 
-Linear discriminant analysis with one within-marker covariance shared by every marker (Ledoit-Wolf shrunk, as
-scikit-learn's ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto")``, computed in the sample space:
-:class:`sonicskin.nuisance.ShrinkageLDA`) learns what varies between two presses at one marker from all markers at
-once, which an RBF SVM with one press per marker cannot (:class:`ShrinkageLDA`: scikit-learn's estimator, computed in the
-sample space).  Its bins (the first ``k`` in OSPA's order) and the per-chirp
-normalisation (none, the chirp's mean dB removed, or the chirp scaled to unit length) are chosen on the validation
-presses (:meth:`sonicskin.fit.TrainingData.folds`); with none, the default measured across the random rig family
-(:data:`DEFAULTS`).  Its scores go through the same head as the SVM's (:class:`~sonicskin.head.ScoreHead`), and the
-network starts from it (its ``LDA`` location layer is this model, frozen).
+One within-marker covariance shared by every marker (Ledoit-Wolf shrunk, :class:`ShrinkageLDA`) learns what varies
+between two presses at one marker from all markers at once, which an RBF SVM with one press per marker cannot.
+Its bins (the first ``k`` in OSPA's order) and normalisation are chosen on the validation presses, else
+:data:`DEFAULTS`.  Its scores go through the SVM's head (:class:`~sonicskin.head.ScoreHead`), and the network's
+``lda`` location layer is this model, frozen.
 """
 
 from __future__ import annotations
