@@ -1,13 +1,7 @@
-"""The SVM's kernel machine as a torch layer: RBF units at its support vectors, its one-vs-one
-decision values and (soft) votes.
-
-Initialised from a fitted ``Pipeline([StandardScaler, SVC(kernel="rbf", decision_function_shape="ovo")])``
-it reproduces the SVM's pairwise decision values exactly and its vote winner (the SVM's predicted
-location) up to near-ties; after that every part (centres, width, pairwise weights) is an ordinary
-parameter that can be trained jointly with the rest of the network.  One-shot training (one session)
-gives a network too few chirps to learn a better decision function than the SVM's from scratch
-(measured: 3-11 points worse); starting from the SVM's keeps its localization and lets the shared
-representation serve the force head.
+"""The SVM's kernel machine as a torch layer: RBF units at its support vectors, its one-vs-one decision values and
+(soft) votes.  Initialised from a fitted ``StandardScaler + SVC(kernel="rbf", decision_function_shape="ovo")`` it
+reproduces the SVM's decision values exactly and its vote winner up to near-ties; then every part is a parameter
+trained with the rest of the network (one session is too few chirps to learn a better decision from scratch).
 """
 
 from __future__ import annotations

@@ -43,17 +43,10 @@ def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None)
 
 
 class Augmenter:
-    """Draws one augmented copy of every training touch chirp per call.
-
-    Parameters
-    ----------
-    X : (n, D) relative dB of the training touch chirps over every usable bin.
-    y : (n,) marker labels; ``press`` : (n,) press ids (a run of chirps at one marker).
-    cols : the model's input columns among the D (e.g. OSPA's bins); the draws are returned over them.
-    freqs_hz : (D,) frequency of every column (``stretch``, ``tilt``).
-    X_rest : (m, D) hands-off chirps of the training session (while the robot moves, if it does) (``motion``).
-    positions_cm : (K, 2) marker positions in the order of ``np.unique(y)``; ``circumference_cm`` for a tube (``aim``).
-    sizes : augmentation -> size (:data:`AUGMENTATIONS`); a missing or zero entry turns it off.
+    """Draws one augmented copy of every training touch chirp per call: ``X`` (n, D) relative dB over every usable
+    bin, ``y`` marker labels and ``press`` ids per chirp; draws returned over ``cols``.  ``freqs_hz`` (D,) for
+    ``stretch`` and ``tilt``; ``X_rest`` (m, D) hands-off chirps for ``motion``; ``positions_cm`` (K, 2) in the order
+    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off).
     """
 
     def __init__(self, X, y, press, *, cols=None, freqs_hz=None, X_rest=None, positions_cm=None,

@@ -1,10 +1,8 @@
 """Load a training checkpoint without running code from it.
 
-A Lightning ``.ckpt`` is a pickle: ``torch.load`` with weights-only mode off (what ``load_from_checkpoint``
-did here before) executes whatever ``__reduce__`` the file names.  :func:`load_checkpoint` reads it
-with ``weights_only=True`` (tensors and plain containers only; numpy's scalar and dtype are the one
-allow-listed extra, for checkpoints written before the metadata was kept plain), then rebuilds the
-module from its hyper-parameters and state dict.  Anything else in the file is refused with one line.
+A Lightning ``.ckpt`` is a pickle; :func:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (tensors
+and plain containers; numpy's scalar and dtype allow-listed for older checkpoints), then rebuilds the module from
+its hyper-parameters and state dict.  Anything else in the file is refused with one line.
 """
 
 from __future__ import annotations

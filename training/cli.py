@@ -330,12 +330,9 @@ class SkinCLI(LightningCLI):
 
 
 def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
-    """``args`` as on the command line after ``sonicskin train`` (e.g. ``--config configs/train/moving.yaml``).
-
-    With ``run`` the model is fitted; ``cli.epoch_bar.results`` then holds the final metrics.
-    A bad option or value raises :class:`sonicskin.errors.UsageError` (one line) instead of
-    printing jsonargparse's usage.
-    """
+    """``args`` as on the command line after ``sonicskin train``; with ``run`` the model is fitted
+    (``cli.epoch_bar.results``: the final metrics).  A bad option or value is a one-line
+    :class:`sonicskin.errors.UsageError`, not jsonargparse's usage."""
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 

@@ -63,13 +63,10 @@ def _plain_hparams(h) -> dict:
 
 def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epochs: int | None = None,
                   layer: dict | None = None, chosen: dict | None = None, **hparams) -> Fitted:
-    """Train the network on the training chirps of ``data`` (a :class:`sonicskin.fit.TrainingData`) in-process.
-
-    ``select``: its location layer is chosen first (:func:`choose_network_layer`); without validation it is the
-    closed form (:data:`training.quick.UNVALIDATED`).  ``layer``: that choice already made (several training seeds
-    share it).  ``chosen``: every choice of an earlier pass (layer, epochs, seed, touch decision, force), trained anew on
-    these rows (a refit).  The network reads the first inputs its layer asks for (OSPA order) and trains on augmented
-    presses of its own training sessions (:func:`training.augment.make_augmenter`).  Then :func:`finish_network`."""
+    """Train the network on the training chirps of ``data`` in-process: its location layer chosen first
+    (:func:`choose_network_layer`; without validation the closed form), or ``layer`` given; ``chosen``: every choice of
+    an earlier pass, trained anew (a refit).  It reads the first inputs its layer asks for and trains on augmented
+    presses of its own training sessions; then :func:`finish_network`."""
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     if chosen is not None:
@@ -135,14 +132,10 @@ def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
 
 def finish_network(model, data, *, fitted: dict, selection: dict | None = None, train_time_s: float | None = None,
                    hparams: dict | None = None, seed: int | None = None, chosen: dict | None = None) -> Fitted:
-    """The touch decision and the force of a trained network, chosen on chirps it did not train on.
-
-    Touch: with a validation session holding hands-off and touch chirps, the best of its own head, its head
-    recalibrated there, the SVM's input-RMS detector and either of them
-    (:func:`sonicskin.training.quick.choose_detector`); without one its head cannot be judged on data it did not
-    train on, so it is combined with the input-RMS detector (``either``: never more misses than the SVM's).  Force:
-    its own head or a pooled ridge, whichever has the lower RMSE on the validation presses (:func:`choose_force`).
-    ``chosen``: both choices made by an earlier pass (a refit), applied with this data's SVM threshold and ridge."""
+    """The touch decision and the force of a trained network, chosen on chirps it did not train on: touch, the best of
+    its head, its recalibrated head, the input-RMS detector and ``either`` (:func:`sonicskin.training.quick.choose_detector`;
+    without a validation session ``either``, never more misses than the SVM's); force, its head or a pooled ridge
+    (:func:`choose_force`).  ``chosen``: both choices of an earlier pass (a refit)."""
     sel = {k: v for k, v in (selection or {}).items() if k not in ("hparams", "fold_model")}
     model = model.eval()
     n, ids = data.n_locations, np.asarray(data.layout.ids)
@@ -247,14 +240,10 @@ def check_same_sessions(meta: dict, ds, ckpt) -> None:
 def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, refit: bool = True,
                              log=print) -> dict:
     """``sonicskin export``: the checkpoint's network beside the closed-form models, through the one fit
-    (:mod:`sonicskin.fit`).
-
-    The SVM and the LDA are fitted on the checkpoint's own split, bins and inputs, so every model in the artifact sees
-    exactly the same bins, reference and sessions; the network's touch decision and force are chosen as for an
-    in-process network (:func:`finish_network`); with a validation session and ``refit`` every model is then fitted
-    again on the training and validation sessions (the network retrained in-process with the checkpoint's choices and
-    epochs).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout and hold the very
-    recordings it was trained on.  ``out`` is replaced as a whole at the end."""
+    (:mod:`sonicskin.fit`), all on the checkpoint's split, bins and inputs; the network's touch decision and force as
+    for an in-process network, then (a validation session and ``refit``) every model fitted again on the training
+    and validation sessions.  ``data`` (default: the checkpoint's) must hold the very recordings it was trained on.
+    ``out`` is replaced as a whole at the end."""
     lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
     meta = lit.meta
     spec = FeatureSpec.from_dict(meta["spec"])
