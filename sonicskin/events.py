@@ -144,13 +144,9 @@ def _type_ok(value, types) -> bool:
 
 
 def validate_event(d: Any) -> None:
-    """Check one decoded event against :data:`EVENT_SCHEMA`; raise :class:`EventError` naming the first problem.
-
-    (The subset of JSON Schema the event schema uses: type, enum, minimum, maximum, required, and
-    arrays of 3 numbers; no third-party validator needed at run time.)  Beyond the JSON Schema: ``normal``
-    is a unit vector, and ``point_m``/``normal`` come together with ``frame_id``.  Fields the schema does not declare are
-    accepted (``additionalProperties``: within a version, fields are only ever added).
-    """
+    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema, no third-party validator),
+    plus: ``normal`` is a unit vector, ``point_m``/``normal`` come with ``frame_id``; undeclared fields are accepted.
+    Raises :class:`EventError` naming the first problem."""
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]

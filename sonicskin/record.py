@@ -100,15 +100,9 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated device's sensors: the person's force plus 0.02 N of sensor noise, and where the
-    finger really is (the ground truth a real rig does not have).
-
-    Parameters
-    ----------
-    timeline : what the simulated person does, chirp by chirp (:func:`person_timeline`).
-    chirp0_sample : stream sample index where timeline chirp 0 starts (negative: the stream starts inside it).
-    fs_hz, n_chirp : the rig's sample rate and chirp length.
-    """
+    """The simulated device's sensors: the person's force plus 0.02 N of sensor noise, and where the finger really
+    is (what a real rig does not know), for the ``timeline`` of the simulated person (:func:`person_timeline`) whose
+    chirp 0 starts at stream sample ``chirp0_sample`` (negative: the stream starts inside it)."""
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
@@ -185,11 +179,8 @@ class Recorder:
         return row
 
     def run(self) -> dict:
-        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.
-
-        On Ctrl-C the prompt in progress is dropped (a half-made touch is no training data) and
-        every finished one stays on disk; ``interrupted_at`` then names the prompt in progress.
-        """
+        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.  On Ctrl-C the prompt in
+        progress is dropped (``interrupted_at``) and every finished one stays on disk."""
         rig, L = self.rig, self.rig.n_chirp
         framer = Framer(rig_chirp(rig))
         stream: list[np.ndarray] = []       # samples not yet written
@@ -254,12 +245,9 @@ class Recorder:
 
 @contextlib.contextmanager
 def _sigint_deferred():
-    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`.
-
-    Writing a part runs libsndfile callbacks through cffi, which swallows an exception raised in
-    them ("Exception ignored from cffi callback"): a Ctrl-C landing there would be lost and the
-    part could be cut short.  Outside the main thread (no signal handlers there) this does nothing.
-    """
+    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`: cffi swallows an
+    exception raised in libsndfile's callbacks, so a Ctrl-C while a part is written would be lost and the part cut
+    short.  Outside the main thread this does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -312,11 +300,8 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
 
 
 def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realtime: bool = False, offset: int = 4321):
-    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``.
-
-    The link is the scenario's (same ``link_seed``); the person's presses are drawn anew for each
-    session (seed ``scenario.seed + 500 + session_index``); the robot moves only when prompted to.
-    """
+    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``; the
+    scenario's link, the person's presses drawn anew per session, the robot moving only when prompted to."""
     moving = any(seg == "moving" for seg, *_ in schedule)
     psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
                            motion={**scenario.motion, "enabled": moving})
@@ -352,21 +337,15 @@ def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, 
 
 
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
-    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset.
-
-    A location whose prompt was interrupted has no finished part; one that was prompted but not
-    pressed (every chirp under ``min_force_n``) has no touch chirp: neither counts as recorded.
-    """
+    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset (an interrupted
+    prompt has no finished part; a press under ``min_force_n`` throughout has no touch chirp)."""
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
 def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
                       gap_s: float) -> None:
-    """Refuse prompt lengths whose audio would not fit in memory, before anything is opened or written.
-
-    The recorder holds one prompt's received audio until the prompt ends (float32, plus the copy that
-    is written), and the simulated person's timeline holds ~256 bytes per chirp of the session.
-    """
+    """Refuse prompt lengths whose audio (one prompt's, float32, and its copy) or simulated timeline would not fit
+    in memory, before anything is opened or written."""
     for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
         if not np.isfinite(v):
             raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
@@ -384,15 +363,11 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
                    report=None) -> dict:
-    """``sonicskin record``: one guided session into the dataset ``out`` (see the module docstring).
-
-    With ``resume`` only the requested locations without touch chirps yet are prompted (a
-    location whose prompt was interrupted, or that was prompted but never pressed).  ``artifact``: when every
-    marker of the layout has been pressed, the deployable SVM artifact trained on everything recorded so far is
-    written there (:func:`sonicskin.fit.build_svm_artifact`, what ``fit-svm`` writes, with its validated choices and
-    expected accuracy on ``report``), so ``record`` then ``live`` is the whole bring-up.  Returns the
-    :meth:`Recorder.run` figures plus ``session`` and ``locations`` (what was recorded), or
-    ``{"locations": []}`` when nothing is missing.
+    """``sonicskin record``: one guided session into the dataset ``out``.  With ``resume`` only the requested
+    locations without touch chirps yet are prompted.  ``artifact``: once every marker has been pressed, the SVM
+    artifact trained on everything recorded so far is written there (what ``fit-svm`` writes), so ``record`` then
+    ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
+    (``{"locations": []}`` when nothing is missing).
     """
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out)
@@ -477,11 +452,9 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
 
 def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``): what ``sonicskin record`` + ``fit-svm`` do on a
-    real rig, for a run without an artifact (``sonicskin live``, :func:`sonicskin.session.open_run`'s ``train``).
-
-    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
-    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
+    """One-shot training on the simulated link (cached under ``root``): what ``record`` + ``fit-svm`` do on a real rig,
+    for a run without an artifact.  Says first what it does, where it writes and about how long it takes; a later run
+    reuses the artifact and says so."""
     log = log or (lambda m: print(m, file=sys.stderr))
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():

@@ -63,15 +63,10 @@ def _finite(x) -> float | None:
 
 @dataclasses.dataclass(frozen=True)
 class LinkView:
-    """One link as the page draws it.
-
-    name : the link's name (the events' ``link``; any name for a single link).
-    layout : its markers (:class:`sonicskin.rig.Layout`, e.g. ``SkinRuntime(...).layout``).
-    kind : ``"tube"`` (``x`` wraps at ``layout.circumference_cm``) or ``"plate"``; ``None``: a tube when the layout
-        has a circumference, else a plate.
-    length_cm, width_cm : the surface along the axis, and across it on a plate (``None``: the markers' extent plus
-        one marker spacing on every side).
-    tx_cm, rx_cm : the transducers' positions ``(x, y)``, drawn when given.
+    """One link as the page draws it: ``name`` (the events' ``link``), its ``layout`` of markers, ``kind`` (``"tube"``:
+    ``x`` wraps at the circumference; ``"plate"``; ``None``: a tube when the layout has a circumference), the surface's
+    ``length_cm``/``width_cm`` (``None``: the markers' extent plus a spacing each side), the transducers ``tx_cm``,
+    ``rx_cm`` when given.
     """
 
     name: str
@@ -245,11 +240,9 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 class ViewServer:
-    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free port; :attr:`url` once started).
-
-    Thread-safe: :meth:`push_event` and :meth:`set_status` may be called from any thread (the live loop's) and
-    never wait on a browser.  Use as a context manager, or :meth:`start` / :meth:`stop`.
-    """
+    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free port; :attr:`url` once started);
+    :meth:`push_event` and :meth:`set_status` may be called from any thread and never wait on a browser.  A context
+    manager, or :meth:`start` / :meth:`stop`."""
 
     def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS):
         links = list(links)
@@ -428,10 +421,8 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
 
 
 def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
-    """Show ``loop``'s events and its status in ``view`` (every ``every_s`` of stream time, and at each new reference).
-
-    Chains the loop's ``on_event`` and ``on_chirp`` (callbacks already set keep being called first).  The loop's
-    link name (``LiveLoop(link=...)``) must be one of the view's links, or the view must show one link only."""
+    """Show ``loop``'s events and status in ``view`` (every ``every_s`` of stream time, and at each new reference),
+    chaining the loop's ``on_event`` and ``on_chirp``; the loop's link must be one of the view's, or the view shows one."""
     name = loop.link_name
     view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
@@ -455,12 +446,9 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
                port: int = 0) -> ViewServer:
-    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`).
-
-    ``links``: how to draw them; or ``scenarios``, ``(name, scenario)`` per loop on the simulated device
-    (:meth:`LinkView.from_scenario`: the surface's size and the transducers); default: each loop's artifact layout,
-    named by its link (``"skin"`` for a single unnamed link).
-    """
+    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`): drawn as
+    ``links``, or from ``scenarios`` (``(name, scenario)`` per loop, :meth:`LinkView.from_scenario`), else each loop's
+    artifact layout named by its link."""
     loops = list(loops)
     if links is None and scenarios:
         links = [LinkView.from_scenario(name, sc) for name, sc in scenarios]

@@ -27,14 +27,10 @@ __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
 
 
 class _CtrlCInCallbacks:
-    """Ctrl-C that lands inside a C library's Python callback is not lost and prints no traceback.
-
-    soundfile reads and writes in-memory FLAC through cffi callbacks.  A ``KeyboardInterrupt`` raised
-    while one of them runs cannot unwind through C: cffi prints it as an "Exception ignored" traceback,
-    the callback returns a failure, and the run goes on (or fails with a misleading libsndfile error).
-    While installed, such an interrupt is remembered (:attr:`swallowed`) and delivered again a moment
-    later (:func:`_thread.interrupt_main`), once control is back in Python; :func:`main` reports an
-    error that follows it as the interruption it is.
+    """Ctrl-C that lands inside a C library's Python callback (soundfile's cffi callbacks, which cannot unwind a
+    ``KeyboardInterrupt`` and print an "Exception ignored" traceback instead) is remembered (:attr:`swallowed`) and
+    delivered again a moment later (:func:`_thread.interrupt_main`); :func:`main` reports an error that follows it as
+    the interruption it is.
     """
 
     def __init__(self) -> None:

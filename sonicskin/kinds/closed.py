@@ -21,12 +21,9 @@ def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray
                 location_ids, force_model: str = "fourier1", force_alpha: float = 10.0, force_cols: int | None = None,
                 detector: str = "input-rms") -> dict:
     """The ``skin.json`` fields of a closed-form head from its per-location scores ``S`` (n, K) on the training chirps
-    ``X`` (n, n_in; ``cls == n_locations``: no touch): Alg. 2's reference scores (the mean score vector ``[S, X]`` of
-    the ``quiet`` chirps), the detection threshold (Youden's J on the training chirps, of the ``detector`` statistic:
-    the input-RMS change, or the paper's max calibrated score) and the force model (per-location curves of the energy
-    over the inputs, or ``"pooled-ridge"`` over the first ``force_cols`` inputs and the location, see
-    :class:`sonicskin.force.PooledForce`).  A table of touches only has no rest: no reference (zero) and no detector
-    (threshold 0 on a statistic >= 0: every chirp is a touch); ``detection: false`` says so."""
+    ``X`` (``cls == n_locations``: no touch): Alg. 2's reference scores (the mean ``[S, X]`` of the ``quiet`` chirps),
+    the ``detector``'s threshold (Youden's J) and the force model (per-location curves, or ``"pooled-ridge"`` over the
+    first ``force_cols`` inputs).  Without rest: no reference, no detector (``detection: false``)."""
     touch = cls < n_locations
     V = np.column_stack([S, np.asarray(X, np.float64)])
     rest = quiet.sum() >= 2 and (~touch).any()

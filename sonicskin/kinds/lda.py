@@ -157,11 +157,9 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
 
 
 def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` (a binary LDA's one row expanded),
-    about the training chirps' centre ``c`` (so float32 graphs never subtract two large sums: absolute dB inputs are
-    all near one level and the LDA reads their small differences), scaled so that at the class means the best score
-    leads the second by ``margin`` (the median over classes): a softmax over them is confident but not saturated (the
-    confidence the events carry; raw scores over thousands of bins differ by hundreds).  The argmax is the LDA's."""
+    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` about the training chirps'
+    centre ``c`` (float32 graphs never subtract two large sums), scaled so that at the class means the best score
+    leads the second by ``margin``: a softmax over them is confident, not saturated.  The argmax is the LDA's."""
     W, b = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
     if W.shape[0] == 1:  # scikit-learn's binary convention: one row, positive for classes_[1]
         W, b = np.vstack([-W / 2, W / 2]), np.r_[-b / 2, b / 2]
