@@ -91,11 +91,9 @@ def _floors(ds: Dataset, t, split) -> dict:
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
               train_stride: int = 1, val: bool = False) -> list[dict]:
-    """Every model on one simulated dataset through the one fit (:func:`sonicskin.fit.fit_models`), the network per
-    training seed, each exported to ``work`` and its test sessions replayed through the artifact.  ``select``: every
-    model's options chosen by validation on the training presses (:mod:`sonicskin.selection`); otherwise the paper's
-    values.  ``val``: the next session validates and the models are refitted on both (:func:`_split`).
-    ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
+    """Every model on one simulated dataset through the one fit, the network per training seed, each exported to
+    ``work`` and its test sessions replayed.  ``select``: options chosen on the training presses (else the paper's);
+    ``val``: the next session validates, then a refit on both; ``train_stride`` k: every k-th training chirp."""
     quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"), val)

@@ -262,11 +262,9 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
 
 
 def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
-    """Accuracy against presses per location (1..k) from the user's own data, a grouped loop:
-
-    - with ``val`` rows: train on the first k passes of the training rows, score on ``val``;
-    - without: for every held-out pass j, train on k of the other passes, score on pass j.
-    Returns sizes, mean accuracy and a verdict on whether one more pass would help."""
+    """Accuracy against presses per location (1..k) from the user's own data: with ``val`` rows, trained on the first
+    k passes and scored on ``val``; without, each held-out pass scored after training on k others.  Returns sizes,
+    mean accuracy and a verdict on whether one more pass would help."""
     sizes, acc, spread = [], [], []
     if val is not None and np.any(val):
         n_pass = int(passes[~val].max()) + 1
@@ -385,10 +383,8 @@ def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np
 
 def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str = "relative", min_force_n: float = 0.5,
                           log=print, max_chirps: int = 600) -> dict:
-    """Choose gamma, C and kernel width on the training (and validation) sessions of a features table.
-
-    ``t`` may hold other sessions too (test sessions): only rows of ``train_sessions`` and
-    ``val_sessions`` are read.  Inputs are the model inputs over every usable bin (``mode``)."""
+    """Choose gamma, C and kernel width on the ``train_sessions`` (and ``val_sessions``) of a features table (only
+    their rows are read), on the model inputs over every usable bin (``mode``)."""
     use = np.isin(t["session"], list(train_sessions) + list(val_sessions))
     tt = t.select(use)
     allowed = np.flatnonzero(rig.allowed_mask)
@@ -412,10 +408,8 @@ def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str 
 def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarray, val_mask: np.ndarray | None,
                      n_locations: int, location_ids, selection: dict | None = None, min_force_n: float = 0.5,
                      key: str = "localizer", log=print) -> dict:
-    """The rest of the choice once the model inputs ``X`` (the deployed bins) are fixed: C and kernel width
-    (when ``selection`` has no ``svm`` part yet, gamma fixed to the inputs' width), the force model and the
-    detection threshold.  ``train_mask``/``val_mask``: rows of the training / validation sessions (usable
-    chirps); nothing else of ``t`` is read."""
+    """The rest of the choice once the model inputs ``X`` are fixed: C and kernel width (unless ``selection`` has
+    them), the force model and the detection threshold, on the rows of ``train_mask``/``val_mask`` only."""
     sel = dict(selection or {})
     val_mask = np.zeros(len(X), bool) if val_mask is None else np.asarray(val_mask, bool)
     seg = t["segment"] if "segment" in t.labels else None

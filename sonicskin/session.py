@@ -56,10 +56,9 @@ def load_config(load: Callable, what):
 def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], tuple[Simulator, Timeline]] | None = None,
                 blocksize: int = 1024, realtime: bool = True, drop_every: int | None = None, offset: int = 4321,
                 **interface) -> AudioSource:
-    """The audio source carrying ``links``: on the simulated device each link's simulated wall plays ``play(link)``, a
-    ``(simulator, timeline)`` pair (real time, or as fast as read; ``drop_every``, ``offset`` as
-    :class:`~sonicskin.acquire.SimulatedSource`'s); otherwise the audio interface ``device`` (a name or an index,
-    ``sonicskin devices``), ``interface`` as :class:`~sonicskin.acquire.SoundDeviceSource` takes it."""
+    """The audio source carrying ``links``: simulated, each link's wall plays ``play(link)``, a ``(simulator,
+    timeline)`` pair (:class:`~sonicskin.acquire.SimulatedSource`); else the audio interface ``device``
+    (:class:`~sonicskin.acquire.SoundDeviceSource`)."""
     if simulated(device):
         sims, timelines = zip(*(play(lk) for lk in links))
         return acquire.SimulatedSource(list(sims), list(timelines), blocksize=blocksize, realtime=realtime,

@@ -1,13 +1,9 @@
 """``sonicskin reproduce``: the paper's Sec. V on the simulated rig, SVM and network side by side.
 
-Every experiment trains both models on the same split of a simulated dataset (generated on first use under
-``<out>/data``) through the one fit (:mod:`sonicskin.fit`), exports them and replays the test streams through
-the deployed artifact (:class:`sonicskin.head.Stream`), and writes a PNG; ``report.md`` puts the measured numbers
-next to the paper's.  The network needs the training extra (torch); without it its columns read n/a.
-``--quick`` shrinks every dataset (fewer sessions and presses) and the network's training.
-
-One module per experiment (:mod:`.fig6b`, :mod:`.fig11`, :mod:`.fig12`, :mod:`.fig13`, :mod:`.table1`,
-:mod:`.fig16`), sharing a :class:`~.context.Context` per simulator seed.
+Every experiment (one module each, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
+same split of a simulated dataset (made on first use under ``<out>/data``) through the one fit, exports them,
+replays the test streams through the artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's.
+Without torch the network's columns read n/a; ``--quick`` shrinks every dataset and the network's training.
 """
 
 from __future__ import annotations
@@ -81,13 +77,10 @@ def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
 
 def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
               log=print, jobs: int | None = None) -> dict:
-    """Run every experiment (or those in ``only``, names from :data:`EXPERIMENTS`) once per simulator
-    seed (default: 2 seeds quick, 3 full) on ``rig`` (default: the paper's, jaco) and report the mean
-    and spread of each number.
-
-    ``jobs`` worker processes (default :func:`default_jobs`) share the work: first every dataset is simulated
-    and featurised (one task per dataset and seed), then the experiments run (one task per seed and group of
-    experiments that share data).  Each number is the same whatever ``jobs`` is: tasks only read what they share."""
+    """Run every experiment (or those in ``only``) once per simulator seed (default: 2 quick, 3 full) on ``rig``
+    (default: jaco) and report the mean and spread of each number.  ``jobs`` worker processes (default
+    :func:`default_jobs`) first simulate every dataset, then run the experiments (per seed and group sharing data);
+    each number is the same whatever ``jobs`` is."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()

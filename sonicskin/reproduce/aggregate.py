@@ -8,10 +8,8 @@ __all__ = ["Spread", "aggregate", "pool"]
 
 
 class Spread(float):
-    """A mean over simulator seeds that remembers its spread: formats as ``mean +- std``.
-
-    ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``; ``float(x)`` is the mean; ``x.values`` the per-seed numbers.
-    """
+    """A mean over simulator seeds that remembers its spread: ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``,
+    ``float(x)`` the mean, ``x.values`` the per-seed numbers."""
 
     def __new__(cls, values):
         v = np.asarray(values, float)

@@ -1,12 +1,7 @@
 """What the experiments share: the simulated datasets of one simulator seed, and fitting and scoring a model the way
-it is deployed.
-
-Every number of the reproduction comes from an exported artifact replayed through
-:class:`sonicskin.runtime.SkinRuntime` (:class:`sonicskin.head.Stream`: boot calibration on the stream's first
-beta seconds, refreshes from the model's own detection, no test label), fitted by the one fit
-(:mod:`sonicskin.fit`).  Work with the same inputs is done once per simulator seed: a model is fitted, exported
-and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by the experiments
-that use it.
+it is deployed (the one fit, an exported artifact replayed through :class:`sonicskin.runtime.SkinRuntime`).  A model
+is fitted, exported and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by
+the experiments that use it.
 """
 
 from __future__ import annotations
@@ -158,10 +153,9 @@ class Context:
 
     def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = FeatureSpec.alpha_s, keep: np.ndarray | None = None,
              notches: bool = True, n_svm: int | None = None):
-        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``.  ``keep``: only
-        these training chirps train (a resample).  ``notches=False``: the artifact's rig has no PWM notches (the
-        paper's no-matched-filter ablation: every band bin may be read).  ``n_svm``: the SVM reads the first ``n_svm``
-        of ``bins`` (OSPA order), the network may read them all (default: both read every one)."""
+        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``; ``keep``: only these
+        training chirps train; ``notches=False``: the rig without its PWM notches (the no-matched-filter ablation);
+        ``n_svm``: the SVM reads the first ``n_svm`` of ``bins``."""
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
         key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)
@@ -178,10 +172,8 @@ class Context:
 
     # -- models ----------------------------------------------------------------------------------------------------
     def artifact(self, kind: str, data_key, *, seed: int = 0) -> Path:
-        """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM (gamma
-        from the bins, C 10, ``gamma="scale"``, per-location Fourier-1, the input-RMS detector), or the network as the
-        package deploys it (its location layer, touch decision and force chosen on the training chirps' held-out
-        pass, :mod:`sonicskin.kinds`).  Each is fitted and exported once."""
+        """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM, or the network
+        as the package deploys it; each fitted and exported once."""
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, self.epochs if kind == NETWORK else 0)
         if key in self._arts:
