@@ -24,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .dsp import rig_chirp
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .rig import Rig
 
 __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksize", "Link", "import_sounddevice",
@@ -49,7 +49,7 @@ MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds t
 def check_blocksize(value, name: str = "blocksize") -> int:
     """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`; otherwise one :class:`SonicskinError` line
     (the same for the API's ``blocksize=`` and the CLI's ``--blocksize``)."""
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_BLOCKSIZE:
+    if not is_number(value, integer=True) or not 1 <= value <= MAX_BLOCKSIZE:
         raise SonicskinError(f"{name} must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {value!r}")
     return value
 

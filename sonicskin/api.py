@@ -9,13 +9,12 @@ is the simulated rig, an index or a name substring an audio interface.  Examples
 
 from __future__ import annotations
 
-import math
 import queue
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .events import TouchEvent
 
 __all__ = ["listen", "Listener"]
@@ -25,25 +24,18 @@ _END = object()
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
                      on_event=None) -> None:
-    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (strings compared with numbers in the
-    loop's thread, ``fast="no"`` meant true, ``on_event="print"`` failed at the first touch, ``scenario=None`` was a
-    TypeError); ``blocksize`` is :func:`sonicskin.session.open_run`'s to check."""
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-    def count(v):
-        return isinstance(v, int) and not isinstance(v, bool)
-
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them
+    (``blocksize`` is :func:`sonicskin.session.open_run`'s to check)."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
-    if not (device is None or isinstance(device, str) or (count(device) and device >= 0)):
+    if not (device is None or isinstance(device, str) or (is_number(device, integer=True) and device >= 0)):
         raise SonicskinError(f"device must be None or 'sim', an audio device index >= 0 or a name, got {device!r}")
-    if duration_s is not None and not (number(duration_s) and math.isfinite(duration_s) and duration_s > 0):
+    if duration_s is not None and not (is_number(duration_s) and duration_s > 0):
         raise SonicskinError(f"duration_s must be > 0 (a finite number of seconds) or None (until stop()), got {duration_s!r}")
-    if not (number(watchdog_s) and math.isfinite(watchdog_s) and watchdog_s > 0):
+    if not (is_number(watchdog_s) and watchdog_s > 0):
         raise SonicskinError(f"watchdog_s must be a finite number of seconds > 0, got {watchdog_s!r}")
     for name, v in (("tx", tx), ("rx", rx)):
-        if not (count(v) and v >= 0):
+        if not (is_number(v, integer=True) and v >= 0):
             raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
     if not isinstance(scenario, (str, Path)):
         raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")

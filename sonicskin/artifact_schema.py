@@ -20,7 +20,7 @@ from typing import Any
 
 from . import kinds
 from .drift import DriftError, DriftTracker
-from .errors import ArtifactError
+from .errors import ArtifactError, is_number
 from .features import MODES, FeatureSpec
 from .force import MODELS, PooledForce
 from .rig import Layout, Rig
@@ -86,7 +86,7 @@ class _Doc:
             none_ok: bool = False) -> float | None:
         if v is None and none_ok:
             return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
+        if not is_number(v, finite=False):
             self.fail(field, f"must be a number, got {_short(v)}")
         try:
             v = float(v)
@@ -101,7 +101,7 @@ class _Doc:
         return float(v)
 
     def int(self, v: Any, field: str, *, lo: int | None = None, hi: int | None = None) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
+        if not is_number(v, integer=True):
             self.fail(field, f"must be an integer, got {_short(v)}")
         if lo is not None and v < lo:
             self.fail(field, f"must be >= {lo}, got {v}")

@@ -24,7 +24,7 @@ import scipy.signal
 
 from .acquire import AudioError, AudioSource, Link, blocks, check_blocksize, check_device_rate, list_devices, resolve_device
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
-from .errors import SonicskinError, UsageError
+from .errors import SonicskinError, UsageError, is_number
 from .jsonio import json_safe
 from .plots import pyplot
 from .rig import Rig
@@ -177,7 +177,7 @@ class SimulatedDevice:
                  delay_ms: float = 2.9, seed: int = 0):
         if fault not in FAULTS:
             raise SonicskinError(f"unknown simulated fault {fault!r}; choose one of {', '.join(FAULTS)}")
-        if isinstance(motors, bool) or not isinstance(motors, (int, float)) or not 0.0 <= motors <= 1.0:  # NaN too
+        if not (is_number(motors) and 0.0 <= motors <= 1.0):
             raise SonicskinError(f"--sim-motors {motors}: motor activity is a number from 0 (robot still) to 1 (full)")
         self.rig, self.fault = rig, fault
         sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .limits import check_memory
 from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
@@ -509,14 +509,6 @@ class FeatureTable:
         return cls(X, labels)
 
 
-# Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time: the rig's
-# (sonicskin.rig.MAX_N_CHIRP, MAX_FS_HZ, MAX_LOCATIONS).
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-
-
 def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
     """Validate a parsed ``dataset.json`` completely; returns its rig and layout.
 
@@ -537,14 +529,13 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
         raise DatasetError(f"{path}: 'source' must be a JSON object, got {type(meta['source']).__name__}")
     r = meta["rig"]
     for k in ("fs_hz", "f_lo_hz", "f_hi_hz", "pwm_halfwidth_hz", "amplitude"):
-        if k in r and not _is_number(r[k]):
+        if k in r and not is_number(r[k]):
             raise DatasetError(f"{path}: rig.{k} must be a finite number, got {r[k]!r}")
-    if "n_chirp" in r and not (isinstance(r["n_chirp"], int) and not isinstance(r["n_chirp"], bool)
-                               and 64 <= r["n_chirp"] <= MAX_N_CHIRP):
+    if "n_chirp" in r and not (is_number(r["n_chirp"], integer=True) and 64 <= r["n_chirp"] <= MAX_N_CHIRP):
         raise DatasetError(f"{path}: rig.n_chirp must be a whole number of samples in 64..{MAX_N_CHIRP}, got {r['n_chirp']!r}")
     if "fs_hz" in r and not 0 < r["fs_hz"] <= MAX_FS_HZ:
         raise DatasetError(f"{path}: rig.fs_hz must be in (0, {MAX_FS_HZ:g}] Hz, got {r['fs_hz']!r}")
-    if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(_is_number, r["pwm_hz"]))):
+    if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(is_number, r["pwm_hz"]))):
         raise DatasetError(f"{path}: rig.pwm_hz must be a list of frequencies in Hz, got {r['pwm_hz']!r}")
     for k in ("name", "sweep_b64"):
         if r.get(k) is not None and not isinstance(r[k], str):
@@ -552,13 +543,13 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
     if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS
-            and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in ids)):
+            and all(is_number(i, integer=True) and i >= 0 for i in ids)):
         raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
     if not (isinstance(xy, list) and len(xy) == len(ids)
-            and all(isinstance(p, list) and len(p) == 2 and all(map(_is_number, p)) for p in xy)):
+            and all(isinstance(p, list) and len(p) == 2 and all(map(is_number, p)) for p in xy)):
         raise DatasetError(f"{path}: layout.xy_cm must list one [x, y] pair of numbers per id ({len(ids)})")
     c = lay.get("circumference_cm")
-    if c is not None and not (_is_number(c) and c > 0):
+    if c is not None and not (is_number(c) and c > 0):
         raise DatasetError(f"{path}: layout.circumference_cm must be a positive number or null, got {c!r}")
     try:
         return Rig.from_dict(r), Layout.from_dict(lay)
@@ -646,7 +637,7 @@ class Dataset:
         if ok:
             for k, e in enumerate(parts):
                 if not (isinstance(e, dict) and e.get("part") == f"part-{k:05d}"
-                        and isinstance(e.get("chirps"), int) and not isinstance(e.get("chirps"), bool) and e["chirps"] >= 0
+                        and is_number(e.get("chirps"), integer=True) and e["chirps"] >= 0
                         and all(isinstance(e.get(h), str) and re.fullmatch(r"[0-9a-f]{64}", e[h])
                                 for h in ("flac_sha256", "csv_sha256"))):
                     ok = False

@@ -25,7 +25,7 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.signal
 
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .sim.channel import MATERIALS
 
 __all__ = ["DriftError", "DriftEstimate", "DriftTracker", "estimate_stretch", "warp_band", "warp_index",
@@ -283,8 +283,7 @@ class DriftTracker:
         if not np.std(self._ref_pattern[self._pat.use]) > FLAT_RMS_DB:
             raise DriftError("reference_db has no mode pattern (flat once its trend is removed); pass the training "
                              "session's hands-off spectra in dB (log_magnitude_db)")
-        if not (isinstance(trained_stretch, (int, float)) and not isinstance(trained_stretch, bool)
-                and math.isfinite(trained_stretch) and 0 <= trained_stretch <= max_search):
+        if not (is_number(trained_stretch) and 0 <= trained_stretch <= max_search):
             raise DriftError(f"trained_stretch must be the largest |stretch| the artifact was trained for, in "
                              f"[0, max_search = {max_search:g}], got {trained_stretch!r}")
         if material is not None and kappa_per_k is not None:

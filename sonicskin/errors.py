@@ -10,14 +10,23 @@ type they replaced (``except FileNotFoundError`` still catches a config that is 
 
 from __future__ import annotations
 
+import math
 import reprlib
 
-__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError", "brief"]
+__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError", "brief", "is_number"]
 
 _REPR = reprlib.Repr()
 _REPR.maxlevel = 2
 _REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = _REPR.maxfrozenset = _REPR.maxdeque = _REPR.maxarray = 4
 _REPR.maxstring = _REPR.maxother = _REPR.maxlong = 60
+
+
+def is_number(v, *, integer: bool = False, finite: bool = True) -> bool:
+    """A number given as one, never a bool: an ``int`` with ``integer``, else an int or a float, finite unless
+    ``finite=False``.  The test every reader of user values (configs, artifacts, datasets, options) makes."""
+    if isinstance(v, bool) or not isinstance(v, int if integer else (int, float)):
+        return False
+    return not finite or isinstance(v, int) or math.isfinite(v)
 
 
 def brief(value, limit: int = 100) -> str:

@@ -18,7 +18,7 @@ import json
 import math
 from typing import Any
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 
 __all__ = ["SCHEMA_VERSION", "READS", "EVENT_SCHEMA", "TouchEvent", "EventError", "validate_event", "parse_event",
            "surface_fields", "attach_surface"]
@@ -132,9 +132,7 @@ def _type_ok(value, types) -> bool:
     for t in types:
         if t == "null" and value is None:
             return True
-        if t == "integer" and isinstance(value, int) and not isinstance(value, bool):
-            return True
-        if t == "number" and isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        if (t == "integer" and is_number(value, integer=True)) or (t == "number" and is_number(value)):
             return True
         if t == "string" and isinstance(value, str):
             return True
@@ -163,7 +161,7 @@ def validate_event(d: Any) -> None:
             raise EventError(f"{k} must be one of {rule['enum']}, got {brief(x)}")
         if "type" in rule and not _type_ok(x, rule["type"]):
             raise EventError(f"{k} must be {rule['type']}, got {brief(x)}")
-        if isinstance(x, (int, float)) and not isinstance(x, bool):
+        if is_number(x, finite=False):
             if "minimum" in rule and x < rule["minimum"]:
                 raise EventError(f"{k} must be >= {rule['minimum']}, got {brief(x)}")
             if "maximum" in rule and x > rule["maximum"]:

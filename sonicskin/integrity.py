@@ -16,7 +16,7 @@ from typing import Any
 
 from . import kinds
 from .artifact_schema import REEXPORT, _short
-from .errors import ArtifactError
+from .errors import ArtifactError, is_number
 from .rig import Layout, Rig
 
 __all__ = ["BINDING_KEY", "canonical", "artifact_digest", "binding", "read_binding", "stamp_binding", "run_probe",
@@ -55,7 +55,7 @@ def _describe_order(have: list, want: list, what: str) -> str:
     if len(have) != len(want):
         return f"{len(have)} {what} listed, the model has {len(want)}"
     def order(v):  # numbers by value (bins, ids), anything else after them by its text
-        return (0, v, "") if isinstance(v, (int, float)) and not isinstance(v, bool) else (1, 0, repr(v))
+        return (0, v, "") if is_number(v, finite=False) else (1, 0, repr(v))
     if sorted(have, key=order) == sorted(want, key=order):
         if have == sorted(want, key=order) and have != want:
             return f"the model's {what} sorted"

@@ -19,7 +19,7 @@ import yaml
 
 from .acquire import Link
 from .dataset import check_name
-from .errors import ConfigNotFoundError, brief
+from .errors import ConfigNotFoundError, brief, is_number
 from .rig import ConfigError, Rig, load_yaml, resolve_config
 from .sim import Scenario
 from .sim.channel import MATERIALS
@@ -144,7 +144,7 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
                              f"{', '.join(sorted(_LINK_KEYS))}")
         for k in ("tx", "rx"):
             v = d.get(k)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            if not is_number(v, integer=True) or v < 0:
                 raise ConfigError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
                                  f"{'nothing' if k not in d else brief(v)}")
         name = d.get("name", f"link{i}")

@@ -25,6 +25,7 @@ import numpy as np
 from .acquire import AudioSource, Link, blocks
 from .dataset import COLUMNS, Dataset, DatasetWriter
 from .dsp import rig_chirp
+from .errors import is_number
 from .fit import build_svm_artifact
 from .limits import check_memory
 from .live import Framer
@@ -377,7 +378,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     if bad:
         raise ValueError(f"--locations {' '.join(map(str, bad))}: not a marker of the {scenario.name} layout "
                          f"(ids {layout.ids[0]}..{layout.ids[-1]})")
-    if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
+    if not is_number(passes, integer=True) or passes < 1:
         raise ValueError(f"--passes must be a whole number >= 1, got {passes!r}")
     for name, v in (("calibration-s", calibration_s), ("touch-s", touch_s)):
         if not v > 0:

@@ -17,7 +17,7 @@ from .artifact_files import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
 from .drift import DriftTracker
 from .dsp import log_magnitude_db
-from .errors import ArtifactError
+from .errors import ArtifactError, is_number
 from .features import FeatureSpec
 from .head import Predictions, Stream
 from .head.stream import band_rows, finite_rows
@@ -46,7 +46,7 @@ class SkinRuntime:
         if not (layout is None or isinstance(layout, Layout)):
             raise ArtifactError(f"layout must be a sonicskin.rig.Layout (e.g. a scenario's make_layout()), got "
                                 f"{type(layout).__name__}")
-        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 1024:
+        if not is_number(threads, integer=True) or not 1 <= threads <= 1024:
             raise ArtifactError(f"threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got {threads!r}")
         self.folder = Path(folder)
         self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.artifact_schema)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 
 __all__ = ["LinkSurface", "SurfaceError", "pose_matrix"]
 
@@ -87,7 +87,7 @@ class LinkSurface:
         if self.face not in ("+z", "-z"):
             raise SurfaceError(f"face must be '+z' or '-z' (the plate's touched face), got {brief(self.face)}")
         t0 = self.theta0_deg
-        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
+        if not is_number(t0):
             raise SurfaceError(f"theta0_deg must be a finite angle in degrees, got {brief(self.theta0_deg)}")
         object.__setattr__(self, "dims_m", dims)
         object.__setattr__(self, "pose", pose)
@@ -226,14 +226,13 @@ class LinkSurface:
 
         def num(k, default=None):
             v = d.get(k, default)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if not is_number(v):
                 raise SurfaceError(f"{where}: {k} must be a finite number, got {brief(v)}")
             return float(v)
 
         def vec3(k):
             v = d.get(k, [0.0, 0.0, 0.0])
-            if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(
-                    isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in v):
+            if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(is_number(a) for a in v):
                 raise SurfaceError(f"{where}: {k} must be 3 finite numbers ({'m' if k == 'xyz' else 'rad'}), got {brief(v)}")
             return [float(a) for a in v]
 

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
@@ -255,7 +255,7 @@ class ViewServer:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise SonicskinError(f"link names must be unique, {dup} appear more than once")
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        if not is_number(port, integer=True) or not 0 <= port <= 65535:
             raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {brief(port)}")
         self.links = {lk.name: lk for lk in links}
         self.host, self.port = host, port

@@ -11,13 +11,14 @@ with ``gap_s`` between presses.  A scenario *family* (:class:`RandomFamily`) dra
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..dataset import TEMPERATURE_C, check_name
-from ..errors import brief
+from ..errors import brief, is_number
 from ..limits import check_memory
 from ..rig import MAX_LOCATIONS, Layout, Rig, check_keys, load_yaml, resolve_config
 from .channel import MATERIALS, ChannelModel
@@ -115,7 +116,7 @@ class Scenario:
         _check_parts(self)
         layout_count(self)
         level = self.motion.get("level", 1.0)
-        if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
+        if not (is_number(level) and 0 <= level <= 1):
             raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {brief(level)}")
         if self.loss_factor is not None and not 0 < self.loss_factor < 1:
             raise ValueError(f"loss_factor is the wall's eta, 0 < eta < 1, got {self.loss_factor}")
@@ -255,8 +256,6 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
 
 def _check_types(cls, d: dict) -> None:
     """Numbers where the scenario has numbers (finite), whole numbers where it has counts: one line each."""
-    import math
-
     for f in dataclasses.fields(cls):
         if f.name not in d:
             continue
@@ -264,17 +263,16 @@ def _check_types(cls, d: dict) -> None:
         if isinstance(default, bool):
             continue
         if f.name in ("sessions", "repeats", "seed", "link_seed") or (f.name == "train_repeats" and v is not None):
-            if isinstance(v, bool) or not isinstance(v, int):
+            if not is_number(v, integer=True):
                 raise ValueError(f"scenario {f.name} must be a whole number, got {brief(v)}")
         elif isinstance(default, float):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if not is_number(v):
                 raise ValueError(f"scenario {f.name} must be a finite number, got {brief(v)}")
         elif f.name in ("tx_cm", "rx_cm", "peak_force_n"):
-            if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+            if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(is_number(x) for x in v)):
                 raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {brief(v)}")
         elif f.name == "subjects":
-            if not (isinstance(v, (list, tuple)) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+            if not (isinstance(v, (list, tuple)) and v and all(is_number(x, integer=True) for x in v)):
                 raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {brief(v)}")
         elif isinstance(f.default, str) or f.name == "name":
             if not isinstance(v, str):
@@ -293,12 +291,6 @@ MIN_TX_RX_CM = 1.0  # the discs (5 mm bonded radius) cannot overlap
 MAX_DISC_RADIUS_M = 0.05  # a piezo disc of 10 cm diameter is already large for a robot link
 
 
-def _number(v) -> bool:
-    import math
-
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
     valid = {*required, *optional} | ({"kind"} if kind else set())
     unknown = sorted(set(d) - valid, key=str)
@@ -312,15 +304,13 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
 def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
     """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
     its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
-    import dataclasses
-
     kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
     for k, v in d.items():
         if kinds.get(k) is int:
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+            if not (is_number(v, integer=True) and v >= 0):
                 raise ValueError(f"{what}.{k} must be a whole number >= 0, got {brief(v)}")
         elif k in kinds:
-            if not _number(v):
+            if not is_number(v):
                 raise ValueError(f"{what}.{k} must be a finite number, got {brief(v)}")
             if (k in positive and not v > 0) or (nonneg(k) and v < 0):
                 raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {brief(v)}")
@@ -335,7 +325,7 @@ def _check_parts(sc: Scenario) -> None:
         raise ValueError(f"geometry kind must be 'tube' or 'plate', got {brief(kind)}")
     _keys(f"geometry ({kind})", g, *_GEOMETRY_KEYS[kind], kind=True)
     for k in _GEOMETRY_KEYS[kind][0]:
-        if not (_number(g[k]) and g[k] > 0):
+        if not (is_number(g[k]) and g[k] > 0):
             raise ValueError(f"geometry {k} must be a positive number of cm, got {brief(g[k])}")
     lay = sc.layout
     lkind = lay.get("kind", "rings")
@@ -347,21 +337,21 @@ def _check_parts(sc: Scenario) -> None:
     else:
         rings = lay.get("counts", [16, 15])
         counts = list(rings) if isinstance(rings, (list, tuple)) and rings else [None]
-    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in counts):
+    if not all(is_number(c, integer=True) and c >= 1 for c in counts):
         raise ValueError(f"layout {brief(lay)}: marker counts (counts, nx, ny) are whole numbers >= 1")
     for k in ("spacing_cm", "x0_cm", "y0_cm"):
-        if k in lay and not _number(lay[k]):
+        if k in lay and not is_number(lay[k]):
             raise ValueError(f"layout {k} must be a number of cm, got {brief(lay[k])}")
     if "spacing_cm" in lay and not lay["spacing_cm"] > 0:
         raise ValueError(f"layout spacing_cm must be > 0 (markers apart), got {brief(lay['spacing_cm'])}")
     _keys("motion", sc.motion, (), _MOTION_KEYS)
     if not isinstance(sc.motion.get("enabled", False), bool):
         raise ValueError(f"motion.enabled must be true or false, got {brief(sc.motion['enabled'])}")
-    if "perturbation" in sc.motion and not (_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
+    if "perturbation" in sc.motion and not (is_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
         raise ValueError(f"motion.perturbation must be a number >= 0, got {brief(sc.motion['perturbation'])}")
     _keys("temperature", sc.temperature, (), _TEMPERATURE_KEYS)
     for k, v in sc.temperature.items():
-        if not _number(v):
+        if not is_number(v):
             raise ValueError(f"temperature.{k} must be a finite number, got {brief(v)}")
     for k in ("warmup_tau_s", "swing_period_s"):
         if k in sc.temperature and not sc.temperature[k] > 0:
@@ -373,13 +363,11 @@ def _check_parts(sc: Scenario) -> None:
     if lo < TEMPERATURE_C[0] or hi > TEMPERATURE_C[1]:
         raise ValueError(f"temperature: ambient_c, warmup_c and swing_c reach {lo:g}..{hi:g} C, outside the "
                          f"{TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C a link can be at; give degrees Celsius")
-    import inspect
-
     allowed = [n for n, prm in inspect.signature(ChannelModel).parameters.items() if prm.kind is prm.KEYWORD_ONLY
                and n not in ("tx_m", "rx_m", "seed")]
     _keys("channel", sc.channel, (), allowed)
     for k, v in sc.channel.items():
-        if not (_number(v) and v >= 0):
+        if not (is_number(v) and v >= 0):
             raise ValueError(f"channel.{k} must be a number >= 0, got {brief(v)}")
     _field_values("noise", sc.noise, NoiseConfig, positive=(), nonneg=lambda k: k.endswith(("_rms", "_hz", "_per_chirp")))
     _field_values("bond", sc.bond, HotMeltBond, positive=("fr_hz", "tan_delta"), nonneg=lambda k: False)
