@@ -56,7 +56,7 @@ def _simulate_task(out, quick, rig, seed, name, n_threads):
 
 
 def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
-    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`_Ctx`).
+    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`Context`).
     Returns (seed, results, log lines, figures written, per-experiment (wall, CPU) seconds, sharing counts)."""
     if n_threads is not None:
         threads.configure(n_threads)
@@ -104,13 +104,18 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
     results: dict[int, dict] = {s: {} for s in seeds}
     timing: dict = {}
     shared_all: dict = {}
+
+    def merge(seed, res, lines, figs, times, shared):  # one experiment task's results
+        for line in lines:
+            log(line)
+        results[seed].update(res)
+        ctx.figs += figs
+        timing.update({(seed, k): v for k, v in times.items()})
+        shared_all.update({k: shared_all.get(k, 0) + v for k, v in shared.items()})
+
     if jobs == 1:
         for seed in tqdm(seeds, desc="simulator seeds", unit="seed"):
-            _, res, _, figs, times, shared = _experiment_task(out, quick, ctx.rig, seed, seed == seeds[0], names, None, log)
-            results[seed].update(res)
-            ctx.figs += figs
-            timing.update({(seed, k): v for k, v in times.items()})
-            shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+            merge(*_experiment_task(out, quick, ctx.rig, seed, seed == seeds[0], names, None, log))
     else:
         import concurrent.futures
         import multiprocessing
@@ -133,14 +138,8 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
             log(f"datasets ready: {time.perf_counter() - ts:.0f} s")
             tasks = [(s, [n for n in g if n in names]) for g in GROUPS for s in seeds]
             tasks = [(s, g) for s, g in tasks if g]
-            for seed, res, lines, figs, times, shared in par(
-                    (_experiment_task, (str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads)) for s, g in tasks):
-                for line in lines:
-                    log(line)
-                results[seed].update(res)
-                ctx.figs += figs
-                timing.update({(seed, k): v for k, v in times.items()})
-                shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+            for task in par((_experiment_task, (str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads)) for s, g in tasks):
+                merge(*task)
     runs = [{n: results[s][n] for n in names} for s in seeds]
     ctx.timing = timing
     ctx.jobs, ctx.names = jobs, names
