@@ -90,9 +90,10 @@ def key_value(text: str) -> tuple[str, object]:
 
 
 # -- option groups ---------------------------------------------------------------------------------------
-def _verb(sub, name: str, func: str, *, help: str, description: str, **defaults) -> argparse.ArgumentParser:
+def _verb(sub, name: str, func: str, *, help: str, description: str, add_help: bool = True,
+          **defaults) -> argparse.ArgumentParser:
     """A verb's parser; ``func`` is its implementation, ``"module:function"`` of this package's CLI."""
-    p = sub.add_parser(name, help=help, description=description)
+    p = sub.add_parser(name, help=help, description=description, add_help=add_help)
     p.set_defaults(func=func, **defaults)
     return p
 
@@ -239,11 +240,12 @@ def _model_verbs(sub) -> None:
                                                   "link)")
     add_model_options(f, train_default="all")
 
-    t = _verb(sub, "train", "train:cmd_train", passthrough=True,
+    t = _verb(sub, "train", "train:cmd_train", passthrough=True, add_help=False,
               help="train the network (Lightning; any --trainer.* / --model.* / --data.* override)",
               description="Train SkinNet jointly for location and force with LightningCLI. Options not listed here go to LightningCLI, "
                           "e.g. --trainer.max_epochs 5 --model.hidden '[64, 64]' --data.batch_size 64; their full list (model, data, "
                           "trainer) follows below when the training extra is installed.")
+    t.add_argument("-h", "--help", action=_LightningHelp)
     t.add_argument("--config", default="moving", help="training YAML or a name in configs/train (default: moving)")
     t.add_argument("--data", help="dataset folder (default: data.data of the config)")
     add_model_options(t)
@@ -420,13 +422,4 @@ def build_parser() -> argparse.ArgumentParser:
         verb.add_argument("--threads", metavar="N", default=None,
                           help=f"threads for training, featurisation and simulation (default: ${threads.ENV}, else half "
                                f"the cores, at most 4: {threads.default_threads()} here)")
-    train = sub.choices["train"]
-    train.register("action", "lightning_help", _LightningHelp)
-    # Replace train's -h/--help by one that also lists the LightningCLI options.
-    train._actions = [x for x in train._actions if not isinstance(x, argparse._HelpAction)]
-    for group in train._action_groups:
-        group._group_actions = [x for x in group._group_actions if not isinstance(x, argparse._HelpAction)]
-    train._option_string_actions.pop("-h", None)
-    train._option_string_actions.pop("--help", None)
-    train.add_argument("-h", "--help", action="lightning_help")
     return p
