@@ -216,7 +216,7 @@ def test_ids_when_the_user_gave_no_names(tmp_path):
 
 
 def test_fig12_legend_names_only_visible_lines():
-    from sonicskin.reproduce.fig12 import draw as _draw_fig12
+    from sonicskin.reproduce.experiments import draw_fig12 as _draw_fig12
 
     same = [0.9, 0.8, 0.85]
     res = {"minutes": [30, 60, 90], "temperature_c": [25, 27, 28], "svm alpha=5 min": same, "svm alpha=20 min": same,
@@ -241,7 +241,7 @@ def test_fig12_legend_names_only_visible_lines():
 
 
 def test_fig16_legend_covers_no_bar():
-    from sonicskin.reproduce.fig16 import draw as _draw_fig16
+    from sonicskin.reproduce.experiments import draw_fig16 as _draw_fig16
 
     res = {m: {"svm": {"accuracy": 1.0, "force": {"rmse_n": 0.4}}, "net": {"accuracy": 0.98, "force": {"rmse_n": 0.6}}}
            for m in ("cfrp", "aluminium", "abs", "glass", "wood", "aluminium plate, 36 markers")}

@@ -1,6 +1,6 @@
 """``sonicskin reproduce``: the paper's Sec. V on the simulated rig, SVM and network side by side.
 
-Every experiment (one module each, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
+Every experiment (:mod:`.experiments`, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
 same split of a simulated dataset (made on first use under ``<out>/data``) through the one fit, exports them,
 replays the test streams through the artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's.
 Without torch the network's columns read n/a; ``--quick`` shrinks every dataset and the network's training.
@@ -17,7 +17,7 @@ from .. import threads
 from ..feature_cache import load_features_cached
 from ..jsonio import OMIT, json_safe
 from ..rig import Rig
-from . import fig6b, fig11, fig12, fig13, fig16, table1
+from . import experiments
 from .aggregate import Spread, aggregate
 from .context import USES, Context, datasets
 from .report import report
@@ -26,8 +26,7 @@ __all__ = ["reproduce", "Spread", "SEEDS", "EXPERIMENTS", "default_jobs"]
 
 SEEDS = {"quick": (0, 1), "full": (0, 1, 2)}
 EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
-STEPS = {"fig6b": fig6b.run, "fig11": fig11.run, "fig12": fig12.run, "fig13": fig13.run, "table1": table1.run,
-         "fig16": fig16.run}
+STEPS = {name: getattr(experiments, name) for name in EXPERIMENTS}
 # Experiments that run in one worker process when seeds run in parallel: those sharing datasets and fits stay
 # together (Fig. 6b's OSPA model is Table I's moving model; Fig. 13 and Table I share the stationary dataset).
 GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
