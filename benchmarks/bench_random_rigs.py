@@ -142,7 +142,7 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
 
 def summarize(rows: list[dict]) -> dict:
     """Per quantity: mean and std over seeds; per pair: mean difference and 95 % t interval over seeds."""
-    from sonicskin.stats import t_interval
+    from sonicskin.metrics import t_interval
 
     def col(get):
         return np.array([get(r) for r in rows], float)

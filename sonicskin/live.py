@@ -26,10 +26,11 @@ import scipy.fft
 from .acquire import AudioSource, DeviceLost, blocks
 from .dsp import band_db, find_chirp_offset, frame_faults, rig_chirp
 from .errors import SonicskinError
-from .events import TouchEvent, attach_surface
+from .events import SCHEMA_VERSION, TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable",
+           "dropout_frames"]
 
 
 # Chirp-to-chirp spread (std, dB, median over the usable bins) of the hands-off boot window: a repeating chirp gives
@@ -519,3 +520,31 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
         print("\r" + " | ".join(lp.status_line() for lp in loops), file=sys.stderr, flush=True)
     wall = time.perf_counter() - started
     return [lp.summary(wall, time.process_time() - cpu0, stream_s) for lp in loops]
+
+
+# -- Lab Streaming Layer (optional: pip install 'sonicskin[lsl]'): one irregular-rate string stream of type
+# TouchEvents, each sample one event's JSON, the schema version in desc/schema_version; LSL stamps its own clock.
+STREAM_TYPE = "TouchEvents"
+
+
+def import_pylsl():
+    try:
+        import pylsl
+    except (ImportError, RuntimeError, OSError) as e:  # pylsl raises RuntimeError when liblsl cannot load
+        raise SonicskinError(f"--lsl needs pylsl ({str(e).splitlines()[0][:120]}): pip install 'sonicskin[lsl]'") from None
+    return pylsl
+
+
+class LslSink:
+    """Publish event JSON lines on an LSL outlet named ``name``."""
+
+    def __init__(self, name: str = "sonicskin", *, source_id: str | None = None):
+        pylsl = import_pylsl()
+        info = pylsl.StreamInfo(name, STREAM_TYPE, 1, pylsl.IRREGULAR_RATE, pylsl.cf_string, source_id or f"sonicskin-{name}")
+        desc = info.desc()
+        desc.append_child_value("schema_version", str(SCHEMA_VERSION))
+        desc.append_child_value("format", "one JSON touch event per sample (sonicskin.events)")
+        self.outlet = pylsl.StreamOutlet(info)
+
+    def __call__(self, line: str) -> None:
+        self.outlet.push_sample([line])

@@ -1,13 +1,16 @@
-"""Evaluation metrics of the paper's Sec. V: accuracy, confusion, distance CDF, Table I."""
+"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval
+every report quotes."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from sklearn.metrics import confusion_matrix
 
 from .rig import Layout
 
-__all__ = ["localization_report", "force_report", "error_cdf", "speed_ratio"]
+__all__ = ["localization_report", "force_report", "error_cdf", "speed_ratio", "t_interval"]
 
 
 def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,3 +66,15 @@ def speed_ratio(t_s: float, t_ref_s: float) -> str:
     if abs(r - 1) < 0.05:
         return "as fast"
     return f"{r:.1f}x faster" if r > 1 else f"{1 / r:.1f}x slower"
+
+
+def t_interval(x, bounds: tuple[float, float] = (-math.inf, math.inf), *, level: float = 0.95) -> list[float]:
+    """The Student-t interval of the mean of ``x`` at ``level`` (``[lo, hi]``), cut to the ``bounds`` the quantity
+    cannot leave (an accuracy stays in [0, 1]); ``[nan, nan]`` below two values."""
+    from scipy import stats
+
+    x = np.asarray(x, float).ravel()
+    if x.size < 2:
+        return [math.nan, math.nan]
+    half = stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
+    return [float(np.clip(v, *bounds)) for v in (x.mean() - half, x.mean() + half)]

@@ -23,13 +23,13 @@ from .fit import fit_models, prepare, write_artifact
 from .floors import plain_floors
 from .jsonio import json_safe
 from .kinds import BASELINE, CLOSED_FORM, NETWORK
+from .metrics import t_interval
 from .plots import pyplot
 from .rig import Rig
 from .runtime import SkinRuntime
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
 from .split import Split
-from .stats import t_interval
 
 __all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds"]
 

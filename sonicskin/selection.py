@@ -25,9 +25,9 @@ from sklearn.svm import SVC
 from .features import FeatureSpec, quiet_mask, touch_mask
 from .force import PerLocationForce, PooledForce, energy_db
 from .head import DETECTOR_BINS, touch_statistic
+from .metrics import t_interval
 from .ospa import OSPA
 from .plots import pyplot
-from .stats import t_interval
 
 __all__ = ["PAPER", "press_ids", "press_passes", "gamma_grid", "make_cv", "select_localizer", "select_force",
            "select_threshold", "learning_curve_by_pass", "MovingVarOSPA", "KernelWidth"]

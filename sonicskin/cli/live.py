@@ -12,8 +12,7 @@ from ..check import analyse, capture
 from ..errors import UsageError
 from ..jsonio import json_safe
 from ..links import load_arm
-from ..live import UdpSink
-from ..lsl import LslSink
+from ..live import LslSink, UdpSink
 from ..record import record_session, train_oneshot
 from ..rig import Rig
 from ..session import open_run, simulated
