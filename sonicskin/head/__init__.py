@@ -6,8 +6,7 @@
 head), for ``live``, ``listen()``, ``compare``, ``evaluate``, ``seeds`` and ``reproduce`` alike.
 """
 
-from .heads import DETECTOR_BINS, DETECTORS, ScoreHead, input_rms, touch_statistic
-from .predictions import Predictions
+from .heads import DETECTOR_BINS, DETECTORS, Predictions, ScoreHead, input_rms, touch_statistic
 from .stream import Stream
 
 __all__ = ["Predictions", "ScoreHead", "Stream", "touch_statistic", "input_rms", "DETECTOR_BINS", "DETECTORS"]

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..dsp import log_magnitude_db
 from ..errors import ArtifactError
-from .predictions import Predictions
+from .heads import Predictions
 
 __all__ = ["Stream", "band_rows", "finite_rows"]
 
