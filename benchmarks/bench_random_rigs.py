@@ -74,9 +74,9 @@ def _model_metrics(r: dict) -> dict:
 
 
 def floors(ds, *, train, min_force_n: float = 0.5) -> dict:
-    """The plain scikit-learn floors trained on the sessions ``train`` (:func:`sonicskin.floors.plain_floors`)."""
+    """The plain scikit-learn floors trained on the sessions ``train`` (:func:`sonicskin.seeds.plain_floors`)."""
     from sonicskin.feature_cache import load_features_cached
-    from sonicskin.floors import plain_floors
+    from sonicskin.seeds import plain_floors
 
     return plain_floors(load_features_cached(ds, progress=False), ds.rig, train=train, test=SPLIT["test"],
                         min_force_n=min_force_n)
@@ -171,7 +171,7 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
-from sonicskin.floors import FLOOR_NAMES  # noqa: E402
+from sonicskin.seeds import FLOOR_NAMES  # noqa: E402
 
 
 def _f(v: float, unit: str, signed: bool = False) -> str:
