@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from . import kinds
-from .artifact_files import load_skin
+from .artifact import load_skin
 from .dataset import Dataset, FeatureTable, write_file
 from .feature_cache import load_features_cached
 from .features import touch_mask

@@ -47,7 +47,7 @@ from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
            "writer_lock", "swap_folders", "write_file", "named_os_error", "enclosing_dataset", "refuse_inside_dataset",
-           "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json"]
+           "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json", "unique_keys"]
 
 FORMAT = "sonicskin-dataset"
 VERSION = 1
@@ -85,7 +85,8 @@ def check_name(name, what: str = "session name", where: str = "") -> str:
     return name
 
 
-def _no_duplicates(pairs):
+def unique_keys(pairs) -> dict:
+    """A JSON object's ``object_pairs_hook`` that refuses a key given twice (``json`` keeps the last one silently)."""
     out = {}
     for k, v in pairs:
         if k in out:
@@ -106,7 +107,7 @@ def load_json(path: Path, *, max_bytes: int = 64 * 2**20, fix: str = REDO):
 
         def no_constant(c):
             raise ValueError(f"{c} is not a JSON number")
-        return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=no_constant)
+        return json.loads(text, object_pairs_hook=unique_keys, parse_constant=no_constant)
     except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeDecodeError, duplicates
         raise DatasetError(f"{path} is not valid JSON ({str(e).splitlines()[0][:120]}); the file is corrupt; {fix}") from None
 

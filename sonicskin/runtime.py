@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from . import kinds
-from .artifact_files import load_skin, read_model_file
+from .artifact import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
 from .drift import DriftTracker
 from .dsp import log_magnitude_db
