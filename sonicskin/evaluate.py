@@ -21,7 +21,7 @@ import numpy as np
 
 from .calibration import OnlineReference
 from .compare import chirps_per_location, counts_line, coverage_note, replay_sessions, split_line, stream_metrics
-from .dataset import Dataset, FeatureTable, write_file
+from .dataset import Dataset, FeatureTable, Split, write_file
 from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, touch_mask, usable_bins
 from .fit import fit_artifact, prepare
 from .force import PerLocationForce, energy_db
@@ -31,7 +31,6 @@ from .metrics import force_report
 from .plots import cdf_panel, confusion_panel, detection_panel, location_names, pyplot
 from .rig import Rig
 from .runtime import SkinRuntime
-from .split import Split
 
 __all__ = ["split_sessions", "evaluate_svm"]
 

@@ -22,13 +22,12 @@ import numpy as np
 
 from . import kinds
 from .artifact import PROBE_ROWS, atomic_artifact, skin_json
-from .dataset import Dataset, FeatureTable
+from .dataset import Dataset, FeatureTable, Split
 from .drift import DriftError, DriftTracker
 from .feature_cache import load_features_cached
 from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, training_targets, usable_bins
 from .ospa import select_bins
 from .selection import press_ids, press_passes, save_learning_curve, select_gamma_on_table
-from .split import Split
 
 __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artifact", "build_svm_artifact",
            "summary_lines", "selection_lines"]

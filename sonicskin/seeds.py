@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .compare import replay_sessions, split_line, stream_metrics
-from .dataset import Dataset
+from .dataset import Dataset, Split
 from .feature_cache import load_features_cached
 from .features import FeatureSpec, touch_mask
 from .fit import fit_models, prepare, write_artifact
@@ -30,7 +30,6 @@ from .rig import Rig
 from .runtime import SkinRuntime
 from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
-from .split import Split
 
 __all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds",
            "plain_floors", "FLOOR_NAMES"]

@@ -8,14 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sonicskin.dataset import Dataset
+from sonicskin.dataset import Dataset, Split
 from sonicskin.features import touch_mask
 from sonicskin.fit import build_svm_artifact, prepare
 from sonicskin.importers import import_spectra
 from sonicskin.rig import Rig
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
-from sonicskin.split import Split
 from tests.cli_helpers import assert_one_line_error, run
 
 EX = Path(__file__).resolve().parents[1] / "examples"

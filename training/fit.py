@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from sonicskin.export.onnx import export_net
 
-from sonicskin.dataset import Dataset
+from sonicskin.dataset import Dataset, Split
 from sonicskin.errors import ArtifactError
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_artifact, prepare, summary_lines
@@ -24,7 +24,6 @@ from sonicskin.head import DETECTOR_BINS
 from sonicskin.integrity import check_layout, check_rig
 from sonicskin.kinds import BASELINE, NETWORK, Fitted
 from sonicskin.kinds.net import NetKind
-from sonicskin.split import Split
 
 from .augment import make_augmenter
 from .checkpoint import load_checkpoint

@@ -14,7 +14,7 @@ import numpy as np
 
 from .. import kinds
 from ..compare import replay_sessions, stream_metrics
-from ..dataset import Dataset, FeatureTable
+from ..dataset import Dataset, FeatureTable, Split
 from ..feature_cache import load_features_cached
 from ..features import FeatureSpec
 from ..fit import prepare, write_artifact
@@ -26,7 +26,6 @@ from ..rig import Rig
 from ..runtime import SkinRuntime
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
-from ..split import Split
 
 __all__ = ["Context", "datasets", "MATERIALS", "USES", "QUICK_SIZE", "MODEL", "net_available", "plt", "first_session_split",
            "deployed_data"]
