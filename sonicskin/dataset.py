@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
-from .errors import SonicskinError, is_number
-from .limits import check_memory
+from .errors import SonicskinError, check_memory, is_number
 from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",

@@ -25,9 +25,8 @@ import numpy as np
 from .acquire import AudioSource, Link, blocks
 from .dataset import COLUMNS, Dataset, DatasetWriter
 from .dsp import rig_chirp
-from .errors import is_number
+from .errors import check_memory, is_number
 from .fit import build_svm_artifact
-from .limits import check_memory
 from .live import Framer
 from .rig import Layout, Rig
 from .session import SIM, open_source, simulated

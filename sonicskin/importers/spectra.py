@@ -13,7 +13,7 @@ import scipy.fft
 
 from ..dataset import DatasetWriter, check_name, read_npz
 from ..dsp import chirp_spectrum
-from ..limits import check_memory
+from ..errors import check_memory
 from ..rig import Rig
 from ._common import PEAK_LEVEL, ImportDataError, _first_touch, _staged, _write_session
 from .labels import _check_values, label_layout

@@ -13,7 +13,7 @@ import scipy.fft
 
 from ..dataset import COLUMNS, DatasetWriter, load_json
 from ..dsp import frame_faults, frame_stream, rig_chirp
-from ..limits import check_memory
+from ..errors import check_memory
 from ..rig import Rig
 from ._common import ImportDataError, _first_touch, _staged, _write_session
 from .labels import _check_intervals, _read_labels, label_layout

@@ -18,8 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..dataset import TEMPERATURE_C, check_name
-from ..errors import brief, is_number
-from ..limits import check_memory
+from ..errors import brief, check_memory, is_number
 from ..rig import MAX_LOCATIONS, Layout, Rig, check_keys, load_yaml, resolve_config
 from .channel import MATERIALS, ChannelModel
 from .finger import make_subjects, press_profile
