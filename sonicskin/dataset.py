@@ -1,22 +1,14 @@
-"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata.
-
-Layout of a dataset folder::
+"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata::
 
     dataset.json                  format, version, rig, layout, source (scenario or recorder)
     <session>/part-00000.flac     a piece of the session's continuous received stream (24-bit FLAC)
-    <session>/part-00000.csv      labels of the chirps that start inside that piece
-    <session>/part-00001.flac ...
+    <session>/part-00000.csv      labels of the chirps that start inside that piece (:data:`COLUMNS`)
 
-A *session* is one continuous recording; its parts concatenate into the stream, which starts
-at an arbitrary point of the chirp train (the reader finds the chirps by cross-correlation,
-exactly as for a live recording).  Each label row is one chirp: ``t_s`` is where it starts in
-the session stream, in seconds.  Parts are written atomically (temporary file, then rename;
-the CSV last), so an interrupted run keeps every part already written and a reader never
-sees half a part.  Label columns: see :data:`COLUMNS`.
-
-A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``
-(sha256s); without it the session is an unfinished recording, read part by part.  What is hashed and checked where:
-docs/artifact.md (the data side in full).
+A *session* is one continuous recording starting at an arbitrary point of the chirp train (the reader finds the
+chirps by cross-correlation, as live); a label row's ``t_s`` is where its chirp starts in the stream.  Parts are
+written atomically (the CSV last): an interrupted run keeps every part written, a reader never sees half a part.
+A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``; what is
+hashed and checked where: docs/artifact.md (the data side in full).
 """
 
 from __future__ import annotations
@@ -336,11 +328,8 @@ class DatasetWriter:
         return (self.root / check_name(session) / "session.json").exists()
 
     def write_part(self, session: str, part: int, audio: np.ndarray, labels: dict[str, np.ndarray]) -> Path:
-        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1] and its chirps' labels.
-
-        ``audio`` may also be int32 PCM, 24-bit codes in the upper 24 bits (soundfile's int convention;
-        the low 8 bits are dropped), as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them.
-        """
+        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1], or int32 24-bit codes in the upper 24
+        bits (as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them), and its chirps' labels."""
         import soundfile as sf
 
         d = self.root / check_name(session)
@@ -560,10 +549,8 @@ class Split:
 
 
 def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
-    """Validate a parsed ``dataset.json`` completely; returns its rig and layout.
-
-    Raises :class:`DatasetError` naming the field and what it should be.
-    """
+    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its
+    rig and layout."""
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object with format, version, rig and layout, got a JSON "
                            f"{type(meta).__name__}; the file is corrupt (re-create the dataset)")

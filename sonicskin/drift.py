@@ -128,16 +128,10 @@ def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = Non
 
 @dataclasses.dataclass(frozen=True)
 class DriftEstimate:
-    """One estimate of the channel's drift against the training reference.
-
-    stretch : ``s`` in ``H_now(f) = H_train(f / (1 + s))`` (negative: a warmer, softer wall rings lower).
-    correlation : peak normalised correlation of the two mode patterns (1: the same pattern).
-    gain_db : level change after undoing the stretch, at the band centre.
-    tilt_db_per_khz : slope of the level change across the band.
-    n_bins : allowed bins the estimate used.
-    at_limit : the peak lies at the end of the searched range (``|s|`` may be larger still).
-    reliable : ``correlation >= min_correlation`` and not ``at_limit``.
-    """
+    """One estimate of the channel's drift against the training reference: ``stretch`` (``s``, negative: a warmer
+    wall rings lower), ``correlation`` (peak normalised correlation of the mode patterns), ``gain_db`` and
+    ``tilt_db_per_khz`` (the level change left after undoing it), ``n_bins`` used, ``at_limit`` (the peak at the end
+    of the searched range), ``reliable`` (correlation above the minimum and not at the limit)."""
 
     stretch: float
     correlation: float

@@ -35,12 +35,9 @@ __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artif
 
 @dataclasses.dataclass
 class TrainingData:
-    """What every fit step reads: one dataset's chirps, its split and the model inputs of every chirp.
-
-    ``X`` holds the inputs of *every* chirp of ``table`` (each session relative to its own labelled hands-off
-    reference in ``relative`` mode); only the rows of the training and validation sessions are ever used for
-    fitting: test sessions are replayed through the deployed artifact (:class:`sonicskin.head.Stream`).
-    """
+    """What every fit step reads: one dataset's chirps, its split and the model inputs of *every* chirp (each
+    session relative to its own labelled rest in ``relative`` mode); only the training and validation rows are ever
+    used for fitting."""
 
     dataset: Dataset
     table: FeatureTable
