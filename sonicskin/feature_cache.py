@@ -65,12 +65,9 @@ def _content_digest(t: FeatureTable) -> str:
 
 
 def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
-    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``.
-
-    The key binds the cache to the recordings' bytes, not the cache's own content: a cache whose labels were edited
-    with its key kept was trusted (``fit-svm`` then wrote another ``svm.onnx`` from the same recordings).  Here the
-    label rows are checked against the label CSVs (a session's last one or two rows may be missing: a recording that
-    stops inside its last chirp), and the whole content against the digest stored when the cache was written."""
+    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``: its
+    label rows against the label CSVs (the last one or two may be missing: a recording that stops inside its last
+    chirp), and its content against the digest stored with it (the key binds the recordings' bytes, not the cache's)."""
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""
@@ -95,12 +92,9 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``.
-
-    The cache is keyed by content (:func:`_signature`: code, dataset.json, the bytes of every part's
-    audio and labels), so editing a label or replacing a part rebuilds it; a cache file that is
-    damaged, of other data or inconsistent (a label column one short) is rebuilt, never trusted; one whose
-    content was edited (its key kept) is rebuilt with a warning (:func:`_cache_differs`).
+    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``, keyed by content (:func:`_signature`):
+    editing a label or replacing a part rebuilds it; a damaged or inconsistent cache is rebuilt, never trusted; one
+    whose content was edited is rebuilt with a warning (:func:`_cache_differs`).
     """
     key = _signature(ds)
     cache = ds.root / ".cache" / f"features-{key[:16]}.npz"

@@ -20,10 +20,8 @@ def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) -> dict:
-    """Accuracy, confusion matrix, and surface-distance errors (share < 2 cm and < 3 cm).
-
-    Errors are distances between the predicted and the true marker on the link surface.
-    """
+    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm
+    and < 3 cm)."""
     y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
     if y_true.shape != y_pred.shape:
         raise ValueError(f"{y_true.size} true labels but {y_pred.size} predictions")
@@ -40,11 +38,8 @@ def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) 
 
 
 def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
-    """Table I: RMSE, standard deviation of the error, and normalised cross-correlation (N).
-
-    The cross-correlation is the zero-lag normalised correlation of the two traces,
-    ``sum(p g) / sqrt(sum(p^2) sum(g^2))``: 1 for identical traces.
-    """
+    """Table I: RMSE, standard deviation of the error, and the zero-lag normalised cross-correlation
+    ``sum(p g) / sqrt(sum(p^2) sum(g^2))`` (1: identical traces)."""
     g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
     if g.shape != p.shape:
         raise ValueError(f"{g.size} true forces but {p.size} predictions")

@@ -78,14 +78,9 @@ class OSPA(SelectorMixin, BaseEstimator):
 
 
 def select_bins(t, rig, n_bins: int | None = None, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
-    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
-    the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
-    best first.
-
-    Without no-touch chirps (a table of touches only) the moving variance is taken as 1, as
-    :class:`~sonicskin.ospa.OSPA` documents: the bins with the largest touch variance are kept.
-    ``n_bins`` larger than the rig's bins is clamped (:func:`usable_bins`).
-    """
+    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when the robot never
+    moved; none: the largest touch variance), over the rig's matched-filter mask; band-bin indices, best first
+    (``n_bins`` clamped, :func:`usable_bins`)."""
     touch = touch_mask(t, min_force_n)
     moving = (t["location"] < 0) & (t["moving"] > 0)
     ref = moving if moving.sum() >= 2 else quiet_mask(t)

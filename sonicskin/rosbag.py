@@ -108,12 +108,9 @@ def _time(ns: int) -> dict:
 
 
 class McapEventWriter:
-    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager; see the module docstring).
-
-    ``t0_unix_s``: the wall-clock time (UNIX seconds) of the stream's ``t_s = 0``.  ``log``: where the one warning
-    about events without a surface goes (default :func:`warnings.warn`).  ``overwrite``: replace an existing file
-    (else it is refused).  The file's life cycle: the module docstring.
-    """
+    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager): ``t0_unix_s``, the
+    wall-clock time of the stream's ``t_s = 0``; ``log``, where the one warning about events without a surface goes;
+    ``overwrite``, replace an existing file (else refused)."""
 
     def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
                  overwrite: bool = False):
