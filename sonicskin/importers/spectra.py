@@ -101,8 +101,7 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
 
 def _segments(touch: np.ndarray, moving: np.ndarray) -> np.ndarray:
     """Segments of a session's rows: touches, the hands-off rows before the first touch as the boot calibration, the
-    later hands-off rows as no-touch chirps ("gap", or "moving" with the robot moving).  Every hands-off row used to be
-    "calibration", as if the whole session's rest were the boot reference's."""
+    later ones as no-touch chirps ("gap", or "moving" with the robot moving)."""
     later = np.arange(touch.size) >= _first_touch(touch)
     return np.where(touch, "touch", np.where(~later, "calibration", np.where(moving > 0, "moving", "gap")))
 

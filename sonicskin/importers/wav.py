@@ -86,8 +86,8 @@ def _repeats(x: np.ndarray) -> int | None:
 
 def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
     """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
-    the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
-    (or the file holds no received sweep) and every feature would be silently meaningless.  No sweep may be clipped."""
+    the repeating part has power in the sweep's band (else --period/--sweep/--chirp do not describe the file); no
+    sweep may be clipped."""
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
     if n < 2:

@@ -72,11 +72,8 @@ MATERIALS: dict[str, Material] = {
 
 
 def mindlin_omega(k: np.ndarray, mat: Material) -> np.ndarray:
-    """Angular frequency of the flexural Mindlin branch at wavenumber ``k`` (rad/s).
-
-    Solves ``(-k^2 + rho w^2 / (kappa^2 G)) (-D k^2 + rho h^3 w^2 / 12) - rho h w^2 = 0`` for
-    the lower root in ``w^2``, with shear correction ``kappa^2 = pi^2 / 12``.
-    """
+    """Angular frequency (rad/s) of the flexural Mindlin branch at wavenumber ``k``: the lower root in ``w^2`` of
+    ``(-k^2 + rho w^2 / (kappa^2 G)) (-D k^2 + rho h^3 w^2 / 12) - rho h w^2 = 0``, ``kappa^2 = pi^2 / 12``."""
     k = np.asarray(k, float)
     D, rh, rho, h = mat.bending_stiffness, mat.mass_per_area, mat.density, mat.thickness_m
     Gk = (np.pi ** 2 / 12) * mat.youngs_pa / (2 * (1 + mat.poisson))

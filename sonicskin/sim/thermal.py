@@ -19,13 +19,9 @@ __all__ = ["HotMeltBond", "warmup_field", "project_field"]
 
 @dataclasses.dataclass(frozen=True)
 class HotMeltBond:
-    """A piezo disc on a hot-melt (EVA) bond layer: a mounted resonance that softens with temperature.
-
-    fr_hz : mounted resonance at ``t_ref_c``.
-    tan_delta : loss tangent of the bond at ``t_ref_c`` (0.67: Q = 1.5, a broad 20-30 kHz optimum, paper Sec. III-B).
-    log10_modulus_per_k : ``d log10 E' / dT`` of the adhesive (see the module notes).
-    ln_tan_delta_per_k : ``d ln(tan delta) / dT``.
-    """
+    """A piezo disc on a hot-melt (EVA) bond layer: a mounted resonance ``fr_hz`` with loss tangent ``tan_delta``
+    at ``t_ref_c`` (0.67: Q = 1.5, a broad 20-30 kHz optimum, paper Sec. III-B), softening as ``d log10 E' / dT =
+    log10_modulus_per_k`` while ``d ln(tan delta) / dT = ln_tan_delta_per_k``."""
 
     fr_hz: float = 28e3
     tan_delta: float = 0.67
@@ -53,12 +49,9 @@ class HotMeltBond:
 
 def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s: float, gradient: float = 0.0,
                  lag: float = 0.0) -> np.ndarray:
-    """Warm-up temperature rise (K) at times ``t_s`` (n,) and positions ``y_frac`` (m,) along the link, (n, m).
-
-    ``y_frac`` = 0 is the motor end, 1 the far end.  The final rise is ``warmup_c (1 + gradient (0.5 - y))``
-    and the time constant ``tau_s (1 + lag (y - 0.5))``: the link's middle follows
-    ``warmup_c (1 - exp(-t / tau_s))`` whatever ``gradient`` and ``lag`` are.
-    """
+    """Warm-up temperature rise (K), (n, m), at times ``t_s`` (n,) and positions ``y_frac`` (m,) from the motor end
+    (0) to the far end (1): a final rise ``warmup_c (1 + gradient (0.5 - y))`` with time constant ``tau_s (1 + lag
+    (y - 0.5))``, so the middle follows ``warmup_c (1 - exp(-t / tau_s))`` whatever ``gradient`` and ``lag`` are."""
     t = np.asarray(t_s, float)[:, None]
     y = np.asarray(y_frac, float)[None, :]
     amp = warmup_c * (1 + gradient * (0.5 - y))
