@@ -123,11 +123,9 @@ class Augmenter:
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):
-    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``): every
-    nuisance measured there (its presses' force ramps, its hands-off chirps while the robot moves, or at rest after
-    the boot reference when it never moves, its markers' positions), over all of the data's inputs (OSPA order), drawn
-    over the first ``n_cols``.  Returns the augmenter and, for each of the ``rows``, its row in the augmenter (-1: not
-    a touch chirp)."""
+    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``), every
+    nuisance measured there, over the data's inputs, drawn over the first ``n_cols``; and for each of the ``rows``
+    its row in the augmenter (-1: not a touch chirp)."""
     t = data.table
     rows = np.asarray(rows, bool)
     n_loc = data.n_locations

@@ -55,11 +55,8 @@ def _first_line(e: BaseException) -> str:
 
 
 def load_checkpoint(path: str | Path) -> SkinLitModule:
-    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint.
-
-    Raises :class:`CheckpointError` (one line) for a file that is not such a checkpoint or that holds
-    Python objects other than tensors and plain data; nothing in the file is executed.
-    """
+    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint; a one-line
+    :class:`CheckpointError` for anything else (nothing in the file is executed)."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")

@@ -35,9 +35,8 @@ class SkinDataModule(L.LightningDataModule):
     data : str
         Dataset folder (``sonicskin simulate`` / ``record`` / ``import-*``); ``sonicskin train --data`` sets it.
     n_bins : int, optional
-        OSPA's gamma: bins kept, selected on the training split only (clamped to the rig's band).  ``None``: chosen
-        (with the SVM's C and kernel width) by validation on the validation session or the training session's
-        presses (:mod:`sonicskin.selection`); the paper's 300 when neither can validate.
+        OSPA's gamma, the bins the SVM reads (selected on the training split).  ``None``: chosen by validation, the
+        paper's 300 when nothing can validate.
     mode : str
         Model inputs: ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
     train_sessions : list of str, optional
@@ -47,8 +46,7 @@ class SkinDataModule(L.LightningDataModule):
     test_subjects : list of int, optional
         Leave-subjects-out instead: sessions of these people are the test set.
     min_force_n : float
-        Labelled chirps pressed lighter than this (N) are left out of training, neither a clear touch nor
-        no touch (without a force sensor every labelled chirp is a touch).
+        Labelled chirps pressed lighter than this (N) are neither a clear touch nor no touch: left out of training.
     batch_size : int
         Chirps per optimisation step.
     noise_db : float

@@ -190,9 +190,8 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
 def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alpha: float = 10.0,
                  first: tuple = (None, 300), how: str = "validation") -> dict:
     """The network's force chosen on presses it did not train on (``val_rows``): its own head, or a pooled ridge
-    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or over the first ``k`` inputs
-    (the best OSPA bins, as the SVM's force and detector read them: a ridge over thousands of bins fits one session's
-    presses more loosely).  Sets the model's force (:meth:`models.SkinNet.set_force`)."""
+    (:class:`sonicskin.force.PooledForce`, fitted on ``fit_rows``) over every input or the first ``k`` (a ridge over
+    thousands of bins fits one session's presses more loosely).  Sets the model's force."""
     ids = np.asarray(location_ids)
     n_loc, n_in = len(ids), X.shape[1]
     f = np.asarray(force, np.float64)
@@ -218,9 +217,8 @@ def choose_force(model, X, cls, force, *, fit_rows, val_rows, location_ids, alph
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
-    """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
-    the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
-    layout and session names gave an artifact whose two models were trained on different recordings."""
+    """The dataset holds the sessions of the checkpoint's split and (where the checkpoint records them) the very
+    recordings, so the SVM trained here and the checkpoint's network see the same data."""
     split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
     missing = [s for s in split if s not in set(ds.sessions)]
     if missing:

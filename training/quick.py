@@ -132,11 +132,10 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
                     reference: np.ndarray, how: str, max_extra_miss: float = 0.005) -> dict:
-    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks),
-    each candidate run by the head the runtime runs (:meth:`sonicskin.kinds.net.NetHead.touch`): its own head, its
-    head with a bias recalibrated there (Youden's J), the SVM's input-RMS detector (``threshold``, ``reference``), or
-    either of head and input-RMS.  Among the decisions that miss at most ``max_extra_miss`` more touches than the
-    input-RMS detector, the lowest balanced error wins."""
+    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks), each
+    candidate run by the runtime's head (:meth:`sonicskin.kinds.net.NetHead.touch`): its head, its head recalibrated
+    (Youden's J), the input-RMS detector, or either.  Among those missing at most ``max_extra_miss`` more touches than
+    the input-RMS detector, the lowest balanced error wins."""
     reference = np.asarray(reference, np.float64).ravel()
     bins = min(DETECTOR_BINS, reference.size)
 

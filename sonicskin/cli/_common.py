@@ -49,9 +49,8 @@ def alg2_options(a: argparse.Namespace) -> dict:
 
 
 def resolve_n_bins(a: argparse.Namespace, data: str | Path | None, *, warn=None) -> int:
-    """The user's ``--n-bins``, or the default clamped (with a warning) to the bins the dataset's rig
-    has after its matched filter.  An explicit gamma larger than that is a usage error: the user
-    asked for something this data cannot give."""
+    """The user's ``--n-bins`` (more than the dataset's usable bins: a usage error), or the default clamped to them
+    with a warning."""
     if data is None:
         return a.n_bins if a.n_bins is not None else DEFAULT_N_BINS
     n_allowed = int(Dataset(data).rig.allowed_mask.sum())
@@ -77,10 +76,8 @@ def writer_mode(a: argparse.Namespace) -> str:
 
 @contextlib.contextmanager
 def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
-    """Remove ``out`` again when this run fails (or is interrupted) before it wrote a single part,
-    so a retry is not blocked by a lone ``dataset.json``.  Anything a previous run made is kept
-    unless ``--overwrite`` had already replaced it; written parts are kept (``--resume`` continues
-    them)."""
+    """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone
+    ``dataset.json``); what a previous run made is kept unless ``--overwrite`` replaced it, written parts are kept."""
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
     # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up
