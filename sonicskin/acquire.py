@@ -33,10 +33,8 @@ __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksiz
 
 
 class AudioError(SonicskinError, RuntimeError):
-    """No usable audio device, rate or library, or a device that stopped; the message says what to do.
-
-    A :class:`~sonicskin.errors.SonicskinError` (one line from the CLI, caught by ``except SonicskinError`` in a
-    robot program) that is still a ``RuntimeError``, as it was before."""
+    """No usable audio device, rate or library, or a device that stopped; the message says what to do (a
+    :class:`~sonicskin.errors.SonicskinError` that is still a ``RuntimeError``)."""
 
 
 class DeviceLost(AudioError):
@@ -167,10 +165,8 @@ def thread_cpu_s(thread: threading.Thread | None) -> float | None:
 
 
 class AudioSource(Protocol):
-    """The contract between a source and its consumers (:func:`blocks`; the live loop, the recorder, the rig check).
-
-    Blocks of the receiver channel(s) come from :meth:`read`: ``(n,)`` for one link, ``(n, links)`` for several on one
-    interface; a finite source sets :attr:`finished` after its last block.  Every source of this module is one."""
+    """The contract between a source and its consumers (:func:`blocks`): blocks of the receiver channel(s) from
+    :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several; a finite source sets :attr:`finished`."""
 
     rig: Rig
     #: blocks come at the sample rate (a device, the real-time simulation); ``False``: as fast as they are read

@@ -42,10 +42,8 @@ MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on ev
 
 
 def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
-    """The rest and press windows the check records, before anything is played: long enough for its measurements,
-    short enough to hold in memory (``--rest 0.001`` failed the chirp lock as 'no chirp on any input', blaming the
-    cables; ``--rest 1e9`` asked numpy for 1.4 TiB; ``--press 0.05`` reported 'touch contrast: fail', which reads as a
-    rig fault, for a press too short to measure)."""
+    """The rest and press windows the check records, before anything is played: long enough for its measurements
+    (else a too-short window reads as a rig fault), short enough to hold in memory."""
     for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
                              ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):

@@ -152,9 +152,8 @@ def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
 
 
 def _plainly_ok(x: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> bool:
-    """True when no frame can have a fault of :func:`frame_faults`: every frame's energy is finite and
-    above the silence level, and no sample reaches the clip level (three passes, no temporaries).
-    Otherwise :func:`frame_faults` decides."""
+    """True when no frame can have a fault of :func:`frame_faults` (finite energy above the silence level, no sample
+    at the clip level: three passes, no temporaries); else :func:`frame_faults` decides."""
     if x.size == 0:
         return False
     energy = np.einsum("ij,ij->i", x, x)

@@ -19,10 +19,8 @@ __all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce",
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
-    """``E^O`` in dB over ``bins`` of dB-magnitude features, relative to ``ref_db`` if given.
-
-    X_db : (n, n_features) ``20 log10 |H|``;  ref_db : (n_features,) or (m, n_features) no-touch reference.
-    """
+    """``E^O`` in dB over ``bins`` of dB-magnitude features ``X_db`` (n, n_features), relative to the no-touch
+    reference ``ref_db`` ((n_features,) or (m, n_features)) if given."""
     X = np.asarray(X_db, dtype=np.float64)[:, bins]
     e = 10 * np.log10(np.mean(10 ** (X / 10), axis=1))
     if ref_db is not None:

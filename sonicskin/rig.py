@@ -352,9 +352,8 @@ class Layout:
     @classmethod
     def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
               circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> Layout:
-        """Rows of markers ``spacing_cm`` apart, rows ``spacing_cm`` apart, every other row
-        shifted by half a spacing.  The default, 16 + 15 = 31 markers 1.2 cm apart, is the
-        paper's touch area (Fig. 10) wrapped around a link."""
+        """Rows of markers (``counts`` per row) ``spacing_cm`` apart, every other row shifted by half a spacing; the
+        default, 16 + 15 = 31 markers 1.2 cm apart, is the paper's touch area (Fig. 10) around a link."""
         xy = []
         for row, n in enumerate(counts):
             shift = 0.5 * spacing_cm * (row % 2)

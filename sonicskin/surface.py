@@ -50,11 +50,9 @@ def pose_matrix(xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class LinkSurface:
-    """The surface a link's skin covers, in the link's frame (conventions: module docstring).
-
-    ``dims_m``: ``(radius, length)`` for a tube, ``(width, length, thickness)`` for a plate.  ``pose``: the shape's
-    4x4 transform in the link frame.  ``theta0_deg``/``axis_from`` apply to a tube, ``face`` to a plate.
-    """
+    """The surface a link's skin covers, in the link's frame: ``dims_m`` ``(radius, length)`` for a tube,
+    ``(width, length, thickness)`` for a plate; ``pose`` the shape's 4x4 transform; ``theta0_deg``/``axis_from`` (tube)
+    or ``face`` (plate)."""
 
     frame_id: str
     kind: str  # "tube" | "plate"
