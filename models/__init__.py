@@ -41,9 +41,8 @@ class KernelVotes(nn.Module):
         self.pairwise = nn.Linear(n_centres, i.size)
         self.register_buffer("P", torch.from_numpy(P))
         self.register_buffer("tau", torch.tensor(float(tau)))
-        # v_k moves by 2 per pair won, so scale 2 gives 4 x the SVM's vote count (+ a constant): the sharpening the
-        # SVM runtime applies before the softmax that weights the continuous-position centroid (a location one
-        # pairwise vote behind the winner weighs e^-4 of it), and the two models' centroids agree.
+        # v_k moves by 2 per pair won, so scale 2 gives 4 x the SVM's vote count: the sharpening the SVM runtime applies
+        # before its centroid's softmax, so the two models' centroids agree.
         self.scale = nn.Parameter(torch.tensor(2.0))
 
     @classmethod
@@ -180,11 +179,9 @@ class SkinNet(nn.Module):
         return torch.cat([loc, self._logsig(-t)], 1), self.force(torch.cat([h, phi], 1))
 
 
-# -- The closed-form location layer: the artifact's shrinkage LDA (:mod:`sonicskin.kinds.lda`) inside the network.
-# :class:`LDASkinNet` is :class:`models.SkinNet` with the LDA's scores as its place: the trunk gives the touch
-# probability and the force, the LDA (each chirp normalised as it was, then one linear map; frozen) where the touch is
-# (``p(location k) = p(touch) softmax(scores)_k``, the kernel layer's factorisation). Its location is therefore
-# exactly the LDA's: a network with this layer is never worse at placing a touch than the closed form it starts from.
+# -- The closed-form location layer: the artifact's shrinkage LDA (:mod:`sonicskin.kinds.lda`), frozen, inside the
+# network: the trunk gives the touch probability and the force, the LDA where (``p(location k) = p(touch)
+# softmax(scores)_k``), so its location is exactly the LDA's.
 class LDASkinNet(SkinNet):
     """:class:`SkinNet` whose location layer is a fixed linear map of the normalised inputs (``n_in -> (N + 1 logits,
     N forces)``).  ``norm``: ``"none"``, ``"level"`` (each chirp's mean removed) or ``"unit"`` (unit length), as the

@@ -54,9 +54,8 @@ SEGMENTS = ("calibration", "moving", "touch", "gap")
 #: at most 64 characters.  No separators, no ``..``, no hidden names: a name stays inside its folder.
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 MANIFEST_VERSION = 1
-#: libFLAC compression level of the parts written (0..8; libsndfile's default is 5).  FLAC is lossless:
-#: every level decodes to the same samples.  Level 0 encodes the simulator's parts in about 10 % less CPU
-#: than 5, and the files are about 6 % larger (docs/speed.md).
+#: libFLAC compression level of the parts written (lossless at every level; 0 costs ~10 % less CPU than the default
+#: 5 for ~6 % larger files).
 FLAC_LEVEL = 0
 MAX_FORCE_N = 1000.0      # a press on a robot link; 1e300 N is a corrupt value, not a force
 MAX_ABS_CM = 1e5          # 1 km of surface

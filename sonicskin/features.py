@@ -118,10 +118,8 @@ def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
     return want
 
 
-# A no-touch reference averages at least this many chirps.  Alg. 2's beta is 3 s (28 chirps on the
-# paper's rig); a recording whose rest is shorter (3 s that start inside a chirp hold 27 whole ones)
-# uses the rest it has, with a warning, down to this minimum.  The std of a 10-chirp mean is a third
-# of one chirp's, about 0.1 dB on the simulated rig.
+# A no-touch reference averages at least this many chirps: a recording with less rest than Alg. 2's beta uses what it
+# has, with a warning, down to this (a 10-chirp mean's std is a third of one chirp's, ~0.1 dB simulated).
 MIN_REST_CHIRPS = 10
 
 

@@ -10,13 +10,10 @@ from .errors import ArtifactError
 
 __all__ = ["PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "require_parity", "ort_session"]
 
-#: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
-#: scikit-learn (float64): their outputs differ by rounding that grows with the size of the values (a network's
-#: log-probabilities reach -100 and more, an SVM's decision values tens).  What must agree is what the artifact
-#: decides: the location (argmax), the touch decision, and the continuous outputs (scores or logits, force) to
-#: within ``PARITY_TOL`` x the output's scale (its largest magnitude on the check chirps, at least 1).  A chirp whose
-#: decision the original makes by less than that bound (a near tie) may go either way and is counted, not judged.
-#: A fixed 1e-4 on raw logits failed valid exports at 1.05e-4 (the README's WAV walkthrough, issue 27).
+#: Export parity: the graph in onnxruntime (float32) and the original (torch float32, scikit-learn float64) differ by
+#: rounding that grows with the values, so what must agree is what the artifact decides (location, touch) and the
+#: continuous outputs within ``PARITY_TOL`` x the output's scale (its largest magnitude on the check chirps, at least
+#: 1); a near tie (decided by less than that) is counted, not judged.
 PARITY_TOL = 1e-3
 
 

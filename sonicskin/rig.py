@@ -199,9 +199,8 @@ class Rig:
             raise ValueError(f"n_chirp must be an integer >= 64 samples, got {self.n_chirp}")
         if self.pwm_halfwidth_hz < 0:
             raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
-        # A line above the sample rate is a typo (500000 for 50000) that would notch nothing.  Lines between fs/2 and
-        # fs are the paper's motor harmonics on a slower interface (60 and 90 kHz at 96 kHz): beyond the recording's
-        # band, they notch nothing, and rigs and artifacts stored with them stay readable.
+        # A line above the sample rate is a typo (500000 for 50000); lines between fs/2 and fs (the paper's motor
+        # harmonics on a slower interface) notch nothing but stay readable.
         off = [f for f in self.pwm_hz if not 0 < f <= self.fs_hz]
         if off:
             raise ValueError(f"pwm_hz {off[0]:g} Hz is outside 0..{self.fs_hz:g} Hz (the sample rate); the PWM lines to "

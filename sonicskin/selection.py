@@ -432,9 +432,8 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
                                     val=val_mask[fr] if val_mask.any() else None, val_name=val_name, log=log)
     else:
         sel["force"] = {"status": "absent", "reason": "absent: no force sensor (or a constant force)", "model": "fourier1"}
-    # detection: the threshold stays the training chirps' (Youden's J, the paper's rule); a threshold chosen on one
-    # validation session missed 35 % of a moving random rig's test touches (design seed 1), so the validation
-    # session only estimates what the deployed threshold does (:func:`detection_on_validation`)
+    # detection: the threshold stays the training chirps' (Youden's J; one chosen on a validation session missed 35 %
+    # of a moving random rig's test touches): the validation session only estimates it (detection_on_validation)
     sel["detection"] = {"how": "Youden's J on the training chirps", "threshold": None}
     return sel
 

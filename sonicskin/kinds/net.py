@@ -69,8 +69,7 @@ class NetHead:
         conf = place[np.arange(len(idx)), idx] / np.maximum(place.sum(axis=1), 1e-12)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
         # Alg. 2's no-touch chirps by the physical statistic alone: the head's logit, trained on one session, calls rest
-        # chirps touched once warm-up has moved them, and an OR with it then blocked every reference refresh (measured:
-        # drift-2h simulator seed 1, from the 5th session on every rest chirp "touched", one reference in 2 h)
+        # chirps touched once warm-up has moved them, and an OR with it then blocks every reference refresh
         return Predictions(touch, self.ids[idx], centroid(place, self.layout), f, conf, place,
                            reference_touch=by_rms if self.mode == "either" else None)
 

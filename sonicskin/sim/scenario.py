@@ -217,9 +217,8 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
             subj_of_seg.append(subj)
             if sc.gap_s > 0:
                 segs.append(("gap", rig.seconds_to_chirps(sc.gap_s), -1, np.nan, np.nan, None))
-        # Sessions start every session_interval_s, or when the one before ends if it ran longer (a one-shot session of
-        # three passes over 31 markers takes 330 s; drift-2h tests every 300 s): one person, one link, one clock, so
-        # a recording replayed from power-on as one stream is in time order.
+        # Sessions start every session_interval_s, or when the one before ends if it ran longer: one link, one clock,
+        # so a recording replayed from power-on as one stream is in time order.
         n_session = sum(seg[1] for seg in segs)
         t0 = max(sc.start_s + s * sc.session_interval_s, t_free)
         t_free = t0 + n_session / cps
