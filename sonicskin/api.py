@@ -108,11 +108,14 @@ class Listener:
             self._thread.start()
         return self
 
-    def stop(self) -> dict | None:
-        """Stop and wait for the thread; returns the run's summary (as ``sonicskin live`` prints it)."""
+    def _halt(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
+
+    def stop(self) -> dict | None:
+        """Stop and wait for the thread; returns the run's summary (as ``sonicskin live`` prints it)."""
+        self._halt()
         self._raise()
         return self.summary
 
@@ -129,9 +132,7 @@ class Listener:
         return self.start()
 
     def __exit__(self, *exc) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
+        self._halt()
         if exc[0] is None:
             self._raise()
 
@@ -163,16 +164,10 @@ class Listener:
 
 
 def listen(artifact: str | Path, *, device: str | int | None = None, duration_s: float | None = None, **kw) -> Iterator[TouchEvent]:
-    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...``.
-
-    Keywords as :class:`Listener`.  The run stops when the loop ends (``duration_s``, a finite
-    simulated session) or when the caller leaves the loop (``break``); errors of the device are
-    raised here.
-    """
+    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as
+    :class:`Listener`); the run stops when the loop ends or the caller leaves it, device errors are raised here."""
     lst = Listener(artifact, device=device, duration_s=duration_s, **kw)
     try:
         yield from lst
     finally:
-        lst._stop.set()
-        if lst._thread is not None:
-            lst._thread.join(timeout=10)
+        lst._halt()
