@@ -62,9 +62,8 @@ class Block:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """One transmitter/receiver pair: 0-based channel indices on the audio interface.  Several links on one
-    interface share the chirp by *time* duplexing (link k transmits in periods where ``period % n_slots == slot``) or
-    *frequency* duplexing (each link its own rig with a disjoint chirp band)."""
+    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time
+    duplexing (link k transmits in periods where ``period % n_slots == slot``) or frequency duplexing (own rigs)."""
 
     tx: int = 0
     rx: int = 0
@@ -335,9 +334,8 @@ class SoundDeviceSource(_QueueSource):
 
 
 class _ProducerSource(_QueueSource):
-    """A source whose audio a thread of its own produces (:meth:`_chunks`, cut into blocks here), paced at the sample
-    rate (``realtime``) or as fast as it is read; ``drop_every``: drop one block in that many (fault injection: the
-    consumer must re-lock)."""
+    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate (``realtime``)
+    or as fast as read; ``drop_every``: drop one block in that many (fault injection)."""
 
     what = "source"  # for the watchdog's message
 

@@ -249,9 +249,8 @@ class OnlineReference:
 
 
 class TouchDetector:
-    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C): ``fit`` picks the
-    ``threshold_`` that maximises ``TPR - FPR`` (Youden's J) on training chirps; ``false_touch_rate_`` and
-    ``missed_touch_rate_`` are the training chirps on the wrong side of it."""
+    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` picks the
+    ``threshold_`` of Youden's J on training chirps (``false_touch_rate_``, ``missed_touch_rate_`` on its wrong side)."""
 
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold

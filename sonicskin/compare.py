@@ -25,9 +25,8 @@ __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_laten
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
                   boot: bool = True) -> dict:
-    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole per-chirp
-    path from band features (:meth:`SkinStream.chirp`), on a recorded stream ``X_band``/``time_s`` (its first
-    ``beta`` chirps boot the reference; ``boot=False``, touches only: no reference)."""
+    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole path from band
+    features (:meth:`SkinStream.chirp`), on a recorded stream (``boot=False``, touches only: no reference)."""
     st = rt.stream()
     k = 0
     while boot and st.calibrating and k < len(X_band):

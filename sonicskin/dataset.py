@@ -477,9 +477,8 @@ class FeatureTable:
 
     @classmethod
     def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:
-        """Load a table saved by :meth:`save_npz`, checked: every label column of :data:`COLUMNS` plus
-        ``session``, one value per row of ``X``, finite features (``n_features`` wide), and the stored
-        ``key`` equal to ``key`` when given.  Anything else is a :class:`DatasetError`."""
+        """Load a table saved by :meth:`save_npz`, checked (every label column, one value per row, finite features
+        ``n_features`` wide, the stored ``key`` when given); anything else is a :class:`DatasetError`."""
         names = {"X": ("f", 2), "key": ("U", 0)}
         names.update({f"label_{c}": ("iuf" if t in (int, float) else "U", 1) for c, t in COLUMNS.items()})
         names["label_session"] = ("U", 1)
@@ -811,9 +810,8 @@ class Dataset:
         check_label_values(lab, self.layout, str(d))
 
     def check_distinct(self, sessions: list[str] | None = None) -> None:
-        """Refuse two sessions that hold the same recording (a session folder copied within the dataset): its
-        chirps would count twice, in training and in testing.  Compares the first part's FLAC bytes (the
-        manifest's hash when there is one)."""
+        """Refuse two sessions holding the same recording (a copied session folder counts twice, in training and
+        testing): their first parts' FLAC bytes (the manifest's hash when there is one) compared."""
         seen: dict[str, str] = {}
         for s in sessions or self.sessions:
             d = self._session_dir(s)

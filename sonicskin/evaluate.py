@@ -145,9 +145,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
 def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
                force: bool = True) -> dict:
-    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin (no
-    matched filter), online calibration vs the training reference only, E^O vs the total band energy for force, and
-    Alg. 2 applied to the features."""
+    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin, online
+    calibration vs the training reference, E^O vs the total band energy for force, Alg. 2 on the features."""
     out = {}
     quiet = lambda m: None  # noqa: E731
     loc = te["location"]

@@ -32,9 +32,8 @@ def _code_version() -> bytes:
 
 
 def _signature(ds: Dataset) -> str:
-    """Cache key of a dataset's features: the sha256 of everything that changes their values: the code
-    (:func:`_code_version`), ``dataset.json`` (rig, layout), and per session the bytes of every part's
-    FLAC and CSV and of ``session.json`` (which parts count)."""
+    """Cache key of a dataset's features: the sha256 of the code (:func:`_code_version`), ``dataset.json`` and
+    every part's FLAC and CSV bytes and ``session.json`` per session."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
     ds.check_distinct()  # a copied session: refused before a cache could hide it

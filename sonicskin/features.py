@@ -53,9 +53,8 @@ class FeatureSpec:
         return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s, **kw)
 
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
-        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams),
-        the reference from the labelled no-touch chirps: for *training* sessions.  Test streams are
-        replayed through :meth:`sonicskin.runtime.SkinRuntime.replay`."""
+        """Model inputs (n, len(bins)) float32 of every chirp of ``t`` (sessions separate streams, the reference from
+        the labelled no-touch chirps): for *training* sessions; test streams are replayed by the runtime."""
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
@@ -133,9 +132,8 @@ def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
 
 
 def rest_beta(t: FeatureTable, beta_chirps: int, *, log=None) -> int | None:
-    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has when that
-    is shorter but at least :data:`MIN_REST_CHIRPS` (with a warning).  ``None``: some session has less
-    rest than the minimum (no online reference can be measured; use absolute features)."""
+    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has, down to
+    :data:`MIN_REST_CHIRPS` (with a warning); ``None`` below it (use absolute features)."""
     runs = rest_runs(quiet_mask(t), t["session"])
     shortest = min(runs.values()) if runs else 0
     if shortest >= beta_chirps:

@@ -44,9 +44,8 @@ MIN_AC_RMS = 1e-7  # a frame whose samples vary (std) by less is a constant leve
 
 
 class InputUnusable(DeviceLost):
-    """Audio arrives but for the watchdog's time not one chirp of it could be used (all NaN, silent,
-    clipped, constant or cut by lost blocks), or it holds no chirp (noise alone, at boot or for a
-    second of the run): the model would be blind, or see noise, while the loop looked healthy."""
+    """Audio arrives but for the watchdog's time not one chirp of it could be used, or it holds no chirp (noise
+    alone): the model would be blind, or see noise, while the loop looked healthy."""
 
 
 def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:

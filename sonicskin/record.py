@@ -452,9 +452,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
 
 def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``): what ``record`` + ``fit-svm`` do on a real rig,
-    for a run without an artifact.  Says first what it does, where it writes and about how long it takes; a later run
-    reuses the artifact and says so."""
+    """One-shot training on the simulated link (cached under ``root``), as ``record`` + ``fit-svm`` on a real rig, for
+    a run without an artifact; says first what it does, where and about how long (a later run reuses it)."""
     log = log or (lambda m: print(m, file=sys.stderr))
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():

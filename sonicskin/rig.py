@@ -52,9 +52,8 @@ def config_names(kind: str) -> list[str]:
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """The YAML file a config argument refers to: a bare name (``jaco``) is a shipped config (:func:`config_names`),
-    a file name or path is read as it stands.  A name that is no config, or a missing path: :class:`FileNotFoundError`
-    (the message lists the known names)."""
+    """The YAML file a config argument refers to: a bare name is a shipped config (:func:`config_names`), a file name
+    or path is read as it stands; :class:`FileNotFoundError` (listing the known names) otherwise."""
     text = str(name_or_path)
     p = Path(name_or_path)
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():

@@ -122,9 +122,8 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
 
 
 def _split(t, test_subjects=None, val: bool = False) -> Split:
-    """One-shot: the first session trains, every later one tests (``test_subjects``: those people's sessions test, the
-    others train).  ``val``: the next session (the last of the training people's) validates, and the deployed models
-    are refitted on training and validation sessions together."""
+    """One-shot: the first session trains, every later one tests (``test_subjects``: those people's sessions test);
+    ``val``: the next session validates, then the models are refitted on both."""
     if test_subjects:
         sp = Split.make(t, test_subjects=test_subjects)
         return sp if val else Split(sp.train + sp.val, (), sp.test)
@@ -132,9 +131,8 @@ def _split(t, test_subjects=None, val: bool = False) -> Split:
 
 
 def _floors(ds: Dataset, t, split) -> dict:
-    """The plain scikit-learn floors on the same split (:func:`plain_floors`): ``accuracy`` (SVC on
-    every usable bin), ``lda_accuracy``, ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR) and
-    ``force_rmse_constant_n`` (the training mean)."""
+    """The plain floors on the same split (:func:`plain_floors`): ``accuracy`` (SVC), ``lda_accuracy``,
+    ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR), ``force_rmse_constant_n`` (the training mean)."""
     f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
     out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
            "normalized_svc_accuracy": f["normalized_svc_accuracy"]}

@@ -73,9 +73,8 @@ def live_scenario(scenario: Scenario) -> Scenario:
 
 @dataclasses.dataclass(eq=False)
 class Run:
-    """An opened run: its links (one for a single artifact), a runtime per link, the one source that carries them.
-
-    :meth:`loops` gives it one live loop per link (and the live page), :meth:`run` runs them, once."""
+    """An opened run: its links (one for a single artifact), a runtime per link, the one source carrying them;
+    :meth:`loops` gives it a live loop per link (and the live page), :meth:`run` runs them, once."""
 
     links: list[Link]
     runtimes: list[SkinRuntime]

@@ -32,9 +32,8 @@ def _stdout_sink(line: str) -> None:
 
 
 def cmd_live(a: argparse.Namespace) -> int:
-    """One link (``--artifact``) or several on one interface (``--links``, a links or arm file: one model and one loop
-    per link), on the simulated device or an interface (:func:`sonicskin.session.open_run`); without an artifact a
-    simulated link is trained on the spot, once."""
+    """One link (``--artifact``) or several on one interface (``--links``), simulated or an interface
+    (:func:`sonicskin.session.open_run`); without an artifact a simulated link is trained on the spot, once."""
 
     check_blocksize(a.blocksize, "--blocksize")
     if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
@@ -115,9 +114,8 @@ def cmd_record(a: argparse.Namespace) -> int:
 
 
 def _record_arm(a: argparse.Namespace) -> int:
-    """``record --links ARM --out DIR``: the guided session of every link in turn, each on its own TX/RX pair and with
-    its own markers (its scenario's layout), into ``DIR/<link>``, each with its artifact (``DIR/<link>-artifact``)
-    unless --no-artifact; ``fit-svm --links ARM --data DIR`` trains them all again at once."""
+    """``record --links ARM --out DIR``: every link's guided session in turn (its TX/RX pair, its scenario's
+    markers) into ``DIR/<link>``, each with its artifact ``DIR/<link>-artifact`` unless --no-artifact."""
     if a.tx or a.rx or a.scenario != "stationary" or a.locations or a.artifact:
         raise UsageError("record --links takes each link's channels and markers from the arm file and writes each link's "
                          "artifact next to its recording (OUT/<link>-artifact); drop --tx, --rx, --scenario, --locations "

@@ -193,9 +193,8 @@ def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) -> int:
-    """Replay the test sessions (exactly ``--test`` when given: the split tests every session it does not train or
-    validate on) through ``artifact``; print and write the comparison.  ``expected``: print what model selection
-    expected at training beside it."""
+    """Replay the test sessions (exactly ``--test`` when given) through ``artifact``, print and write the comparison;
+    ``expected``: print what model selection expected at training beside it."""
     res = compare_artifact(artifact, a.data, sessions=a.test)
     title = f"{Path(a.data).name}: " + " vs ".join(res["labels"][k] for k in res["models"])
     print(format_comparison(res, title))

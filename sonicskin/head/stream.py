@@ -118,9 +118,8 @@ class Stream:
         return p
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
-        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes; the same
-        output as :meth:`chirp` one at a time.  Boot chirps have ``calibrating`` set, no touch, location -1 and NaN
-        position."""
+        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes, as :meth:`chirp`
+        gives them one at a time (boot chirps: ``calibrating``, no touch, location -1, NaN position)."""
         X = band_rows(X_band, self.rig.n_band)
         if self.drift is None:
             X = X[:, self.bins]

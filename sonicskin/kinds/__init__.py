@@ -20,9 +20,8 @@ __all__ = ["ModelKind", "Fitted", "KINDS", "BASELINE", "NETWORK", "CLOSED_FORM",
 
 @dataclasses.dataclass
 class Fitted:
-    """One fitted model: the estimator (what :meth:`ModelKind.export` writes), its ``skin.json`` entry fields (besides
-    ``file``, ``kind``, ``n_in``, ``n_locations``, ``parity``), the first ``n_in`` inputs it reads, what it chose and on
-    what (merged into ``skin.json``'s ``selection``), and its fit time."""
+    """One fitted model: the estimator :meth:`ModelKind.export` writes, its ``skin.json`` entry fields, the first
+    ``n_in`` inputs it reads, what it chose (``skin.json``'s ``selection``) and its fit time."""
 
     model: Any
     entry: dict

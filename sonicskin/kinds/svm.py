@@ -46,9 +46,8 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _pair_matrices(n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For libsvm's pair order (0,1), (0,2), ..., (1,2), ...: ``P`` (+1 for the pair's first class, -1 for its second),
-    and the one-hot first (``Vi``) and second (``Vj``) class of each pair; built once per class count (the live loop
-    calls :func:`ovr_scores_from_ovo` every chirp of every link)."""
+    """For libsvm's pair order: ``P`` (+1 for a pair's first class, -1 for its second) and the one-hot first (``Vi``)
+    and second (``Vj``) class of each pair, built once per class count."""
     i, j = np.triu_indices(n_classes, k=1)
     rows = np.arange(i.size)
     P = np.zeros((i.size, n_classes))

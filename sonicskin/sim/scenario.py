@@ -78,9 +78,8 @@ class Scenario:
 
     @classmethod
     def load(cls, name_or_path: str | Path, *, seed: int | None = None) -> Scenario:
-        """A scenario YAML, with ``seed`` (presses, noise) replaced when given.  A scenario *family*
-        (a YAML with ``family:``, e.g. ``random``) draws a whole new rig from ``seed`` (default: its
-        first design seed), see :class:`RandomFamily`."""
+        """A scenario YAML, ``seed`` (presses, noise) replaced when given; a *family* (``family:``, e.g. ``random``)
+        draws a whole rig from ``seed`` (default: its first design seed, :class:`RandomFamily`)."""
         d = load_yaml(resolve_config(name_or_path, "scenarios"))
         if "family" in d:
             fam = RandomFamily.from_dict(d)

@@ -122,9 +122,8 @@ class Simulator:
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
     def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
-        """Untouched channel H_rs at mean temperature offsets ``dT`` (n,) and non-uniform parts
-        ``dT_grad`` (n, 2) along the link (K; Legendre coefficients of order 1 and 2, see
-        :func:`~sonicskin.sim.thermal.project_field`), shape (n, n_f)."""
+        """Untouched channel H_rs (n, n_f) at mean temperature offsets ``dT`` (n,) and the non-uniform parts ``dT_grad``
+        (n, 2) along the link (Legendre orders 1 and 2, :func:`~sonicskin.sim.thermal.project_field`)."""
         G, inv = self._untouched_rows(dT, dT_grad)
         return G[inv]
 
