@@ -187,10 +187,9 @@ class AudioSource(Protocol):
 
 
 def blocks(source: AudioSource, *, watchdog_s: float | None = 3.0, poll_s: float = 0.1) -> Iterator[Block | None]:
-    """Every block of a started source as it arrives, and ``None`` after each ``poll_s`` without one (the consumer's
-    moment to look at its clock); ends when a finite source has delivered everything.  Raises the exception that
-    ended the source's producer, and :class:`DeviceLost` (:attr:`~AudioSource.stall_text`) when no block arrives for
-    ``watchdog_s`` while the producer does not compute either (a slow render is not a stall; ``None``: no watchdog)."""
+    """Every block of a started source as it arrives, ``None`` after each ``poll_s`` without one; ends with a finite
+    source.  Raises the producer's exception, and :class:`DeviceLost` when nothing arrives for ``watchdog_s`` while
+    the producer does not compute either (a slow render is not a stall)."""
     t_alive, cpu_seen = time.perf_counter(), None
     while True:
         block = source.read(timeout=poll_s)
@@ -276,11 +275,8 @@ class _QueueSource:
 
 
 class SoundDeviceSource(_QueueSource):
-    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx`` (``links``: several pairs,
-    blocks of shape (n, links); ``rx_channels``: the inputs to deliver instead, the rig check records every input).
-    ``device``: name substring or index (``None``: the default); ``playback``: one period to play instead of the
-    rig's chirp (tests: a simulated received signal through a loopback).
-    """
+    """Duplex stream: the chirp train out on ``link.tx`` (or ``playback``), the receiver in on ``link.rx`` (``links``:
+    several pairs, blocks (n, links); ``rx_channels``: the inputs to deliver instead); ``device``: name or index."""
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
                  blocksize: int = 1024, playback: np.ndarray | None = None, rx_channels: list[int] | None = None):

@@ -105,10 +105,8 @@ ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.
 
 @contextlib.contextmanager
 def atomic_artifact(out: str | Path) -> Iterator[Path]:
-    """Write an artifact into a new sibling folder, then swap it in: an interrupted or failed run leaves ``out``
-    as it was (the old, loadable artifact, or nothing; :func:`sonicskin.dataset.swap_folders`).  ``out`` may be
-    absent, empty, or an artifact folder (``skin.json`` and ONNX files only); anything else in it is refused.
-    """
+    """Write an artifact into a new sibling folder, then swap it in (an interrupted run leaves ``out`` as it was);
+    ``out`` may be absent, empty or an artifact folder, anything else in it is refused."""
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
     if out.exists() or out.is_symlink():

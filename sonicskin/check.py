@@ -257,10 +257,8 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
             motors: float = 0.0, prompt=None, playback: np.ndarray | None = None, on_start=None, watchdog_s: float = 3.0,
             max_inputs: int = 8) -> Capture:
     """Play the chirp on ``tx`` and record every input of ``device`` (an interface, ``"sim"`` or a
-    :class:`SimulatedDevice`); ask for a press after ``rest_s`` (``prompt(msg)``; default: stderr on an interface).
-    ``playback`` replaces what is played and ``on_start()`` runs once the stream runs (tests: a JACK loopback).  A
-    rate the device refuses is a capture that says so.
-    """
+    :class:`SimulatedDevice`), asking for a press after ``rest_s``; a rate the device refuses is a capture that says so.
+    ``playback`` replaces what is played, ``on_start()`` runs once the stream runs (tests: a JACK loopback)."""
     check_windows(rig, rest_s, press_s)
     check_blocksize(blocksize, "--blocksize")
     if not (isinstance(device, SimulatedDevice) or simulated(device)) and fault != "none":

@@ -56,11 +56,9 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
 
 
 def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions, *, drift: dict | None = None) -> Predictions:
-    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it (Alg. 2 boots on
-    each stream's first ``beta`` chirps).  A stream with less rest than that has nothing to boot on: absolute inputs
-    are scored as they are, relative ones refused in one line.  ``drift``: a dict that receives what drift tracking
-    found per session (:meth:`sonicskin.drift.DriftTracker.report`).
-    """
+    """Every chirp of ``sessions`` (each a stream) through ``rt`` as the live loop runs it; a stream with too little
+    rest to boot Alg. 2 on is scored as it is (absolute inputs) or refused (relative).  ``drift``: receives what drift
+    tracking found per session."""
     parts = []
     beta = rt.spec.reference(rt.rig.chirps_per_s).beta
     for s in sessions:
@@ -115,10 +113,8 @@ def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
 
 
 def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
-    """Localization, continuous position, force and detection of replayed predictions ``p`` of the
-    chirps of ``t`` (same order).  The boot calibration's chirps (no prediction) count as missed
-    touches and are left out of everything else.  ``detection=False``: the model has no detector
-    (a table of touches only), or the data has no hands-off chirps: detection is not measurable."""
+    """Localization, continuous position, force and detection of replayed predictions ``p`` of the chirps of ``t``;
+    the boot's chirps count as missed touches, nothing else.  ``detection=False``: detection is not measurable."""
     touch = touch_mask(t, min_force_n)
     run = ~p.calibrating
     no_touch = (t["location"] < 0) & run
@@ -145,10 +141,8 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as a
-    stream as the live loop runs it (no test label reaches a model or its reference; a session of touches only is
-    scored on every chirp).  The result names the ``train``, ``val`` and ``test`` sessions; ``trained_on_test`` the
-    test sessions the artifact was trained or validated on.
+    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as the
+    live loop runs it; the result names the sessions and ``trained_on_test`` (test sessions it trained on).
     """
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError

@@ -158,10 +158,8 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
-    """The right to write the dataset folder ``root``, exclusive between processes: an ``fcntl.flock`` on the
-    folder itself (created if missing), held for the block; reentrant within a process.  A second writer of the
-    same folder is refused before it touches anything, so its clean-up never removes the first one's files.  Where
-    ``fcntl`` is missing, no lock.
+    """The right to write the dataset folder ``root``, exclusive between processes (``fcntl.flock`` on the folder,
+    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -285,10 +283,8 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
 
 
 class DatasetWriter:
-    """Create (or resume) the dataset folder ``root`` and append session parts to it.  ``rig`` and ``layout`` are
-    stored in ``dataset.json`` (resuming checks they match), ``source`` is free metadata; ``mode``: ``"create"``
-    (refused when the folder holds a dataset), ``"overwrite"`` or ``"resume"``.  Label rows are checked before they
-    are written; :meth:`finish_session` writes the session's manifest.
+    """Create (``mode``: ``"create"``, ``"overwrite"``, ``"resume"``) the dataset folder ``root`` with ``rig``,
+    ``layout`` and free ``source`` metadata, and append checked session parts to it.
     """
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,

@@ -180,10 +180,8 @@ TRAINED_STRETCH = 1.5e-3
 
 
 def drift_reference(data: TrainingData, log=None) -> dict | None:
-    """Drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`): the mean dB spectrum of the
-    training sessions' hands-off chirps at rest over the whole band, with the wall's material when the dataset names
-    it (its kappa gives the temperature equivalent).  ``None`` without rest (a table of touches only) or without a
-    mode pattern to track."""
+    """Drift tracking's training reference: the mean dB spectrum of the training sessions' hands-off chirps at rest
+    (with the wall's material when named); ``None`` without rest or without a mode pattern to track."""
     rest = data.quiet & data.split.mask(data.table, "train")
     if rest.sum() < 2:
         return None
@@ -200,10 +198,8 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
 
 def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None, log=print
                ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
-    """Fit the model kinds ``wanted`` (and those they require) on ``data``; with a validation session and ``refit``,
-    fit them again with their choices on the training and validation sessions together.  ``options``: keyword
-    arguments per kind's :meth:`~sonicskin.kinds.ModelKind.fit`.  Returns the data the deployed models were fitted on
-    and the fitted models, in fitting order."""
+    """Fit the model kinds ``wanted`` (and those they require) on ``data`` (``options``: per kind), then with a
+    validation session and ``refit`` again on both; returns the deployed models' data and the fitted models."""
     options = options or {}
     order = kinds.fit_order(wanted)
     fits: dict[str, kinds.Fitted] = {}
@@ -222,11 +218,8 @@ def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = Tr
 
 def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fitted], *, training: dict | None = None,
                    learning_curve: bool = False, drift: bool = True, log=print) -> dict:
-    """Export every fitted model (:meth:`~sonicskin.kinds.ModelKind.export`, each with its parity check) into ``out``
-    with a sealed ``skin.json`` (:func:`sonicskin.artifact.skin_json`); ``out`` is replaced as a whole at the end
-    (:func:`sonicskin.artifact.atomic_artifact`).  ``drift``: store drift tracking's training reference
-    (:func:`drift_reference`), so every stream maps its chirps back onto the training frequency axis.  Returns the
-    ``skin.json`` document."""
+    """Export every fitted model (each with its parity check) into ``out`` with a sealed ``skin.json`` (and, with
+    ``drift``, drift tracking's reference); ``out`` is replaced as a whole at the end.  Returns the document."""
     if not fits:
         raise ValueError("write_artifact needs at least one fitted model")
     out = Path(out)
@@ -290,11 +283,8 @@ def summary_lines(out: str | Path, skin: dict) -> list[str]:
 
 def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
                        min_force_n: float = 0.5, progress: bool = True, log=print, **alg2) -> dict:
-    """``fit-svm`` (and ``record``): an SVM-only artifact from a dataset, torch-free, trained on every session (or
-    ``train_sessions``) with no validation or test split.  ``n_bins=None`` chooses gamma (with C, kernel width, force
-    model) by validation on the training sessions' presses (:mod:`sonicskin.selection`), or keeps the paper's 300
-    with a warning when it cannot validate.  ``alg2``: ``alpha_s``/``beta_s`` of :func:`prepare`.  ``out`` is replaced
-    as a whole when everything is written."""
+    """``fit-svm`` (and ``record``): an SVM-only artifact, torch-free, trained on every session (or ``train_sessions``),
+    gamma chosen by validation on their presses unless ``n_bins`` (``alg2``: :func:`prepare`'s ``alpha_s``/``beta_s``)."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     d = prepare(ds, n_bins=n_bins, mode=mode, train_sessions=list(train_sessions or ds.sessions), val_sessions=[],
                 min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log, **alg2)

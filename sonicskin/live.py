@@ -227,10 +227,8 @@ class UdpSink:
 
 
 class LiveLoop:
-    """Consume a source, emit touch events: ``runtime`` (a :class:`sonicskin.runtime.SkinRuntime`) on ``source``
-    (an :class:`sonicskin.acquire.AudioSource`); ``emit`` gets each event's JSON line (default: stdout); ``status``:
-    a status line on stderr about once a second; ``on_chirp(t_s, predictions)`` for every processed chirp (``None``
-    during the boot calibration)."""
+    """Consume ``source``, run ``runtime`` on it, emit touch events (``emit``: each JSON line, default stdout;
+    ``status``: a status line on stderr; ``on_chirp(t_s, predictions)`` for every processed chirp)."""
 
     startup_dropped: int | None = None  # audio blocks dropped before the first chirp was framed
 

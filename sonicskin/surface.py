@@ -192,10 +192,8 @@ class LinkSurface:
     # -- constructors -----------------------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
-        """A surface from a short YAML mapping, keys checked strictly (``where`` prefixes the error line): a tube
-        ``{frame, kind: tube, radius_m, length_m, xyz, rpy, theta0_deg, axis_from}``, a plate ``{frame, kind: plate,
-        width_m, length_m, thickness_m, xyz, rpy, face}``, or a URDF link ``{urdf: PATH, frame: LINK}`` plus its
-        overrides (PATH relative to ``base_dir``).
+        """A surface from a short YAML mapping (keys: docs/robot-frame.md), checked strictly (``where`` prefixes the
+        error line); a URDF link ``{urdf: PATH, frame: LINK}`` is read relative to ``base_dir``.
         """
         if not isinstance(d, dict):
             raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "

@@ -63,10 +63,8 @@ def _finite(x) -> float | None:
 
 @dataclasses.dataclass(frozen=True)
 class LinkView:
-    """One link as the page draws it: ``name`` (the events' ``link``), its ``layout`` of markers, ``kind`` (``"tube"``:
-    ``x`` wraps at the circumference; ``"plate"``; ``None``: a tube when the layout has a circumference), the surface's
-    ``length_cm``/``width_cm`` (``None``: the markers' extent plus a spacing each side), the transducers ``tx_cm``,
-    ``rx_cm`` when given.
+    """One link as the page draws it: ``name``, ``layout``, ``kind`` (tube or plate; ``None``: a tube when the layout
+    has a circumference), the surface's ``length_cm``/``width_cm`` (``None``: around the markers), ``tx_cm``, ``rx_cm``.
     """
 
     name: str

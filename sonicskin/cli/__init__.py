@@ -27,10 +27,9 @@ __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
 
 
 class _CtrlCInCallbacks:
-    """Ctrl-C that lands inside a C library's Python callback (soundfile's cffi callbacks, which cannot unwind a
-    ``KeyboardInterrupt`` and print an "Exception ignored" traceback instead) is remembered (:attr:`swallowed`) and
-    delivered again a moment later (:func:`_thread.interrupt_main`); :func:`main` reports an error that follows it as
-    the interruption it is.
+    """Ctrl-C landing inside a C library's Python callback (soundfile's cffi ones cannot unwind it) is remembered
+    (:attr:`swallowed`) and delivered again a moment later; :func:`main` reports an error that follows it as the
+    interruption it is.
     """
 
     def __init__(self) -> None:

@@ -136,10 +136,8 @@ def _check_array_names(table: Path) -> None:
 
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
-    """Import the ``.npz`` ``table`` of magnitude spectra with labels into the dataset folder ``out``; returns the
-    dataset.  ``rig``: used instead of the one derived from the axis (its band inside the table); ``linear``: the
-    magnitudes are ``|H|``, not dB; ``mode``: ``"create"``, ``"overwrite"`` or ``"resume"``.
-    """
+    """Import the ``.npz`` ``table`` of magnitude spectra into the dataset folder ``out``: ``rig`` instead of the one
+    of the axis, ``linear`` magnitudes (not dB), ``mode`` create/overwrite/resume."""
     table, out = Path(table), Path(out)
     _check_array_names(table)
     # Only the arrays this importer uses are read, each checked from its header first.

@@ -28,10 +28,9 @@ def touch_logit(logits: np.ndarray) -> np.ndarray:
 
 
 class NetHead:
-    """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]`` (log-probabilities of the N
-    locations and, last, no touch).  Touch: the entry's ``detector`` (:data:`NET_DETECTORS`; absent: ``p(touch) >=
-    0.5``); location: the most likely marker, its probability given a touch the confidence; force: the force output
-    there.  Training chooses the detector by calling :meth:`touch`, so what it chooses is what runs.
+    """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]``: touch by the entry's
+    ``detector`` (:data:`NET_DETECTORS`; absent: ``p(touch) >= 0.5``), the most likely marker, the force there.
+    Training chooses the detector by calling :meth:`touch`, so what it chooses is what runs.
     """
 
     calibrated = False  # Alg. 2 gives it the stream's no-touch inputs, not score vectors

@@ -24,10 +24,8 @@ __all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decisio
 
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
-    """Per-class scores (n, K) from the ``K (K-1) / 2`` pairwise SVM decision values ``ovo`` (libsvm pair order; for
-    K = 2 also scikit-learn's 1-D values or skl2onnx's ``[d, -d]``): scikit-learn's ``decision_function_shape="ovr"``
-    transform (votes plus the summed confidences squashed into ``(-1/3, 1/3)``), outside the model so the ONNX graph
-    stays tiny (2 nodes for ovo vs ~2,400 for ovr).
+    """Per-class scores (n, K) from the pairwise SVM decision values ``ovo`` (libsvm pair order): scikit-learn's
+    ``decision_function_shape="ovr"`` transform, outside the model so the ONNX graph stays tiny.
     """
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:

@@ -76,10 +76,9 @@ def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
 
 def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
               log=print, jobs: int | None = None) -> dict:
-    """Run every experiment (or those in ``only``) once per simulator seed (default: 2 quick, 3 full) on ``rig``
-    (default: jaco) and report the mean and spread of each number.  ``jobs`` worker processes (default
-    :func:`default_jobs`) first simulate every dataset, then run the experiments (per seed and group sharing data);
-    each number is the same whatever ``jobs`` is."""
+    """Run every experiment (or those in ``only``) once per simulator seed on ``rig`` and report each number's mean and
+    spread; ``jobs`` worker processes simulate the datasets, then run the experiments (the numbers do not depend on
+    ``jobs``)."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
