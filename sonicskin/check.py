@@ -161,11 +161,9 @@ class CheckReport:
 
 # -- capture ----------------------------------------------------------------------------------------------------
 class SimulatedDevice:
-    """The simulated rig as the audio interface the check records from (``n_inputs`` inputs and as many outputs,
-    ``delay_ms`` of latency, ``motors`` 0..1 of motor activity), with a ``fault`` to inject: ``"disconnected"`` (the
-    receiver hears noise only), ``"clipping"`` (input gain 40 x), ``"weak"`` (the chirp 40 dB too weak),
-    ``"wrong-channel"`` (the receiver on input 1) or ``"rate"`` (44.1/48 kHz only).
-    """
+    """The simulated rig as the audio interface the check records from (``n_inputs``, ``delay_ms``, ``motors``),
+    with a ``fault`` to inject: ``disconnected``, ``clipping`` (gain 40 x), ``weak`` (40 dB), ``wrong-channel``
+    (the receiver on input 1) or ``rate`` (44.1/48 kHz only)."""
 
     RATES = (44_100.0, 48_000.0, 96_000.0, 192_000.0)
     GAIN = {"disconnected": 0.0, "clipping": 40.0, "weak": 1e-2}  # of the received chirp, per fault

@@ -395,10 +395,8 @@ def _npy_header(fh) -> tuple[tuple[int, ...], np.dtype]:
 
 def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, optional: tuple[str, ...] = (),
              max_bytes: int | None = None, what: str = "table") -> dict[str, np.ndarray]:
-    """Read only the arrays ``names`` (name -> (dtype kinds allowed, e.g. ``"fiu"``, and ndim or ``None``)) of an
-    ``.npz``, each checked from its header before it is loaded: its size must fit ``max_bytes`` (default: what
-    memory can hold), object arrays (pickles) are refused.  Raises :class:`DatasetError` naming the file and array.
-    """
+    """Read only the arrays ``names`` (name -> (dtype kinds, ndim or ``None``)) of an ``.npz``, each checked from
+    its header first (size within ``max_bytes`` and memory, no object arrays); a :class:`DatasetError` otherwise."""
     path = Path(path)
     out: dict[str, np.ndarray] = {}
     try:

@@ -128,10 +128,8 @@ def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = Non
 
 @dataclasses.dataclass(frozen=True)
 class DriftEstimate:
-    """One estimate of the channel's drift against the training reference: ``stretch`` (``s``, negative: a warmer
-    wall rings lower), ``correlation`` (peak normalised correlation of the mode patterns), ``gain_db`` and
-    ``tilt_db_per_khz`` (the level change left after undoing it), ``n_bins`` used, ``at_limit`` (the peak at the end
-    of the searched range), ``reliable`` (correlation above the minimum and not at the limit)."""
+    """One estimate of the channel's drift: ``stretch``, the peak ``correlation`` of the mode patterns, the
+    ``gain_db``/``tilt_db_per_khz`` left, ``n_bins`` used, ``at_limit`` (the peak at the search's end), ``reliable``."""
 
     stretch: float
     correlation: float

@@ -29,10 +29,8 @@ class FrameError(ValueError):
 
 def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
           phase_rad: float = 0.0) -> np.ndarray:
-    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64.
-
-    The instantaneous frequency sweeps ``f_lo_hz -> f_hi_hz``, i.e. ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper
-    writes ``Omega_1 + a T = Omega_2``: the same sweep with ``a`` defined on the frequency, not the phase).
+    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64,
+    sweeping ``f_lo_hz -> f_hi_hz``: ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper defines ``a`` on the frequency).
     """
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
@@ -64,10 +62,8 @@ def chirp_spectrum(rig: Rig) -> np.ndarray:
 
 
 def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
-    """Sample index in ``[0, L)`` where the first whole chirp of a periodic chirp train ``stream`` starts: up to
-    ``max_periods`` periods are circularly cross-correlated with ``reference`` (length L) and their matched-filter
-    envelopes averaged (robust to noise bursts in single periods); the peak is the offset.
-    """
+    """Sample index in ``[0, L)`` where the first whole chirp of a chirp train ``stream`` starts: the peak of the
+    matched-filter envelopes of up to ``max_periods`` periods, averaged (robust to noise bursts)."""
     L = reference.shape[-1]
     x = np.asarray(stream, dtype=np.float64)
     if x.ndim != 1:
@@ -89,10 +85,8 @@ def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods:
 
 
 def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | None = None) -> tuple[np.ndarray, int]:
-    """Cut a received chirp train ``stream`` (starting at an unknown point of the train) into whole, chirp-aligned
-    frames of the transmitted chirp ``reference``'s length: ``(frames (n_frames, L) float32, offset)``.  ``offset``,
-    the start of the first whole chirp, is found by cross-correlation unless given; partial chirps are dropped.
-    """
+    """Cut a received chirp train into whole, chirp-aligned frames: ``(frames (n_frames, L) float32, offset)``,
+    ``offset`` (the first whole chirp's start) found by cross-correlation unless given."""
     L = reference.shape[-1]
     if offset is None:
         offset = find_chirp_offset(stream, reference)

@@ -84,10 +84,8 @@ class TrainingData:
         return quiet_mask(self.table)
 
     def folds(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
-        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``.  With a validation session: fitted on
-        the training sessions and scored on the validation session, and the other way round (the mean of both halves
-        the ties at 100 % of one session).  Without one: the training sessions' last pass over the markers held out.
-        ``[]`` when nothing can validate (one press per marker, no validation session)."""
+        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``: the training and validation sessions,
+        each way round; without a validation session the last pass held out; ``[]`` when nothing can validate."""
         train, val = self.rows("train"), self.rows("val")
         if val.any():
             return ([(train, val), (val, train)], f"validation on {', '.join(self.split.val)} (and fitted there, scored "

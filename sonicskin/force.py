@@ -186,9 +186,8 @@ class PerLocationForce:
 
 
 class PooledForce:
-    """One linear model for every location: ``F = inputs . coef + loc_coef[location] + intercept``, fitted as
-    ``StandardScaler -> Ridge(alpha)`` over the model inputs and the location one-hot, folded into plain coefficients
-    (JSON in ``skin.json``).  It shares what one press teaches across locations.
+    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge over the
+    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches.
     """
 
     NAME = "pooled-ridge"

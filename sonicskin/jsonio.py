@@ -15,9 +15,8 @@ OMIT = object()
 
 
 def json_safe(obj: Any, *, keep_nonfinite: bool = False, convert: Callable[[Any], Any] | None = None) -> Any:
-    """``obj`` as plain, strict JSON data: string keys, lists for tuples and arrays, Python numbers for numpy
-    scalars, ``None`` for NaN or infinity (``keep_nonfinite``: kept as floats).  ``convert`` is called on every value
-    first; a different result is converted in its place, :data:`OMIT` leaves the value out.
+    """``obj`` as plain, strict JSON data (NaN and infinity as ``None`` unless ``keep_nonfinite``); ``convert`` is
+    called on every value first, its different result converted instead, :data:`OMIT` left out.
     """
     if convert is not None:
         new = convert(obj)

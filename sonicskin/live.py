@@ -109,10 +109,8 @@ def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
 
 
 class Framer:
-    """Chirp-synchronous framing of a block stream that re-locks after lost audio: on the transmitted chirp
-    ``reference``, the lock checked every ``check_every`` frames, re-locked when the correlation peak wanders more
-    than ``tolerance`` samples (a firm touch on a moving robot moves it by up to ~80; a small slip is a circular
-    shift, which leaves |H| unchanged)."""
+    """Chirp-synchronous framing on the chirp ``reference``, re-locked after lost audio and when the correlation peak
+    (checked every ``check_every`` frames) wanders more than ``tolerance`` samples (a firm touch moves it ~80)."""
 
     def __init__(self, reference: np.ndarray, *, check_every: int = 16, tolerance: int = 256):
         self.ref = np.asarray(reference, np.float64)
@@ -396,10 +394,8 @@ class LiveLoop:
         return fault
 
     def _no_chirp(self, X: np.ndarray) -> bool:
-        """The chirp must stay in the input for the whole run (a transmitter that stops would give touch events from
-        noise).  After the boot, a frame whose :func:`chirp_coherence` with the last usable frame (``X``: its
-        :func:`band_spectrum`) is below :data:`MIN_COHERENCE` is skipped (True), and a :data:`CHIRP_CHECK_S` window
-        in which more than half are stops the run (:class:`InputUnusable`)."""
+        """After the boot a frame that does not repeat the last usable one (:func:`chirp_coherence` below
+        :data:`MIN_COHERENCE`) is skipped (True); most of a :data:`CHIRP_CHECK_S` window so: :class:`InputUnusable`."""
         prev, self._prev_spectrum = self._prev_spectrum, X
         if prev is None:
             return False

@@ -28,9 +28,8 @@ __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FO
 
 
 class SkinRuntime:
-    """Load ``folder`` and serve its ``model`` (a kind, :mod:`sonicskin.kinds`).  ``rig`` (a Rig, name or YAML;
-    default the artifact's) and ``layout`` (e.g. a scenario's ``make_layout()``; ``None``: not checked) must be the
-    artifact's, else :class:`ArtifactError`.  ``threads``: onnxruntime intra-op threads.
+    """Load ``folder`` and serve its ``model``; ``rig`` and ``layout`` (``None``: not checked) must be the artifact's,
+    else :class:`ArtifactError`; ``threads``: onnxruntime intra-op threads.
     """
 
     def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,

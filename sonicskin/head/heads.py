@@ -109,10 +109,8 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 
 class ScoreHead:
-    """The decisions of a closed-form model from its per-location scores ``S`` (the SVM's, the LDA's).  Location:
-    the argmax of the raw ``S`` (subtracting ``S_c`` scrambles it); touch: the detector (:data:`DETECTORS`) on
-    ``V - S_c``, ``V = [S, inputs]``; force: the artifact's force model at that location.  A subclass says how its
-    outputs give ``S`` (:meth:`location_scores`), its confidence and its position weights.
+    """The decisions of a closed-form model from its per-location scores ``S``: the argmax of the raw ``S``, the
+    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights.
     """
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)

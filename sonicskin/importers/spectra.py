@@ -26,9 +26,8 @@ MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table 
 
 def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
                   log=print) -> Rig:
-    """The rig whose FFT bins are a table's frequency axis (bin spacing ``fs / frame``): given ``fs_hz`` or
-    ``frame``, else the lowest standard audio rate above twice the top frequency for which ``fs / spacing`` is whole.
-    Each column goes to its nearest bin (an axis up to half a bin off the grid); the band is the table's columns.
+    """The rig whose FFT bins are a table's frequency axis (spacing ``fs / frame``; without ``fs_hz``/``frame``
+    the lowest standard rate that fits), each column at its nearest bin; its band is the table's columns.
     """
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size < 2:

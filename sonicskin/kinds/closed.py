@@ -20,10 +20,9 @@ SCORE_KEYS = frozenset({"reference_scores", "threshold", "detector", "detector_b
 def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.ndarray, *, n_locations: int,
                 location_ids, force_model: str = "fourier1", force_alpha: float = 10.0, force_cols: int | None = None,
                 detector: str = "input-rms") -> dict:
-    """The ``skin.json`` fields of a closed-form head from its per-location scores ``S`` (n, K) on the training chirps
-    ``X`` (``cls == n_locations``: no touch): Alg. 2's reference scores (the mean ``[S, X]`` of the ``quiet`` chirps),
-    the ``detector``'s threshold (Youden's J) and the force model (per-location curves, or ``"pooled-ridge"`` over the
-    first ``force_cols`` inputs).  Without rest: no reference, no detector (``detection: false``)."""
+    """The ``skin.json`` fields of a closed-form head from its scores ``S`` (n, K) on the training chirps ``X``:
+    Alg. 2's reference scores, the ``detector``'s threshold (Youden's J) and the force model (``force_cols`` inputs);
+    without rest, no reference and no detector (``detection: false``)."""
     touch = cls < n_locations
     V = np.column_stack([S, np.asarray(X, np.float64)])
     rest = quiet.sum() >= 2 and (~touch).any()

@@ -108,9 +108,8 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
 
 
 class NoiseDraws:
-    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front in its fixed order, turned into
-    spectra a few rows at a time (:meth:`fill`, cache-friendly).  ``buffers``: float32 arrays reused for the two big
-    Gaussian draws; ``work``: a dict for :meth:`fill`'s scratch arrays (the simulator passes the same every batch).
+    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra a few rows at
+    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches.
     """
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,

@@ -298,10 +298,8 @@ _WB_DTYPE = np.complex64
 
 
 def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
-    """Change of H by a distributed contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s``, (R, O, n_f):
-    ``Gp`` the projected patch rows per contact radius (:meth:`ChannelModel.patch_weights`), ``K`` the dynamic
-    stiffness per sub-contact for O real-contact shares.  Every P x P system is solved at once by Gaussian
-    elimination over whole arrays (complex symmetric with a dominant identity: no pivoting, complex128).
+    """Change of H by a contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s`` (R, O, n_f), every P x P
+    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128).
     """
     R, _, F = Gp.shape
     n_o = K.shape[1]
