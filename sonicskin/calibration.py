@@ -147,9 +147,8 @@ class OnlineReference:
         self.boot_disturbed = self._early = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
-        """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection (``None`` during the boot),
-        *after* the model has seen it under the current reference.  True when this chirp completed a new reference, in
-        effect from the next chirp on."""
+        """Feed one chirp's features ``x`` at stream time ``t_s`` with its touch detection (``None`` in the boot), after the
+        model saw it; True when it completed a new reference (in effect from the next chirp)."""
         t_s = self._time(t_s)
         if self._gap(t_s) and self.features is not None:
             self._reboot()
@@ -201,9 +200,8 @@ class OnlineReference:
         return False
 
     def _at_rest(self, block: np.ndarray) -> np.ndarray:
-        """Which chirps of a re-boot window are at rest: within ``REST_SPREADS`` first-boot spreads of the closest
-        one's distance to the reference before the pause (a hand moves its chirps by a touch on top of what the pause
-        changed for every chirp).  All of the first boot's."""
+        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's
+        distance to the old reference (a hand moves its chirps further); all of the first boot's."""
         if self.features is None or self._spread is None or not len(block):
             return np.ones(len(block), bool)
         e = np.median(np.abs(block - self.features), axis=1)

@@ -219,9 +219,8 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def swap_folders(new: Path, old: Path) -> None:
-    """Put the folder ``new`` in place of ``old`` (removed): one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
-    so ``old``'s path is never empty, else two renames (a crash between them keeps the old folder as
-    ``.<name>.old-<pid>`` beside it)."""
+    """Put the folder ``new`` in place of ``old``: one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it, else two
+    renames (a crash between them keeps the old folder as ``.<name>.old-<pid>`` beside it)."""
     if not old.exists():
         os.rename(new, old)
     elif _exchange(new, old):  # new now holds the old folder

@@ -91,9 +91,8 @@ def _check_freqs(freqs_hz) -> tuple[float, float, int]:
 
 
 def warp_index(freqs_hz, stretch: float, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Gather indices ``i0`` and weights ``w`` of the warp back onto the training axis, ``X_back(f) = X(f (1 + s))``:
-    ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w``, each bin within its segment of ``allowed``; ``stretch = 0``
-    is the identity exactly."""
+    """Gather indices ``i0`` and weights ``w`` of the warp ``X_back(f) = X(f (1 + s))``, each bin within its segment
+    of ``allowed``: ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w`` (``stretch = 0``: exactly the identity)."""
     f0, df, n = _check_freqs(freqs_hz)
     s = float(stretch)
     if not math.isfinite(s) or abs(s) >= 0.5:

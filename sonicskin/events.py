@@ -142,9 +142,8 @@ def _type_ok(value, types) -> bool:
 
 
 def validate_event(d: Any) -> None:
-    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema, no third-party validator),
-    plus: ``normal`` is a unit vector, ``point_m``/``normal`` come with ``frame_id``; undeclared fields are accepted.
-    Raises :class:`EventError` naming the first problem."""
+    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema), a unit ``normal``, and
+    ``point_m``/``normal`` with ``frame_id``; an :class:`EventError` names the first problem."""
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]

@@ -249,9 +249,8 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
 
 def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None,
                  training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
-    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`).  The network (``"net"`` among
-    ``wanted``) needs torch; ``options[net]`` may pass ``model=`` a trained module (a Lightning checkpoint's), whose
-    touch decision and force are then chosen on the validation presses before the refit."""
+    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`); ``options[net]`` may pass a trained
+    module as ``model=`` (a checkpoint's), whose touch decision and force are chosen before the refit."""
     final, fits = fit_models(data, wanted, refit=refit, options=options, log=log)
     return write_artifact(final, out, fits, training=training, learning_curve=learning_curve, log=log)
 

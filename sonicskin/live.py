@@ -70,8 +70,7 @@ def _allowed_bins(rig) -> np.ndarray:
 
 def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
     """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation of
-    their band spectra (:func:`band_spectrum`) over every lag (blind to where the frames were cut, as the magnitude
-    features are).  A chirp train through a link repeats; noise does not (about ``sqrt(ln(n_chirp) / bins)``)."""
+    their band spectra over every lag (noise gives about ``sqrt(ln(n_chirp) / bins)``)."""
     L = rig.n_chirp
     Y = np.zeros(L, np.complex64)
     Y[_allowed_bins(rig)] = X * np.conj(X_prev)
@@ -165,9 +164,8 @@ class Framer:
 
 
 class UdpSink:
-    """Send event JSON as UDP datagrams; localhost unless told otherwise.  The host is resolved once, here: an
-    unknown name, the broadcast or unspecified address, or an unrouted network is one :class:`SonicskinError` before
-    the run starts.  A datagram that cannot be sent later is counted in :attr:`errors`, reported once on stderr."""
+    """Send event JSON as UDP datagrams (localhost by default), the host resolved and checked once, here; a datagram
+    that cannot be sent later is counted in :attr:`errors` and reported once."""
 
     def __init__(self, target: str):
         host, _, port = target.rpartition(":")

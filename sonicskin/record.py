@@ -100,9 +100,8 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated device's sensors: the person's force plus 0.02 N of sensor noise, and where the finger really
-    is (what a real rig does not know), for the ``timeline`` of the simulated person (:func:`person_timeline`) whose
-    chirp 0 starts at stream sample ``chirp0_sample`` (negative: the stream starts inside it)."""
+    """The simulated device's sensors: the person's force plus 0.02 N of noise and where the finger really is, for the
+    simulated person's ``timeline`` whose chirp 0 starts at stream sample ``chirp0_sample``."""
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
@@ -245,9 +244,8 @@ class Recorder:
 
 @contextlib.contextmanager
 def _sigint_deferred():
-    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`: cffi swallows an
-    exception raised in libsndfile's callbacks, so a Ctrl-C while a part is written would be lost and the part cut
-    short.  Outside the main thread this does nothing."""
+    """Hold Ctrl-C until the block is done, then raise :class:`KeyboardInterrupt` (cffi would swallow it inside
+    libsndfile's callbacks, cutting a part short); outside the main thread, nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -151,9 +151,8 @@ class PooledRidge(RegressorMixin, BaseEstimator):
 # -- cross-validation ----------------------------------------------------------------------------------
 def make_cv(passes: np.ndarray, val: np.ndarray | None = None, location: np.ndarray | None = None
             ) -> tuple[PredefinedSplit | None, str]:
-    """The splitter and a description (or ``None`` and why not).  ``passes``: pass per row (>= 0), ``val``: rows
-    of the validation session(s), scored but never trained on; ``location``: label per row (the folds are as many
-    as the fewest passes any location has, so every location is trained in every fold)."""
+    """The splitter and its description (or ``None`` and why not): folds over ``passes`` (as many as the fewest any
+    ``location`` has), ``val`` rows scored but never trained on."""
     if val is not None and np.any(val):
         if np.all(val):
             return None, "every chirp is in the validation session"
@@ -214,9 +213,8 @@ def _plain(v):
 def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np.ndarray, *, val: np.ndarray | None = None,
                      moving_var: np.ndarray | None = None, gammas: list[int] | None = None, max_chirps: int = 600,
                      val_name: str = "", n_bins_fallback: int | None = None, log=None) -> dict:
-    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps ``X`` (inputs over every usable bin,
-    best-first order irrelevant), labels ``y``, press ids and passes (training rows), ``val`` rows of the
-    validation session.  Returns the choice as JSON data (``status`` "validated" or "fallback")."""
+    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps ``X`` (every usable bin), labels ``y``,
+    press ids and passes, and ``val`` rows; the choice as JSON data (``status`` "validated" or "fallback")."""
     X, y, press, passes = np.asarray(X), np.asarray(y), np.asarray(press), np.asarray(passes)
     n_feat = X.shape[1]
     gammas = list(dict.fromkeys(min(int(g), n_feat) for g in (gammas or gamma_grid(n_feat))))
@@ -342,9 +340,8 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
 
 # -- detection -------------------------------------------------------------------------------------------
 def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str) -> dict:
-    """Detection threshold on a statistic, by Youden's J on validation chirps: of the thresholds with the largest
-    ``TPR - FPR`` the lowest (fewest missed touches), placed halfway between the two data values around it, so a
-    validation session that separates perfectly gives the middle of the gap, not its edge at the weakest touch."""
+    """Detection threshold by Youden's J on validation chirps: the lowest of the best, halfway between the two data
+    values around it (a perfect separation gives the middle of the gap)."""
     st, sq = np.asarray(stat_touch, float).ravel(), np.asarray(stat_quiet, float).ravel()
     if st.size == 0 or sq.size == 0:
         raise ValueError("need both touch and no-touch chirps to choose a detection threshold")

@@ -93,9 +93,8 @@ class Run:
 
     def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
               on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
-        """One :class:`~sonicskin.live.LiveLoop` per link, the ones :meth:`run` runs (``emit``, ``status``, ``on_event``
-        as LiveLoop's; every event also goes to the MCAP file), and with ``view`` (``True`` or a port) the live page,
-        :attr:`view` (its ``url``)."""
+        """One :class:`~sonicskin.live.LiveLoop` per link (``emit``, ``status``, ``on_event`` as LiveLoop's; every event
+        also to the MCAP file), and with ``view`` (``True`` or a port) the live page :attr:`view`."""
         def event(ev) -> None:
             if self.mcap is not None:
                 self.mcap.write(ev)
@@ -114,9 +113,8 @@ class Run:
         return self.live
 
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
-        """Run the loops until ``duration_s``, ``stop`` (a :class:`threading.Event`) is set, Ctrl-C, or a finite source
-        ends (:func:`sonicskin.live.run_loops`, whose errors it raises); returns :meth:`summary`.  However the run ends,
-        the MCAP file is complete and the live page stopped."""
+        """Run the loops until ``duration_s``, ``stop``, Ctrl-C or a finite source's end (:func:`sonicskin.live.run_loops`);
+        returns :meth:`summary`, the MCAP file complete and the live page stopped however it ends."""
         try:
             if self.mcap is not None:
                 self.mcap.t0_unix_s = time.time()  # t_s = 0: the stream starts now

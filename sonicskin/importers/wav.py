@@ -72,9 +72,8 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
 
 
 def _repeats(x: np.ndarray) -> int | None:
-    """How many times a shorter period repeats within the periods ``x`` (n,) or (rows, n): the most repeats k in
-    16..2 whose lag ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does.
-    The most repeats first: a WAV of 4 periods also repeats every 2."""
+    """How many times a shorter period repeats within the periods ``x``: the most repeats k in 16..2 whose lag
+    ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does."""
     x = np.atleast_2d(np.asarray(x, np.float64))
     n = x.shape[1]
     r = scipy.fft.irfft(np.abs(scipy.fft.rfft(x, axis=1)) ** 2, n=n, axis=1)

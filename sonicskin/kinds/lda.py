@@ -40,9 +40,8 @@ DEFAULTS = {"relative": (1000, "unit"), "absolute": (None, "unit")}
 
 
 def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
-    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d), computed from the n x n Gram
-    matrix: the value of :func:`sklearn.covariance.ledoit_wolf_shrinkage` (``assume_centered=True``) in
-    O(n^2 d) instead of O(n d^2)."""
+    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d) from the n x n Gram matrix:
+    :func:`sklearn.covariance.ledoit_wolf_shrinkage`'s value in O(n^2 d) instead of O(n d^2)."""
     n, d = Z.shape
     if d == 1 or n == 0:
         return 0.0

@@ -68,9 +68,8 @@ def pairwise(ovo: np.ndarray, n_locations: int) -> np.ndarray:
 
 
 def ovo_decision(pipe, X: np.ndarray, block: int = 2048) -> np.ndarray:
-    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(decision_function_shape="ovo")``, with the
-    kernel matrix from one BLAS product per block of chirps (libsvm's own loop is 10-20x slower on thousands of
-    bins).  Equal to scikit-learn's up to float64 rounding (``tests/test_reproduce.py`` checks it)."""
+    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(ovo)``, the kernel matrix one BLAS product per
+    block (libsvm's loop is 10-20x slower on thousands of bins); scikit-learn's up to float64 rounding."""
     svc = pipe[-1]
     Z = np.asarray(pipe[:-1].transform(X), np.float64)
     S = np.asarray(svc.support_vectors_, np.float64)
@@ -120,9 +119,8 @@ def fit_pipeline(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float =
 
 
 def export_pipeline(pipe, path, X_check: np.ndarray) -> dict:
-    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check``: the location the runtime reads
-    (argmax of the per-location scores), the scores and the pairwise decision values within
-    :data:`~sonicskin.parity.PARITY_TOL` of their scale; :class:`~sonicskin.parity.ParityError` (one line) otherwise."""
+    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check`` (location, scores, pairwise
+    decision values within :data:`~sonicskin.parity.PARITY_TOL`); :class:`~sonicskin.parity.ParityError` otherwise."""
     import sklearn
     from skl2onnx import to_onnx
 
