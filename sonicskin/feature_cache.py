@@ -65,8 +65,7 @@ def _content_digest(t: FeatureTable) -> str:
 
 def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
     """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``: its
-    label rows against the label CSVs (the last one or two may be missing: a recording that stops inside its last
-    chirp), and its content against the digest stored with it (the key binds the recordings' bytes, not the cache's)."""
+    label rows against the CSVs (the last one or two may be missing), its content against its stored digest."""
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""
@@ -91,10 +90,8 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``, keyed by content (:func:`_signature`):
-    editing a label or replacing a part rebuilds it; a damaged or inconsistent cache is rebuilt, never trusted; one
-    whose content was edited is rebuilt with a warning (:func:`_cache_differs`).
-    """
+    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content (:func:`_signature`); a damaged or
+    inconsistent cache is rebuilt, an edited one rebuilt with a warning."""
     key = _signature(ds)
     cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
     if cache.is_file():

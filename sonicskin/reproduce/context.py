@@ -152,9 +152,8 @@ class Context:
 
     def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = FeatureSpec.alpha_s, keep: np.ndarray | None = None,
              notches: bool = True, n_svm: int | None = None):
-        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``; ``keep``: only these
-        training chirps train; ``notches=False``: the rig without its PWM notches (the no-matched-filter ablation);
-        ``n_svm``: the SVM reads the first ``n_svm`` of ``bins``."""
+        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows on ``bins`` (``keep``: only these
+        chirps train; ``notches=False``: no PWM notches; ``n_svm``: the SVM reads the first ``n_svm``)."""
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
         key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)

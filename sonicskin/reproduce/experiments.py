@@ -84,9 +84,8 @@ def _per_session(ctx: Context, k: str, d, train: np.ndarray, sessions: list[str]
 
 
 def _drift_run(ctx: Context, name: str, axis: str, unit_s: float, rows):
-    """A drift dataset trained on its first session: the dataset, its later sessions, the training mask, OSPA's bins and
-    a dict of each later session's mean time (``axis``, in units of ``unit_s`` seconds) and temperature over its
-    ``rows(table)``."""
+    """A drift dataset trained on its first session: the dataset, its later sessions, the training mask, OSPA's bins
+    and each later session's mean time (``axis``, ``unit_s`` seconds) and temperature over its ``rows(table)``."""
     ds, t, train, _, bins = first_session_split(ctx, name)
     later = sorted(set(t["session"]))[1:]
     res: dict = {axis: [], "temperature_c": []}

@@ -18,10 +18,8 @@ __all__ = ["Subject", "make_subjects", "press_profile"]
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One simulated person's finger: at 1 N its contact radius (growing as ``(F / 1 N) ** radius_exp``), tissue
-    damping (N s/m, growing as ``F ** damping_exp``), moving tissue mass and contact stiffness; ``aim_bias_m`` and
-    ``aim_jitter_m``, where this person presses relative to a marker; ``max_force_n``, their typical peak force;
-    ``occlusion_tau_s``, ``occlusion_r0``, the real contact's growth while a press is held."""
+    """One simulated person's finger: at 1 N its contact radius, tissue damping, mass and stiffness (growing as
+    ``F ** radius_exp``, ``F ** damping_exp``), the aim, the peak force and the real contact's growth while held."""
 
     name: str
     radius_1n_m: float

@@ -18,9 +18,8 @@ __all__ = ["simulate_dataset"]
 
 def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str = "create",
                      progress: bool = True, log=print) -> dict:
-    """Render every session of ``scenario`` into the dataset folder ``out``: one continuous stream each, starting at a
-    random point of the chirp train, in parts of ``scenario.part_s`` seconds (``mode="resume"``: finished sessions
-    kept).  Returns timing figures."""
+    """Render every session of ``scenario`` into the dataset ``out``, one stream each (starting at a random point of the
+    chirp train, parts of ``part_s`` seconds; ``mode="resume"`` keeps finished ones); returns timing figures."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()

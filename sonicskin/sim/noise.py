@@ -54,10 +54,8 @@ def white_spectrum(rng: np.random.Generator, n: int, n_fft: int, rms: float) -> 
 
 def tone_spectrum(freq_hz: np.ndarray, amp: np.ndarray, phase: np.ndarray, *, n_fft: int, fs_hz: float,
                   half_width_bins: int = 128) -> np.ndarray:
-    """rfft (n, n_fft // 2 + 1) complex64 of sinusoids ``amp cos(2 pi f t + phase)`` ((n, T) tones per frame) over
-    one rectangular frame: the Dirichlet kernel, near the tone ``1 / (pi d) + i / N`` (``d = k - nu``, to relative
-    order ``(pi d / N)^2``), evaluated ``half_width_bins`` either side (it has fallen by > 50 dB there).
-    """
+    """rfft (n, n_fft // 2 + 1) complex64 of tones ``amp cos(2 pi f t + phase)`` (n, T) over one rectangular frame:
+    the Dirichlet kernel (near the tone ``1 / (pi d) + i / N``), ``half_width_bins`` either side (> 50 dB down)."""
     freq_hz, amp, phase = (np.atleast_2d(a).astype(np.float64) for a in (freq_hz, amp, phase))
     n, T = freq_hz.shape
     nb = n_fft // 2 + 1

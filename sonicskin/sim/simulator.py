@@ -238,9 +238,8 @@ class Simulator:
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), into ``out`` when
-        given.  An int32 ``out`` receives them as a 24-bit file holds them, left-aligned in 32 bits (libsndfile's own
-        float -> PCM_24 conversion), which :func:`~sonicskin.sim.generate.simulate_dataset` writes to FLAC directly."""
+        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session), into ``out`` when given; an int32
+        ``out`` gets them as a 24-bit file holds them (libsndfile's float -> PCM_24), which generate writes as is."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig

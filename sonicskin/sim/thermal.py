@@ -19,9 +19,8 @@ __all__ = ["HotMeltBond", "warmup_field", "project_field"]
 
 @dataclasses.dataclass(frozen=True)
 class HotMeltBond:
-    """A piezo disc on a hot-melt (EVA) bond layer: a mounted resonance ``fr_hz`` with loss tangent ``tan_delta``
-    at ``t_ref_c`` (0.67: Q = 1.5, a broad 20-30 kHz optimum, paper Sec. III-B), softening as ``d log10 E' / dT =
-    log10_modulus_per_k`` while ``d ln(tan delta) / dT = ln_tan_delta_per_k``."""
+    """A piezo disc on a hot-melt (EVA) bond: a mounted resonance ``fr_hz`` with loss tangent ``tan_delta`` at
+    ``t_ref_c`` (0.67: Q = 1.5, paper Sec. III-B), moving with ``log10_modulus_per_k`` and ``ln_tan_delta_per_k``."""
 
     fr_hz: float = 28e3
     tan_delta: float = 0.67
@@ -60,9 +59,8 @@ def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s:
 
 
 def project_field(field: np.ndarray, y_frac: np.ndarray, order: int = 2) -> np.ndarray:
-    """Legendre coefficients (n, order + 1) of a field (n, m) sampled on ``y_frac`` (m,) in [0, 1]:
-    ``field ~ sum_k c_k P_k(1 - 2 y)``; ``c_0`` is the mean, ``c_1`` the linear part (+: motor end
-    warmer), ``c_2`` ends vs middle."""
+    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac`` in [0, 1]: ``c_0`` the mean, ``c_1`` the
+    linear part (+: motor end warmer), ``c_2`` ends vs middle."""
     x = 1 - 2 * np.asarray(y_frac, float)
     V = np.polynomial.legendre.legvander(x, order)  # (m, order + 1)
     coef, *_ = np.linalg.lstsq(V, np.asarray(field, float).T, rcond=None)
