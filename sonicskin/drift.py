@@ -242,10 +242,8 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
                      max_search: float = DEFAULT_MAX_SEARCH, smooth_hz: float = DEFAULT_SMOOTH_HZ,
                      min_correlation: float = DEFAULT_MIN_CORRELATION,
                      grid_step: float = DEFAULT_GRID_STEP) -> DriftEstimate:
-    """Stretch (and gain, tilt) of hands-off band spectra (dB, (n_band,) or (m, n_band), averaged) against the
-    training rest spectrum ``reference_db``, on the band bins ``freqs_hz`` (``rig.freqs_hz[rig.band_bins]``) where
-    ``allowed`` (the rig's ``allowed_mask``; ``None``: every bin).  Searched up to ``max_search`` on a grid of
-    ``grid_step``, then refined; below ``min_correlation`` the estimate is not ``reliable``."""
+    """Stretch (and gain, tilt) of hands-off band spectra (dB, averaged) against ``reference_db`` on the band bins
+    ``freqs_hz`` where ``allowed``: searched up to ``max_search`` on a ``grid_step`` grid, then refined."""
     pat = _Pattern(freqs_hz, allowed, smooth_hz, max_search)
     cur = _mean_spectrum(spectrum_db, pat.n, "spectrum_db")
     ref = _mean_spectrum(reference_db, pat.n, "reference_db")

@@ -186,8 +186,8 @@ def parse_event(line: str | bytes) -> TouchEvent:
 
 
 def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[str, Any]:
-    """The version-2 fields (as tuples) of a contact at layout ``(x_cm, y_cm)`` with force ``force_n`` on
-    ``surface``: only ``frame_id`` where the position is not finite, ``force_vec_n`` None where the force is not."""
+    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface`` (only ``frame_id``
+    where the position is not finite, ``force_vec_n`` None where the force is not)."""
     out: dict[str, Any] = {"frame_id": surface.frame_id}
     if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
         return out

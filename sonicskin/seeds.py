@@ -122,8 +122,8 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
 
 
 def _split(t, test_subjects=None, val: bool = False) -> Split:
-    """One-shot: the first session trains, every later one tests (``test_subjects``: those people's sessions test);
-    ``val``: the next session validates, then the models are refitted on both."""
+    """One-shot: the first session trains, the later ones test (``test_subjects``: those people's); ``val``: the next
+    session validates, then a refit on both."""
     if test_subjects:
         sp = Split.make(t, test_subjects=test_subjects)
         return sp if val else Split(sp.train + sp.val, (), sp.test)

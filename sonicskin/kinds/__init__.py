@@ -20,8 +20,8 @@ __all__ = ["ModelKind", "Fitted", "KINDS", "BASELINE", "NETWORK", "CLOSED_FORM",
 
 @dataclasses.dataclass
 class Fitted:
-    """One fitted model: the estimator :meth:`ModelKind.export` writes, its ``skin.json`` entry fields, the first
-    ``n_in`` inputs it reads, what it chose (``skin.json``'s ``selection``) and its fit time."""
+    """One fitted model: its estimator, ``skin.json`` entry fields, the first ``n_in`` inputs it reads, what it chose
+    (``selection``) and its fit time."""
 
     model: Any
     entry: dict

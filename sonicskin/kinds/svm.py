@@ -44,8 +44,7 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _pair_matrices(n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For libsvm's pair order: ``P`` (+1 for a pair's first class, -1 for its second) and the one-hot first (``Vi``)
-    and second (``Vj``) class of each pair, built once per class count."""
+    """libsvm's pair order as matrices: ``P`` (+1 a pair's first class, -1 its second), one-hot ``Vi``, ``Vj``."""
     i, j = np.triu_indices(n_classes, k=1)
     rows = np.arange(i.size)
     P = np.zeros((i.size, n_classes))

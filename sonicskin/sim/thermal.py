@@ -48,9 +48,8 @@ class HotMeltBond:
 
 def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s: float, gradient: float = 0.0,
                  lag: float = 0.0) -> np.ndarray:
-    """Warm-up temperature rise (K), (n, m), at times ``t_s`` (n,) and positions ``y_frac`` (m,) from the motor end
-    (0) to the far end (1): a final rise ``warmup_c (1 + gradient (0.5 - y))`` with time constant ``tau_s (1 + lag
-    (y - 0.5))``, so the middle follows ``warmup_c (1 - exp(-t / tau_s))`` whatever ``gradient`` and ``lag`` are."""
+    """Warm-up temperature rise (K), (n, m), at times ``t_s`` and positions ``y_frac`` from the motor end (0): a final
+    rise ``warmup_c (1 + gradient (0.5 - y))`` with time constant ``tau_s (1 + lag (y - 0.5))``."""
     t = np.asarray(t_s, float)[:, None]
     y = np.asarray(y_frac, float)[None, :]
     amp = warmup_c * (1 + gradient * (0.5 - y))
