@@ -354,9 +354,8 @@ def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
 
 
 def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
-    """Check a parsed ``skin.json`` against the schema (without touching any file) and return it; an
-    :class:`ArtifactError` names the first field that does not fit.  ``sealed=False`` (the writer, before the model
-    files are stamped): no checksums, probes or digest yet."""
+    """Check a parsed ``skin.json`` against the schema and return it (an :class:`ArtifactError` names the first field
+    that does not fit); ``sealed=False``, the writer's: no checksums, probes or digest yet."""
     doc = _Doc(source)
     if not isinstance(meta, dict):
         doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")

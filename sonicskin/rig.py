@@ -73,9 +73,8 @@ MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a conf
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping of plain values; one-line :class:`ConfigError` naming the file for a file over
-    :data:`MAX_YAML_BYTES`, text that is not UTF-8, a syntax error (with the line), an object-building tag, a key
-    given twice, or a top level that is not a mapping."""
+    """Read a YAML mapping of plain values; a one-line :class:`ConfigError` naming the file for anything else (too
+    large, not UTF-8, a syntax error with its line, an object-building tag, a key given twice)."""
     import yaml
 
     path = Path(path)

@@ -108,9 +108,8 @@ def _time(ns: int) -> dict:
 
 
 class McapEventWriter:
-    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager): ``t0_unix_s``, the
-    wall-clock time of the stream's ``t_s = 0``; ``log``, where the one warning about events without a surface goes;
-    ``overwrite``, replace an existing file (else refused)."""
+    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the
+    wall-clock time of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
 
     def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
                  overwrite: bool = False):

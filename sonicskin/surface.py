@@ -152,9 +152,8 @@ class LinkSurface:
         return tuple(tuple(float(v) for v in row) for row in self.pose[:3, :3]), tuple(float(v) for v in self.pose[:3, 3])
 
     def check_layout(self, layout) -> None:
-        """Raise :class:`SurfaceError` when ``layout`` (a :class:`sonicskin.rig.Layout`) does not fit on this surface: its
-        circumference is not the tube's, or a marker lies off the surface (wider than the circumference or the plate,
-        longer than the link)."""
+        """Raise :class:`SurfaceError` when ``layout`` does not fit on this surface: another circumference than the
+        tube's, or a marker off the surface."""
         xy = np.asarray(layout.xy_cm, dtype=float)
         wid, length = self.width_cm, 100 * self.length_m
         what = f"the {self.kind} of {self.frame_id}"

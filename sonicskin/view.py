@@ -238,9 +238,8 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 class ViewServer:
-    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free port; :attr:`url` once started);
-    :meth:`push_event` and :meth:`set_status` may be called from any thread and never wait on a browser.  A context
-    manager, or :meth:`start` / :meth:`stop`."""
+    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free; :attr:`url`); :meth:`push_event`
+    and :meth:`set_status` may be called from any thread.  A context manager, or :meth:`start` / :meth:`stop`."""
 
     def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS):
         links = list(links)
@@ -444,9 +443,8 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
                port: int = 0) -> ViewServer:
-    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`): drawn as
-    ``links``, or from ``scenarios`` (``(name, scenario)`` per loop, :meth:`LinkView.from_scenario`), else each loop's
-    artifact layout named by its link."""
+    """Serve a started view of the live loops (one per link), each attached: drawn as ``links``, or from
+    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link."""
     loops = list(loops)
     if links is None and scenarios:
         links = [LinkView.from_scenario(name, sc) for name, sc in scenarios]

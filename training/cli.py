@@ -325,9 +325,8 @@ class SkinCLI(LightningCLI):
 
 
 def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
-    """``args`` as on the command line after ``sonicskin train``; with ``run`` the model is fitted
-    (``cli.epoch_bar.results``: the final metrics).  A bad option or value is a one-line
-    :class:`sonicskin.errors.UsageError`, not jsonargparse's usage."""
+    """``args`` as after ``sonicskin train``; with ``run`` the model is fitted (``cli.epoch_bar.results``).  A bad
+    option or value is a one-line :class:`sonicskin.errors.UsageError`, not jsonargparse's usage."""
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 

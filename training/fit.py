@@ -111,9 +111,8 @@ def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | Non
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
-    """``sonicskin train`` with ``model.layer: auto``: the Lightning module's location layer chosen as
-    :func:`choose_network_layer` chooses it for an in-process network, set on the module (its hyperparameters, then
-    the network rebuilt) and recorded in its checkpoint's selection."""
+    """``sonicskin train`` with ``model.layer: auto``: the module's location layer chosen as for an in-process network
+    (:func:`choose_network_layer`), set on it and recorded in its checkpoint's selection."""
     datamodule.setup("fit")
     h = module.hparams
     data = datamodule.prepared

@@ -116,9 +116,8 @@ class SkinLitModule(L.LightningModule):
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 
     def init_closed_form(self, fitted: dict) -> None:
-        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the
-        :class:`sonicskin.kinds.Fitted` SVM and LDA on this network's training chirps): the kernel layer is the SVM
-        (its support vectors; the network's normalisation its scaler), the LDA layer the LDA, frozen."""
+        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the SVM and LDA on this
+        network's training chirps): the kernel layer the SVM (its scaler the normalisation), the LDA layer the LDA."""
         h = self.hparams
         if h.layer == "kernel":
             pipe = fitted[BASELINE].model

@@ -177,8 +177,7 @@ class SVMKind(ModelKind):
     def fit(self, data, *, fitted, selection=None, log=print, select: bool = True, C: float = 10.0,
             kernel_width: float | None = None, force_model: str = "fourier1", detector: str = "input-rms") -> Fitted:
         """Scaler + SVC on the training touch chirps of ``data``'s first ``n_svm`` inputs, then its reference, detector
-        and force (:func:`.closed.score_entry`); ``select``: C, kernel width and force model validated on the
-        training and validation presses, else the given (the paper's) values."""
+        and force; ``select``: C, kernel width and force model validated, else the given (the paper's) values."""
         d = data.narrow(data.n_svm)
         train, val = d.rows("train"), d.rows("val")
         n = d.n_locations
