@@ -1,11 +1,8 @@
-"""The package's user-error types.
+"""The package's user-error types, and the checks of user values every reader makes.
 
-Every error a user can cause by what they pass in (a file that is not a dataset, an artifact for
-another rig, a value out of range) derives from :class:`SonicskinError`.  ``sonicskin <verb>``
-prints such an error as one line, ``sonicskin <verb>: error: <message>``, and exits with code 2;
-anything else is a bug and keeps its traceback.  :class:`SonicskinError` is a ``ValueError``, so
-code that caught ``ValueError`` before keeps working; the subclasses below also keep the built-in
-type they replaced (``except FileNotFoundError`` still catches a config that is not there).
+Every error a user can cause (a file that is not a dataset, an artifact for another rig, a value out of range)
+derives from :class:`SonicskinError`, printed by ``sonicskin <verb>`` as one line (exit code 2; anything else is a
+bug and keeps its traceback).  It is a ``ValueError``, and the subclasses keep the built-in type they replaced.
 """
 
 from __future__ import annotations

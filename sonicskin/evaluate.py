@@ -1,12 +1,7 @@
-"""Evaluate the paper's reference system on a dataset, with the paper's ablations.
-
-Train on the first session(s) (the one-shot training), test on the others, and report:
-localization (accuracy, < 2 cm, < 3 cm), detection (false/missed touches), force (Table I),
-and the three findings the paper builds on, measured on the same split:
-
-- OSPA vs all band bins (Fig. 6b);
-- online score calibration (Alg. 2) vs the training session's reference only (Fig. 12);
-- force from ``E^O`` (OSPA bins) vs total energy ``E`` over the whole chirp band (Fig. 9).
+"""Evaluate the paper's reference system on a dataset, with the paper's ablations: trained on the first session(s),
+tested on the others (localization, detection, force as Table I), and the three findings the paper builds on on the
+same split: OSPA vs every band bin (Fig. 6b), online calibration (Alg. 2) vs the training reference only (Fig. 12),
+force from ``E^O`` vs the whole band's energy (Fig. 9).
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """``sonicskin <verb>``: one command line for the simulated rig, datasets and models.
 
-:mod:`.parser` builds the grammar from light modules; each verb runs a function of :mod:`.data` (simulate, import-*,
-info, devices), :mod:`.models` (evaluate, fit-svm, compare, reproduce), :mod:`.live` (live, record, check) or
-:mod:`.train` (train, export: torch), imported only when that verb runs.  What the verbs share: :mod:`._common`.
-
-Errors: a user error (:class:`sonicskin.errors.SonicskinError` and the ``ValueError``/``OSError``
-the readers raise for bad files) is printed as one line ``sonicskin <verb>: error: <message>``
-with exit code 2; set ``SONICSKIN_DEBUG=1`` to see its traceback.  Anything else is a bug and keeps
-its traceback.
+:mod:`.parser` builds the grammar from light modules; each verb runs a function of :mod:`.data`, :mod:`.models`,
+:mod:`.live` or :mod:`.train` (torch), imported only when that verb runs.  A user error
+(:class:`sonicskin.errors.SonicskinError`, and the ``ValueError``/``OSError`` of bad files) is one line
+``sonicskin <verb>: error: <message>``, exit code 2 (``SONICSKIN_DEBUG=1``: its traceback); anything else is a bug.
 """
 
 from __future__ import annotations

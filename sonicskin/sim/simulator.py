@@ -1,10 +1,6 @@
-"""Render a scenario's timeline into received audio, chirp by chirp, in batches.
-
-Per chirp: the untouched channel at the link's temperature (frequency-axis stretch plus a
-first-order damping rise), the finger's rank-one update when touched, a small motion-dependent
-perturbation of the channel, both transducers' responses, the chirp spectrum, additive noise
-(sensor, PWM, mechanical), then one inverse FFT (steady-state periodic chirp train through a
-linear channel = circular convolution) and 24-bit quantisation.
+"""Render a scenario's timeline into received audio, chirp by chirp, in batches: the untouched channel at the
+link's temperature, the finger's update when touched, the robot's motion, both transducers, the chirp spectrum, the
+noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation.
 """
 
 from __future__ import annotations
