@@ -134,12 +134,12 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         res["force"] = {"measurable": False, "reason": absent} if absent else m["force"]
         if ablations:
             res["ablations"] = _ablations(ds, tr, te, p, offline, touch, svm, data, paper_data, Path(tmp), beta, rest=rest,
-                                          force=absent is None)
+                                          force=absent is None, alg2={"alpha_s": alpha_s, "beta_s": beta_s})
     return res
 
 
 def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
-               force: bool = True) -> dict:
+               force: bool = True, alg2: dict) -> dict:
     """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin, online
     calibration vs the training reference, E^O vs the total band energy for force, Alg. 2 on the features."""
     out = {}
@@ -178,7 +178,7 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
         # Alg. 2 applied to the features: the same bins minus the stream's running no-touch reference (the training
         # session's from its labelled rest, the test streams' from the SVM's own detection).
         d = prepare(data.dataset, table=data.table, split=data.split, bins=data.spec.bins, mode="relative",
-                    min_force_n=data.min_force_n, alpha_s=data.spec.alpha_s, beta_s=data.spec.beta_s, log=quiet)
+                    min_force_n=data.min_force_n, log=quiet, **alg2)
         fit_artifact(d, tmp / "relative", options=PAPER_SVM, log=quiet)
         pr = replay_sessions(SkinRuntime(tmp / "relative", BASELINE), te, sorted(set(te["session"])))
         p_rel = pr.location
