@@ -36,14 +36,14 @@ for _v in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
+from sonicskin.dataset import Split  # noqa: E402
 from sonicskin.fit import prepare  # noqa: E402
 from sonicskin.kinds.lda import DEFAULTS, candidate_name, fit_lda, lda_candidates, normalize  # noqa: E402
 from sonicskin.kinds.svm import fit_pipeline  # noqa: E402
+from sonicskin.metrics import t_interval  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.seeds import scenario_dataset  # noqa: E402
 from sonicskin.sim.scenario import family_seeds  # noqa: E402
-from sonicskin.split import Split  # noqa: E402
-from sonicskin.stats import t_interval  # noqa: E402
 
 
 def one_rig(ds, mode: str, net: bool) -> dict:

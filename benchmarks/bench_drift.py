@@ -60,10 +60,10 @@ def replay(art: Path, kind: str, t, sessions: list[str], layout) -> tuple[dict, 
 
 def run_dataset(ds, work: Path, *, epochs: int | None, log) -> dict:
     """Both models trained on s000 (as deployed), scored per later session with drift tracking on and off."""
+    from sonicskin.dataset import Split
     from sonicskin.feature_cache import load_features_cached
     from sonicskin.features import touch_mask
     from sonicskin.fit import fit_models, prepare, write_artifact
-    from sonicskin.split import Split
 
     t = load_features_cached(ds, progress=False)
     sessions = sorted(set(t["session"]))

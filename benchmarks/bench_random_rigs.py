@@ -74,9 +74,9 @@ def _model_metrics(r: dict) -> dict:
 
 
 def floors(ds, *, train, min_force_n: float = 0.5) -> dict:
-    """The plain scikit-learn floors trained on the sessions ``train`` (:func:`sonicskin.floors.plain_floors`)."""
+    """The plain scikit-learn floors trained on the sessions ``train`` (:func:`sonicskin.seeds.plain_floors`)."""
     from sonicskin.feature_cache import load_features_cached
-    from sonicskin.floors import plain_floors
+    from sonicskin.seeds import plain_floors
 
     return plain_floors(load_features_cached(ds, progress=False), ds.rig, train=train, test=SPLIT["test"],
                         min_force_n=min_force_n)
@@ -142,7 +142,7 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
 
 def summarize(rows: list[dict]) -> dict:
     """Per quantity: mean and std over seeds; per pair: mean difference and 95 % t interval over seeds."""
-    from sonicskin.stats import t_interval
+    from sonicskin.metrics import t_interval
 
     def col(get):
         return np.array([get(r) for r in rows], float)
@@ -171,7 +171,7 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
-from sonicskin.floors import FLOOR_NAMES  # noqa: E402
+from sonicskin.seeds import FLOOR_NAMES  # noqa: E402
 
 
 def _f(v: float, unit: str, signed: bool = False) -> str:

@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_latency import run_rig  # noqa: E402
 
 from sonicskin.feature_cache import load_features_cached  # noqa: E402
-from sonicskin.features import select_bins  # noqa: E402
+from sonicskin.ospa import select_bins  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
 from sonicskin.seeds import METRICS, _one_seed, _split, scenario_dataset  # noqa: E402
 

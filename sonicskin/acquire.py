@@ -1,15 +1,12 @@
 """Audio acquisition: the only module that touches audio hardware (through sounddevice).
 
-A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks through :meth:`~AudioSource.read`; the
-transmitter plays the chirp back to back.  :class:`SoundDeviceSource` is a duplex PortAudio stream whose callback
-only copies into a queue (all work happens in the consumer, as in sounddevice's ``rec_unlimited.py``);
+A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks while the transmitter plays the chirp back
+to back: :class:`SoundDeviceSource` (a duplex PortAudio stream whose callback only copies into a queue),
 :class:`SimulatedSource` (the simulated device: one link, a whole arm, the rig check's interface) and
-:class:`RecordingSource` (a recorded session) are the same contract, produced by a thread of their own, so every
-command runs on a machine with no sound card.  :func:`blocks` is how every consumer reads one (the live loop, the
-recorder, the rig check): with its watchdog, and the error that ended a producer raised in the consumer's thread.
-
-Overflows (the consumer fell behind, or the driver dropped input) are counted and flagged on
-the next block as a discontinuity, never fatal; the live loop re-locks its framing on them.
+:class:`RecordingSource` (a recorded session), the last two produced by a thread of their own, so every command
+runs without a sound card.  Every consumer reads one through :func:`blocks` (its watchdog, and the producer's error
+raised in the consumer's thread).  Overflows and dropped blocks are counted and flag the next block as a
+discontinuity, never fatal: the live loop re-locks its framing on them.
 """
 
 from __future__ import annotations
@@ -27,7 +24,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .dsp import rig_chirp
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .rig import Rig
 
 __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksize", "Link", "import_sounddevice",
@@ -36,10 +33,8 @@ __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksiz
 
 
 class AudioError(SonicskinError, RuntimeError):
-    """No usable audio device, rate or library, or a device that stopped; the message says what to do.
-
-    A :class:`~sonicskin.errors.SonicskinError` (one line from the CLI, caught by ``except SonicskinError`` in a
-    robot program) that is still a ``RuntimeError``, as it was before."""
+    """No usable audio device, rate or library, or a device that stopped; the message says what to do (a
+    :class:`~sonicskin.errors.SonicskinError` that is still a ``RuntimeError``)."""
 
 
 class DeviceLost(AudioError):
@@ -52,7 +47,7 @@ MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds t
 def check_blocksize(value, name: str = "blocksize") -> int:
     """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`; otherwise one :class:`SonicskinError` line
     (the same for the API's ``blocksize=`` and the CLI's ``--blocksize``)."""
-    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_BLOCKSIZE:
+    if not is_number(value, integer=True) or not 1 <= value <= MAX_BLOCKSIZE:
         raise SonicskinError(f"{name} must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {value!r}")
     return value
 
@@ -67,12 +62,8 @@ class Block:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """One transmitter/receiver pair: 0-based channel indices on the audio interface.
-
-    Several links on one interface (one per robot link, paper Sec. IV) share the chirp by
-    *time* duplexing (``slot``: link k transmits in chirp periods where ``period % n_slots == slot``)
-    or *frequency* duplexing (each link its own rig with a disjoint chirp band).
-    """
+    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time
+    duplexing (link k transmits in periods where ``period % n_slots == slot``) or frequency duplexing (own rigs)."""
 
     tx: int = 0
     rx: int = 0
@@ -173,10 +164,8 @@ def thread_cpu_s(thread: threading.Thread | None) -> float | None:
 
 
 class AudioSource(Protocol):
-    """The contract between a source and its consumers (:func:`blocks`; the live loop, the recorder, the rig check).
-
-    Blocks of the receiver channel(s) come from :meth:`read`: ``(n,)`` for one link, ``(n, links)`` for several on one
-    interface; a finite source sets :attr:`finished` after its last block.  Every source of this module is one."""
+    """The contract between a source and its consumers (:func:`blocks`): blocks of the receiver channel(s) from
+    :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several; a finite source sets :attr:`finished`."""
 
     rig: Rig
     #: blocks come at the sample rate (a device, the real-time simulation); ``False``: as fast as they are read
@@ -198,13 +187,9 @@ class AudioSource(Protocol):
 
 
 def blocks(source: AudioSource, *, watchdog_s: float | None = 3.0, poll_s: float = 0.1) -> Iterator[Block | None]:
-    """Every block of a started source as it arrives, and ``None`` after each ``poll_s`` without one (the consumer's
-    moment to look at its clock).
-
-    Ends when a finite source has delivered everything.  Raises the exception that ended the source's producer
-    thread, and :class:`DeviceLost` (the source's :attr:`~AudioSource.stall_text`) when no block arrives for
-    ``watchdog_s`` seconds while the source has not ended and its producer does not compute either (a slow render is
-    not a stall, whatever the pace; ``None``: wait for ever)."""
+    """Every block of a started source as it arrives, ``None`` after each ``poll_s`` without one; ends with a finite
+    source.  Raises the producer's exception, and :class:`DeviceLost` when nothing arrives for ``watchdog_s`` while
+    the producer does not compute either (a slow render is not a stall)."""
     t_alive, cpu_seen = time.perf_counter(), None
     while True:
         block = source.read(timeout=poll_s)
@@ -290,18 +275,8 @@ class _QueueSource:
 
 
 class SoundDeviceSource(_QueueSource):
-    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx``.
-
-    Parameters
-    ----------
-    rig : sample rate and chirp.
-    device : name substring or index (``sonicskin devices``); default device when ``None``.
-    link : channels of the TX/RX pair; ``links``: several pairs on this interface (blocks of shape (n, links)).
-    blocksize : frames per callback.
-    playback : one period of what to play on the TX channel (default: the rig's chirp).  Tests
-        pass a simulated received signal here to run the real audio path through a loopback.
-    rx_channels : the inputs to deliver instead of the links' (the rig check records every input).
-    """
+    """Duplex stream: the chirp train out on ``link.tx`` (or ``playback``), the receiver in on ``link.rx`` (``links``:
+    several pairs, blocks (n, links); ``rx_channels``: the inputs to deliver instead); ``device``: name or index."""
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
                  blocksize: int = 1024, playback: np.ndarray | None = None, rx_channels: list[int] | None = None):
@@ -355,9 +330,8 @@ class SoundDeviceSource(_QueueSource):
 
 
 class _ProducerSource(_QueueSource):
-    """A source whose audio a thread of its own produces (:meth:`_chunks`, cut into blocks here), paced at the sample
-    rate (``realtime``) or as fast as it is read; ``drop_every``: drop one block in that many (fault injection: the
-    consumer must re-lock)."""
+    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate (``realtime``)
+    or as fast as read; ``drop_every``: drop one block in that many (fault injection)."""
 
     what = "source"  # for the watchdog's message
 
@@ -410,19 +384,11 @@ class _ProducerSource(_QueueSource):
 
 
 class SimulatedSource(_ProducerSource):
-    """The simulated device: scripted touches on the simulated rig, rendered ahead in a producer thread and delivered
-    block by block, in real time or as fast as it is read.  One link, a whole arm and the rig check's interface are
-    configurations of it.
-
-    Parameters
-    ----------
-    simulator : :class:`sonicskin.sim.Simulator` of the link, or a list of them: a whole arm, one input channel per link
-        (links decoupled by the joints, each its own TX/RX pair, all chirping at once: blocks of shape (n, links)).
-    timeline : the chirps to play (one session of :func:`sonicskin.sim.build_timeline`), or one per simulator (the
-        stream ends with the shortest).
-    realtime : pace the blocks at the rig's sample rate; otherwise deliver as fast as read.
-    drop_every : drop one block in every ``drop_every`` (fault injection: the consumer must re-lock).
-    offset : the stream starts this many samples into the first chirp (unknown to the consumer).
+    """The simulated device: scripted touches rendered ahead in a producer thread and delivered block by block, in
+    real time (``realtime``) or as fast as read.  ``simulator``: a :class:`sonicskin.sim.Simulator`, or a list of them
+    (a whole arm, one input channel per link, all chirping at once); ``timeline``: one session to play, or one per
+    simulator (the stream ends with the shortest); ``drop_every``: drop one block in so many (fault injection);
+    ``offset``: the stream starts this many samples into the first chirp.
     """
 
     what = "simulated device"
@@ -455,15 +421,8 @@ class SimulatedSource(_ProducerSource):
 
 
 class RecordingSource(_ProducerSource):
-    """A recorded session of a dataset played as an audio source (its parts in order, block by block),
-    so a recording runs through the live loop exactly as it was received.
-
-    Parameters
-    ----------
-    dataset : :class:`sonicskin.dataset.Dataset`.
-    session : the session to play.
-    realtime : pace the blocks at the rig's sample rate; otherwise as fast as they are read.
-    """
+    """A recorded ``session`` of a :class:`sonicskin.dataset.Dataset` played as an audio source, its parts in order,
+    so a recording runs through the live loop exactly as it was received (``realtime``: at the sample rate)."""
 
     what = "recording"
 

@@ -1,36 +1,20 @@
 """The Python API for robot programs: touch events from a deployed skin, without torch.
 
-Two forms over one implementation (:class:`Listener`, a background thread running
-:class:`sonicskin.live.LiveLoop`):
-
-- an iterator, for scripts::
-
-      for ev in sonicskin.listen("artifacts/moving", duration_s=5):
-          print(ev.kind, ev.location, ev.x_cm, ev.y_cm, ev.force_n)
-
-- a callback or a non-blocking poll, for a controller loop that owns its own timing::
-
-      with sonicskin.Listener("artifacts/moving", device=2, on_event=handle) as skin:
-          while robot.ok():
-              for ev in skin.poll():   # events since the last call, never blocks
-                  ...
-              robot.step()
-
-Events are :class:`sonicskin.events.TouchEvent`, the same objects whose JSON ``sonicskin live``
-prints (schema in :mod:`sonicskin.events`).  ``device=None`` or ``"sim"`` is the simulated rig
-(scripted touches of ``scenario``), as in ``sonicskin live``; an index or a name substring opens
-that audio interface (``sonicskin devices``).
+Two forms over one implementation (:class:`Listener`, a background thread running :class:`sonicskin.live.LiveLoop`):
+an iterator for scripts (``for ev in sonicskin.listen("artifacts/moving", duration_s=5): ...``), and a callback or a
+non-blocking :meth:`Listener.poll` for a controller loop that owns its timing.  Events are
+:class:`sonicskin.events.TouchEvent`, the objects whose JSON ``sonicskin live`` prints; ``device=None`` or ``"sim"``
+is the simulated rig, an index or a name substring an audio interface.  Examples: docs/api.md.
 """
 
 from __future__ import annotations
 
-import math
 import queue
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
 from .events import TouchEvent
 
 __all__ = ["listen", "Listener"]
@@ -40,25 +24,18 @@ _END = object()
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
                      on_event=None) -> None:
-    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each (strings compared with numbers in the
-    loop's thread, ``fast="no"`` meant true, ``on_event="print"`` failed at the first touch, ``scenario=None`` was a
-    TypeError); ``blocksize`` is :func:`sonicskin.session.open_run`'s to check."""
-    def number(v):
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-    def count(v):
-        return isinstance(v, int) and not isinstance(v, bool)
-
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them
+    (``blocksize`` is :func:`sonicskin.session.open_run`'s to check)."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
-    if not (device is None or isinstance(device, str) or (count(device) and device >= 0)):
+    if not (device is None or isinstance(device, str) or (is_number(device, integer=True) and device >= 0)):
         raise SonicskinError(f"device must be None or 'sim', an audio device index >= 0 or a name, got {device!r}")
-    if duration_s is not None and not (number(duration_s) and math.isfinite(duration_s) and duration_s > 0):
+    if duration_s is not None and not (is_number(duration_s) and duration_s > 0):
         raise SonicskinError(f"duration_s must be > 0 (a finite number of seconds) or None (until stop()), got {duration_s!r}")
-    if not (number(watchdog_s) and math.isfinite(watchdog_s) and watchdog_s > 0):
+    if not (is_number(watchdog_s) and watchdog_s > 0):
         raise SonicskinError(f"watchdog_s must be a finite number of seconds > 0, got {watchdog_s!r}")
     for name, v in (("tx", tx), ("rx", rx)):
-        if not (count(v) and v >= 0):
+        if not (is_number(v, integer=True) and v >= 0):
             raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
     if not isinstance(scenario, (str, Path)):
         raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")
@@ -73,32 +50,19 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
 class Listener:
     """Run a skin in a background thread; events go to ``on_event`` and to :meth:`poll` / iteration.
 
-    Parameters
-    ----------
-    artifact : artifact folder (``sonicskin fit-svm`` / ``sonicskin export``), or a whole arm: its arm file, or the folder
-        ``sonicskin fit-svm --links`` wrote (holding ``arm.yaml``); then one loop runs per link, each event names its
-        link and carries the contact in the link's frame, and :attr:`summary` is keyed by link.
-    device : ``None`` or ``"sim"`` (the simulated rig), or an audio device index or name.
-    model : a model kind of the artifact (:mod:`sonicskin.kinds`): the paper's SVM (the default), the LDA or the
-        network.
-    duration_s : stop after this many seconds (wall clock); ``None``: until :meth:`stop`.
-    scenario : simulated device only: the scenario of the link and its scripted touches (name or YAML);
-        its marker layout must be the artifact's.
-    rig : rig name or YAML (default: the artifact's own).
-    tx, rx : output and input channel (0-based) of a real interface.
-    fast : simulated device only: run faster than real time (``True`` or ``False``).
-    on_event : a function called in the listener's thread with each :class:`TouchEvent`; keep it short.
-    mcap : with an arm: also write every touch as ROS 2 messages in the link frames into this MCAP file
-        (:class:`sonicskin.rosbag.McapEventWriter`; ``sonicskin live --links ARM --mcap FILE``); an existing file is
-        refused unless ``overwrite``.
-    view : ``True`` or a port: show the skin live in a browser (``sonicskin live --view``); its address is
-        :attr:`view_url`, served until the run ends.
-    watchdog_s : a device (or the simulated one, at any pace) that delivers no audio for this long ends the run with
-        :class:`sonicskin.live.DeviceLost` (re-raised by :meth:`poll`, iteration and :meth:`stop`); so does a run
-        whose input holds no usable chirp (:class:`sonicskin.live.InputUnusable`, a ``DeviceLost``).
+    ``artifact``: an artifact folder, or a whole arm (its arm file, or the folder ``fit-svm --links`` wrote): then one
+    loop runs per link, each event names its link and carries the contact in the link's frame, and :attr:`summary`
+    is keyed by link.  ``device``: ``None``/``"sim"`` or an audio device index or name; ``model``: a model kind of the
+    artifact (default: the paper's SVM); ``duration_s``: wall-clock seconds (``None``: until :meth:`stop`);
+    ``scenario`` and ``fast``: the simulated device's link and touches, and faster than real time; ``rig``: default
+    the artifact's own; ``tx``, ``rx``: channels of a real interface; ``on_event``: called in the listener's thread
+    with each event (keep it short); ``mcap``: with an arm, every touch also as ROS 2 messages into this MCAP file
+    (an existing one refused unless ``overwrite``); ``view``: ``True`` or a port, the browser view at
+    :attr:`view_url`; ``watchdog_s``: no audio (or no usable chirp) for this long ends the run with
+    :class:`sonicskin.live.DeviceLost`, re-raised by :meth:`poll`, iteration and :meth:`stop`.
 
-    Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError` with one line that
-    names the fix (:class:`~sonicskin.acquire.AudioError` and ``DeviceLost`` among them).
+    Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`, one line naming
+    the fix.
     """
 
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
@@ -144,11 +108,14 @@ class Listener:
             self._thread.start()
         return self
 
-    def stop(self) -> dict | None:
-        """Stop and wait for the thread; returns the run's summary (as ``sonicskin live`` prints it)."""
+    def _halt(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
+
+    def stop(self) -> dict | None:
+        """Stop and wait for the thread; returns the run's summary (as ``sonicskin live`` prints it)."""
+        self._halt()
         self._raise()
         return self.summary
 
@@ -165,9 +132,7 @@ class Listener:
         return self.start()
 
     def __exit__(self, *exc) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=10)
+        self._halt()
         if exc[0] is None:
             self._raise()
 
@@ -199,16 +164,10 @@ class Listener:
 
 
 def listen(artifact: str | Path, *, device: str | int | None = None, duration_s: float | None = None, **kw) -> Iterator[TouchEvent]:
-    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...``.
-
-    Keywords as :class:`Listener`.  The run stops when the loop ends (``duration_s``, a finite
-    simulated session) or when the caller leaves the loop (``break``); errors of the device are
-    raised here.
-    """
+    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as
+    :class:`Listener`); the run stops when the loop ends or the caller leaves it, device errors are raised here."""
     lst = Listener(artifact, device=device, duration_s=duration_s, **kw)
     try:
         yield from lst
     finally:
-        lst._stop.set()
-        if lst._thread is not None:
-            lst._thread.join(timeout=10)
+        lst._halt()

@@ -1,4 +1,7 @@
-"""Writing deployment artifacts (ONNX + ``skin.json``): the document, its seal and the atomic swap.
+"""Deployment artifacts (ONNX + ``skin.json``): writing the document, its seal and the atomic swap, and reading an
+artifact folder's files, bounded and confined (``skin.json`` parsed strictly and checked against
+:mod:`sonicskin.artifact_schema`; the ONNX files it names inside the folder, within a size, matching their checksums,
+carrying their own weights).
 
 Each model kind exports its own graph (:mod:`sonicskin.kinds`); everything about the metadata and checksums is here,
 torch-free, so a machine without torch can still build an artifact from a recording (``sonicskin fit-svm``).
@@ -7,29 +10,27 @@ torch-free, so a machine without torch can still build an artifact from a record
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import glob
 import hashlib
 import json
 import os
 import re
 import shutil
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__, kinds
-from .artifact_files import model_file
-from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, nonfinite_field, validate_skin
-from .dataset import write_file
+from .artifact_schema import ARTIFACT_FORMAT, ARTIFACT_VERSION, REEXPORT, _check_file_name, _Doc, nonfinite_field, validate_skin
+from .dataset import refuse_inside_dataset, swap_folders, unique_keys, write_file
 from .errors import ArtifactError
 from .integrity import artifact_digest, binding, canonical, check_session, run_probe, stamp_binding
 from .jsonio import json_safe
 from .parity import ort_session
 
-__all__ = ["ARTIFACT_FORMAT", "PROBE_ROWS", "sha256", "skin_json", "atomic_artifact"]
+__all__ = ["ARTIFACT_FORMAT", "PROBE_ROWS", "sha256", "skin_json", "atomic_artifact", "load_skin", "model_file",
+           "read_model_file", "read_bounded", "MAX_MODEL_BYTES", "MAX_SKIN_JSON_BYTES"]
 
 PROBE_ROWS = 4
 
@@ -45,17 +46,11 @@ def _default_probe(n_in: int) -> np.ndarray:
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
               probe_inputs: np.ndarray | None = None, selection: dict | None = None, drift: dict | None = None) -> dict:
-    """Write ``out/skin.json``; ``models`` maps a name to its entry (``file`` and model parameters); ``drift``:
-    drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`).
-
-    The document is checked against :mod:`sonicskin.artifact_schema` and every ONNX file against it (input
-    width, output shapes) before ``skin.json`` is written, so a writer bug never ships an artifact
-    the runtime would refuse.  Then the artifact is sealed (:func:`sonicskin.integrity.check_integrity`
-    checks it at load): each ONNX file gets its binding (features, rig, layout, its entry's parameters)
-    in its ``metadata_props``, each entry the file's sha256 and ``probe`` (a few ``probe_inputs`` rows
-    and the outputs the model gives on them), and the document its ``digest``.  Pass real model inputs as
-    ``probe_inputs`` (an RBF SVM is flat far from its data); without them an entry's earlier probe rows are
-    kept, else seeded random rows are used.
+    """Write ``out/skin.json`` (``models``: name -> entry; ``drift``: drift tracking's training reference), checked
+    against :mod:`sonicskin.artifact_schema` and every ONNX file against it first, then sealed: each ONNX file gets
+    its binding in its ``metadata_props``, each entry the file's sha256 and ``probe`` (``probe_inputs`` rows, real
+    model inputs: an RBF SVM is flat far from its data; else the earlier probe rows, else seeded random rows, and the
+    outputs on them), the document its ``digest``.
     """
     out = Path(out)
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
@@ -110,15 +105,8 @@ ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.
 
 @contextlib.contextmanager
 def atomic_artifact(out: str | Path) -> Iterator[Path]:
-    """Write an artifact into a new sibling folder, then swap it in: an interrupted or failed run leaves ``out``
-    as it was (the old, loadable artifact, or nothing).
-
-    ``out`` may be absent, empty, or an artifact folder (``skin.json`` and ONNX files only); anything else in it
-    is refused rather than replaced.  The swap is one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it,
-    else two renames (a crash between them keeps the old artifact as ``.<name>.old-<pid>`` beside it).
-    """
-    from .dataset import refuse_inside_dataset
-
+    """Write an artifact into a new sibling folder, then swap it in (an interrupted run leaves ``out`` as it was);
+    ``out`` may be absent, empty or an artifact folder, anything else in it is refused."""
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
     if out.exists() or out.is_symlink():
@@ -135,7 +123,7 @@ def atomic_artifact(out: str | Path) -> Iterator[Path]:
     tmp.mkdir()
     try:
         yield tmp
-        _swap_in(tmp, out)
+        swap_folders(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -159,28 +147,97 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where that is not available."""
-    if sys.platform != "linux":
-        return False
+# -- reading
+MAX_MODEL_BYTES = 256 * 2**20  # an SVM of 31 locations x 300 bins is a few MB; a net < 1 MB
+MAX_SKIN_JSON_BYTES = 64 * 2**20
+
+
+def load_skin(folder: str | Path) -> dict:
+    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
+    that holds it)."""
+    folder = Path(folder)
+    path = folder / "skin.json"
+    if not path.is_file():
+        raise ArtifactError(f"{folder} is not a sonicskin artifact (skin.json missing); create one with "
+                            f"`sonicskin export` or `sonicskin fit-svm`")
+    raw = read_bounded(path, MAX_SKIN_JSON_BYTES, "an artifact's metadata")
     try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return False
-    AT_FDCWD, RENAME_EXCHANGE = -100, 2
-    return fn(AT_FDCWD, os.fsencode(a), AT_FDCWD, os.fsencode(b), RENAME_EXCHANGE) == 0
+        meta = json.loads(raw.decode("utf-8"), object_pairs_hook=unique_keys)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise ArtifactError(f"{path} is corrupt ({str(e).splitlines()[0][:120]}); {REEXPORT}") from None
+    return validate_skin(meta, source=str(path))
 
 
-def _swap_in(tmp: Path, out: Path) -> None:
-    if not out.exists():
-        os.rename(tmp, out)
+def read_bounded(path: Path, limit: int, what: str) -> bytes:
+    """The bytes of ``path``, refused by its size before reading (and never more than ``limit`` read)."""
+    size = path.stat().st_size
+    if size > limit:
+        raise ArtifactError(f"{path} is {size / 2**20:,.0f} MB, more than {what} can be ({limit / 2**20:.0f} MB at most); "
+                            f"{REEXPORT}")
+    with open(path, "rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:  # grew while being read
+        raise ArtifactError(f"{path} is larger than {what} can be ({limit / 2**20:.0f} MB at most); {REEXPORT}")
+    return data
+
+
+def model_file(folder: str | Path, meta: dict, model: str) -> Path:
+    """Path of ``model``'s ONNX file, confined to ``folder`` (a symlink may not lead out of it)."""
+    folder = Path(folder)
+    models = meta["models"]
+    if model not in models:
+        raise ArtifactError(f"model {model!r} is not in the artifact (it has {sorted(models)}); choose one of those "
+                            f"with --model")
+    doc = _Doc(str(folder / "skin.json"))
+    name = _check_file_name(doc, models[model]["file"], f"models.{model}.file")
+    path = folder / name
+    if path.is_symlink() or path.exists():
+        try:
+            real, root = path.resolve(strict=True), folder.resolve()
+        except (OSError, RuntimeError) as e:  # a symlink loop (RuntimeError before Python 3.13), a dangling link
+            doc.fail(f"models.{model}.file", f"({name}) is a link that leads nowhere ({type(e).__name__}: "
+                                             f"{' '.join(str(e).split())[:80]})",
+                     "copy the model file into the artifact folder instead of linking it")
+        if real.parent != root:
+            doc.fail(f"models.{model}.file", f"({name}) is a link to {real}, outside the artifact folder",
+                     "copy the model file into the artifact folder instead of linking it")
+    if not path.exists():
+        raise ArtifactError(f"{path} is missing; copy the whole artifact folder or {REEXPORT}")
+    if not path.is_file():
+        raise ArtifactError(f"{path} is not a regular file (a folder, FIFO or device); copy the whole artifact folder or "
+                            f"{REEXPORT}")
+    return path
+
+
+def read_model_file(folder: str | Path, meta: dict, model: str) -> bytes:
+    """The bytes of ``model``'s ONNX file after the confinement and checksum checks."""
+    path = model_file(folder, meta, model)
+    data = read_bounded(path, MAX_MODEL_BYTES, "a model file")
+    if hashlib.sha256(data).hexdigest() != meta["models"][model]["sha256"]:
+        raise ArtifactError(f"{path} does not match its checksum in skin.json: the file is corrupt or was "
+                            f"replaced; {REEXPORT}")
+    _no_external_data(data, path)
+    return data
+
+
+def _no_external_data(data: bytes, path: Path) -> None:
+    """An ONNX file must carry its weights: external data would be read from outside the artifact folder."""
+    import onnx
+
+    m = onnx.ModelProto()
+    try:
+        m.ParseFromString(data)  # the protobuf only: nothing outside the file is read
+    except Exception:  # not parseable: onnxruntime reports it when loading
         return
-    if _exchange(tmp, out):  # tmp now holds the old artifact
-        shutil.rmtree(tmp, ignore_errors=True)
-        return
-    old = out.parent / f".{out.name}.old-{os.getpid()}"
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(out, old)
-    os.rename(tmp, out)
-    shutil.rmtree(old, ignore_errors=True)
+    graphs, ext = [m.graph], []
+    while graphs:
+        g = graphs.pop()
+        ext += [t.name for t in g.initializer if t.data_location == onnx.TensorProto.EXTERNAL]
+        for node in g.node:
+            for a in node.attribute:
+                graphs += ([a.g] if a.HasField("g") else []) + list(a.graphs)
+                if a.HasField("t") and a.t.data_location == onnx.TensorProto.EXTERNAL:
+                    ext.append(node.name or node.op_type)
+    if ext:
+        raise ArtifactError(f"{path} keeps weights in external files ({ext[:3]}); an artifact's ONNX files must be "
+                            f"self-contained; {REEXPORT}")

@@ -1,62 +1,13 @@
 """The one schema of a deployment artifact's ``skin.json``, checked completely before anything runs.
 
 Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
-:func:`sonicskin.artifact_files.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
+:func:`sonicskin.artifact.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
 writes with :func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
-naming the field (``models.svm.threshold``), what is wrong and what to do.  Reading the files of an artifact folder
-is :mod:`sonicskin.artifact_files`; binding the model files to this document, :mod:`sonicskin.integrity`.
-
-
-    format              "sonicskin-artifact"
-    version             3 (2 still read; older refused with 'export again')
-    sonicskin_version   string
-    rig                 fs_hz, f_lo_hz, f_hi_hz, n_chirp, pwm_hz, pwm_halfwidth_hz (required),
-                        amplitude, name, sweep_b64 (optional); finite, in range (see Rig)
-    layout              ids: N >= 1 unique ints >= 0; xy_cm: N pairs of finite cm;
-                        circumference_cm: null or finite > 0
-    features            bins: B >= 1 unique ints, 0 <= b < rig.n_band; mode: absolute | relative;
-                        beta_s: finite, 0 < beta_s <= 3600 (s); alpha_s: finite, beta_s <= alpha_s <= 1e7 (s)
-    min_force_n         finite >= 0 (N)
-    calibration         optional copy of beta_s / alpha_s, equal to the features' ones
-    training            provenance: data (string), split {train, val, test: [session names]}, other keys free
-    digest              64 lowercase hex digits: sha256 of the canonical JSON of this document without
-                        ``digest`` (which holds every model file's sha256): one digest binds the artifact
-    drift               optional (version 3): drift tracking's training rest spectrum over the band and its limits
-                        (sonicskin.drift.DriftTracker.to_dict); the stream estimates the channel's frequency
-                        stretch against it at every Alg. 2 reference and maps each chirp back
-    selection           optional: what model selection chose on the training/validation presses and its
-                        validation estimate (svm, force, detection, net; see sonicskin.selection), reported only
-    models              {kind: entry} of the model kinds (sonicskin.kinds: net, svm, lda), at least one:
-      file              a plain file name inside the artifact folder (no directories, no symlink out of it),
-                        at most 256 MB
-      sha256            64 lowercase hex digits of that file
-      probe             {inputs: 1..64 rows of B finite numbers, outputs: one entry per graph output, null or
-                        the export-time output rows}: re-run at load, the model must reproduce them
-      kind              the kind's graph: "skinnet" (net) | "svc-ovo" (svm) | "shrinkage-lda" (lda)
-      n_in              <= B: the model reads the first n_in bins (OSPA order);  n_locations == N
-      parity            optional dict of export parity figures;  hparams: optional dict (net)
-      net only (version 3):
-        detector          optional {mode: "head" | "input-rms" | "either", bias: finite, threshold: 0..1e3 (dB RMS),
-                          reference: optional 1..B finite numbers, bins: optional int 1..B}: the touch decision the
-                          network head applies to the graph's outputs (absent: the graph's own p(touch) >= 0.5)
-      svm and lda (closed-form kinds, sonicskin.kinds.closed):
-        reference_scores  N + B finite numbers, |v| <= 1e4 (Alg. 2's initial S_c)
-        threshold         finite, 0 < t <= 1e3 (dB RMS); 0 when ``detection`` is false
-        detection         optional bool (default true); false: trained on touches only, no detector
-        detector          "input-rms" | "paper" (version 3: the paper's max calibrated score);  detector_bins:
-                          optional int 1..B (the input-RMS statistic reads the first ones; default all)
-      lda only:
-        norm              "none" | "level" | "unit": each chirp as measured, its mean dB removed, or unit length
-        energy_ref_db     finite, |e| <= 1e4
-        train_false_touch_rate, train_missed_touch_rate   optional, in [0, 1] (null without detection)
-        force             model (a force curve model); curves: {} or one per layout id, each
-                          {model, theta, coef (the model's count), center, scale > 0, r2 <= 1, e_lo <= e_hi};
-                          or model "pooled-ridge", curves {}, pooled {alpha, coef: B numbers, loc_coef: one
-                          per layout id, intercept}
-
-and the ONNX graphs (:func:`sonicskin.integrity.check_session`): one float input ``(batch, n_in)`` (the model's
-``n_in`` first bins of ``features.bins``); the net outputs logits ``(batch, N + 1)`` and force ``(batch, N)``; the SVM
-a label and ``N (N - 1) / 2`` pairwise values (2 columns when ``N = 2``).
+naming the field (``models.svm.threshold``), what is wrong and what to do.  The checks below are the schema: the
+top-level blocks (``format``, ``version``, ``rig``, ``layout``, ``features``, ``training``, ``drift``, ``selection``,
+``models``, ``digest``), each model kind's entry (:meth:`sonicskin.kinds.ModelKind.check_entry`) and its probe; the
+files themselves are described in docs/artifact.md.  Reading the files of an artifact folder is
+:mod:`sonicskin.artifact`; binding the model files to this document, :mod:`sonicskin.integrity`.
 """
 
 from __future__ import annotations
@@ -68,8 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from . import kinds
-from .errors import ArtifactError
+from .drift import DriftError, DriftTracker
+from .errors import ArtifactError, is_number
+from .features import MODES, FeatureSpec
 from .force import MODELS, PooledForce
+from .rig import Layout, Rig
 
 __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin",
            "nonfinite_field"]
@@ -132,7 +86,7 @@ class _Doc:
             none_ok: bool = False) -> float | None:
         if v is None and none_ok:
             return None
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
+        if not is_number(v, finite=False):
             self.fail(field, f"must be a number, got {_short(v)}")
         try:
             v = float(v)
@@ -147,7 +101,7 @@ class _Doc:
         return float(v)
 
     def int(self, v: Any, field: str, *, lo: int | None = None, hi: int | None = None) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
+        if not is_number(v, integer=True):
             self.fail(field, f"must be an integer, got {_short(v)}")
         if lo is not None and v < lo:
             self.fail(field, f"must be >= {lo}, got {v}")
@@ -186,8 +140,6 @@ def _unique(doc: _Doc, values: list, field: str) -> None:
 
 
 def _check_rig(doc: _Doc, rig: Any):
-    from .rig import Rig
-
     rig = doc.obj(rig, "rig")
     doc.keys(rig, set(_RIG_REQUIRED) | set(_RIG_OPTIONAL), "rig")
     for k in _RIG_REQUIRED:
@@ -212,8 +164,6 @@ def _check_rig(doc: _Doc, rig: Any):
 
 
 def _check_layout(doc: _Doc, layout: Any):
-    from .rig import Layout
-
     layout = doc.obj(layout, "layout")
     doc.keys(layout, {"ids", "xy_cm", "circumference_cm"}, "layout")
     ids = doc.list(doc.get(layout, "ids", "layout"), "layout.ids", nonempty=True)
@@ -230,8 +180,6 @@ def _check_layout(doc: _Doc, layout: Any):
 
 
 def _check_features(doc: _Doc, feats: Any, n_band: int, rig=None):
-    from .features import MODES, FeatureSpec
-
     feats = doc.obj(feats, "features")
     doc.keys(feats, {"bins", "mode", "beta_s", "alpha_s"}, "features")
     bins = doc.list(doc.get(feats, "bins", "features"), "features.bins", nonempty=True)
@@ -406,11 +354,8 @@ def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
 
 
 def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
-    """Check a parsed ``skin.json`` against the schema (without touching any file); return it.
-
-    Raises :class:`ArtifactError` naming the first field that does not fit.  ``sealed=False`` (the
-    writer, before the model files are stamped): checksums, probes and the digest are not there yet.
-    """
+    """Check a parsed ``skin.json`` against the schema and return it (an :class:`ArtifactError` names the first field
+    that does not fit); ``sealed=False``, the writer's: no checksums, probes or digest yet."""
     doc = _Doc(source)
     if not isinstance(meta, dict):
         doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")
@@ -434,8 +379,6 @@ def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) 
                 doc.fail(f"calibration.{k}", f"({_short(cal[k])}) differs from features.{k} ({getattr(spec, k)})")
     _check_training(doc, doc.get(meta, "training", ""))
     if "drift" in meta:  # drift tracking's training reference (sonicskin.drift.DriftTracker.to_dict), version 3
-        from .drift import DriftError, DriftTracker
-
         try:
             DriftTracker.from_dict(meta["drift"], rig)
         except DriftError as e:

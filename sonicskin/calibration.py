@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import numpy as np
-from sklearn.metrics import roc_curve
 
 from .errors import SonicskinError, brief
 
@@ -26,52 +25,26 @@ REST_SPREADS = 4.0
 class OnlineReference:
     """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
 
-    - **Boot**: the first ``beta`` chirps of the stream are taken as hands-off (the protocol starts
-      every stream with hands off); their mean is the first reference.  The hands-off window is a
-      span of *stream time* (``beta`` chirp periods from the first chirp), not a chirp count: when
-      faults (NaN samples, dropouts, a re-lock) cost chirps inside it, the reference is the mean of
-      the clean chirps of the window (at least ``beta // 4``; fewer, and the window starts again),
-      never chirps after it (where the first press may already be), and the boot is marked
-      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it
-      at once, without waiting ``alpha``.  When the caller *knows* which chirps are no-touch (the
-      labelled training session), it passes ``touch`` flags during the boot too, and the boot waits
-      for ``beta`` consecutive no-touch chirps.
-    - **Refresh**: once ``alpha`` chirps of stream time have passed since the reference took
-      effect, the next ``beta`` consecutive chirps the detector calls no-touch become the new one.
-    - **Re-boot**: a gap in the stream longer than ``alpha`` (the device was off, or the recording
-      paused) starts a new boot: the first ``beta`` chirps after it are hands-off by the same protocol
-      as at power-on and become the reference whatever the detector says.  After days off the wall may
-      have warmed or cooled by several kelvin; the detector, still on the old reference, then calls
-      every chirp touched and a refresh would never come (two months of Fig. 12: 8 references in 10
-      sessions, the network at 35-39 % on the coldest and warmest days).  As at power-on, the chirps of
-      the window get no prediction (:meth:`booting_at`); :attr:`reboots` counts these boots and :attr:`last_gap_s`
-      holds the pause that caused the last one.  A clock that goes back by more than one chirp period (a reset
-      clock, another stream fed under the same reference) is a new stream: a re-boot too (``last_gap_s`` < 0), never
-      a reference frozen until the clock catches up.
-    - **A hand during a re-boot**: touched chirps in a re-boot's window would make the reference part touch, and the
-      detector then calls every chirp at rest touched, so no refresh would ever come.  The window's chirps at rest are
-      those close to the one closest to the reference before the pause (:meth:`_at_rest`: a pause moves every chirp
-      alike, a hand moves its own chirps by a touch more); the others are left out (:attr:`boot_touched` counts them)
-      and the re-boot is disturbed as a boot that lost chirps to faults is: :attr:`boot_disturbed`, the reference from
-      its chirps at rest (at least ``beta // 4``, else one new window from the next chirp, whose chirps at rest are
-      taken however few), re-taken from the next ``beta`` chirps the detector calls no-touch.  A hand on the link for
-      the whole window cannot be told from a changed wall and is taken as rest.
+    - **Boot**: the first ``beta`` chirp periods of stream time are hands-off (the protocol starts every stream so);
+      their mean is the first reference.  Chirps lost to faults inside the window leave the mean of its clean chirps
+      (at least ``beta // 4``, else the window starts again), never chirps after it, and mark
+      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it at once.  With
+      labelled ``touch`` flags (a training session) the boot waits for ``beta`` consecutive no-touch chirps.
+    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive chirps the detector
+      calls no-touch become the new one.
+    - **Re-boot**: a gap longer than ``alpha`` (the device off, a paused recording), or a clock that goes back by more
+      than a chirp (``last_gap_s`` < 0), starts a new boot as at power-on, whatever the detector says (after days off
+      the wall has changed and the old reference would call every chirp touched).  :attr:`reboots` counts them.
+    - **A hand during a re-boot**: the window's chirps at rest are those close to the one closest to the reference
+      before the pause (:meth:`_at_rest`: a pause moves every chirp alike, a hand its own chirps by a touch more); the
+      others are left out (:attr:`boot_touched`) and the re-boot is disturbed, as above.
 
-    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and,
-    with ``score_fn``, the mean model *scores* of the same chirps (the SVM's ``S_c``).
-
-    Parameters
-    ----------
-    beta_chirps : chirps averaged into one reference (paper: 3 s = 28 chirps).
-    alpha_chirps : chirps between refreshes (paper: 20 min); ``None`` never refreshes.
-    chirps_per_s : the stream clock: a ``t_s`` difference times this is a chirp count.
-    relative : :meth:`inputs` subtracts the feature reference (``False``: absolute inputs).
-    score_fn : ``inputs (m, d) -> scores (m, k)``; its mean over the reference chirps is :attr:`scores`.
-    labelled : the ``touch`` flags are labels (a training session), not a detector's: a re-boot then waits for
-        ``beta`` consecutive labelled no-touch chirps, as the first boot does, instead of taking the first ``beta``.
-
-    Stream time ``t_s`` is checked at the door (:meth:`step`, :meth:`booting_at`): a finite number of seconds in
-    ``0 .. MAX_T_S``, else a :class:`~sonicskin.errors.SonicskinError` with the reference unchanged.
+    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and, with ``score_fn``
+    (``inputs (m, d) -> scores (m, k)``), the mean model *scores* of the same chirps (:attr:`scores`, the SVM's
+    ``S_c``).  ``beta_chirps`` are averaged into one reference (paper: 3 s), ``alpha_chirps`` pass between refreshes
+    (paper: 20 min; ``None``: never), ``chirps_per_s`` is the stream clock; ``labelled``: the ``touch`` flags are
+    labels, so a re-boot waits for ``beta`` labelled no-touch chirps too.  A ``t_s`` that is not a finite number of
+    seconds in ``0 .. MAX_T_S`` is a :class:`~sonicskin.errors.SonicskinError`, the reference unchanged.
     """
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
@@ -174,12 +147,8 @@ class OnlineReference:
         self.boot_disturbed = self._early = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
-        """Feed one chirp's features ``x`` (d,) at stream time ``t_s`` with its touch detection.
-
-        Call it *after* the model has seen the chirp under the current reference; ``touch`` is
-        ``None`` during the boot (taken as hands-off).  Returns ``True`` when this chirp completed
-        a new reference, in effect from the next chirp on.
-        """
+        """Feed one chirp's features ``x`` at stream time ``t_s`` with its touch detection (``None`` in the boot), after the
+        model saw it; True when it completed a new reference (in effect from the next chirp)."""
         t_s = self._time(t_s)
         if self._gap(t_s) and self.features is not None:
             self._reboot()
@@ -231,11 +200,8 @@ class OnlineReference:
         return False
 
     def _at_rest(self, block: np.ndarray) -> np.ndarray:
-        """Which chirps of a re-boot window are at rest: those whose distance to the reference before the pause (the
-        median over features of the absolute difference) is within ``REST_SPREADS`` first-boot spreads (the largest
-        such distance of a first-boot chirp to its mean) of the closest one's; a hand on the link moves its chirps
-        away by a touch, on top of what the pause changed for every chirp alike.  All of the first boot's (hands off
-        by protocol, nothing to compare with)."""
+        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's
+        distance to the old reference (a hand moves its chirps further); all of the first boot's."""
         if self.features is None or self._spread is None or not len(block):
             return np.ones(len(block), bool)
         e = np.median(np.abs(block - self.features), axis=1)
@@ -243,16 +209,11 @@ class OnlineReference:
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:
-        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp,
-        with the model run on whole blocks of chirps that share one reference.
-
-        ``predict(inputs)`` runs the model on a block and returns an object with a boolean
-        ``touch`` array (and whatever the caller wants back; a ``reference_touch`` array, where not ``None``, is what
-        the reference skips instead of ``touch``).  Yields ``(lo, hi, out)``: chirps
-        ``lo:hi`` are predicted by the first ``hi - lo`` rows of ``out``; ``out`` is ``None`` for the
-        chirps of a boot calibration (the first ``beta``, and ``beta`` after every gap longer than
-        ``alpha``: no prediction).  ``boot_touch`` gives known no-touch flags for the first boot (a
-        labelled stream).
+        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp, the model run on
+        whole blocks of chirps that share one reference.  ``predict(inputs)`` returns an object with a boolean
+        ``touch`` array (and a ``reference_touch`` one, where not ``None``, for what the reference skips instead).
+        Yields ``(lo, hi, out)``: chirps ``lo:hi`` are the first ``hi - lo`` rows of ``out``, ``None`` for the chirps
+        of a boot.  ``boot_touch``: known no-touch flags for the first boot (a labelled stream).
         """
         X = np.asarray(X, np.float32)
         time_s = np.asarray(time_s, float)
@@ -286,16 +247,8 @@ class OnlineReference:
 
 
 class TouchDetector:
-    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C).
-
-    ``fit`` picks the threshold that maximises ``TPR - FPR`` (Youden's J) on training chirps.
-
-    Attributes
-    ----------
-    threshold_ : float
-    false_touch_rate_ : share of no-touch training chirps above the threshold.
-    missed_touch_rate_ : share of touch training chirps below it.
-    """
+    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` picks the
+    ``threshold_`` of Youden's J on training chirps (``false_touch_rate_``, ``missed_touch_rate_`` on its wrong side)."""
 
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold
@@ -308,6 +261,8 @@ class TouchDetector:
         if self.threshold is not None:
             thr = float(self.threshold)
         else:
+            from sklearn.metrics import roc_curve
+
             y = np.r_[np.ones(st.size), np.zeros(sq.size)]
             fpr, tpr, thr_c = roc_curve(y, np.r_[st, sq])
             k = int(np.argmax(tpr - fpr))

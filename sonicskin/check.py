@@ -1,27 +1,11 @@
 """``sonicskin check``: is this rig fit to learn touches from?  One table, each line pass/warn/fail with its fix.
 
-The check plays the rig's chirp on the transmitter for a few seconds of rest, then asks for a
-firm press (the simulated device scripts one), records every input channel, and measures:
-
-=========================  =====================================================================
-sample rate                the device accepts the rig's rate for input and output
-chirp lock                 matched-filter peak over its median (dB) on the receive channel; a
-                           lock on another input instead is "the wrong channel"
-output-to-input delay      where the chirp starts in the input (ms, modulo one chirp period) and
-                           its wander between chirps (samples, peak to peak)
-input level / clipping     peak and RMS in dBFS, share of samples at full scale
-SNR per sub-band           single-chirp SNR, coherent mean of the rest chirps against their
-                           chirp-to-chirp variance, median over the bins of each sub-band
-PWM / motor lines          narrow lines of the noise spectrum in the chirp band, and whether
-                           the rig's PWM notches cover them
-rest-to-rest repeatability RMS over the usable bins of one rest chirp's dB spectrum minus the
-                           rest mean (dB)
-touch contrast             the same change for pressed chirps over the rest-to-rest change (dB)
-=========================  =====================================================================
-
-:func:`capture` records, from an audio interface or the :class:`SimulatedDevice` (opened by
-:func:`sonicskin.session.open_source`); :func:`analyse` measures a capture and returns a :class:`CheckReport`
-(``table()``, ``to_json()``, ``plot()``).
+The check plays the rig's chirp for a few seconds of rest, then asks for a firm press (the simulated device scripts
+one), records every input channel, and measures: the sample rate, the chirp lock (and a lock on another input:
+"the wrong channel"), the output-to-input delay and its wander, the input level and clipping, the SNR per
+sub-band, PWM/motor lines against the rig's notches, rest-to-rest repeatability and the touch contrast
+(docs/bring-up.md).  :func:`capture` records, from an audio interface or the :class:`SimulatedDevice`;
+:func:`analyse` measures a capture and returns a :class:`CheckReport` (``table()``, ``to_json()``, ``plot()``).
 """
 
 from __future__ import annotations
@@ -40,8 +24,9 @@ import scipy.signal
 
 from .acquire import AudioError, AudioSource, Link, blocks, check_blocksize, check_device_rate, list_devices, resolve_device
 from .dsp import chirp_spectrum, find_chirp_offset, rig_chirp
-from .errors import SonicskinError, UsageError
+from .errors import SonicskinError, UsageError, is_number
 from .jsonio import json_safe
+from .plots import pyplot
 from .rig import Rig
 from .session import SIM, open_source, simulated
 from .sim import Scenario, Simulator
@@ -57,10 +42,8 @@ MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on ev
 
 
 def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
-    """The rest and press windows the check records, before anything is played: long enough for its measurements,
-    short enough to hold in memory (``--rest 0.001`` failed the chirp lock as 'no chirp on any input', blaming the
-    cables; ``--rest 1e9`` asked numpy for 1.4 TiB; ``--press 0.05`` reported 'touch contrast: fail', which reads as a
-    rig fault, for a press too short to measure)."""
+    """The rest and press windows the check records, before anything is played: long enough for its measurements
+    (else a too-short window reads as a rig fault), short enough to hold in memory."""
     for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
                              ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
@@ -142,11 +125,7 @@ class CheckReport:
 
     def plot(self, path: str | Path) -> Path:
         """check.png: |H(f)| at rest and pressed, the noise floor, PWM notches and lines, the band used."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
+        plt = pyplot()
         fig, ax = plt.subplots(figsize=(10, 4.5), constrained_layout=True)
         rig = self.rig
         ax.axvspan(rig.f_lo_hz / 1e3, rig.f_hi_hz / 1e3, color="tab:green", alpha=0.07, label="chirp band (used)")
@@ -182,21 +161,9 @@ class CheckReport:
 
 # -- capture ----------------------------------------------------------------------------------------------------
 class SimulatedDevice:
-    """The simulated rig as the audio interface the check records from, with faults to inject.
-
-    Parameters
-    ----------
-    rig : the rig to run.
-    scenario : the simulated link (name or YAML, or a :class:`sonicskin.sim.Scenario`).
-    fault : ``"none"``; ``"disconnected"`` (the output is not connected: the receiver hears noise
-        only); ``"clipping"`` (input gain 40 x too high); ``"weak"`` (the chirp 100 x, 40 dB, too
-        weak for the noise); ``"wrong-channel"`` (the receiver is cabled to input 1, the check listens on
-        ``rx``); ``"rate"`` (an interface that runs 44.1/48 kHz only).
-    n_inputs : input channels of the simulated interface (as many outputs).
-    motors : motor activity 0..1 during the check (PWM lines and mechanical noise); 0: the robot
-        powered but still, as the check asks.
-    delay_ms : output-to-input latency of the simulated interface.
-    """
+    """The simulated rig as the audio interface the check records from (``n_inputs``, ``delay_ms``, ``motors``),
+    with a ``fault`` to inject: ``disconnected``, ``clipping`` (gain 40 x), ``weak`` (40 dB), ``wrong-channel``
+    (the receiver on input 1) or ``rate`` (44.1/48 kHz only)."""
 
     RATES = (44_100.0, 48_000.0, 96_000.0, 192_000.0)
     GAIN = {"disconnected": 0.0, "clipping": 40.0, "weak": 1e-2}  # of the received chirp, per fault
@@ -206,7 +173,7 @@ class SimulatedDevice:
                  delay_ms: float = 2.9, seed: int = 0):
         if fault not in FAULTS:
             raise SonicskinError(f"unknown simulated fault {fault!r}; choose one of {', '.join(FAULTS)}")
-        if isinstance(motors, bool) or not isinstance(motors, (int, float)) or not 0.0 <= motors <= 1.0:  # NaN too
+        if not (is_number(motors) and 0.0 <= motors <= 1.0):
             raise SonicskinError(f"--sim-motors {motors}: motor activity is a number from 0 (robot still) to 1 (full)")
         self.rig, self.fault = rig, fault
         sc = scenario if isinstance(scenario, Scenario) else Scenario.load(scenario)
@@ -287,14 +254,9 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
             press_s: float = 3.0, tail_s: float = 0.5, blocksize: int = 1024, scenario="stationary", fault: str = "none",
             motors: float = 0.0, prompt=None, playback: np.ndarray | None = None, on_start=None, watchdog_s: float = 3.0,
             max_inputs: int = 8) -> Capture:
-    """Play the chirp on ``tx`` and record every input of ``device``; ask for a press after ``rest_s``.
-
-    ``device``: an audio interface (name or index), or the simulated one: ``"sim"`` (the link of ``scenario`` with the
-    ``fault`` and ``motors`` of :class:`SimulatedDevice`) or a :class:`SimulatedDevice`, whose press is scripted.
-    ``prompt(msg)`` tells the user what to do (default: stderr, on an interface).  ``playback`` replaces what is played
-    (tests: a simulated received signal through a loopback); ``on_start()`` runs once the stream runs (tests: wire the
-    JACK loopback).  A rate the device refuses is a capture that says so (the check's first line fails).
-    """
+    """Play the chirp on ``tx`` and record every input of ``device`` (an interface, ``"sim"`` or a
+    :class:`SimulatedDevice`), asking for a press after ``rest_s``; a rate the device refuses is a capture that says so.
+    ``playback`` replaces what is played, ``on_start()`` runs once the stream runs (tests: a JACK loopback)."""
     check_windows(rig, rest_s, press_s)
     check_blocksize(blocksize, "--blocksize")
     if not (isinstance(device, SimulatedDevice) or simulated(device)) and fault != "none":

@@ -9,12 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from . import kinds
-from .artifact_files import load_skin
+from .artifact import load_skin
 from .dataset import Dataset, FeatureTable, write_file
 from .feature_cache import load_features_cached
 from .features import touch_mask
 from .integrity import check_layout, check_rig
+from .jsonio import json_safe
 from .metrics import force_report, localization_report, speed_ratio
+from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names, pyplot
 from .runtime import Predictions, SkinRuntime
 
 __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_latency", "format_comparison", "save_comparison",
@@ -23,12 +25,8 @@ __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_laten
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
                   boot: bool = True) -> dict:
-    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the
-    whole per-chirp path from band features (reference, model, detection, force; :meth:`SkinStream.chirp`).
-
-    ``X_band``/``time_s``: a recorded stream; its first ``beta`` chirps boot the reference.  ``boot=False``
-    (a stream of touches only, absolute inputs): no reference, the path is inputs -> model -> touch/force.
-    """
+    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole path from band
+    features (:meth:`SkinStream.chirp`), on a recorded stream (``boot=False``, touches only: no reference)."""
     st = rt.stream()
     k = 0
     while boot and st.calibrating and k < len(X_band):
@@ -58,16 +56,9 @@ def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n:
 
 
 def replay_sessions(rt: SkinRuntime, t: FeatureTable, sessions, *, drift: dict | None = None) -> Predictions:
-    """Every chirp of ``sessions`` (each a stream, in order) through ``rt`` as the live loop runs it.
-
-    The live loop boots Alg. 2's reference on the stream's first ``beta`` chirps, which the recording
-    protocol keeps hands-off.  A stream that starts with less rest than that (a table of touches only, or
-    rest too short for a reference, where training fell back to absolute inputs) has nothing to boot on:
-    with absolute inputs every chirp is scored as it is (the training reference, no boot calibration);
-    relative inputs cannot be formed there and are refused in one line.  ``drift``: a dict that receives, per
-    session, what drift tracking found there (:meth:`sonicskin.drift.DriftTracker.report`; artifacts with drift
-    tracking only).
-    """
+    """Every chirp of ``sessions`` (each a stream) through ``rt`` as the live loop runs it; a stream with too little
+    rest to boot Alg. 2 on is scored as it is (absolute inputs) or refused (relative).  ``drift``: receives what drift
+    tracking found per session."""
     parts = []
     beta = rt.spec.reference(rt.rig.chirps_per_s).beta
     for s in sessions:
@@ -122,10 +113,8 @@ def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
 
 
 def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
-    """Localization, continuous position, force and detection of replayed predictions ``p`` of the
-    chirps of ``t`` (same order).  The boot calibration's chirps (no prediction) count as missed
-    touches and are left out of everything else.  ``detection=False``: the model has no detector
-    (a table of touches only), or the data has no hands-off chirps: detection is not measurable."""
+    """Localization, continuous position, force and detection of replayed predictions ``p`` of the chirps of ``t``;
+    the boot's chirps count as missed touches, nothing else.  ``detection=False``: detection is not measurable."""
     touch = touch_mask(t, min_force_n)
     run = ~p.calibrating
     no_touch = (t["location"] < 0) & run
@@ -152,16 +141,8 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` (its kinds, :mod:`sonicskin.kinds`) on the test sessions of its split (or
-    ``sessions``).
-
-    Each test session is replayed as a stream through :meth:`SkinRuntime.replay`, as the live
-    loop runs it: the first ``beta`` seconds boot the reference, refreshes follow each model's own
-    touch detection.  No test label reaches a model or its reference.  A session of touches only
-    (no rest) is scored on every chirp (:func:`replay_sessions`).
-
-    The result names the artifact's ``train`` and ``val`` sessions and the ``test`` sessions scored
-    here; ``trained_on_test`` lists test sessions the artifact was trained or validated on.
+    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as the
+    live loop runs it; the result names the sessions and ``trained_on_test`` (test sessions it trained on).
     """
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
@@ -295,18 +276,11 @@ def format_comparison(res: dict, title: str = "") -> str:
 
 
 def save_comparison(res: dict, out_dir: str | Path, layout, title: str = "") -> list[Path]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .jsonio import json_safe
-
     # strict JSON: a metric that is not measurable here (NaN) is null, never a NaN literal other readers refuse
     write_file(out / "compare.json", json.dumps(json_safe(res), indent=1, allow_nan=False))
-    from .plots import cdf_panel, confusion_panel, detection_panel, force_panel, location_names
-
     names = location_names(res.get("data"), layout)
     label = kinds.labels()
     models = [k for k in kinds.names() if k in res["models"]]

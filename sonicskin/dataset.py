@@ -1,40 +1,29 @@
-"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata.
-
-Layout of a dataset folder::
+"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata::
 
     dataset.json                  format, version, rig, layout, source (scenario or recorder)
     <session>/part-00000.flac     a piece of the session's continuous received stream (24-bit FLAC)
-    <session>/part-00000.csv      labels of the chirps that start inside that piece
-    <session>/part-00001.flac ...
+    <session>/part-00000.csv      labels of the chirps that start inside that piece (:data:`COLUMNS`)
 
-A *session* is one continuous recording; its parts concatenate into the stream, which starts
-at an arbitrary point of the chirp train (the reader finds the chirps by cross-correlation,
-exactly as for a live recording).  Each label row is one chirp: ``t_s`` is where it starts in
-the session stream, in seconds.  Parts are written atomically (temporary file, then rename;
-the CSV last), so an interrupted run keeps every part already written and a reader never
-sees half a part.  Label columns: see :data:`COLUMNS`.
-
-Integrity: when a session is complete its ``session.json`` is a manifest that binds the parts to
-each other and to ``dataset.json``: every part with its chirp count and the sha256 of its FLAC and
-CSV bytes, and the sha256 of ``dataset.json``'s content (canonical JSON).  The reader checks the
-manifest (a missing, swapped, added or edited part is refused), then the label rows of the whole
-session (every chirp labelled once, in order, numbered without a gap; values in range; each row on a
-chirp of the stream).  A session without ``session.json`` is an unfinished recording: its parts are
-read (a FLAC without its CSV at the end is the part a killed run was writing; a part missing before
-later ones is damage and refused) and checked by their label rows only.  Session names are plain names
-(:data:`SAFE_NAME`): a writer never writes outside its dataset folder.
+A *session* is one continuous recording starting at an arbitrary point of the chirp train (the reader finds the
+chirps by cross-correlation, as live); a label row's ``t_s`` is where its chirp starts in the stream.  Parts are
+written atomically (the CSV last): an interrupted run keeps every part written, a reader never sees half a part.
+A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``; what is
+hashed and checked where: docs/artifact.md (the data side in full).
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import ctypes
+import dataclasses
 import hashlib
 import io
 import json
 import os
 import re
 import shutil
+import sys
 import warnings
 import weakref
 import zipfile
@@ -45,12 +34,12 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
-from .errors import SonicskinError
+from .errors import SonicskinError, check_memory, is_number
 from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
            "writer_lock", "swap_folders", "write_file", "named_os_error", "enclosing_dataset", "refuse_inside_dataset",
-           "Dataset", "FeatureTable", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json"]
+           "Dataset", "FeatureTable", "Split", "check_name", "check_label_values", "read_npz", "meta_digest", "load_json", "unique_keys"]
 
 FORMAT = "sonicskin-dataset"
 VERSION = 1
@@ -65,9 +54,8 @@ SEGMENTS = ("calibration", "moving", "touch", "gap")
 #: at most 64 characters.  No separators, no ``..``, no hidden names: a name stays inside its folder.
 SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
 MANIFEST_VERSION = 1
-#: libFLAC compression level of the parts written (0..8; libsndfile's default is 5).  FLAC is lossless:
-#: every level decodes to the same samples.  Level 0 encodes the simulator's parts in about 10 % less CPU
-#: than 5, and the files are about 6 % larger (docs/speed.md).
+#: libFLAC compression level of the parts written (lossless at every level; 0 costs ~10 % less CPU than the default
+#: 5 for ~6 % larger files).
 FLAC_LEVEL = 0
 MAX_FORCE_N = 1000.0      # a press on a robot link; 1e300 N is a corrupt value, not a force
 MAX_ABS_CM = 1e5          # 1 km of surface
@@ -88,7 +76,8 @@ def check_name(name, what: str = "session name", where: str = "") -> str:
     return name
 
 
-def _no_duplicates(pairs):
+def unique_keys(pairs) -> dict:
+    """A JSON object's ``object_pairs_hook`` that refuses a key given twice (``json`` keeps the last one silently)."""
     out = {}
     for k, v in pairs:
         if k in out:
@@ -109,7 +98,7 @@ def load_json(path: Path, *, max_bytes: int = 64 * 2**20, fix: str = REDO):
 
         def no_constant(c):
             raise ValueError(f"{c} is not a JSON number")
-        return json.loads(text, object_pairs_hook=_no_duplicates, parse_constant=no_constant)
+        return json.loads(text, object_pairs_hook=unique_keys, parse_constant=no_constant)
     except (ValueError, RecursionError) as e:  # JSONDecodeError, UnicodeDecodeError, duplicates
         raise DatasetError(f"{path} is not valid JSON ({str(e).splitlines()[0][:120]}); the file is corrupt; {fix}") from None
 
@@ -124,13 +113,7 @@ def _sha(data: bytes) -> str:
 
 
 def check_label_values(lab: dict[str, np.ndarray], layout: Layout, where: str) -> None:
-    """Every label column in range: one line naming the first bad row and column, else nothing.
-
-    location -1 or a layout id; force_n NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite
-    in [0, 1]; t_s/time_s finite, t_s >= 0; x_cm/y_cm NaN or finite; temperature_c NaN or finite in
-    range; subject >= 0; segment one of :data:`SEGMENTS`; a touched chirp (location >= 0) in a ``touch``
-    segment with finite coordinates.
-    """
+    """Every label column in range (the ranges below): one line naming the first bad row and column, else nothing."""
     n = len(lab["chirp"])
 
     def bad(col: str, mask: np.ndarray, want: str) -> None:
@@ -175,12 +158,8 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
-    """The right to write the dataset folder ``root``, exclusive between processes: an ``fcntl.flock`` on the
-    folder itself (created if missing), held for the block; reentrant within a process.
-
-    Two ``sonicskin simulate --out X`` at once: the second is refused here, before it touches anything, and its
-    clean-up can never remove the first one's files (it used to: "already holds a dataset", then the first died
-    with ``No such file or directory: X/s000`` and nothing was left).  Where ``fcntl`` is missing, no lock.
+    """The right to write the dataset folder ``root``, exclusive between processes (``fcntl.flock`` on the folder,
+    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -228,24 +207,30 @@ def refuse_inside_dataset(out: str | Path, what: str) -> None:
                            f"dataset's folder; choose an --out outside it")
 
 
-def swap_folders(new: Path, old: Path) -> None:
-    """Put the folder ``new`` in place of ``old`` (an existing folder, removed): one ``renameat2(RENAME_EXCHANGE)``
-    where Linux offers it, so ``old``'s path never lacks a dataset, else remove then rename."""
-    import ctypes
-    import sys
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 RENAME_EXCHANGE); False where that is not available."""
+    if sys.platform != "linux":
+        return False
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    return fn(-100, os.fsencode(a), -100, os.fsencode(b), 2) == 0  # AT_FDCWD, RENAME_EXCHANGE
 
-    swapped = False
-    if sys.platform == "linux":
-        try:
-            fn = ctypes.CDLL(None, use_errno=True).renameat2
-            swapped = fn(-100, os.fsencode(new), -100, os.fsencode(old), 2) == 0  # AT_FDCWD, RENAME_EXCHANGE
-        except (OSError, AttributeError):
-            swapped = False
-    if swapped:
-        shutil.rmtree(new)  # the old folder, now at new's path
-        return
-    shutil.rmtree(old, ignore_errors=True)
-    os.rename(new, old)
+
+def swap_folders(new: Path, old: Path) -> None:
+    """Put the folder ``new`` in place of ``old``: one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it, else two
+    renames (a crash between them keeps the old folder as ``.<name>.old-<pid>`` beside it)."""
+    if not old.exists():
+        os.rename(new, old)
+    elif _exchange(new, old):  # new now holds the old folder
+        shutil.rmtree(new, ignore_errors=True)
+    else:
+        aside = old.parent / f".{old.name}.old-{os.getpid()}"
+        shutil.rmtree(aside, ignore_errors=True)
+        os.rename(old, aside)
+        os.rename(new, old)
+        shutil.rmtree(aside, ignore_errors=True)
 
 
 def _empty_folder(root: Path) -> None:
@@ -297,18 +282,8 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
 
 
 class DatasetWriter:
-    """Create (or resume) a dataset folder and append session parts to it.
-
-    Parameters
-    ----------
-    root : folder to write.
-    rig, layout : stored in ``dataset.json``; resuming checks they match.
-    source : free metadata (scenario config, recorder settings).
-    mode : ``"create"`` (fails if the folder holds a dataset), ``"overwrite"`` or ``"resume"``.
-
-    Every label row is checked before it is written (:func:`check_label_values`), session names
-    must be plain names (:func:`check_name`), and :meth:`finish_session` writes the session's
-    manifest: each part's chirp count and the sha256 of the bytes written.
+    """Create (``mode``: ``"create"``, ``"overwrite"``, ``"resume"``) the dataset folder ``root`` with ``rig``,
+    ``layout`` and free ``source`` metadata, and append checked session parts to it.
     """
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,
@@ -347,11 +322,8 @@ class DatasetWriter:
         return (self.root / check_name(session) / "session.json").exists()
 
     def write_part(self, session: str, part: int, audio: np.ndarray, labels: dict[str, np.ndarray]) -> Path:
-        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1] and its chirps' labels.
-
-        ``audio`` may also be int32 PCM, 24-bit codes in the upper 24 bits (soundfile's int convention;
-        the low 8 bits are dropped), as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them.
-        """
+        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1], or int32 24-bit codes in the upper 24
+        bits (as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them), and its chirps' labels."""
         import soundfile as sf
 
         d = self.root / check_name(session)
@@ -422,16 +394,8 @@ def _npy_header(fh) -> tuple[tuple[int, ...], np.dtype]:
 
 def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, optional: tuple[str, ...] = (),
              max_bytes: int | None = None, what: str = "table") -> dict[str, np.ndarray]:
-    """Read only the arrays ``names`` of an ``.npz``, each checked from its header before it is loaded.
-
-    ``names``: array name -> (dtype kinds allowed, e.g. ``"fiu"``, and ndim or ``None``).  Arrays not
-    asked for are never read (an unused 3 GB array costs nothing); each array's size from its header
-    (and the zip member's declared size) must fit ``max_bytes`` (default: what memory can hold,
-    :func:`sonicskin.limits.check_memory`).  Object arrays (pickles) are refused.
-    Raises :class:`DatasetError` (one line naming the file and the array).
-    """
-    from .limits import check_memory
-
+    """Read only the arrays ``names`` (name -> (dtype kinds, ndim or ``None``)) of an ``.npz``, each checked from
+    its header first (size within ``max_bytes`` and memory, no object arrays); a :class:`DatasetError` otherwise."""
     path = Path(path)
     out: dict[str, np.ndarray] = {}
     try:
@@ -506,9 +470,8 @@ class FeatureTable:
 
     @classmethod
     def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:
-        """Load a table saved by :meth:`save_npz`, checked: every label column of :data:`COLUMNS` plus
-        ``session``, one value per row of ``X``, finite features (``n_features`` wide), and the stored
-        ``key`` equal to ``key`` when given.  Anything else is a :class:`DatasetError`."""
+        """Load a table saved by :meth:`save_npz`, checked (every label column, one value per row, finite features
+        ``n_features`` wide, the stored ``key`` when given); anything else is a :class:`DatasetError`."""
         names = {"X": ("f", 2), "key": ("U", 0)}
         names.update({f"label_{c}": ("iuf" if t in (int, float) else "U", 1) for c, t in COLUMNS.items()})
         names["label_session"] = ("U", 1)
@@ -527,19 +490,58 @@ class FeatureTable:
         return cls(X, labels)
 
 
-# Bounds that keep a corrupt dataset.json from asking for absurd memory (n_chirp 1e12) or time: the rig's
-# (sonicskin.rig.MAX_N_CHIRP, MAX_FS_HZ, MAX_LOCATIONS).
+@dataclasses.dataclass(frozen=True)
+class Split:
+    """Which sessions train, validate and test.  Never a random split of chirps: sessions (or
+    people, for leave-subjects-out) are the unit, so nothing of a test press leaks into training."""
 
+    train: tuple[str, ...]
+    val: tuple[str, ...]
+    test: tuple[str, ...]
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+    @classmethod
+    def make(cls, t: FeatureTable, *, train_sessions=None, val_sessions=None, test_subjects=None,
+             allow_no_test: bool = False) -> Split:
+        sessions = sorted(set(t["session"]))
+        if test_subjects:
+            subj = {s: set(t["subject"][(t["session"] == s) & (t["location"] >= 0)]) for s in sessions}
+            test = [s for s in sessions if subj[s] & set(test_subjects)]
+            rest = [s for s in sessions if s not in test]
+            if not test or len(rest) < 2:
+                raise ValueError(f"leave-subjects-out with test subjects {list(test_subjects)} leaves "
+                                 f"{len(rest)} training and {len(test)} test sessions; need >= 2 and >= 1")
+            return cls(tuple(rest[:-1]), tuple(rest[-1:]), tuple(test))
+        train = list(train_sessions or sessions[:1])
+        unknown = set(train) - set(sessions)
+        if unknown:
+            raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({', '.join(sessions)})")
+        rest = [s for s in sessions if s not in train]
+        if val_sessions is None:
+            val = rest[:1] if len(rest) >= 2 else []
+        else:  # never a session that trains (validation would score training data) or one the data lacks
+            val = list(val_sessions)
+            for bad, why in ((sorted(set(val) - set(sessions)), "are not in the dataset"),
+                             (sorted(set(val) & set(train)), "are training sessions too")):
+                if bad:
+                    raise ValueError(f"validation sessions {', '.join(map(str, bad))} {why} (train {', '.join(train)}); "
+                                     f"validate on sessions that do not train: {', '.join(rest) or 'none left'}")
+        test = [s for s in rest if s not in val]
+        if not test and not allow_no_test:
+            raise ValueError(f"no session left to test on (sessions {', '.join(sessions)}; train {', '.join(train)}; val "
+                             f"{', '.join(val) or 'none'}): leave one out of the training and validation sessions")
+        return cls(tuple(train), tuple(val), tuple(test))
+
+    def mask(self, t: FeatureTable, part: str) -> np.ndarray:
+        return np.isin(t["session"], getattr(self, part))
+
+    def to_dict(self) -> dict:
+        return {"train": list(self.train), "val": list(self.val), "test": list(self.test)}
+
 
 
 def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
-    """Validate a parsed ``dataset.json`` completely; returns its rig and layout.
-
-    Raises :class:`DatasetError` naming the field and what it should be.
-    """
+    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its
+    rig and layout."""
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object with format, version, rig and layout, got a JSON "
                            f"{type(meta).__name__}; the file is corrupt (re-create the dataset)")
@@ -555,14 +557,13 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
         raise DatasetError(f"{path}: 'source' must be a JSON object, got {type(meta['source']).__name__}")
     r = meta["rig"]
     for k in ("fs_hz", "f_lo_hz", "f_hi_hz", "pwm_halfwidth_hz", "amplitude"):
-        if k in r and not _is_number(r[k]):
+        if k in r and not is_number(r[k]):
             raise DatasetError(f"{path}: rig.{k} must be a finite number, got {r[k]!r}")
-    if "n_chirp" in r and not (isinstance(r["n_chirp"], int) and not isinstance(r["n_chirp"], bool)
-                               and 64 <= r["n_chirp"] <= MAX_N_CHIRP):
+    if "n_chirp" in r and not (is_number(r["n_chirp"], integer=True) and 64 <= r["n_chirp"] <= MAX_N_CHIRP):
         raise DatasetError(f"{path}: rig.n_chirp must be a whole number of samples in 64..{MAX_N_CHIRP}, got {r['n_chirp']!r}")
     if "fs_hz" in r and not 0 < r["fs_hz"] <= MAX_FS_HZ:
         raise DatasetError(f"{path}: rig.fs_hz must be in (0, {MAX_FS_HZ:g}] Hz, got {r['fs_hz']!r}")
-    if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(_is_number, r["pwm_hz"]))):
+    if "pwm_hz" in r and not (isinstance(r["pwm_hz"], list) and len(r["pwm_hz"]) <= 64 and all(map(is_number, r["pwm_hz"]))):
         raise DatasetError(f"{path}: rig.pwm_hz must be a list of frequencies in Hz, got {r['pwm_hz']!r}")
     for k in ("name", "sweep_b64"):
         if r.get(k) is not None and not isinstance(r[k], str):
@@ -570,13 +571,13 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
     if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS
-            and all(isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in ids)):
+            and all(is_number(i, integer=True) and i >= 0 for i in ids)):
         raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
     if not (isinstance(xy, list) and len(xy) == len(ids)
-            and all(isinstance(p, list) and len(p) == 2 and all(map(_is_number, p)) for p in xy)):
+            and all(isinstance(p, list) and len(p) == 2 and all(map(is_number, p)) for p in xy)):
         raise DatasetError(f"{path}: layout.xy_cm must list one [x, y] pair of numbers per id ({len(ids)})")
     c = lay.get("circumference_cm")
-    if c is not None and not (_is_number(c) and c > 0):
+    if c is not None and not (is_number(c) and c > 0):
         raise DatasetError(f"{path}: layout.circumference_cm must be a positive number or null, got {c!r}")
     try:
         return Rig.from_dict(r), Layout.from_dict(lay)
@@ -664,7 +665,7 @@ class Dataset:
         if ok:
             for k, e in enumerate(parts):
                 if not (isinstance(e, dict) and e.get("part") == f"part-{k:05d}"
-                        and isinstance(e.get("chirps"), int) and not isinstance(e.get("chirps"), bool) and e["chirps"] >= 0
+                        and is_number(e.get("chirps"), integer=True) and e["chirps"] >= 0
                         and all(isinstance(e.get(h), str) and re.fullmatch(r"[0-9a-f]{64}", e[h])
                                 for h in ("flac_sha256", "csv_sha256"))):
                     ok = False
@@ -802,9 +803,8 @@ class Dataset:
         check_label_values(lab, self.layout, str(d))
 
     def check_distinct(self, sessions: list[str] | None = None) -> None:
-        """Refuse two sessions that hold the same recording (a session folder copied within the dataset): its
-        chirps would count twice, in training and in testing.  Compares the first part's FLAC bytes (the
-        manifest's hash when there is one)."""
+        """Refuse two sessions holding the same recording (a copied session folder counts twice, in training and
+        testing): their first parts' FLAC bytes (the manifest's hash when there is one) compared."""
         seen: dict[str, str] = {}
         for s in sessions or self.sessions:
             d = self._session_dir(s)

@@ -1,44 +1,18 @@
 """Drift tracking: estimate the channel's frequency stretch from hands-off chirps and undo it.
 
-A warming link softens: every modal frequency of the wall moves by the same factor,
-``f_n(T) = f_n (1 + kappa dT)`` (modes scale with ``sqrt(E)``; ``kappa`` is about -3.5e-4 /K for the
-simulated CFRP wall, :data:`sonicskin.sim.channel.MATERIALS`), so the whole untouched channel is
-stretched along frequency, ``H_T(f) = H_0(f / (1 + s))`` with the *stretch* ``s = kappa dT``.  Alg. 2's
-reference subtraction removes what is smooth in frequency (gain, tilt, the piezo bonds' response); a
-stretch moves the fine mode pattern under the fixed bins, and at 80 kHz ``s = -1e-3`` is 80 Hz, 8.5 bins
-of the 20480-sample chirp: the touch pattern a model learned lands on other bins.
+A warming wall softens and every mode moves by one factor, so the untouched channel is stretched along frequency,
+``H_T(f) = H_0(f / (1 + s))`` with ``s = kappa dT`` (why it matters and how the stream uses it:
+docs/models.md#drift-tracking).  :func:`estimate_stretch` finds ``s`` (and the gain and tilt left after it) as the
+best normalised correlation of two *mode patterns* (each dB spectrum minus a Savitzky-Golay trend over
+``smooth_hz``, so smooth changes cannot pose as a stretch), on a grid refined by a bounded scalar search;
+:func:`warp_band` maps features back, ``X_back(f) = X(f (1 + s))``, by linear interpolation along the band's bins;
+:class:`DriftTracker` holds the training reference and the limits (a JSON-able dict in the artifact).
 
-This module
-
-- estimates ``s`` (and the gain and tilt left after it) of a hands-off spectrum against the training
-  session's rest spectrum: maximum normalised correlation of the two *mode patterns* (each spectrum in dB
-  minus a Savitzky-Golay trend over ``smooth_hz``, so smooth changes cannot pose as a stretch), searched
-  on a grid of stretches and refined by a bounded scalar search (:func:`estimate_stretch`);
-- maps features back onto the training axis, ``X_back(f) = X(f (1 + s))``, by linear interpolation along
-  the band's bins (:func:`warp_band`, and the precomputed gather of :class:`DriftTracker`);
-- holds the training reference and the limits in :class:`DriftTracker` (a JSON-able dict for the artifact).
-
-Band edges and PWM bands.  The band features are one contiguous run of rfft bins; the rig's
-``allowed_mask`` splits it into segments (allowed runs and the masked PWM bands between them).  A warp
-reads each bin from its own segment only: a bin whose source frequency ``f (1 + s)`` falls outside its
-segment takes the segment's edge value (``|s| f / df`` bins at each end: 5 bins at 33.25 kHz and 12 at
-80 kHz for ``s = 1.4e-3``), so no value crosses a PWM band edge or the band's ends.  The estimate
-uses allowed bins only, away from every segment edge by the largest searched shift; masked bins are
-bridged by linear interpolation before the trend is taken (a PWM line of a moving robot cannot pose as
-a mode, and it does not stretch).
-
-Pure numpy/scipy (no torch): it runs in the live loop.  The estimate costs tens of milliseconds once per
-reference refresh; the warp is one gather and blend per chirp (``benchmarks/bench_drift.py`` reports both).
-
-Wiring it into Alg. 2 (one code path for ``live``, ``listen()`` and every replay), as the benchmark does:
-the training reference is the mean dB of the training session's hands-off chirps (``quiet_mask``), stored
-in the artifact as :meth:`DriftTracker.to_dict`.  A stream's :class:`~sonicskin.calibration.OnlineReference`
-is fed *band* rows (not the model's bins) with ``relative=False`` and ``score_fn=on_reference``;
-``on_reference(block)`` runs when a new reference takes effect (boot and every refresh) with that
-reference's chirps: it calls ``tracker.update(block)`` and returns the score material of the warped block
-(the SVM's ``S_c``).  Each chirp's model inputs are then ``tracker.warp_bins(x, bins) -
-tracker.warp_bins(ref.features, bins)`` (the warp is linear, so this is the warped relative feature).
-Training features are not warped: the training reference is the warp's zero.
+Band edges and PWM bands: the rig's ``allowed_mask`` splits the band into segments (allowed runs and the masked
+PWM bands between them).  A warp reads each bin from its own segment only (a source outside it takes the
+segment's edge value), so no value crosses a PWM band edge or the band's ends.  The estimate uses allowed bins
+away from every segment edge by the largest searched shift; masked bins are bridged linearly before the trend
+is taken (a PWM line of a moving robot cannot pose as a mode).
 """
 
 from __future__ import annotations
@@ -51,7 +25,8 @@ import scipy.ndimage
 import scipy.optimize
 import scipy.signal
 
-from .errors import SonicskinError
+from .errors import SonicskinError, is_number
+from .sim.channel import MATERIALS
 
 __all__ = ["DriftError", "DriftEstimate", "DriftTracker", "estimate_stretch", "warp_band", "warp_index",
            "band_segments", "stretch_to_kelvin", "material_kappa", "DEFAULT_MAX_SEARCH", "DEFAULT_SMOOTH_HZ",
@@ -61,9 +36,8 @@ __all__ = ["DriftError", "DriftEstimate", "DriftTracker", "estimate_stretch", "w
 DEFAULT_MAX_SEARCH = 4e-3
 #: Width of the trend removed before correlating the mode patterns (smooth changes are not a stretch).
 DEFAULT_SMOOTH_HZ = 2000.0
-#: Below this peak correlation the hands-off spectrum is not the training channel stretched: not used.  On the
-#: simulated CFRP link at rest it stays 0.92-0.999 from -5 to +10 K (uniform warm-up; 0.978 after the 2 h warm-up
-#: of drift-2h); 3 s of rest while the robot moves score 0.71-0.85 with errors up to 1.5e-4; another link 0.0-0.1.
+#: Below this peak correlation the hands-off spectrum is not the training channel stretched: not used (the
+#: simulated CFRP link at rest scores 0.92-0.999 from -5 to +10 K; rest while the robot moves 0.71-0.85).
 DEFAULT_MIN_CORRELATION = 0.9
 #: Gaussian smoothing (bins) of both mode patterns before they are compared (see :meth:`_Pattern.detrend`).
 PATTERN_SIGMA_BINS = 2.0
@@ -79,8 +53,6 @@ class DriftError(SonicskinError):
 
 def material_kappa(material: str) -> float:
     """Relative modal frequency shift per kelvin of a simulated wall material (``MATERIALS[name].kappa_per_k``)."""
-    from .sim.channel import MATERIALS
-
     if not isinstance(material, str) or material not in MATERIALS:
         raise DriftError(f"unknown material {material!r} for the stretch's temperature equivalent; "
                          f"known: {', '.join(sorted(MATERIALS))} (or pass kappa_per_k)")
@@ -119,12 +91,8 @@ def _check_freqs(freqs_hz) -> tuple[float, float, int]:
 
 
 def warp_index(freqs_hz, stretch: float, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Gather indices and weights of the warp back onto the training axis, ``X_back(f) = X(f (1 + s))``.
-
-    Returns ``i0`` (n_band,) int and ``w`` (n_band,) float32: ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w``.
-    Each bin reads from its own segment of ``allowed`` (see the module notes); the edge value where the
-    source leaves it.  ``stretch = 0`` is the identity exactly (``w = 0``).
-    """
+    """Gather indices ``i0`` and weights ``w`` of the warp ``X_back(f) = X(f (1 + s))``, each bin within its segment
+    of ``allowed``: ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w`` (``stretch = 0``: exactly the identity)."""
     f0, df, n = _check_freqs(freqs_hz)
     s = float(stretch)
     if not math.isfinite(s) or abs(s) >= 0.5:
@@ -142,29 +110,25 @@ def warp_index(freqs_hz, stretch: float, allowed: np.ndarray | None = None) -> t
     return i0, w
 
 
+def _band_features(X_band, n: int) -> np.ndarray:
+    X = np.asarray(X_band, np.float32)
+    if X.ndim not in (1, 2) or X.shape[-1] != n:
+        raise DriftError(f"expected band features (n, {n}) or ({n},), got shape {X.shape}")
+    return X
+
+
 def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = None) -> np.ndarray:
     """Band features (n, n_band) or (n_band,) in dB, mapped back onto the training axis by ``stretch``
-    (see :func:`warp_index`).  Linear interpolation between neighbouring bins."""
-    X = np.asarray(X_band, np.float32)
-    n = np.asarray(freqs_hz).size
-    if X.shape[-1] != n or X.ndim not in (1, 2):
-        raise DriftError(f"expected band features (n, {n}) or ({n},) (one value per band bin), got shape {X.shape}")
+    (:func:`warp_index`)."""
+    X = _band_features(X_band, np.asarray(freqs_hz).size)
     i0, w = warp_index(freqs_hz, stretch, allowed)
     return X[..., i0] * (1 - w) + X[..., i0 + 1] * w
 
 
 @dataclasses.dataclass(frozen=True)
 class DriftEstimate:
-    """One estimate of the channel's drift against the training reference.
-
-    stretch : ``s`` in ``H_now(f) = H_train(f / (1 + s))`` (negative: a warmer, softer wall rings lower).
-    correlation : peak normalised correlation of the two mode patterns (1: the same pattern).
-    gain_db : level change after undoing the stretch, at the band centre.
-    tilt_db_per_khz : slope of the level change across the band.
-    n_bins : allowed bins the estimate used.
-    at_limit : the peak lies at the end of the searched range (``|s|`` may be larger still).
-    reliable : ``correlation >= min_correlation`` and not ``at_limit``.
-    """
+    """One estimate of the channel's drift: ``stretch``, the peak ``correlation`` of the mode patterns, the
+    ``gain_db``/``tilt_db_per_khz`` left, ``n_bins`` used, ``at_limit`` (the peak at the search's end), ``reliable``."""
 
     stretch: float
     correlation: float
@@ -227,9 +191,8 @@ class _Pattern:
             k = np.arange(self.n)
             y[~self.allowed] = np.interp(k[~self.allowed], k[self.allowed], x[self.allowed])
         y -= scipy.signal.savgol_filter(y, self.window, 2, mode="interp")
-        # A light smoothing of both patterns: the reference is read between bins during the search, and linear
-        # interpolation averages neighbours (less noise at half-bin shifts than at whole-bin ones), which pulled
-        # the peak off whole-bin stretches by up to 5e-5 with a 28-chirp reference; smoothed first, it does not.
+        # Both patterns lightly smoothed: the search reads the reference between bins, and linear interpolation
+        # averages neighbours (less noise at half-bin shifts), which would pull the peak off whole-bin stretches.
         return scipy.ndimage.gaussian_filter1d(y, PATTERN_SIGMA_BINS, mode="nearest")
 
     def shifted(self, p: np.ndarray, s: float) -> np.ndarray:
@@ -279,23 +242,8 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
                      max_search: float = DEFAULT_MAX_SEARCH, smooth_hz: float = DEFAULT_SMOOTH_HZ,
                      min_correlation: float = DEFAULT_MIN_CORRELATION,
                      grid_step: float = DEFAULT_GRID_STEP) -> DriftEstimate:
-    """Stretch (and gain, tilt) of hands-off band spectra against the training reference.
-
-    Parameters
-    ----------
-    spectrum_db : hands-off band spectra in dB, (n_band,) or (m, n_band) (averaged: e.g. Alg. 2's 3 s of rest).
-    reference_db : the training session's rest spectrum in dB, (n_band,) or (m, n_band) (averaged).
-    freqs_hz : the band bins' frequencies, ``rig.freqs_hz[rig.band_bins]``.
-    allowed : the rig's ``allowed_mask`` (PWM bands left out of the estimate); ``None``: every bin.
-    max_search : the largest |stretch| searched.
-    smooth_hz : width of the trend removed from both spectra before correlating.
-    min_correlation : an estimate below this peak correlation is not ``reliable``.
-    grid_step : coarse grid of the search (refined by a bounded scalar search around its best point).
-
-    Returns
-    -------
-    DriftEstimate
-    """
+    """Stretch (and gain, tilt) of hands-off band spectra (dB, averaged) against ``reference_db`` on the band bins
+    ``freqs_hz`` where ``allowed``: searched up to ``max_search`` on a ``grid_step`` grid, then refined."""
     pat = _Pattern(freqs_hz, allowed, smooth_hz, max_search)
     cur = _mean_spectrum(spectrum_db, pat.n, "spectrum_db")
     ref = _mean_spectrum(reference_db, pat.n, "reference_db")
@@ -304,23 +252,14 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
 
 
 class DriftTracker:
-    """The training reference of one artifact, the current stretch, and its limits.
+    """The training reference of one artifact (``reference_db`` on the band ``freqs_hz``/``allowed``, as for
+    :func:`estimate_stretch`; :meth:`from_rig`), the current stretch, and its limits: ``trained_stretch``, the
+    largest |stretch| the artifact was trained for (beyond it :attr:`warning` says "record a new session"), and the
+    wall's ``kappa_per_k`` (or a simulated ``material``'s) for the temperature equivalent.
 
-    Parameters
-    ----------
-    reference_db : the training session's rest spectrum in dB over the band bins, (n_band,) (or (m, n_band), averaged).
-    freqs_hz : the band bins' frequencies (``rig.freqs_hz[rig.band_bins]``; :meth:`from_rig`).
-    allowed : the rig's ``allowed_mask``; ``None``: every bin.
-    trained_stretch : the largest |stretch| the artifact was trained (validated) for; a larger one gets
-        :attr:`warning` ("record a new session").
-    kappa_per_k : the wall's relative modal shift per kelvin, for the temperature equivalent; or
-    material : a simulated material's name (``cfrp``, ``aluminium``, ...: its ``kappa_per_k``).
-    max_search, smooth_hz, min_correlation, grid_step : see :func:`estimate_stretch`.
-
-    Use: :meth:`update` on each reference refresh (the mean of its hands-off chirps), then :meth:`warp`
-    (whole band) or :meth:`warp_bins` (a model's bins) on every chirp.  Before the first update the
-    stretch is 0 and both are the identity.  An estimate that is not ``reliable`` leaves the stretch as it
-    was and sets :attr:`warning`.
+    :meth:`update` on each reference refresh, then :meth:`warp` (whole band) or :meth:`warp_bins` (a model's bins)
+    on every chirp; before the first update both are the identity.  An estimate that is not ``reliable`` leaves the
+    stretch as it was and sets :attr:`warning`.
     """
 
     def __init__(self, reference_db, freqs_hz, *, allowed: np.ndarray | None = None, trained_stretch: float,
@@ -333,8 +272,7 @@ class DriftTracker:
         if not np.std(self._ref_pattern[self._pat.use]) > FLAT_RMS_DB:
             raise DriftError("reference_db has no mode pattern (flat once its trend is removed); pass the training "
                              "session's hands-off spectra in dB (log_magnitude_db)")
-        if not (isinstance(trained_stretch, (int, float)) and not isinstance(trained_stretch, bool)
-                and math.isfinite(trained_stretch) and 0 <= trained_stretch <= max_search):
+        if not (is_number(trained_stretch) and 0 <= trained_stretch <= max_search):
             raise DriftError(f"trained_stretch must be the largest |stretch| the artifact was trained for, in "
                              f"[0, max_search = {max_search:g}], got {trained_stretch!r}")
         if material is not None and kappa_per_k is not None:
@@ -387,9 +325,7 @@ class DriftTracker:
     # -- warp ---------------------------------------------------------------------------
     def warp(self, X_band) -> np.ndarray:
         """Band features (n, n_band) or (n_band,) mapped back onto the training axis by the current stretch."""
-        X = np.asarray(X_band, np.float32)
-        if X.ndim not in (1, 2) or X.shape[-1] != self._pat.n:
-            raise DriftError(f"expected band features (n, {self._pat.n}) or ({self._pat.n},), got shape {X.shape}")
+        X = _band_features(X_band, self._pat.n)
         i0, w = self._idx
         return X[..., i0] * (1 - w) + X[..., i0 + 1] * w
 
@@ -406,9 +342,7 @@ class DriftTracker:
                 raise DriftError(f"bins must index the {self._pat.n} band bins, got values {int(b.min())}..{int(b.max())}")
             i0, w = self._idx
             hit = self._bins_cache[key] = (i0[b], i0[b] + 1, w[b], (1 - w[b]))
-        X = np.asarray(X_band, np.float32)
-        if X.ndim not in (1, 2) or X.shape[-1] != self._pat.n:
-            raise DriftError(f"expected band features (n, {self._pat.n}) or ({self._pat.n},), got shape {X.shape}")
+        X = _band_features(X_band, self._pat.n)
         a, b1, w, w0 = hit
         return X[..., a] * w0 + X[..., b1] * w
 

@@ -29,23 +29,8 @@ class FrameError(ValueError):
 
 def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
           phase_rad: float = 0.0) -> np.ndarray:
-    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T``.
-
-    The instantaneous frequency sweeps ``f_lo_hz -> f_hi_hz`` over ``T = n_samples / sr``,
-    i.e. ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper writes ``Omega_1 + a T = Omega_2``,
-    which is the same sweep with ``a`` defined on the frequency, not the phase).
-
-    Parameters
-    ----------
-    sr : sample rate in Hz.
-    f_lo_hz, f_hi_hz : start and end frequency in Hz.
-    n_samples : chirp length in samples (one period of the chirp train).
-    amplitude : peak amplitude.
-    phase_rad : initial phase ``phi``.
-
-    Returns
-    -------
-    s : ndarray, shape (n_samples,), float64
+    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64,
+    sweeping ``f_lo_hz -> f_hi_hz``: ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper defines ``a`` on the frequency).
     """
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
@@ -56,10 +41,8 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
 
 @functools.lru_cache(maxsize=8)
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep.
-
-    Computed once per rig (it is on every chirp's path); the array is read-only.
-    """
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep (once per rig,
+    read-only)."""
     stored = rig.sweep()
     if stored is not None:
         x = stored.astype(np.float64)
@@ -79,19 +62,8 @@ def chirp_spectrum(rig: Rig) -> np.ndarray:
 
 
 def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
-    """Sample index in ``[0, L)`` where the first whole chirp of a periodic chirp train starts.
-
-    The stream is cut into up to ``max_periods`` periods of ``L = len(reference)`` samples;
-    each period is circularly cross-correlated with the reference (the chirp train is
-    periodic, so a circular shift of one period is the offset), the envelopes of the
-    matched-filter outputs are averaged, and the peak is the offset.  Averaging makes the
-    estimate robust to noise bursts in single periods.
-
-    Parameters
-    ----------
-    stream : (n_samples,) received audio, at least one period long.
-    reference : (L,) the transmitted chirp.
-    """
+    """Sample index in ``[0, L)`` where the first whole chirp of a chirp train ``stream`` starts: the peak of the
+    matched-filter envelopes of up to ``max_periods`` periods, averaged (robust to noise bursts)."""
     L = reference.shape[-1]
     x = np.asarray(stream, dtype=np.float64)
     if x.ndim != 1:
@@ -113,20 +85,8 @@ def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods:
 
 
 def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | None = None) -> tuple[np.ndarray, int]:
-    """Cut a received chirp train into whole, chirp-aligned frames.
-
-    Parameters
-    ----------
-    stream : (n_samples,) received audio starting at an unknown point of the chirp train.
-    reference : (L,) the transmitted chirp.
-    offset : start of the first whole chirp if already known; found by cross-correlation otherwise.
-
-    Returns
-    -------
-    frames : (n_frames, L) float32 view-free copy; the partial chirps before ``offset`` and at
-        the end are dropped.
-    offset : the sample index of the first frame in ``stream``.
-    """
+    """Cut a received chirp train into whole, chirp-aligned frames: ``(frames (n_frames, L) float32, offset)``,
+    ``offset`` (the first whole chirp's start) found by cross-correlation unless given."""
     L = reference.shape[-1]
     if offset is None:
         offset = find_chirp_offset(stream, reference)
@@ -138,10 +98,8 @@ def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | Non
 
 
 def frame_faults(frames: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> np.ndarray:
-    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped.
-
-    A frame counts as clipped when more than 0.1 % of its samples reach ``clip_level`` of full scale.
-    """
+    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped (more than
+    0.1 % of the samples at ``clip_level`` of full scale)."""
     x = np.asarray(frames)
     faults = np.zeros(x.shape[0], dtype=np.int8)
     finite = np.isfinite(x).all(axis=-1)
@@ -162,11 +120,8 @@ _FAULT_TEXT = {
 
 
 def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
-    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp).
-
-    Raises :class:`FrameError` naming the problem and the fix: wrong shape or frame length,
-    non-finite samples, silence, clipping.
-    """
+    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp); a :class:`FrameError` names
+    the problem and the fix (shape, frame length, non-finite samples, silence, clipping)."""
     x = np.asarray(frames)
     if x.ndim == 1:
         x = x[None, :]
@@ -191,9 +146,8 @@ def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
 
 
 def _plainly_ok(x: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> bool:
-    """True when no frame can have a fault of :func:`frame_faults`: every frame's energy is finite and
-    above the silence level, and no sample reaches the clip level (three passes, no temporaries).
-    Otherwise :func:`frame_faults` decides."""
+    """True when no frame can have a fault of :func:`frame_faults` (finite energy above the silence level, no sample
+    at the clip level: three passes, no temporaries); else :func:`frame_faults` decides."""
     if x.size == 0:
         return False
     energy = np.einsum("ij,ij->i", x, x)
@@ -211,18 +165,8 @@ def _inv_power_s(rig: Rig) -> np.ndarray:
 
 
 def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.ndarray:
-    """Features of a batch of chirp frames: ``20 log10 |H(f)|`` on the band bins, float32.
-
-    Parameters
-    ----------
-    frames : (n, rig.n_chirp) chirp-aligned received frames.
-    rig : the rig the frames were recorded with.
-    check : validate the frames first (see :func:`check_frames`).
-
-    Returns
-    -------
-    X : (n, rig.n_band) float32.  Column ``j`` is rfft bin ``rig.band_bins[j]``.
-    """
+    """Features of a batch of chirp-aligned frames (n, rig.n_chirp): ``20 log10 |H(f)|`` on the band bins,
+    (n, rig.n_band) float32, column ``j`` the rfft bin ``rig.band_bins[j]`` (``check``: :func:`check_frames` first)."""
     if check:
         frames = check_frames(frames, rig)
     x = np.asarray(frames, dtype=np.float32)

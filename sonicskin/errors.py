@@ -1,23 +1,31 @@
-"""The package's user-error types.
+"""The package's user-error types, and the checks of user values every reader makes.
 
-Every error a user can cause by what they pass in (a file that is not a dataset, an artifact for
-another rig, a value out of range) derives from :class:`SonicskinError`.  ``sonicskin <verb>``
-prints such an error as one line, ``sonicskin <verb>: error: <message>``, and exits with code 2;
-anything else is a bug and keeps its traceback.  :class:`SonicskinError` is a ``ValueError``, so
-code that caught ``ValueError`` before keeps working; the subclasses below also keep the built-in
-type they replaced (``except FileNotFoundError`` still catches a config that is not there).
+Every error a user can cause (a file that is not a dataset, an artifact for another rig, a value out of range)
+derives from :class:`SonicskinError`, printed by ``sonicskin <verb>`` as one line (exit code 2; anything else is a
+bug and keeps its traceback).  It is a ``ValueError``, and the subclasses keep the built-in type they replaced.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import reprlib
 
-__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError", "brief"]
+__all__ = ["SonicskinError", "UsageError", "ConfigNotFoundError", "ArtifactError", "ResourceError", "brief", "is_number",
+           "check_memory", "available_bytes", "human_bytes"]
 
 _REPR = reprlib.Repr()
 _REPR.maxlevel = 2
 _REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = _REPR.maxset = _REPR.maxfrozenset = _REPR.maxdeque = _REPR.maxarray = 4
 _REPR.maxstring = _REPR.maxother = _REPR.maxlong = 60
+
+
+def is_number(v, *, integer: bool = False, finite: bool = True) -> bool:
+    """A number given as one, never a bool: an ``int`` with ``integer``, else an int or a float, finite unless
+    ``finite=False``.  The test every reader of user values (configs, artifacts, datasets, options) makes."""
+    if isinstance(v, bool) or not isinstance(v, int if integer else (int, float)):
+        return False
+    return not finite or isinstance(v, int) or math.isfinite(v)
 
 
 def brief(value, limit: int = 100) -> str:
@@ -41,3 +49,44 @@ class ConfigNotFoundError(SonicskinError, FileNotFoundError):
 
 class ArtifactError(SonicskinError):
     """An artifact that cannot run here; the message names the field, what does not fit and what to do."""
+
+
+# -- resource bounds checked before allocating: a size option or a file that asks for more memory than the machine
+# has (MemAvailable on Linux, physical memory elsewhere) is refused in one line, not a MemoryError or a swap storm
+#: Fraction of the available memory one step may plan to use.
+BUDGET = 0.8
+
+
+class ResourceError(SonicskinError):
+    """A request larger than this machine can hold; the message gives the estimate and the fix."""
+
+
+def available_bytes() -> int:
+    """Memory available to this process now, in bytes."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 8 * 2**30
+
+
+def human_bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB", "PB", "EB"):
+        if abs(n) < 1000 or unit == "EB":
+            return f"{n:.3g} {unit}"
+        n /= 1000
+    return f"{n:.3g} EB"  # pragma: no cover
+
+
+def check_memory(nbytes: float, what: str, fix: str) -> None:
+    """Raise :class:`ResourceError` when ``nbytes`` (an estimate) exceeds the memory budget."""
+    avail = available_bytes()
+    if not nbytes <= BUDGET * avail:  # also refuses NaN / inf estimates
+        raise ResourceError(f"{what} would need about {human_bytes(nbytes)} of memory, more than this machine has "
+                            f"available ({human_bytes(avail)}); {fix}")

@@ -1,26 +1,31 @@
-"""Evaluate the paper's reference system on a dataset, with the paper's ablations.
-
-Train on the first session(s) (the one-shot training), test on the others, and report:
-localization (accuracy, < 2 cm, < 3 cm), detection (false/missed touches), force (Table I),
-and the three findings the paper builds on, measured on the same split:
-
-- OSPA vs all band bins (Fig. 6b);
-- online score calibration (Alg. 2) vs the training session's reference only (Fig. 12);
-- force from ``E^O`` (OSPA bins) vs total energy ``E`` over the whole chirp band (Fig. 9).
+"""Evaluate the paper's reference system on a dataset, with the paper's ablations: trained on the first session(s),
+tested on the others (localization, detection, force as Table I), and the three findings the paper builds on on the
+same split: OSPA vs every band bin (Fig. 6b), online calibration (Alg. 2) vs the training reference only (Fig. 12),
+force from ``E^O`` vs the whole band's energy (Fig. 9).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from .dataset import Dataset, FeatureTable, write_file
+from .calibration import OnlineReference
+from .compare import chirps_per_location, counts_line, coverage_note, replay_sessions, split_line, stream_metrics
+from .dataset import Dataset, FeatureTable, Split, write_file
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, touch_mask, usable_bins
+from .fit import fit_artifact, prepare
 from .force import PerLocationForce, energy_db
+from .jsonio import json_safe
 from .kinds import BASELINE
 from .metrics import force_report
+from .plots import cdf_panel, confusion_panel, detection_panel, location_names, pyplot
+from .rig import Rig
+from .runtime import SkinRuntime
 
 __all__ = ["split_sessions", "evaluate_svm"]
 
@@ -34,16 +39,6 @@ def split_sessions(table: FeatureTable, train_sessions: list[str]) -> tuple[Feat
     if tr.all():
         raise ValueError("every session is a training session; leave at least one to test on")
     return table.select(tr), table.select(~tr)
-
-
-def _quiet(t: FeatureTable) -> np.ndarray:
-    return (t["location"] < 0) & (t["moving"] == 0)
-
-
-def _touch(t: FeatureTable, min_force_n: float) -> np.ndarray:
-    """Touch chirps: a location and at least ``min_force_n``, or any force without a force sensor (NaN)."""
-    f = t["force_n"]
-    return (t["location"] >= 0) & ((f >= min_force_n) | np.isnan(f))
 
 
 NOT_MEASURABLE = "not measurable on this data"
@@ -63,38 +58,25 @@ def _force_absent(tr: FeatureTable, touch_tr: np.ndarray) -> str | None:
 
 def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table: FeatureTable | None = None,
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
-                 val_sessions=(), artifact: str | Path | None = None, log=print) -> dict:
+                 val_sessions=(), artifact: str | Path | None = None, alpha_s: float = FeatureSpec.alpha_s,
+                 beta_s: float = FeatureSpec.beta_s, log=print) -> dict:
     """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
 
-    The paper's SVM (OSPA's ``n_bins`` on the absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
-    per-location Fourier-1 force, the paper's detector: the largest calibrated score ``max(S - S_c)`` above a
-    threshold) is fitted by the one fit (:mod:`sonicskin.fit`), exported, and every test session replayed through
-    the artifact as the live loop runs it (:class:`sonicskin.head.Stream`).  ``mode="relative"`` calibrates the
-    scores online (Alg. 2: ``S_c`` from the stream's no-touch chirps), ``"absolute"`` keeps the training session's
-    reference throughout.  ``n_bins``: OSPA's gamma (default the paper's 300, clamped to the rig's bins).  On data
-    without hands-off chirps (a table of touches only) localization and force are trained and reported, detection
-    and Alg. 2 are reported as not measurable; without a force sensor (NaN or constant force) force is reported as
-    absent.  Streams whose rest is shorter than Alg. 2's beta use the rest they have, down to
-    :data:`sonicskin.features.MIN_REST_CHIRPS`.  ``val_sessions`` (held out by the caller, not in ``table``) are only
-    named in the report.  ``artifact``: keep the paper's artifact there (default: a temporary folder).
+    The paper's SVM (OSPA's ``n_bins`` on absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
+    per-location Fourier-1 force, the detector ``max(S - S_c)`` above a threshold) is fitted by :mod:`sonicskin.fit`,
+    exported, and every test session replayed through the artifact as the live loop runs it.  ``mode="relative"``
+    calibrates the scores online (Alg. 2, ``alpha_s``/``beta_s``), ``"absolute"`` keeps the training reference.
+    Without hands-off chirps detection and Alg. 2 are reported as not measurable, without a force sensor force as
+    absent.  ``val_sessions`` (held out by the caller) are only named in the report; ``artifact``: keep the paper's
+    artifact there (default: a temporary folder).
     """
-    import dataclasses
-    import tempfile
-
-    from .calibration import OnlineReference
-    from .compare import chirps_per_location, coverage_note, replay_sessions, stream_metrics
-    from .features import MIN_REST_CHIRPS, rest_beta, usable_bins
-    from .fit import fit_artifact, prepare
-    from .runtime import SkinRuntime
-    from .split import Split
-
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()
     sessions = sorted(set(table["session"]))
     train_sessions = train_sessions or sessions[:1]
     tr, te = split_sessions(table, train_sessions)
-    trained = set(np.unique(tr["location"][_touch(tr, min_force_n)]).tolist())
+    trained = set(np.unique(tr["location"][touch_mask(tr, min_force_n)]).tolist())
     never = [str(i) for i in ds.layout.ids if int(i) not in trained]
     if never:  # the SVM has no class for them: every test touch there would be an error the accuracy alone hides
         raise ValueError(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the "
@@ -102,7 +84,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                          f"{', ...' if len(never) > 12 else ''}); the SVM needs a press at every location: train on "
                          f"sessions that touch every location (--train)")
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
-    cal = OnlineReference.from_seconds(beta_s=3.0, alpha_s=1200.0, chirps_per_s=ds.rig.chirps_per_s)
+    cal = OnlineReference.from_seconds(beta_s=beta_s, alpha_s=alpha_s, chirps_per_s=ds.rig.chirps_per_s)
     beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
     rest = beta is not None  # every stream has a no-touch reference: detection and Alg. 2 are measurable
     if not rest:
@@ -113,7 +95,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     quiet = lambda m: None  # noqa: E731
 
     def paper_data(**kw):
-        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, log=quiet, **kw)
+        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s,
+                    beta_s=beta_s, log=quiet, **kw)
         if rest and beta < cal.beta:  # Alg. 2's reference averages the rest every stream has
             d.spec = dataclasses.replace(d.spec, beta_s=beta / ds.rig.chirps_per_s)
         if not rest:  # no hands-off chirps in some stream: no detector, no Alg. 2 reference
@@ -136,7 +119,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         res: dict = {"dataset": str(ds.root), "train_sessions": list(train_sessions), "test_sessions": test_sessions,
                      "n_train": len(tr), "n_test": len(te), "train_time_s": skin["training"][f"{BASELINE}_train_time_s"],
                      "n_bins": len(data.spec.bins), "beta_chirps": beta}
-        touch = _touch(te, min_force_n)
+        touch = touch_mask(te, min_force_n)
         res["localization"] = m["localization"]
         res["errors_cm"] = m["errors_cm"]
         res["val_sessions"] = list(val_sessions)
@@ -147,24 +130,18 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                              "train_missed_touch_rate": svm["train_missed_touch_rate"]}
                             if rest and m["detection"].get("measurable", True)
                             else {"measurable": False, "reason": f"{NOT_MEASURABLE}: no hands-off chirps"})
-        absent = _force_absent(tr, _touch(tr, min_force_n)) or _force_absent(te, touch)
+        absent = _force_absent(tr, touch_mask(tr, min_force_n)) or _force_absent(te, touch)
         res["force"] = {"measurable": False, "reason": absent} if absent else m["force"]
         if ablations:
             res["ablations"] = _ablations(ds, tr, te, p, offline, touch, svm, data, paper_data, Path(tmp), beta, rest=rest,
-                                          force=absent is None)
+                                          force=absent is None, alg2={"alpha_s": alpha_s, "beta_s": beta_s})
     return res
 
 
 def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
-               force: bool = True) -> dict:
-    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin (no
-    matched filter), online calibration vs the training reference only, E^O vs the total band energy for force, and
-    Alg. 2 applied to the features."""
-    from .compare import replay_sessions
-    from .fit import fit_artifact, prepare
-    from .rig import Rig
-    from .runtime import SkinRuntime
-
+               force: bool = True, alg2: dict) -> dict:
+    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin, online
+    calibration vs the training reference, E^O vs the total band energy for force, Alg. 2 on the features."""
     out = {}
     quiet = lambda m: None  # noqa: E731
     loc = te["location"]
@@ -184,8 +161,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
     if force and rest:
         # Force from total band energy E vs E^O over the OSPA bins (per-location Fourier-1 at the true location).
         all_bins = np.arange(ds.rig.n_band)
-        ref_tr = tr.X[_quiet(tr)].mean(axis=0)
-        tr_touch = _touch(tr, data.min_force_n)
+        ref_tr = tr.X[quiet_mask(tr)].mean(axis=0)
+        tr_touch = touch_mask(tr, data.min_force_n)
         has_f = tr_touch & np.isfinite(tr["force_n"])
         E_tr = energy_db(tr.X[has_f], all_bins, ref_tr)
         fm = PerLocationForce("fourier1").fit(E_tr, tr["force_n"][has_f], tr["location"][has_f])
@@ -201,7 +178,7 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
         # Alg. 2 applied to the features: the same bins minus the stream's running no-touch reference (the training
         # session's from its labelled rest, the test streams' from the SVM's own detection).
         d = prepare(data.dataset, table=data.table, split=data.split, bins=data.spec.bins, mode="relative",
-                    min_force_n=data.min_force_n, log=quiet)
+                    min_force_n=data.min_force_n, log=quiet, **alg2)
         fit_artifact(d, tmp / "relative", options=PAPER_SVM, log=quiet)
         pr = replay_sessions(SkinRuntime(tmp / "relative", BASELINE), te, sorted(set(te["session"])))
         p_rel = pr.location
@@ -225,8 +202,6 @@ def _force_line(F: dict, label: str = "force (E^O)") -> str:
 
 
 def format_report(res: dict) -> str:
-    from .compare import counts_line, split_line
-
     L, D, F = res["localization"], res["detection"], res["force"]
     det = (f"  detection     {D['reason']}" if D.get("measurable") is False else
            f"  detection     false touches {D['false_touch_rate']:.1%}   missed touches {D['missed_touch_rate']:.1%}   "
@@ -271,18 +246,11 @@ def format_report(res: dict) -> str:
 
 def save_report(res: dict, out_dir: str | Path, layout) -> list[Path]:
     """Write ``report.json`` and PNG plots (confusion matrix, error CDF)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from .jsonio import json_safe
-
     write_file(out / "report.json", json.dumps(json_safe(res), indent=2, allow_nan=False))  # strict JSON: NaN as null
     paths = [out / "report.json"]
-    from .plots import cdf_panel, confusion_panel, detection_panel, location_names
-
     fig, ax = plt.subplots(1, 3, figsize=(17, 5), width_ratios=[1.1, 1, 0.8])
     confusion_panel(fig, ax[0], res["localization"]["confusion"], location_names(res.get("dataset"), layout),
                     f"SVM: accuracy {res['localization']['accuracy']:.1%}")

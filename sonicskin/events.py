@@ -6,44 +6,9 @@ Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, 
 writer writes :data:`SCHEMA_VERSION`; this reader accepts versions 1 and 2 (:data:`READS`).  Fields
 are only ever *added* within a version, so a reader accepts an event with fields it does not know
 (a later writer's), ignores them and keeps them (:attr:`TouchEvent.extra`, written back by
-:meth:`TouchEvent.to_json`).
-
-Semantics (version 1, unchanged in version 2)
----------------------------------------------
-- ``t_s``: stream time in seconds of the chirp's first sample, counted from the first sample the
-  audio device delivered (one clock per run; not wall time).  Consecutive chirps are
-  ``n_chirp / fs_hz`` apart (106.7 ms on the paper's rig).
-- ``kind``: ``"touch"`` for every chirp the detector calls touched; ``"release"`` once, for the
-  first untouched chirp after a run of touched ones.  A press of 1 s therefore gives about nine
-  ``touch`` events and one ``release``.  A ``release`` carries the last location estimate of the
-  chirp it was computed on and ``force_n`` 0.
-- ``location``: the id of the most likely marker of the artifact's layout (its ``layout.ids``).
-- ``x_cm``, ``y_cm``: the touch position on the *unrolled surface* of the link, in cm, in the
-  layout's frame: ``x`` along the circumference (wrapping at ``layout.circumference_cm`` on a tube),
-  ``y`` along the link's axis from its end that holds the transmitter.  It is the probability-
-  weighted centroid of the three most likely markers, so it lies between markers.
-- ``force_n``: the estimated normal force in newtons (0 on ``release``; ``null`` when the
-  artifact has no force model).
-- ``confidence``: in [0, 1].  Network: the probability of the chosen marker given that there is a
-  touch.  SVM: the share of the pairwise (one-vs-one) votes the chosen marker won.  It ranks how
-  sure the model is about *where*, not whether there is a touch (the detector decides that).
-- ``model``: ``"svm"`` or ``"net"``, the artifact model that produced the event.
-- ``latency_ms``: processing time from the chirp's last sample being available to the event.
-- ``link`` (optional): the name of the link that sensed it, on a multi-link rig (``sonicskin live
-  --links``: the links config's ``name``); absent on a single link.
-
-Added in version 2: the robot's frame (optional; absent when the run places no surface)
----------------------------------------------------------------------------------------
-When the link's skin is placed on its surface (:class:`sonicskin.surface.LinkSurface`, conventions
-in its module docstring and docs/robot-frame.md), :func:`attach_surface` adds:
-
-- ``frame_id``: the link's frame, the name its URDF gives the link.
-- ``point_m``: ``[x, y, z]``, the contact point (``x_cm``, ``y_cm`` on the surface) in metres in that frame.
-- ``normal``: ``[x, y, z]``, the unit outward surface normal there, in that frame.
-- ``force_vec_n``: ``[x, y, z]``, the force the finger exerts on the link, ``-force_n * normal``, in N in
-  that frame (``[0, 0, 0]`` on ``release``; ``null`` when ``force_n`` is null).
-
-``point_m`` and ``normal`` come together, with the ``frame_id`` (not empty) they are in; ``force_vec_n`` only with them.
+:meth:`TouchEvent.to_json`).  Version 2 adds the robot's frame (``frame_id``, ``point_m``, ``normal``,
+``force_vec_n``; :func:`attach_surface`) when the link's skin is placed on its surface.  Every field's unit,
+frame and meaning: docs/api.md (the event table) and docs/robot-frame.md.
 """
 
 from __future__ import annotations
@@ -53,7 +18,7 @@ import json
 import math
 from typing import Any
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 
 __all__ = ["SCHEMA_VERSION", "READS", "EVENT_SCHEMA", "TouchEvent", "EventError", "validate_event", "parse_event",
            "surface_fields", "attach_surface"]
@@ -103,7 +68,7 @@ EVENT_SCHEMA: dict[str, Any] = {
 
 @dataclasses.dataclass(frozen=True)
 class TouchEvent:
-    """One event of the stream (see the module docstring for units and frames)."""
+    """One event of the stream (units and frames: docs/api.md)."""
 
     t_s: float
     kind: str             # "touch" | "release"
@@ -167,9 +132,7 @@ def _type_ok(value, types) -> bool:
     for t in types:
         if t == "null" and value is None:
             return True
-        if t == "integer" and isinstance(value, int) and not isinstance(value, bool):
-            return True
-        if t == "number" and isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        if (t == "integer" and is_number(value, integer=True)) or (t == "number" and is_number(value)):
             return True
         if t == "string" and isinstance(value, str):
             return True
@@ -179,13 +142,8 @@ def _type_ok(value, types) -> bool:
 
 
 def validate_event(d: Any) -> None:
-    """Check one decoded event against :data:`EVENT_SCHEMA`; raise :class:`EventError` naming the first problem.
-
-    (The subset of JSON Schema the event schema uses: type, enum, minimum, maximum, required, and
-    arrays of 3 numbers; no third-party validator needed at run time.)  Beyond the JSON Schema: ``normal``
-    is a unit vector, and ``point_m``/``normal`` come together with ``frame_id``.  Fields the schema does not declare are
-    accepted (``additionalProperties``: within a version, fields are only ever added).
-    """
+    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema), a unit ``normal``, and
+    ``point_m``/``normal`` with ``frame_id``; an :class:`EventError` names the first problem."""
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]
@@ -202,7 +160,7 @@ def validate_event(d: Any) -> None:
             raise EventError(f"{k} must be one of {rule['enum']}, got {brief(x)}")
         if "type" in rule and not _type_ok(x, rule["type"]):
             raise EventError(f"{k} must be {rule['type']}, got {brief(x)}")
-        if isinstance(x, (int, float)) and not isinstance(x, bool):
+        if is_number(x, finite=False):
             if "minimum" in rule and x < rule["minimum"]:
                 raise EventError(f"{k} must be >= {rule['minimum']}, got {brief(x)}")
             if "maximum" in rule and x > rule["maximum"]:
@@ -228,9 +186,8 @@ def parse_event(line: str | bytes) -> TouchEvent:
 
 
 def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[str, Any]:
-    """The version-2 fields of a contact at layout ``(x_cm, y_cm)`` with normal force ``force_n`` on ``surface`` (a
-    :class:`sonicskin.surface.LinkSurface`): ``frame_id``, ``point_m``, ``normal``, ``force_vec_n`` (as tuples; only
-    ``frame_id`` when the position is not finite; ``force_vec_n`` None when the force is not)."""
+    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface`` (only ``frame_id``
+    where the position is not finite, ``force_vec_n`` None where the force is not)."""
     out: dict[str, Any] = {"frame_id": surface.frame_id}
     if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
         return out

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset import Dataset, FeatureTable
+from . import __version__, dataset, dsp
+from .dataset import COLUMNS, Dataset, FeatureTable
 
 __all__ = ["load_features_cached"]
 
@@ -21,8 +22,6 @@ __all__ = ["load_features_cached"]
 def _code_version() -> bytes:
     """What the cached values depend on in the code: the package version and the bytes of the modules
     that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
-    from . import __version__, dataset, dsp
-
     h = hashlib.sha256(f"sonicskin {__version__}".encode())
     for mod in (dataset, dsp):
         try:
@@ -33,9 +32,8 @@ def _code_version() -> bytes:
 
 
 def _signature(ds: Dataset) -> str:
-    """Cache key of a dataset's features: the sha256 of everything that changes their values: the code
-    (:func:`_code_version`), ``dataset.json`` (rig, layout), and per session the bytes of every part's
-    FLAC and CSV and of ``session.json`` (which parts count)."""
+    """Cache key of a dataset's features: the sha256 of the code (:func:`_code_version`), ``dataset.json`` and
+    every part's FLAC and CSV bytes and ``session.json`` per session."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
     ds.check_distinct()  # a copied session: refused before a cache could hide it
@@ -66,14 +64,8 @@ def _content_digest(t: FeatureTable) -> str:
 
 
 def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
-    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``.
-
-    The key binds the cache to the recordings' bytes, not the cache's own content: a cache whose labels were edited
-    with its key kept was trusted (``fit-svm`` then wrote another ``svm.onnx`` from the same recordings).  Here the
-    label rows are checked against the label CSVs (a session's last one or two rows may be missing: a recording that
-    stops inside its last chirp), and the whole content against the digest stored when the cache was written."""
-    from .dataset import COLUMNS
-
+    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``: its
+    label rows against the CSVs (the last one or two may be missing), its content against its stored digest."""
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""
@@ -98,13 +90,8 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached as plain arrays in ``<dataset>/.cache``.
-
-    The cache is keyed by content (:func:`_signature`: code, dataset.json, the bytes of every part's
-    audio and labels), so editing a label or replacing a part rebuilds it; a cache file that is
-    damaged, of other data or inconsistent (a label column one short) is rebuilt, never trusted; one whose
-    content was edited (its key kept) is rebuilt with a warning (:func:`_cache_differs`).
-    """
+    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content (:func:`_signature`); a damaged or
+    inconsistent cache is rebuilt, an edited one rebuilt with a warning."""
     key = _signature(ds)
     cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
     if cache.is_file():

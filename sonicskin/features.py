@@ -1,22 +1,22 @@
-"""What both models see: the OSPA-selected bins, absolute or relative to the no-touch reference.
-
-``mode="absolute"``: dB magnitudes of the selected bins (the paper's input).
-``mode="relative"``: the same minus the running no-touch reference of the stream, i.e. Alg. 2's
-online updating applied to the *features* (mean of 3 s of rest, refreshed every 20 min), so
-a slow drift of the channel is removed before either model sees it.
+"""What both models see: the OSPA-selected bins, absolute (dB, the paper's input) or relative: minus the
+stream's running no-touch reference (Alg. 2's online updating applied to the *features*), so a slow drift of the
+channel is removed before either model sees it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .calibration import OnlineReference
-from .dataset import FeatureTable
 
-__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "training_targets", "select_bins", "usable_bins",
+if TYPE_CHECKING:
+    from .dataset import FeatureTable
+
+__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "training_targets", "usable_bins",
            "rest_beta", "MIN_REST_CHIRPS"]
 
 MODES = ("absolute", "relative")
@@ -53,9 +53,8 @@ class FeatureSpec:
         return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s, **kw)
 
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
-        """Model inputs (n, len(bins)) float32 for every chirp of ``t`` (sessions are separate streams),
-        the reference from the labelled no-touch chirps: for *training* sessions.  Test streams are
-        replayed through :meth:`sonicskin.runtime.SkinRuntime.replay`."""
+        """Model inputs (n, len(bins)) float32 of every chirp of ``t`` (sessions separate streams, the reference from
+        the labelled no-touch chirps): for *training* sessions; test streams are replayed by the runtime."""
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
@@ -72,18 +71,11 @@ class FeatureSpec:
 
 def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, time_s: np.ndarray,
                       calibrator: OnlineReference, *, online: bool = True) -> np.ndarray:
-    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps.
-
-    Alg. 2 through :class:`~sonicskin.calibration.OnlineReference` (the object the live loop
-    runs), fed with the labels instead of a detector: the boot reference is the first ``beta``
-    consecutive ``quiet`` chirps of each session (the protocol's hands-off calibration) and
-    refreshes take the next ``beta`` quiet chirps once ``alpha`` has passed.  This is for the
-    *training* session(s), whose labels are the protocol; test streams are replayed with the
-    model's own detection (:meth:`sonicskin.runtime.SkinRuntime.replay`) and never see labels.
-    Chirps before the first reference use it too (training only).
-
-    ``calibrator`` gives beta, alpha and the clock (a fresh reference is made per session);
-    ``online=False`` keeps the boot reference throughout.
+    """``X`` minus the running no-touch reference of its own session, from the *known* no-touch chirps: Alg. 2
+    (:class:`~sonicskin.calibration.OnlineReference`, fed labels instead of a detector: boot on the first ``beta``
+    consecutive ``quiet`` chirps, refreshes every ``alpha``).  For *training* sessions only; test streams are
+    replayed with the model's own detection.  ``calibrator`` gives beta, alpha and the clock; ``online=False`` keeps
+    the boot reference throughout.
     """
     beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
     X = np.asarray(X, np.float32)
@@ -114,11 +106,8 @@ def training_targets(t: FeatureTable, layout, min_force_n: float = 0.5) -> tuple
 
 
 def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
-    """OSPA's gamma for this rig: ``n_bins``, or every bin the matched filter leaves when fewer are there.
-
-    ``None`` asks for the paper's 300.  A larger gamma than the rig has bins (a 165-bin table) is
-    clamped with a warning, so a default never turns into an error.
-    """
+    """OSPA's gamma for this rig: ``n_bins`` (``None``: the paper's 300), clamped with a warning to the bins the
+    matched filter leaves, so a default never turns into an error."""
     n_allowed = int(rig.allowed_mask.sum())
     want = DEFAULT_N_BINS if n_bins is None else int(n_bins)
     if want > n_allowed:
@@ -128,31 +117,8 @@ def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
     return want
 
 
-def select_bins(t: FeatureTable, rig, n_bins: int | None = 300, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
-    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when
-    the robot never moved), over the matched-filter mask of the rig.  Returns band-bin indices,
-    best first.
-
-    Without no-touch chirps (a table of touches only) the moving variance is taken as 1, as
-    :class:`~sonicskin.ospa.OSPA` documents: the bins with the largest touch variance are kept.
-    ``n_bins`` larger than the rig's bins is clamped (:func:`usable_bins`).
-    """
-    from .ospa import OSPA
-
-    touch = touch_mask(t, min_force_n)
-    moving = (t["location"] < 0) & (t["moving"] > 0)
-    ref = moving if moving.sum() >= 2 else quiet_mask(t)
-    if touch.sum() < 2:
-        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
-    gamma = usable_bins(rig, n_bins, log=log)
-    X_ref = t.X[ref] if ref.sum() >= 2 else None
-    return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_
-
-
-# A no-touch reference averages at least this many chirps.  Alg. 2's beta is 3 s (28 chirps on the
-# paper's rig); a recording whose rest is shorter (3 s that start inside a chirp hold 27 whole ones)
-# uses the rest it has, with a warning, down to this minimum.  The std of a 10-chirp mean is a third
-# of one chirp's, about 0.1 dB on the simulated rig.
+# A no-touch reference averages at least this many chirps: a recording with less rest than Alg. 2's beta uses what it
+# has, with a warning, down to this (a 10-chirp mean's std is a third of one chirp's, ~0.1 dB simulated).
 MIN_REST_CHIRPS = 10
 
 
@@ -166,9 +132,8 @@ def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
 
 
 def rest_beta(t: FeatureTable, beta_chirps: int, *, log=None) -> int | None:
-    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has when that
-    is shorter but at least :data:`MIN_REST_CHIRPS` (with a warning).  ``None``: some session has less
-    rest than the minimum (no online reference can be measured; use absolute features)."""
+    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has, down to
+    :data:`MIN_REST_CHIRPS` (with a warning); ``None`` below it (use absolute features)."""
     runs = rest_runs(quiet_mask(t), t["session"])
     shortest = min(runs.values()) if runs else 0
     if shortest >= beta_chirps:

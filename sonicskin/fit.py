@@ -1,22 +1,14 @@
 """One fit: a dataset's feature table and a split -> every model kind fitted, chosen on the validation presses,
 refitted on every labelled press -> one artifact.
 
-Every verb that trains goes through here: ``fit-svm``, ``record``, ``export`` (a Lightning checkpoint's network
-beside the closed-form models), ``compare``, ``seeds``, ``evaluate`` and ``reproduce``.  The steps:
-
-1. :func:`prepare` -> :class:`TrainingData`: the features table, the split (sessions or people, never chirps),
-   OSPA's bins chosen on the training sessions (gamma validated when not given), the model inputs of every chirp
-   (:class:`~sonicskin.features.FeatureSpec`), the class and force targets;
-2. each model kind (:mod:`sonicskin.kinds`, those it requires first) fits itself on the training chirps, choosing its
-   options on the validation presses (:meth:`TrainingData.folds`) or taking its measured default;
-3. with a validation session, the chosen configurations are **refitted on the training and validation sessions
-   together** (:meth:`TrainingData.refit`, scikit-learn's ``refit=True``): the estimates stay those of the held-out
-   pass, the deployed models have seen every labelled press (``refit=False`` keeps the training sessions' models);
-4. :func:`write_artifact`: every model exported to ONNX with its parity check, ``skin.json`` sealed, swapped in
-   atomically.
-
-Nothing of a test session's labels reaches any step: only the rows of ``split.train`` and ``split.val`` are read
-for fitting and choosing (``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
+Every verb that trains goes through here (``fit-svm``, ``record``, ``export``, ``compare``, ``seeds``, ``evaluate``,
+``reproduce``): :func:`prepare` -> :class:`TrainingData` (the split by sessions or people, OSPA's bins chosen on the
+training sessions, the model inputs of every chirp, the targets); each model kind (:mod:`sonicskin.kinds`) fits
+itself, choosing its options on the validation presses (:meth:`TrainingData.folds`); with a validation session the
+choices are **refitted on the training and validation sessions together** (:meth:`TrainingData.refit`; the
+estimates stay the held-out pass's); :func:`write_artifact` exports every model with its parity check and seals
+``skin.json``.  Only the rows of ``split.train`` and ``split.val`` are read for fitting and choosing
+(``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
 """
 
 from __future__ import annotations
@@ -30,12 +22,12 @@ import numpy as np
 
 from . import kinds
 from .artifact import PROBE_ROWS, atomic_artifact, skin_json
-from .dataset import Dataset, FeatureTable
+from .dataset import Dataset, FeatureTable, Split
 from .drift import DriftError, DriftTracker
 from .feature_cache import load_features_cached
-from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, select_bins, training_targets, usable_bins
+from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, training_targets, usable_bins
+from .ospa import select_bins
 from .selection import press_ids, press_passes, save_learning_curve, select_gamma_on_table
-from .split import Split
 
 __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artifact", "build_svm_artifact",
            "summary_lines", "selection_lines"]
@@ -43,12 +35,9 @@ __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artif
 
 @dataclasses.dataclass
 class TrainingData:
-    """What every fit step reads: one dataset's chirps, its split and the model inputs of every chirp.
-
-    ``X`` holds the inputs of *every* chirp of ``table`` (each session relative to its own labelled hands-off
-    reference in ``relative`` mode); only the rows of the training and validation sessions are ever used for
-    fitting: test sessions are replayed through the deployed artifact (:class:`sonicskin.head.Stream`).
-    """
+    """What every fit step reads: one dataset's chirps, its split and the model inputs of *every* chirp (each
+    session relative to its own labelled rest in ``relative`` mode); only the training and validation rows are ever
+    used for fitting."""
 
     dataset: Dataset
     table: FeatureTable
@@ -95,10 +84,8 @@ class TrainingData:
         return quiet_mask(self.table)
 
     def folds(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
-        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``.  With a validation session: fitted on
-        the training sessions and scored on the validation session, and the other way round (the mean of both halves
-        the ties at 100 % of one session).  Without one: the training sessions' last pass over the markers held out.
-        ``[]`` when nothing can validate (one press per marker, no validation session)."""
+        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``: the training and validation sessions,
+        each way round; without a validation session the last pass held out; ``[]`` when nothing can validate."""
         train, val = self.rows("train"), self.rows("val")
         if val.any():
             return ([(train, val), (val, train)], f"validation on {', '.join(self.split.val)} (and fitted there, scored "
@@ -117,7 +104,8 @@ class TrainingData:
         if not self.split.val:
             return self
         split = Split(self.split.train + self.split.val, (), self.split.test)
-        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s}
+        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s,
+             "beta_s": self.spec.beta_s}
         d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False,
                     **o)
         d.selection = dict(self.selection)
@@ -127,21 +115,18 @@ class TrainingData:
 
 def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str = "relative", train_sessions=None,
             val_sessions=None, test_subjects=None, split: Split | None = None, table: FeatureTable | None = None,
-            bins=None, alpha_s: float = 1200.0, rig=None, min_force_n: float = 0.5, allow_no_test: bool = False,
-            wide: bool = False, progress: bool = True, log=None) -> TrainingData:
+            bins=None, alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s, rig=None,
+            min_force_n: float = 0.5, allow_no_test: bool = False, wide: bool = False, progress: bool = True, log=None) -> TrainingData:
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
     inputs of every chirp.
 
-    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, kept in ``selection["svm"]``) by validation
-    on the training and validation sessions (:func:`sonicskin.selection.select_gamma_on_table`).  ``bins`` gives
-    the band bins explicitly instead (e.g. every band bin, the paper's no-OSPA ablation).  ``split``/``table``:
-    given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (what the network may read:
-    its location layer is validated on prefixes of them), and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``;
-    a prefix, since OSPA ranks the bins once).  ``alpha_s``: Alg. 2's refresh interval.  ``rig``: the rig the artifact declares
-    (default: the dataset's; the paper's no-matched-filter ablation passes it without its PWM notches).  Relative
-    inputs need Alg. 2's rest in every session: shorter rest is used down to
-    :data:`~sonicskin.features.MIN_REST_CHIRPS` (with a warning), a table of touches only falls back to absolute
-    inputs.
+    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, ``selection["svm"]``) by validation on the
+    training and validation sessions; ``bins`` gives the band bins instead (every band bin: the no-OSPA ablation);
+    ``split``/``table``: given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (the
+    network's layer reads a validated prefix) and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``).
+    ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted length of its reference (shorter when some
+    session has less rest, down to :data:`~sonicskin.features.MIN_REST_CHIRPS`; a table of touches only falls back to
+    absolute inputs).  ``rig``: the rig the artifact declares (default: the dataset's).
     """
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = table if table is not None else load_features_cached(ds, progress=progress)
@@ -161,7 +146,7 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
         bins = select_bins(tr, ds.rig, int(ds.rig.allowed_mask.sum()) if wide else n_svm, min_force_n)
     else:
         n_svm = len(bins)
-    spec = FeatureSpec(tuple(int(b) for b in bins), mode, alpha_s=float(alpha_s))
+    spec = FeatureSpec(tuple(int(b) for b in bins), mode, beta_s=float(beta_s), alpha_s=float(alpha_s))
     if mode == "relative":
         beta0 = spec.reference(ds.rig.chirps_per_s).beta
         beta = rest_beta(t, beta0)
@@ -193,10 +178,8 @@ TRAINED_STRETCH = 1.5e-3
 
 
 def drift_reference(data: TrainingData, log=None) -> dict | None:
-    """Drift tracking's training reference (:meth:`sonicskin.drift.DriftTracker.to_dict`): the mean dB spectrum of the
-    training sessions' hands-off chirps at rest over the whole band, with the wall's material when the dataset names
-    it (its kappa gives the temperature equivalent).  ``None`` without rest (a table of touches only) or without a
-    mode pattern to track."""
+    """Drift tracking's training reference: the mean dB spectrum of the training sessions' hands-off chirps at rest
+    (with the wall's material when named); ``None`` without rest or without a mode pattern to track."""
     rest = data.quiet & data.split.mask(data.table, "train")
     if rest.sum() < 2:
         return None
@@ -213,10 +196,8 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
 
 def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None, log=print
                ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
-    """Fit the model kinds ``wanted`` (and those they require) on ``data``; with a validation session and ``refit``,
-    fit them again with their choices on the training and validation sessions together.  ``options``: keyword
-    arguments per kind's :meth:`~sonicskin.kinds.ModelKind.fit`.  Returns the data the deployed models were fitted on
-    and the fitted models, in fitting order."""
+    """Fit the model kinds ``wanted`` (and those they require) on ``data`` (``options``: per kind), then with a
+    validation session and ``refit`` again on both; returns the deployed models' data and the fitted models."""
     options = options or {}
     order = kinds.fit_order(wanted)
     fits: dict[str, kinds.Fitted] = {}
@@ -235,11 +216,8 @@ def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = Tr
 
 def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fitted], *, training: dict | None = None,
                    learning_curve: bool = False, drift: bool = True, log=print) -> dict:
-    """Export every fitted model (:meth:`~sonicskin.kinds.ModelKind.export`, each with its parity check) into ``out``
-    with a sealed ``skin.json`` (:func:`sonicskin.artifact.skin_json`); ``out`` is replaced as a whole at the end
-    (:func:`sonicskin.artifact.atomic_artifact`).  ``drift``: store drift tracking's training reference
-    (:func:`drift_reference`), so every stream maps its chirps back onto the training frequency axis.  Returns the
-    ``skin.json`` document."""
+    """Export every fitted model (each with its parity check) into ``out`` with a sealed ``skin.json`` (and, with
+    ``drift``, drift tracking's reference); ``out`` is replaced as a whole at the end.  Returns the document."""
     if not fits:
         raise ValueError("write_artifact needs at least one fitted model")
     out = Path(out)
@@ -271,9 +249,8 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
 
 def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None,
                  training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
-    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`).  The network (``"net"`` among
-    ``wanted``) needs torch; ``options[net]`` may pass ``model=`` a trained module (a Lightning checkpoint's), whose
-    touch decision and force are then chosen on the validation presses before the refit."""
+    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`); ``options[net]`` may pass a trained
+    module as ``model=`` (a checkpoint's), whose touch decision and force are chosen before the refit."""
     final, fits = fit_models(data, wanted, refit=refit, options=options, log=log)
     return write_artifact(final, out, fits, training=training, learning_curve=learning_curve, log=log)
 
@@ -302,14 +279,12 @@ def summary_lines(out: str | Path, skin: dict) -> list[str]:
 
 
 def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
-                       min_force_n: float = 0.5, progress: bool = True, log=print) -> dict:
-    """``fit-svm`` (and ``record``): an SVM-only artifact from a dataset, torch-free, trained on every session (or
-    ``train_sessions``) with no validation or test split.  ``n_bins=None`` chooses gamma (with C, kernel width, force
-    model) by validation on the training sessions' presses (:mod:`sonicskin.selection`), or keeps the paper's 300
-    with a warning when it cannot validate.  ``out`` is replaced as a whole when everything is written."""
+                       min_force_n: float = 0.5, progress: bool = True, log=print, **alg2) -> dict:
+    """``fit-svm`` (and ``record``): an SVM-only artifact, torch-free, trained on every session (or ``train_sessions``),
+    gamma chosen by validation on their presses unless ``n_bins`` (``alg2``: :func:`prepare`'s ``alpha_s``/``beta_s``)."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     d = prepare(ds, n_bins=n_bins, mode=mode, train_sessions=list(train_sessions or ds.sessions), val_sessions=[],
-                min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log)
+                min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log, **alg2)
     skin = fit_artifact(d, out, learning_curve=True, log=log)
     for line in summary_lines(out, skin):
         log(line)

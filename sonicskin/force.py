@@ -1,14 +1,9 @@
 """Touch-force estimation (paper Sec. III-D): energy over the OSPA bins -> curve model per location.
 
-``E^O`` is the energy over the selected bins.  We take it relative to the no-touch reference
-and in dB, ``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins, which removes the
-rig's gain; the paper's curve models then map ``E`` to force.
-
-Curve models (Fig. 13) share one fitting scheme, variable projection: each is linear in its
-coefficients given at most one nonlinear parameter (``omega`` for Fourier, the rate for the
-exponential, the exponent for the power law), which is scanned on a grid with a linear
-least-squares solve per point, then refined jointly with :func:`scipy.optimize.least_squares`.
-So the fit does not depend on a start value of ``omega``.
+``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins (relative to the no-touch reference, in dB: the
+rig's gain drops out).  The curve models (Fig. 13) are fitted by variable projection: linear in their coefficients
+given at most one nonlinear parameter, scanned on a grid, then refined with :func:`scipy.optimize.least_squares`
+(no start value of ``omega`` to depend on).
 """
 
 from __future__ import annotations
@@ -24,10 +19,8 @@ __all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce",
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
-    """``E^O`` in dB over ``bins`` of dB-magnitude features, relative to ``ref_db`` if given.
-
-    X_db : (n, n_features) ``20 log10 |H|``;  ref_db : (n_features,) or (m, n_features) no-touch reference.
-    """
+    """``E^O`` in dB over ``bins`` of dB-magnitude features ``X_db`` (n, n_features), relative to the no-touch
+    reference ``ref_db`` ((n_features,) or (m, n_features)) if given."""
     X = np.asarray(X_db, dtype=np.float64)[:, bins]
     e = 10 * np.log10(np.mean(10 ** (X / 10), axis=1))
     if ref_db is not None:
@@ -116,12 +109,8 @@ class FittedCurve:
 
 
 def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
-    """Least-squares fit of one curve model ``F ~ f(E)`` (paper Eq. 5 for ``fourier1``).
-
-    Parameters
-    ----------
-    E : (n,) energy feature.  F : (n,) ground-truth force in N.  model : a key of :data:`MODELS`.
-    """
+    """Least-squares fit of one curve model ``F ~ f(E)`` (``model``: a key of :data:`MODELS`; paper Eq. 5 for
+    ``fourier1``)."""
     if model not in MODELS:
         raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
     E = np.asarray(E, float)
@@ -159,12 +148,7 @@ def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCu
 
 
 class PerLocationForce:
-    """One curve per touch location (the paper's parameter set S in R^{N x 4} for Fourier-1).
-
-    Parameters
-    ----------
-    model : curve model name, default ``"fourier1"``.
-    """
+    """One curve per touch location (the paper's parameter set S in R^{N x 4} for Fourier-1)."""
 
     def __init__(self, model: str = "fourier1"):
         if model not in MODELS:
@@ -202,12 +186,8 @@ class PerLocationForce:
 
 
 class PooledForce:
-    """One linear model for every location: ``F = inputs . coef + loc_coef[location] + intercept``.
-
-    Fitted as ``StandardScaler -> Ridge(alpha)`` over the touch's model inputs (relative dB of the selected
-    bins) and the location one-hot, then folded into plain coefficients over the raw inputs, so it is
-    JSON in ``skin.json`` (no pickle, no extra ONNX graph).  Unlike one curve per location it shares
-    what one press teaches across locations (issue 15: it holds on presses not trained on).
+    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge over the
+    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches.
     """
 
     NAME = "pooled-ridge"

@@ -1,12 +1,10 @@
 """An artifact's integrity, and whether it fits where it is asked to run.
 
-Every ONNX file carries, in its ``metadata_props`` under ``sonicskin.binding``, what it was trained with: the model's
-name and kind, the rig, the layout (ids and coordinates), the features (bins in their order, mode, Alg. 2's
-beta/alpha), ``min_force_n``, the training split and the sha256 of its ``skin.json`` entry's parameters (threshold,
-reference scores, force curves, hparams).  Loading (:func:`check_integrity`) compares that binding with
-``skin.json`` field by field, then the document's digest, then re-runs the probe inputs.  Each step names what
-differs in one line.  :func:`check_session` checks the ONNX graph's inputs and outputs against ``skin.json``;
-:func:`check_rig` and :func:`check_layout` refuse an artifact on a rig or a marker layout it was not trained for.
+Every ONNX file carries in its ``metadata_props`` (``sonicskin.binding``) what it was trained with: name and kind,
+rig, layout, features, ``min_force_n``, split and the sha256 of its entry's parameters.  :func:`check_integrity`
+compares that binding with ``skin.json`` field by field, then the digest, then re-runs the probes, each step one
+line naming what differs; :func:`check_session` checks the graph's inputs and outputs; :func:`check_rig` and
+:func:`check_layout` refuse a rig or a marker layout the artifact was not trained for.
 """
 
 from __future__ import annotations
@@ -18,7 +16,8 @@ from typing import Any
 
 from . import kinds
 from .artifact_schema import REEXPORT, _short
-from .errors import ArtifactError
+from .errors import ArtifactError, is_number
+from .rig import Layout, Rig
 
 __all__ = ["BINDING_KEY", "canonical", "artifact_digest", "binding", "read_binding", "stamp_binding", "run_probe",
            "check_integrity", "check_session", "check_rig", "check_layout"]
@@ -56,7 +55,7 @@ def _describe_order(have: list, want: list, what: str) -> str:
     if len(have) != len(want):
         return f"{len(have)} {what} listed, the model has {len(want)}"
     def order(v):  # numbers by value (bins, ids), anything else after them by its text
-        return (0, v, "") if isinstance(v, (int, float)) and not isinstance(v, bool) else (1, 0, repr(v))
+        return (0, v, "") if is_number(v, finite=False) else (1, 0, repr(v))
     if sorted(have, key=order) == sorted(want, key=order):
         if have == sorted(want, key=order) and have != want:
             return f"the model's {what} sorted"
@@ -154,12 +153,8 @@ def run_probe(session, inputs) -> list:
 
 
 def check_integrity(session, meta: dict, model: str, data: bytes, *, folder: str | Path) -> None:
-    """The model file belongs to this ``skin.json``, and the document is the one exported.
-
-    1. the binding inside the ONNX file equals what ``skin.json`` says (features, rig, layout, parameters);
-    2. the document's digest matches its content (every model file's sha256 included);
-    3. the probe inputs give the export-time outputs (finite, within 1e-3).
-    """
+    """The model file belongs to this ``skin.json`` (its binding), the document is the one exported (its digest,
+    every model file's sha256 included), and the probe inputs give the export-time outputs (finite, within 1e-3)."""
     import numpy as np
 
     folder = Path(folder)
@@ -195,11 +190,8 @@ def _last_dim(shape) -> int | None:
 
 
 def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
-    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths.
-
-    Declared shapes are checked where they are fixed, and one probe batch of zeros is run to check the
-    shapes the graph really produces.
-    """
+    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths (declared shapes
+    where fixed, and one probe batch of zeros for the shapes the graph really produces)."""
     import numpy as np
 
     n_in = int(meta["models"][model]["n_in"])  # the first n_in of features.bins
@@ -232,8 +224,6 @@ def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
 
 def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") -> None:
     """Refuse to run an artifact on a rig it was not trained for (sample rate, chirp, bands)."""
-    from .rig import Rig
-
     diffs = Rig.from_dict(meta["rig"]).mismatch(rig)
     if diffs:
         raise ArtifactError(f"{what} was trained for another rig ({'; '.join(diffs)}){f' than {here}' if here else ''}; "
@@ -241,15 +231,9 @@ def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") ->
 
 
 def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = "the surface here") -> None:
-    """Refuse to run an artifact on a marker layout it was not trained for.
-
-    ``layout`` is the :class:`sonicskin.rig.Layout` of the surface it will run on (e.g. a scenario's
-    ``make_layout()`` or a dataset's layout).  Different ids or count is an error; the same ids at other
-    positions too (the model's locations would be reported at the wrong places).
-    """
+    """Refuse to run an artifact on a marker ``layout`` (e.g. a scenario's ``make_layout()``) it was not trained for:
+    other ids or count, or the same ids at other positions."""
     import numpy as np
-
-    from .rig import Layout
 
     mine = Layout.from_dict(meta["layout"])
     if mine.ids != layout.ids:

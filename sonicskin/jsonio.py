@@ -15,17 +15,8 @@ OMIT = object()
 
 
 def json_safe(obj: Any, *, keep_nonfinite: bool = False, convert: Callable[[Any], Any] | None = None) -> Any:
-    """``obj`` as plain, strict JSON data.
-
-    Dict keys become strings, tuples and numpy arrays lists, numpy scalars Python numbers and bools, and a NaN or
-    infinite float (an interval from one value, a median of nothing) ``None``, so
-    ``json.dumps(json_safe(o), allow_nan=False)`` never writes a ``NaN`` literal.
-
-    Parameters
-    ----------
-    keep_nonfinite : keep NaN and infinities as floats (a writer that refuses them afterwards, naming the field).
-    convert : called on every value before the rules above; what it returns, when that is not the value itself,
-        is converted in its place (a mean that remembers its spread -> a dict); :data:`OMIT` leaves the value out.
+    """``obj`` as plain, strict JSON data (NaN and infinity as ``None`` unless ``keep_nonfinite``); ``convert`` is
+    called on every value first, its different result converted instead, :data:`OMIT` left out.
     """
     if convert is not None:
         new = convert(obj)

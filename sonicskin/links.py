@@ -1,35 +1,11 @@
 """Links and arm files: several robot links, each with its own TX/RX pair, on one audio interface.
 
-A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp::
-
-    duplex: time            # time | frequency | none
-    links:
-      - {name: upper-arm, tx: 0, rx: 0}
-      - {name: forearm, tx: 1, rx: 1}
-
-``time``: link k chirps in period k of every ``N`` (each link's rate drops to 1/N).  ``frequency``: the band is split
-into ``N`` sub-bands, all chirping at once.  ``none``: every link has its own output *and* input channel and the full
-band, all chirping at once: the robot's joints decouple adjacent links acoustically (paper Sec. IV), so a whole arm
-senses at the full chirp rate on every link.
-
-An *arm file* (``configs/arms``) is a links file whose links also say where they are on the robot and, for the
-simulated arm, what they are made of::
-
-    name: arm6
-    rig: fast                    # the rig every link runs (one interface, one sample rate)
-    urdf: arm6.urdf              # optional, relative to this file: the links' frames and geometry
-    duplex: none
-    links:
-      - name: forearm
-        tx: 3
-        rx: 3
-        frame: forearm_link      # the URDF link (its collision cylinder or box is the touched surface)
-        surface: {...}           # instead of (or overriding) the URDF: sonicskin.surface.LinkSurface.from_dict
-        scenario: {base: moving, material: aluminium, seed: 41, ...}   # the simulated link (a scenario or overrides)
-        artifact: forearm        # the link's trained artifact, relative to this file (fit-svm --links writes it)
-
-A scenario without ``geometry`` takes the surface's (a URDF cylinder of radius r and length L is the simulated tube).
-:func:`write_arm` writes the arm file of a trained arm: the same links with their artifacts, next to them.
+A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``, link k
+chirps in period k of every N; ``frequency``, the band split into N sub-bands; ``none``, every link its own output
+and input channel and the full band).  An *arm file* (``configs/arms``) is a links file whose links also say where
+they are on the robot (a URDF frame, a surface) and, simulated, what they are made of (a scenario); a scenario
+without ``geometry`` takes the surface's.  :func:`write_arm` writes the arm file of a trained arm, each link with
+its artifact.  The keys: docs/arm.md.
 """
 
 from __future__ import annotations
@@ -43,8 +19,11 @@ import yaml
 
 from .acquire import Link
 from .dataset import check_name
-from .errors import ConfigNotFoundError, brief
+from .errors import ConfigNotFoundError, brief, is_number
 from .rig import ConfigError, Rig, load_yaml, resolve_config
+from .sim import Scenario
+from .sim.channel import MATERIALS
+from .surface import LinkSurface
 
 __all__ = ["load_links", "load_arm", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
 
@@ -99,8 +78,6 @@ def missing_datasets(links: list[Link], data: Path) -> list[str]:
 def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
     """The simulated link of a link: a scenario name, or a mapping ``{base: NAME, key: value, ...}`` (keys of
     :class:`sonicskin.sim.Scenario`).  Without ``geometry`` the surface's shape is simulated."""
-    from .sim import Scenario
-
     if isinstance(spec, str):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
@@ -111,7 +88,6 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
     d = {**Scenario.load(base).to_dict(), "name": name, **spec}
     if "geometry" not in spec and surface is not None:
         d["geometry"] = scenario_geometry(surface)
-    from .sim.channel import MATERIALS
 
     if not isinstance(d.get("material"), str) or d["material"] not in MATERIALS:  # here, not at the first render
         raise ConfigError(f"{where}: scenario: unknown material {brief(d.get('material'))}; choose one of {sorted(MATERIALS)}")
@@ -131,8 +107,6 @@ def scenario_geometry(surface) -> dict:
 
 def scenario_surface(scenario, frame: str):
     """The surface of a simulated link placed by nothing else: its scenario's shape, centred in a frame of its own."""
-    from .surface import LinkSurface
-
     g = scenario.geometry
     if g.get("kind", "tube") == "tube":
         return LinkSurface(frame, "tube", (g["radius_cm"] / 100, g["length_cm"] / 100))
@@ -170,7 +144,7 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
                              f"{', '.join(sorted(_LINK_KEYS))}")
         for k in ("tx", "rx"):
             v = d.get(k)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            if not is_number(v, integer=True) or v < 0:
                 raise ConfigError(f"{where}: link {i}: {k} must be a 0-based channel number (an integer >= 0), got "
                                  f"{'nothing' if k not in d else brief(v)}")
         name = d.get("name", f"link{i}")
@@ -213,8 +187,6 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
         raise ConfigError(f"{where}: frame must be the name of the link's frame (a URDF link), got {brief(frame)}")
     surface = None
     if d.get("surface") is not None or (urdf is not None and frame is not None):
-        from .surface import LinkSurface
-
         over = d.get("surface") or {}
         if not isinstance(over, dict):
             raise ConfigError(f"{where}: surface must be a mapping (sonicskin.surface.LinkSurface), got {brief(over)}")

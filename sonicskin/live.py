@@ -1,31 +1,13 @@
 """The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
 
-The consumer side of an audio source (:mod:`sonicskin.acquire`).  Per chirp it costs two FFTs and
-an inverse FFT of one period (the features, the chirp check), one ONNX call and some numpy, a few
-percent of the 106.7 ms chirp period.
-
-- **Framing** locks onto the chirp train by cross-correlation over one period, then cuts frames
-  every ``n_chirp`` samples; a discontinuity (overflow, dropped block) or a drift of the
-  correlation peak makes it discard what it holds and lock again.
-- **Per chirp** the band features, then one call, :meth:`sonicskin.runtime.SkinStream.chirp`: Alg. 2's online
-  reference (the first ``beta`` seconds are taken as no-touch, as the system starts with hands
-  off; every ``alpha`` seconds the next ``beta`` seconds in which no touch is detected become the
-  new reference), model, detection, force.  Offline evaluation replays recordings through the
-  same object (:meth:`sonicskin.runtime.SkinStream.replay`).
-- **Faults**: frames with NaN/inf, silence, clipping, a constant level or a dropout (a run of exact
-  zeros, which no live ADC produces) are skipped and counted and never reach the model; overflows and underflows
-  are counted.  A boot calibration that loses chirps to such faults is detected
-  (:class:`~sonicskin.calibration.OnlineReference`) and re-taken from later rest, with one warning.
-- **Watchdog and clock**: ``duration_s`` is honoured by the wall clock (and by stream time, when a
-  fast simulated source runs ahead of it); when no audio arrives for ``watchdog_s`` (the audio
-  server or the interface died, or a simulated source's producer stalled, at any pace), the run
-  stops with :class:`DeviceLost`.
-- **No chirp**: the hands-off boot window must hold a repeating chirp, and after it every frame
-  must repeat the one before (:func:`chirp_coherence`): a frame that does not is skipped, and a
-  second in which most do not (the transmitter stopped, the input turned to noise) stops the run
-  with :class:`InputUnusable`; a constant input (a DC level with no signal) is a faulty frame too.
-- **Output**: :class:`~sonicskin.events.TouchEvent` per touched chirp (and one ``release``), as
-  JSON lines (the contract of :mod:`sonicskin.events`) and optionally as UDP datagrams.
+The consumer side of an audio source (:mod:`sonicskin.acquire`).  :class:`Framer` locks onto the chirp train by
+cross-correlation and cuts a frame every ``n_chirp`` samples (lost audio or a wandering peak: lock again); each frame
+gives its band features and one call of the stream (:class:`sonicskin.head.Stream`: Alg. 2's reference, drift
+tracking, model, detection, force), the same object every offline replay uses.  Faulty frames (NaN/inf, silence,
+clipping, a dropout, a constant level, no chirp) are counted and never reach the model; a disturbed boot
+calibration is re-taken from later rest.  The run stops with :class:`DeviceLost` when no audio arrives for
+``watchdog_s``, and with :class:`InputUnusable` when audio arrives but holds no usable chirp (at boot, or for a
+second of the run).  Events are :class:`~sonicskin.events.TouchEvent` JSON lines, optionally UDP datagrams.
 """
 
 from __future__ import annotations
@@ -44,32 +26,26 @@ import scipy.fft
 from .acquire import AudioSource, DeviceLost, blocks
 from .dsp import band_db, find_chirp_offset, frame_faults, rig_chirp
 from .errors import SonicskinError
-from .events import TouchEvent, attach_surface
+from .events import SCHEMA_VERSION, TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable",
+           "dropout_frames"]
 
 
-# Chirp-to-chirp spread (std, dB) of the band features over the boot window, median over the usable bins: a repeating
-# chirp gives ~0.1 dB on every shipped rig and scenario (moving robot, aluminium plate, several people), noise without a
-# chirp (the transmitter off) the Rayleigh figure, 5.6 dB.  (Only for the hands-off boot: a moving robot's motor noise
-# raises the spread of a valid run to 3.4-4.2 dB, so the rest of the run is checked by the chirp coherence below.)
+# Chirp-to-chirp spread (std, dB, median over the usable bins) of the hands-off boot window: a repeating chirp gives
+# ~0.1 dB on every shipped rig and scenario, noise alone (the transmitter off) 5.6 dB.
 NO_CHIRP_SPREAD_DB = 4.0
-# After the boot, every frame must repeat the one before: the chirp-to-chirp coherence (chirp_coherence) of a chirp
-# train is 0.92-1.00 per frame, and its median over any CHIRP_CHECK_S at least 0.98, on both shipped rigs x the six
-# shipped scenarios and 42 rigs of the random family (design seeds 0-9, held-out 7001-7032; the live session, frames cut
-# mid-chirp; touches, a moving robot and its motor noise, reverberant links whose matched-filter peak is barely above
-# noise's); noise alone gives 0.03-0.06 per frame on jaco, 0.07-0.15 on the fast rig, 0.12-0.24 on a 1024-sample rig
-# (the best of n_chirp lags over fewer bins).
+# After the boot every frame must repeat the one before (chirp_coherence): a chirp train scores 0.92-1.00 per frame on
+# the shipped rigs, scenarios and 42 random-family rigs, noise alone 0.03-0.24.
 MIN_COHERENCE = 0.5
 CHIRP_CHECK_S = 1.0  # a chirp lost mid-run stops the run about half of this later
 MIN_AC_RMS = 1e-7  # a frame whose samples vary (std) by less is a constant level: a DC offset with no signal on it
 
 
 class InputUnusable(DeviceLost):
-    """Audio arrives but for the watchdog's time not one chirp of it could be used (all NaN, silent,
-    clipped, constant or cut by lost blocks), or it holds no chirp (noise alone, at boot or for a
-    second of the run): the model would be blind, or see noise, while the loop looked healthy."""
+    """Audio arrives but for the watchdog's time not one chirp of it could be used, or it holds no chirp (noise
+    alone): the model would be blind, or see noise, while the loop looked healthy."""
 
 
 def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
@@ -94,10 +70,7 @@ def _allowed_bins(rig) -> np.ndarray:
 
 def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
     """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation of
-    their band spectra (:func:`band_spectrum`) over every lag.  A periodic chirp train through a link repeats (1 for a
-    still link; the share of the energy that repeats when a finger or the robot moves, or motors add noise); noise does
-    not (about ``sqrt(ln(n_chirp) / bins)``).  Taking the best lag makes it blind to where the frames were cut (a
-    re-lock after lost audio, a jittery clock), as the magnitude features are."""
+    their band spectra over every lag (noise gives about ``sqrt(ln(n_chirp) / bins)``)."""
     L = rig.n_chirp
     Y = np.zeros(L, np.complex64)
     Y[_allowed_bins(rig)] = X * np.conj(X_prev)
@@ -107,10 +80,8 @@ def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
 
 
 def clearly_clean(frame: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7, min_run: int = 64) -> bool:
-    """True when one frame can have none of the live loop's faults (:meth:`LiveLoop._fault`: non-finite, silent,
-    clipped, a dropout, a DC offset alone), from four cheap reductions, with margins that float32 sums cannot cross;
-    ``False`` means "look closer", not "faulty".  The live loop checks every
-    chirp of every link, so the common case is one pass instead of six."""
+    """True when one frame can have none of the live loop's faults (:meth:`LiveLoop._fault`), from four cheap
+    reductions with margins that float32 sums cannot cross; ``False`` means "look closer", not "faulty"."""
     e = float(np.dot(frame, frame))  # non-finite samples make it non-finite
     n = frame.size
     if not (math.isfinite(e) and e >= 4 * n * min_rms ** 2):
@@ -137,16 +108,8 @@ def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
 
 
 class Framer:
-    """Chirp-synchronous framing of a block stream that re-locks after lost audio.
-
-    Parameters
-    ----------
-    reference : the transmitted chirp (one period).
-    check_every : verify the lock every this many frames (an FFT of one period).
-    tolerance : samples the correlation peak may wander before re-locking.  A firm touch on a moving
-        robot moves the peak of the simulated CFRP link by up to ~80 samples; a small slip is
-        harmless anyway (in steady state it is a circular shift, which leaves |H| unchanged).
-    """
+    """Chirp-synchronous framing on the chirp ``reference``, re-locked after lost audio and when the correlation peak
+    (checked every ``check_every`` frames) wanders more than ``tolerance`` samples (a firm touch moves it ~80)."""
 
     def __init__(self, reference: np.ndarray, *, check_every: int = 16, tolerance: int = 256):
         self.ref = np.asarray(reference, np.float64)
@@ -201,14 +164,8 @@ class Framer:
 
 
 class UdpSink:
-    """Send event JSON as UDP datagrams; localhost unless told otherwise.
-
-    The host is resolved once, here, and must be a destination this machine can send to: an unknown
-    name, the broadcast or the unspecified address, or a network this machine has no route to is one
-    :class:`SonicskinError` before the run starts (a broadcast target ran the whole run with one
-    warning that no event was sent).  A datagram that cannot be sent later (network down) is counted
-    in :attr:`errors` and reported once on stderr; the loop goes on.
-    """
+    """Send event JSON as UDP datagrams (localhost by default), the host resolved and checked once, here; a datagram
+    that cannot be sent later is counted in :attr:`errors` and reported once."""
 
     def __init__(self, target: str):
         host, _, port = target.rpartition(":")
@@ -266,17 +223,8 @@ class UdpSink:
 
 
 class LiveLoop:
-    """Consume a source, emit touch events.
-
-    Parameters
-    ----------
-    runtime : a loaded artifact model (:class:`sonicskin.runtime.SkinRuntime`).
-    source : an audio source (:class:`sonicskin.acquire.AudioSource`).
-    emit : called with each event's JSON line (default: print to stdout).
-    status : write a status line to stderr about once a second.
-    on_chirp : called with ``(t_s, predictions)`` for every processed chirp (``None`` during the
-        boot calibration), e.g. to record a replay chirp by chirp.
-    """
+    """Consume ``source``, run ``runtime`` on it, emit touch events (``emit``: each JSON line, default stdout;
+    ``status``: a status line on stderr; ``on_chirp(t_s, predictions)`` for every processed chirp)."""
 
     startup_dropped: int | None = None  # audio blocks dropped before the first chirp was framed
 
@@ -444,14 +392,8 @@ class LiveLoop:
         return fault
 
     def _no_chirp(self, X: np.ndarray) -> bool:
-        """The chirp must stay in the input for the whole run, not only at boot: a transmitter that stopped, or an input
-        that turned to noise after a good boot, gave about 9 touch events a second from noise, with no error.
-
-        Every frame's :func:`chirp_coherence` with the last usable frame joins the last :data:`CHIRP_CHECK_S` of them.
-        After the boot (which has its own check, :meth:`_boot_check`), a frame below :data:`MIN_COHERENCE` is skipped
-        (True: it never reaches the model, so noise gives no touch event), and a window in which more than half are
-        below it stops the run (:class:`InputUnusable`: the chirp is gone, not one odd frame).  Costs an FFT and an
-        inverse FFT of one period per chirp.  ``X``: the frame's :func:`band_spectrum`."""
+        """After the boot a frame that does not repeat the last usable one (:func:`chirp_coherence` below
+        :data:`MIN_COHERENCE`) is skipped (True); most of a :data:`CHIRP_CHECK_S` window so: :class:`InputUnusable`."""
         prev, self._prev_spectrum = self._prev_spectrum, X
         if prev is None:
             return False
@@ -504,8 +446,7 @@ class LiveLoop:
                 f"{self._startup_note(c['dropped_blocks'])}  skipped frames {sum(self.skipped.values())}   ")
 
     def _startup_note(self, dropped: int) -> str:
-        """Why blocks were dropped when it was at start-up: the 2 s queue filled before the loop framed its first chirp
-        (a slow first render of the simulated device catching up, or a loaded machine); not a fault of the link."""
+        """Blocks dropped at start-up (the queue filled before the loop framed its first chirp): not the link's fault."""
         d0 = self.startup_dropped if self.startup_dropped is not None else dropped
         if not d0:
             return ""
@@ -526,15 +467,11 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
               stop=None) -> list[dict]:
     """Feed every block of one source to several loops (one per link of a multi-link rig).
 
-    Ends at ``duration_s`` seconds of wall clock since the call or of stream time, whichever comes
-    first (a source with ``realtime = False``, the ``--fast`` simulation, by stream time only),
-    after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a finite source ends.  A source that delivers
-    nothing for ``watchdog_s`` seconds raises :class:`DeviceLost`, and the exception that ended its producer thread is
-    raised here (:func:`sonicskin.acquire.blocks`); when audio arrives but ``watchdog_s`` seconds of it
-    give a loop no usable chirp (all NaN, silent, clipped, constant, or cut by lost blocks), or a loop's input holds no
-    chirp (:meth:`LiveLoop._no_chirp`), raises :class:`InputUnusable`, whatever the source: the model would be blind, or
-    see noise, while the loop looked healthy.  ``idle_timeout_s``
-    is kept for callers that set it, the wait for a block is never longer than 0.1 s.
+    Ends at ``duration_s`` of wall clock or of stream time, whichever comes first (a source with ``realtime = False``,
+    the ``--fast`` simulation: stream time only), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a
+    finite source ends.  Nothing for ``watchdog_s``: :class:`DeviceLost` (or the exception that ended the source's
+    producer, :func:`sonicskin.acquire.blocks`); audio without a usable chirp for ``watchdog_s``, or no chirp in it:
+    :class:`InputUnusable`.  A block is waited for at most ``min(0.1, idle_timeout_s)`` s.
     """
     t_last_status = started = time.perf_counter()
     cpu0 = time.process_time()
@@ -574,3 +511,31 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
         print("\r" + " | ".join(lp.status_line() for lp in loops), file=sys.stderr, flush=True)
     wall = time.perf_counter() - started
     return [lp.summary(wall, time.process_time() - cpu0, stream_s) for lp in loops]
+
+
+# -- Lab Streaming Layer (optional: pip install 'sonicskin[lsl]'): one irregular-rate string stream of type
+# TouchEvents, each sample one event's JSON, the schema version in desc/schema_version; LSL stamps its own clock.
+STREAM_TYPE = "TouchEvents"
+
+
+def import_pylsl():
+    try:
+        import pylsl
+    except (ImportError, RuntimeError, OSError) as e:  # pylsl raises RuntimeError when liblsl cannot load
+        raise SonicskinError(f"--lsl needs pylsl ({str(e).splitlines()[0][:120]}): pip install 'sonicskin[lsl]'") from None
+    return pylsl
+
+
+class LslSink:
+    """Publish event JSON lines on an LSL outlet named ``name``."""
+
+    def __init__(self, name: str = "sonicskin", *, source_id: str | None = None):
+        pylsl = import_pylsl()
+        info = pylsl.StreamInfo(name, STREAM_TYPE, 1, pylsl.IRREGULAR_RATE, pylsl.cf_string, source_id or f"sonicskin-{name}")
+        desc = info.desc()
+        desc.append_child_value("schema_version", str(SCHEMA_VERSION))
+        desc.append_child_value("format", "one JSON touch event per sample (sonicskin.events)")
+        self.outlet = pylsl.StreamOutlet(info)
+
+    def __call__(self, line: str) -> None:
+        self.outlet.push_sample([line])

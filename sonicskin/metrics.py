@@ -1,13 +1,16 @@
-"""Evaluation metrics of the paper's Sec. V: accuracy, confusion, distance CDF, Table I."""
+"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval
+every report quotes."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from sklearn.metrics import confusion_matrix
 
 from .rig import Layout
 
-__all__ = ["localization_report", "force_report", "error_cdf", "speed_ratio"]
+__all__ = ["localization_report", "force_report", "error_cdf", "speed_ratio", "t_interval"]
 
 
 def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -17,10 +20,8 @@ def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) -> dict:
-    """Accuracy, confusion matrix, and surface-distance errors (share < 2 cm and < 3 cm).
-
-    Errors are distances between the predicted and the true marker on the link surface.
-    """
+    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm
+    and < 3 cm)."""
     y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
     if y_true.shape != y_pred.shape:
         raise ValueError(f"{y_true.size} true labels but {y_pred.size} predictions")
@@ -37,11 +38,8 @@ def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) 
 
 
 def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
-    """Table I: RMSE, standard deviation of the error, and normalised cross-correlation (N).
-
-    The cross-correlation is the zero-lag normalised correlation of the two traces,
-    ``sum(p g) / sqrt(sum(p^2) sum(g^2))``: 1 for identical traces.
-    """
+    """Table I: RMSE, standard deviation of the error, and the zero-lag normalised cross-correlation
+    ``sum(p g) / sqrt(sum(p^2) sum(g^2))`` (1: identical traces)."""
     g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
     if g.shape != p.shape:
         raise ValueError(f"{g.size} true forces but {p.size} predictions")
@@ -63,3 +61,15 @@ def speed_ratio(t_s: float, t_ref_s: float) -> str:
     if abs(r - 1) < 0.05:
         return "as fast"
     return f"{r:.1f}x faster" if r > 1 else f"{1 / r:.1f}x slower"
+
+
+def t_interval(x, bounds: tuple[float, float] = (-math.inf, math.inf), *, level: float = 0.95) -> list[float]:
+    """The Student-t interval of the mean of ``x`` at ``level`` (``[lo, hi]``), cut to the ``bounds`` the quantity
+    cannot leave (an accuracy stays in [0, 1]); ``[nan, nan]`` below two values."""
+    from scipy import stats
+
+    x = np.asarray(x, float).ravel()
+    if x.size < 2:
+        return [math.nan, math.nan]
+    half = stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
+    return [float(np.clip(v, *bounds)) for v in (x.mean() - half, x.mean() + half)]

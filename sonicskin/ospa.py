@@ -9,39 +9,19 @@ from sklearn.base import BaseEstimator
 from sklearn.feature_selection import SelectorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-__all__ = ["OSPA"]
+from .features import quiet_mask, touch_mask, usable_bins
+
+__all__ = ["OSPA", "select_bins"]
 
 
 class OSPA(SelectorMixin, BaseEstimator):
-    """Keep the ``gamma`` spectral bins most sensitive to touch and least sensitive to motion.
+    """Keep the ``gamma`` spectral bins most sensitive to touch and least sensitive to motion (paper Alg. 1).
 
-    Alg. 1 of the paper: after the matched filter (``allowed``: bins outside the PWM bands
-    and the chirp band), compute over the touch chirps the touch variance
-    ``TV(f) = Var_t SR(t, f)`` (Eq. 3), over no-touch chirps recorded while the robot moves
-    the moving variance ``MV(f)``, the variance-contesting vector ``VC = MV / TV`` (Eq. 4),
-    and keep the ``gamma`` bins with the smallest ``VC``.
-
-    Parameters
-    ----------
-    gamma : int, default=300
-        Number of bins to keep (paper Sec. V-A: 300).
-    allowed : array of bool, shape (n_features,), optional
-        Matched-filter mask (OSPA step 1); ``None`` allows every bin.  Use ``rig.allowed_mask``.
-
-    Attributes
-    ----------
-    tv_, mv_, vc_ : ndarray, shape (n_features,)
-        Touch variance, moving variance and their ratio; ``vc_`` is ``inf`` on disallowed bins.
-    selected_ : ndarray of int, shape (gamma,)
-        Selected feature indices, best (lowest ``VC``) first.
-    n_features_in_ : int
-
-    Notes
-    -----
-    ``fit(X, y=None, X_moving=None)``: ``X`` are touch spectra (any features, e.g. dB
-    magnitudes), ``X_moving`` no-touch spectra recorded while the robot moves.  Without
-    ``X_moving`` (a robot that never moves while sensing) ``MV`` is taken as 1, so the bins
-    with the largest touch variance are kept.
+    After the matched filter (``allowed``, e.g. ``rig.allowed_mask``; ``None``: every bin), the touch variance
+    ``TV(f) = Var_t SR(t, f)`` over touch chirps ``X`` (Eq. 3), the moving variance ``MV(f)`` over no-touch chirps
+    ``X_moving`` recorded while the robot moves (1 without them: the largest touch variance wins), and the
+    variance-contesting vector ``VC = MV / TV`` (Eq. 4, ``vc_``, ``inf`` on disallowed bins); ``selected_`` holds the
+    ``gamma`` bins of smallest ``VC``, best first.
     """
 
     def __init__(self, gamma: int = 300, allowed: np.ndarray | None = None):
@@ -95,3 +75,17 @@ class OSPA(SelectorMixin, BaseEstimator):
         tags = super().__sklearn_tags__()
         tags.input_tags.allow_nan = False
         return tags
+
+
+def select_bins(t, rig, n_bins: int | None = None, min_force_n: float = 0.5, *, log=None) -> np.ndarray:
+    """OSPA (Alg. 1) on a training table: touch chirps vs moving no-touch chirps (quiet ones when the robot never
+    moved; none: the largest touch variance), over the rig's matched-filter mask; band-bin indices, best first
+    (``n_bins`` clamped, :func:`usable_bins`)."""
+    touch = touch_mask(t, min_force_n)
+    moving = (t["location"] < 0) & (t["moving"] > 0)
+    ref = moving if moving.sum() >= 2 else quiet_mask(t)
+    if touch.sum() < 2:
+        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
+    gamma = usable_bins(rig, n_bins, log=log)
+    X_ref = t.X[ref] if ref.sum() >= 2 else None
+    return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_

@@ -10,13 +10,10 @@ from .errors import ArtifactError
 
 __all__ = ["PARITY_TOL", "ParityError", "parity_bound", "decisions_parity", "require_parity", "ort_session"]
 
-#: Export parity (issue 27.1).  The exported graph runs in float32 in onnxruntime, the original in torch (float32) or
-#: scikit-learn (float64): their outputs differ by rounding that grows with the size of the values (a network's
-#: log-probabilities reach -100 and more, an SVM's decision values tens).  What must agree is what the artifact
-#: decides: the location (argmax), the touch decision, and the continuous outputs (scores or logits, force) to
-#: within ``PARITY_TOL`` x the output's scale (its largest magnitude on the check chirps, at least 1).  A chirp whose
-#: decision the original makes by less than that bound (a near tie) may go either way and is counted, not judged.
-#: A fixed 1e-4 on raw logits failed valid exports at 1.05e-4 (the README's WAV walkthrough, issue 27).
+#: Export parity: the graph in onnxruntime (float32) and the original (torch float32, scikit-learn float64) differ by
+#: rounding that grows with the values, so what must agree is what the artifact decides (location, touch) and the
+#: continuous outputs within ``PARITY_TOL`` x the output's scale (its largest magnitude on the check chirps, at least
+#: 1); a near tie (decided by less than that) is counted, not judged.
 PARITY_TOL = 1e-3
 
 
@@ -44,16 +41,11 @@ def decisions_parity(got: dict[str, np.ndarray], ref: dict[str, np.ndarray], *, 
                      every_chirp: tuple[str, ...] = ()) -> dict:
     """Parity figures of an export: outputs ``got`` (onnxruntime) against ``ref`` (the original), by output name.
 
-    The location label is the argmax of output ``label`` (its columns ``label_cols``); ``touch``: the touch decision
-    statistic of both (got, ref), a touch where it is >= 0.  Every output ``k`` gets ``max_abs_<k>`` and its bound
-    ``<k>_tol`` (:func:`parity_bound` of the reference), ``labels_equal``/``touch_equal`` whether the decisions agree,
-    and ``ok`` whether all of it holds.  Two kinds of chirps are judged less strictly:
-
-    - ``near_ties``: the original decides by less than the label output's bound (its two best locations, or its touch
-      statistic and 0, that close): rounding may move the decision, so only the outputs are judged there;
-    - ``votes_flipped``: chirps of ``vote_tie`` (a pairwise vote within rounding of zero) whose outputs differ beyond
-      their bound: the vote went the other way, which moves scores by a whole vote.  Only the outputs named in
-      ``every_chirp`` (those a vote cannot move: the force, decision values) are judged there.
+    The location is the argmax of output ``label`` (columns ``label_cols``); ``touch``: the touch statistic of both
+    (a touch where >= 0).  Every output ``k`` gets ``max_abs_<k>`` and its bound ``<k>_tol``
+    (:func:`parity_bound`), ``labels_equal``/``touch_equal`` and ``ok``.  ``near_ties`` (the original decides by
+    less than the label output's bound) are judged on their outputs only; ``votes_flipped`` (chirps of ``vote_tie``,
+    a pairwise vote within rounding of zero) on the outputs of ``every_chirp`` only (those a vote cannot move).
     """
     ref_l = np.asarray(ref[label], np.float64)[:, label_cols]
     got_l = np.asarray(got[label], np.float64)[:, label_cols]

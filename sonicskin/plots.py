@@ -10,16 +10,25 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 
-__all__ = ["location_names", "confusion_panel", "cdf_panel", "force_panel", "detection_panel", "MODEL_STYLE"]
+__all__ = ["pyplot", "location_names", "confusion_panel", "cdf_panel", "force_panel", "detection_panel", "MODEL_STYLE"]
 
 # How each model is drawn wherever both appear: colour, line style, width, marker.
 MODEL_STYLE = {
     "network": {"color": "C0", "ls": "-", "lw": 3.0, "alpha": 0.75, "marker": "o"},
     "SVM": {"color": "C3", "ls": "--", "lw": 1.5, "alpha": 1.0, "marker": "x"},
 }
+
+
+def pyplot():
+    """matplotlib's pyplot on the file backend (every report draws into files), imported when a report draws."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def location_names(data: str | Path | None, layout) -> list[str]:
@@ -39,7 +48,7 @@ def confusion_panel(fig, ax, confusion, names: list[str], title: str):
     cm = np.asarray(confusion, float)
     rows = cm.sum(axis=1, keepdims=True)
     cm = np.where(rows > 0, cm / np.maximum(rows, 1), np.nan)  # a location never touched in the test: no row, not 0 %
-    cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.85")
+    cmap = pyplot().colormaps["viridis"].with_extremes(bad="0.85")
     im = ax.imshow(cm, cmap=cmap, vmin=0, vmax=1)
     if (rows == 0).any():
         title += f"\n(grey rows: {int((rows == 0).sum())} locations not touched in the test)"

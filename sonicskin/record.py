@@ -1,22 +1,12 @@
 """``sonicskin record``: the guided one-shot training session on a robot (paper Sec. III-A).
 
-The recorder prompts the user through: hands off (Alg. 2's calibration), hands off while the
-robot moves (OSPA's moving variance), then each location in turn ("touch location 7 with
-varying force for 3 s"), and writes the received stream and per-chirp labels in the dataset
-format as it goes: one part per prompt, each written atomically, so Ctrl-C loses at most the
-prompt in progress.  A chirp's label is the prompt that was showing when it was received.
-``--resume`` starts a new session that records only the requested locations the dataset has
-no touch chirps for yet (:func:`recorded_locations`): an interrupted prompt, or a prompt the
-user did not press.
-
-On the simulated device a simulated person follows exactly the prompts given
-(:func:`person_timeline`), and the simulated sensors also report where the finger really was:
-touch rows then carry that position in ``x_cm``/``y_cm`` (on a real rig: the marker's).
-
-Force ground truth comes from a :class:`ForceSource`: a CSV log (``t_s,force_n`` since the start
-of the recording), a serial sensor (one number per line, e.g. a SingleTact via an Arduino), the
-simulated sensor of the simulated device, or none (forces are then NaN and only location is
-trained).
+The recorder prompts the user through hands off (Alg. 2's calibration), hands off while the robot moves (OSPA's
+moving variance), then each location in turn, and writes the received stream and per-chirp labels as it goes, one
+part per prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was
+received.  ``--resume`` records only the locations the dataset has no touch chirps for yet.  On the simulated
+device a simulated person follows the prompts (:func:`person_timeline`) and touch rows carry where the finger
+really was.  Force comes from a :class:`ForceSource`: a CSV log, a serial sensor, the simulated sensor, or none
+(NaN: location only).
 """
 
 from __future__ import annotations
@@ -35,8 +25,8 @@ import numpy as np
 from .acquire import AudioSource, Link, blocks
 from .dataset import COLUMNS, Dataset, DatasetWriter
 from .dsp import rig_chirp
+from .errors import check_memory, is_number
 from .fit import build_svm_artifact
-from .limits import check_memory
 from .live import Framer
 from .rig import Layout, Rig
 from .session import SIM, open_source, simulated
@@ -110,15 +100,8 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated device's sensors: the person's force plus 0.02 N of sensor noise, and where the
-    finger really is (the ground truth a real rig does not have).
-
-    Parameters
-    ----------
-    timeline : what the simulated person does, chirp by chirp (:func:`person_timeline`).
-    chirp0_sample : stream sample index where timeline chirp 0 starts (negative: the stream starts inside it).
-    fs_hz, n_chirp : the rig's sample rate and chirp length.
-    """
+    """The simulated device's sensors: the person's force plus 0.02 N of noise and where the finger really is, for the
+    simulated person's ``timeline`` whose chirp 0 starts at stream sample ``chirp0_sample``."""
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
@@ -164,22 +147,13 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
 class Recorder:
     """Record a schedule from a source into a dataset session.
 
-    Prompt ``i`` of the schedule covers ``n_i`` chirp periods of the stream, starting where prompt
-    ``i - 1`` ended (the first starts at the first whole chirp).  Each chirp is labelled from the
-    prompt whose time span holds it, by its position in the stream, so a chirp the framing skips
-    never shifts the prompts after it.  A touch prompt labels its chirps with the location after
-    ``settle_s`` (the user's reaction time); every prompt is written as one part when it ends.
-
-    Parameters
-    ----------
-    writer : the dataset writer.  session : session folder name.
-    source : an audio source (:class:`sonicskin.acquire.AudioSource`), started.
-    schedule : prompts from :func:`make_schedule`.
-    force : a :class:`ForceSource`; if it has ``contact_cm(t_s)`` (the simulated device), touch rows
-        get the true finger position in ``x_cm``/``y_cm``, otherwise the marker's coordinates.
-    moving_level : motion level to label the ``moving`` prompt with.
-    prompt : called with each prompt's text (default: stderr).
-    watchdog_s : a source that delivers nothing for this long ends the recording (:class:`sonicskin.acquire.DeviceLost`).
+    Prompt ``i`` covers ``n_i`` chirp periods of the stream, starting where prompt ``i - 1`` ended; each chirp is
+    labelled from the prompt whose span holds it (a chirp the framing skips never shifts the prompts after it), a
+    touch prompt's chirps with the location after ``settle_s`` (the user's reaction time); each prompt is written as
+    one part when it ends.  ``source``: a started :class:`sonicskin.acquire.AudioSource`; ``schedule``: from
+    :func:`make_schedule`; ``force``: a :class:`ForceSource` (with ``contact_cm(t_s)``, the simulated device, touch
+    rows get the true finger position); ``watchdog_s``: no audio for this long ends the recording
+    (:class:`sonicskin.acquire.DeviceLost`).
     """
 
     def __init__(self, writer: DatasetWriter, session: str, source: AudioSource, schedule, force: ForceSource, *,
@@ -204,11 +178,8 @@ class Recorder:
         return row
 
     def run(self) -> dict:
-        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.
-
-        On Ctrl-C the prompt in progress is dropped (a half-made touch is no training data) and
-        every finished one stays on disk; ``interrupted_at`` then names the prompt in progress.
-        """
+        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.  On Ctrl-C the prompt in
+        progress is dropped (``interrupted_at``) and every finished one stays on disk."""
         rig, L = self.rig, self.rig.n_chirp
         framer = Framer(rig_chirp(rig))
         stream: list[np.ndarray] = []       # samples not yet written
@@ -273,12 +244,8 @@ class Recorder:
 
 @contextlib.contextmanager
 def _sigint_deferred():
-    """Hold Ctrl-C (SIGINT) until the block is done, then raise :class:`KeyboardInterrupt`.
-
-    Writing a part runs libsndfile callbacks through cffi, which swallows an exception raised in
-    them ("Exception ignored from cffi callback"): a Ctrl-C landing there would be lost and the
-    part could be cut short.  Outside the main thread (no signal handlers there) this does nothing.
-    """
+    """Hold Ctrl-C until the block is done, then raise :class:`KeyboardInterrupt` (cffi would swallow it inside
+    libsndfile's callbacks, cutting a part short); outside the main thread, nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -295,18 +262,11 @@ def _sigint_deferred():
 
 
 def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):
-    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order.
-
-    Every prompt becomes a segment of exactly its length: hands off for calibration, gaps and
-    skipped locations do not exist here (the person only hears the prompts given); the robot
-    moves only during the ``moving`` prompt; each touch prompt is one press-hold-release of the
-    scenario's first subject at the prompted marker (aim bias and jitter of that person, peak
-    force from ``scenario.peak_force_n``).  ``lead_chirps`` extra no-touch chirps go in front:
-    the stream starts inside chirp 0, so the recorder's first whole chirp is usually chirp 1 (chirp 0
-    when the stream starts within the link's delay): the person is never ahead of a prompt and at
-    most one chirp behind it, well inside the recorder's reaction time.
-
-    Returns a one-session :class:`sonicskin.sim.Timeline`.
+    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order: a one-session
+    :class:`sonicskin.sim.Timeline`.  Each prompt is a segment of exactly its length; the robot moves only during the
+    ``moving`` prompt; each touch prompt is one press of the scenario's first subject at the prompted marker.
+    ``lead_chirps`` no-touch chirps go in front (the stream starts inside chirp 0), so the person is never ahead of
+    a prompt and at most one chirp behind it.
     """
     layout = scenario.make_layout()
     rng = np.random.default_rng([seed, 17])
@@ -338,11 +298,8 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
 
 
 def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realtime: bool = False, offset: int = 4321):
-    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``.
-
-    The link is the scenario's (same ``link_seed``); the person's presses are drawn anew for each
-    session (seed ``scenario.seed + 500 + session_index``); the robot moves only when prompted to.
-    """
+    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``; the
+    scenario's link, the person's presses drawn anew per session, the robot moving only when prompted to."""
     moving = any(seg == "moving" for seg, *_ in schedule)
     psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
                            motion={**scenario.motion, "enabled": moving})
@@ -378,21 +335,15 @@ def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, 
 
 
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
-    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset.
-
-    A location whose prompt was interrupted has no finished part; one that was prompted but not
-    pressed (every chirp under ``min_force_n``) has no touch chirp: neither counts as recorded.
-    """
+    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset (an interrupted
+    prompt has no finished part; a press under ``min_force_n`` throughout has no touch chirp)."""
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
 def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
                       gap_s: float) -> None:
-    """Refuse prompt lengths whose audio would not fit in memory, before anything is opened or written.
-
-    The recorder holds one prompt's received audio until the prompt ends (float32, plus the copy that
-    is written), and the simulated person's timeline holds ~256 bytes per chirp of the session.
-    """
+    """Refuse prompt lengths whose audio (one prompt's, float32, and its copy) or simulated timeline would not fit
+    in memory, before anything is opened or written."""
     for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
         if not np.isfinite(v):
             raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
@@ -410,15 +361,11 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
                    report=None) -> dict:
-    """``sonicskin record``: one guided session into the dataset ``out`` (see the module docstring).
-
-    With ``resume`` only the requested locations without touch chirps yet are prompted (a
-    location whose prompt was interrupted, or that was prompted but never pressed).  ``artifact``: when every
-    marker of the layout has been pressed, the deployable SVM artifact trained on everything recorded so far is
-    written there (:func:`sonicskin.fit.build_svm_artifact`, what ``fit-svm`` writes, with its validated choices and
-    expected accuracy on ``report``), so ``record`` then ``live`` is the whole bring-up.  Returns the
-    :meth:`Recorder.run` figures plus ``session`` and ``locations`` (what was recorded), or
-    ``{"locations": []}`` when nothing is missing.
+    """``sonicskin record``: one guided session into the dataset ``out``.  With ``resume`` only the requested
+    locations without touch chirps yet are prompted.  ``artifact``: once every marker has been pressed, the SVM
+    artifact trained on everything recorded so far is written there (what ``fit-svm`` writes), so ``record`` then
+    ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
+    (``{"locations": []}`` when nothing is missing).
     """
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out)
@@ -428,7 +375,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     if bad:
         raise ValueError(f"--locations {' '.join(map(str, bad))}: not a marker of the {scenario.name} layout "
                          f"(ids {layout.ids[0]}..{layout.ids[-1]})")
-    if isinstance(passes, bool) or not isinstance(passes, int) or passes < 1:
+    if not is_number(passes, integer=True) or passes < 1:
         raise ValueError(f"--passes must be a whole number >= 1, got {passes!r}")
     for name, v in (("calibration-s", calibration_s), ("touch-s", touch_s)):
         if not v > 0:
@@ -503,11 +450,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
 
 def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``): what ``sonicskin record`` + ``fit-svm`` do on a
-    real rig, for a run without an artifact (``sonicskin live``, :func:`sonicskin.session.open_run`'s ``train``).
-
-    Says before it starts what it does, where it writes and about how long it takes (a first ``sonicskin live`` spent
-    two minutes and wrote 200 MB into the current folder without a word); a later run reuses the artifact and says so."""
+    """One-shot training on the simulated link (cached under ``root``), as ``record`` + ``fit-svm`` on a real rig, for
+    a run without an artifact; says first what it does, where and about how long (a later run reuses it)."""
     log = log or (lambda m: print(m, file=sys.stderr))
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():

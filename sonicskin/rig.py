@@ -1,10 +1,8 @@
 """Rig description: sample rate, chirp, bands and the touch-location layout.
 
-A *rig* is everything about the hardware that a model depends on: the sample
-rate, the transmitted chirp (Eq. 1 of the paper) and the frequency bands the
-matched filter of OSPA step 1 drops.  It is loaded from YAML (``configs/rigs``, see :func:`resolve_config`)
-and stored inside every dataset and deployment artifact, so a model is never
-run on a rig it was not trained for.
+A *rig* is everything about the hardware a model depends on: the sample rate, the transmitted chirp (Eq. 1) and the
+bands the matched filter of OSPA step 1 drops.  Loaded from YAML (:func:`resolve_config`) and stored in every
+dataset and artifact, so a model never runs on a rig it was not trained for.
 """
 
 from __future__ import annotations
@@ -38,13 +36,8 @@ CONFIG_KINDS = ("rigs", "scenarios", "links", "arms", "train")
 
 
 def config_dir() -> Path:
-    """The folder that bare config names resolve in.
-
-    A wheel ships the repository's top-level ``configs/`` as package data, ``sonicskin/configs``
-    (``[tool.setuptools.package-dir]`` in pyproject.toml), read here with :mod:`importlib.resources`.
-    A source checkout (an editable install, or ``PYTHONPATH`` pointing at the repository) has no
-    ``sonicskin/configs``; its configs are the ``configs/`` folder next to the package.
-    """
+    """The folder bare config names resolve in: the wheel's package data ``sonicskin/configs``, else (a source
+    checkout) the repository's ``configs/`` next to the package."""
     shipped = importlib.resources.files(__package__) / "configs"
     if shipped.is_dir():
         return Path(str(shipped))  # pip installs wheels unpacked, so this is a real folder
@@ -59,18 +52,8 @@ def config_names(kind: str) -> list[str]:
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """The YAML file a config argument refers to.
-
-    A bare name (``jaco``, ``moving``) is one of the package's configs (:func:`config_names`); a
-    file name (``my-rig.yaml``) or a path (``configs/rigs/jaco.yaml``, ``./rig``) is read from the
-    filesystem as it stands.
-
-    Raises
-    ------
-    FileNotFoundError
-        A bare name that is not a shipped config (the message lists the known names), or a path
-        that does not exist.
-    """
+    """The YAML file a config argument refers to: a bare name is a shipped config (:func:`config_names`), a file name
+    or path is read as it stands; :class:`FileNotFoundError` (listing the known names) otherwise."""
     text = str(name_or_path)
     p = Path(name_or_path)
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
@@ -86,22 +69,12 @@ def resolve_config(name_or_path: str | Path, kind: str) -> Path:
     return candidate
 
 
-_resolve_config = resolve_config  # the old private name, for callers not yet updated
-
-#: Kept for older callers; new code calls :func:`config_dir` / :func:`config_names`.
-CONFIG_DIR = config_dir()
-
-
 MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a config
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping of plain values, with one-line errors (:class:`ConfigError`) that name the file.
-
-    Refused: a file over :data:`MAX_YAML_BYTES`, text that is not UTF-8, YAML syntax errors (with the
-    line), tags that construct objects (``!!python/object``: plain values only), a key given twice
-    in one mapping, and a top level that is not a mapping.
-    """
+    """Read a YAML mapping of plain values; a one-line :class:`ConfigError` naming the file for anything else (too
+    large, not UTF-8, a syntax error with its line, an object-building tag, a key given twice)."""
     import yaml
 
     path = Path(path)
@@ -170,21 +143,13 @@ RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp")
 
 @dataclasses.dataclass(frozen=True)
 class Rig:
-    """Acquisition parameters of one transmitter/receiver pair.
+    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).
 
-    Parameters
-    ----------
-    fs_hz : sample rate of the audio interface (paper: 192 kHz).
-    f_lo_hz, f_hi_hz : chirp start and end frequency (paper: 20 and 80 kHz).
-    n_chirp : samples per chirp; one chirp is one FFT frame (paper: 20480, T = 106.7 ms).
-    pwm_hz : centres of the motor-PWM bands the matched filter drops (paper: 30/60/90 kHz).
-    pwm_halfwidth_hz : half width of each dropped band.  3.25 kHz leaves 5014 bins in
-        20-80 kHz, the paper's "max number of 5013 frequency bins after the first step of OSPA".
-    amplitude : peak amplitude of the transmitted chirp, full scale = 1.
-    name : free label.
-    sweep_b64 : a transmitted sweep other than Eq. 1's linear chirp (recordings imported from other
-        rigs): one period of float32 samples, base64; ``n_chirp`` is its length and
-        ``f_lo_hz``/``f_hi_hz`` its band.  ``None``: the linear chirp of Eq. 1.
+    ``fs_hz``: the interface's sample rate; ``f_lo_hz``, ``f_hi_hz``: the chirp's band; ``n_chirp``: samples per
+    chirp, one FFT frame (20480 = 106.7 ms); ``pwm_hz``: centres of the motor-PWM bands the matched filter drops,
+    ``pwm_halfwidth_hz`` wide each side (3.25 kHz leaves the paper's 5014 bins in 20-80 kHz); ``amplitude``: the
+    transmitted peak, full scale 1; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp (imported
+    recordings), one period of float32 samples in base64 (``None``: Eq. 1).
     """
 
     fs_hz: float = 192_000.0
@@ -232,9 +197,8 @@ class Rig:
             raise ValueError(f"n_chirp must be an integer >= 64 samples, got {self.n_chirp}")
         if self.pwm_halfwidth_hz < 0:
             raise ValueError(f"pwm_halfwidth_hz must be >= 0, got {self.pwm_halfwidth_hz}")
-        # A line above the sample rate is a typo (500000 for 50000) that would notch nothing.  Lines between fs/2 and
-        # fs are the paper's motor harmonics on a slower interface (60 and 90 kHz at 96 kHz): beyond the recording's
-        # band, they notch nothing, and rigs and artifacts stored with them stay readable.
+        # A line above the sample rate is a typo (500000 for 50000); lines between fs/2 and fs (the paper's motor
+        # harmonics on a slower interface) notch nothing but stay readable.
         off = [f for f in self.pwm_hz if not 0 < f <= self.fs_hz]
         if off:
             raise ValueError(f"pwm_hz {off[0]:g} Hz is outside 0..{self.fs_hz:g} Hz (the sample rate); the PWM lines to "
@@ -333,12 +297,8 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Predefined touch locations: ids and surface coordinates in cm.
-
-    Coordinates are on the unrolled surface: ``x_cm`` around the circumference, ``y_cm``
-    along the link axis.  When ``circumference_cm`` is set, distances wrap around it, so
-    two markers on either side of the seam are close, as they are on the tube.
-    """
+    """Predefined touch locations: ids and coordinates in cm on the unrolled surface (``x_cm`` around the
+    circumference, ``y_cm`` along the axis); with ``circumference_cm`` distances wrap around it."""
 
     ids: tuple[int, ...]
     xy_cm: np.ndarray  # (n, 2)
@@ -389,9 +349,8 @@ class Layout:
     @classmethod
     def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
               circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> Layout:
-        """Rows of markers ``spacing_cm`` apart, rows ``spacing_cm`` apart, every other row
-        shifted by half a spacing.  The default, 16 + 15 = 31 markers 1.2 cm apart, is the
-        paper's touch area (Fig. 10) wrapped around a link."""
+        """Rows of markers (``counts`` per row) ``spacing_cm`` apart, every other row shifted by half a spacing; the
+        default, 16 + 15 = 31 markers 1.2 cm apart, is the paper's touch area (Fig. 10) around a link."""
         xy = []
         for row, n in enumerate(counts):
             shift = 0.5 * spacing_cm * (row % 2)

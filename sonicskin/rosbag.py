@@ -1,30 +1,15 @@
 """Touch events as ROS 2 messages in an MCAP file (``ros2 bag play FILE``, Foxglove), without ROS installed.
 
 :class:`McapEventWriter` writes each event that carries the robot-frame fields (schema v2,
-:func:`sonicskin.events.attach_surface`) as ROS 2 messages, CDR-encoded by ``mcap-ros2-support``:
-
-- ``/sonicskin/<frame>/contact_point``: ``geometry_msgs/msg/PointStamped``, the contact point in the link frame.
-- ``/sonicskin/<frame>/contact_wrench``: ``geometry_msgs/msg/WrenchStamped``, the contact's wrench about the link
-  frame's origin: force ``F = -force_n * normal`` (the finger on the link), torque ``p x F`` (exact without a
-  contact frame).  Zero on a release (the contact ended); not written when the artifact has no force model.
-- ``/sonicskin/markers``: ``visualization_msgs/msg/MarkerArray``; on a touch an arrow (namespace
-  ``sonicskin/<frame>``, id 0) pushing on the point along the normal, 1 cm + 2 cm per N long, and a sphere
-  (id 1, 1 cm) at the point; on a release the DELETE of both.
-
-``<frame>`` is the event's ``frame_id`` (the URDF link name; a character a ROS name cannot hold becomes ``_``).
-Every header has ``frame_id`` = the link's frame and ``stamp`` = ``t0_unix_s + t_s`` (``builtin_interfaces/Time``);
-the MCAP log time is the same instant, so a player replays at the skin's pace.  Events without the robot-frame
-fields (schema v1, a run without a surface) are counted (:attr:`McapEventWriter.skipped`), not written, with one
-warning.  Each event's messages close their own MCAP chunk and are flushed to the file, so a process killed hard
-loses nothing written (``mcap recover`` restores the index); :meth:`McapEventWriter.close` (also on Ctrl-C, the
-context manager's exit) writes the summary that makes the file complete.
-
-The file: an existing one is refused unless ``overwrite=True`` (``--overwrite``); it is opened and locked
-(``fcntl.flock``, exclusive, on the file itself) when the writer is made, so a second writer on the same path is
-refused while the first is open; nothing is written (an existing file is not truncated) until the first event or
-:meth:`~McapEventWriter.close`, and a writer dropped unclosed before that (a run that failed to start) removes the
-empty file it created, at garbage collection or interpreter exit.  Any ``OSError`` (a full disk) is one line naming
-the file (:class:`~sonicskin.errors.SonicskinError`), and the writer is closed.
+:func:`sonicskin.events.attach_surface`) as ``/sonicskin/<frame>/contact_point`` (PointStamped),
+``/sonicskin/<frame>/contact_wrench`` (WrenchStamped: ``F = -force_n * normal``, torque ``p x F``) and
+``/sonicskin/markers`` (MarkerArray: an arrow and a sphere at the point, deleted on a release), CDR-encoded by
+``mcap-ros2-support``, stamped ``t0_unix_s + t_s``; the topics: docs/robot-frame.md.  Events without those fields
+are counted (:attr:`McapEventWriter.skipped`), with one warning.  Each event's messages close their own chunk and are
+flushed, so a process killed hard loses nothing written (``mcap recover`` restores the index); :meth:`close` writes
+the summary.  An existing file is refused unless ``overwrite=True``; the file is opened and locked (``flock``) when
+the writer is made, written from the first event on, and removed again when the writer is dropped before that.  An
+``OSError`` (a full disk) is one line naming the file, and closes the writer.
 """
 
 from __future__ import annotations
@@ -41,7 +26,6 @@ from pathlib import Path
 
 from .errors import SonicskinError, brief
 from .events import TouchEvent
-from .ros2_msgs import DEFINITIONS
 
 try:
     import fcntl
@@ -49,6 +33,62 @@ except ImportError:  # not POSIX: a second writer on one file is not refused
     fcntl = None
 
 __all__ = ["McapEventWriter", "MARKER_TOPIC", "topic_for"]
+
+# -- the ROS 2 message definitions written, in the concatenated form MCAP's ``ros2msg`` schema encoding takes (the
+# type's ``.msg`` text, then each type it uses after a line of 80 ``=`` and ``MSG: pkg/Type``): the field lists of ROS 2
+# Humble and later, so ``ros2 bag play`` decodes the CDR bytes with the installed types; comments left out.
+_SEP = "=" * 80
+
+_MSGS = {
+    "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
+    "builtin_interfaces/Duration": "int32 sec\nuint32 nanosec\n",
+    "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
+    "std_msgs/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n",
+    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
+    "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
+    "geometry_msgs/Pose": "Point position\nQuaternion orientation\n",
+    "geometry_msgs/PointStamped": "std_msgs/Header header\nPoint point\n",
+    "geometry_msgs/Wrench": "Vector3 force\nVector3 torque\n",
+    "geometry_msgs/WrenchStamped": "std_msgs/Header header\nWrench wrench\n",
+    "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n",
+    "visualization_msgs/UVCoordinate": "float32 u\nfloat32 v\n",
+    "visualization_msgs/MeshFile": "string filename\nuint8[] data\n",
+    "visualization_msgs/Marker": (
+        "int32 ARROW=0\nint32 CUBE=1\nint32 SPHERE=2\nint32 CYLINDER=3\nint32 LINE_STRIP=4\nint32 LINE_LIST=5\n"
+        "int32 CUBE_LIST=6\nint32 SPHERE_LIST=7\nint32 POINTS=8\nint32 TEXT_VIEW_FACING=9\nint32 MESH_RESOURCE=10\n"
+        "int32 TRIANGLE_LIST=11\nint32 ARROW_STRIP=12\n"
+        "int32 ADD=0\nint32 MODIFY=0\nint32 DELETE=2\nint32 DELETEALL=3\n"
+        "std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Pose pose\n"
+        "geometry_msgs/Vector3 scale\nstd_msgs/ColorRGBA color\nbuiltin_interfaces/Duration lifetime\nbool frame_locked\n"
+        "geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring texture_resource\n"
+        "sensor_msgs/CompressedImage texture\nUVCoordinate[] uv_coordinates\nstring text\nstring mesh_resource\n"
+        "MeshFile mesh_file\nbool mesh_use_embedded_materials\n"),
+    "visualization_msgs/MarkerArray": "Marker[] markers\n",
+}
+
+# The types each message uses, directly or not, in the order they are appended.
+_DEPS = {
+    "geometry_msgs/PointStamped": ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Point"],
+    "geometry_msgs/WrenchStamped": ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Wrench", "geometry_msgs/Vector3"],
+    "visualization_msgs/MarkerArray": [
+        "visualization_msgs/Marker", "std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Pose", "geometry_msgs/Point",
+        "geometry_msgs/Quaternion", "geometry_msgs/Vector3", "std_msgs/ColorRGBA", "builtin_interfaces/Duration",
+        "sensor_msgs/CompressedImage", "visualization_msgs/UVCoordinate", "visualization_msgs/MeshFile"],
+}
+
+
+def definition(name: str) -> str:
+    """The concatenated definition of ``name`` (``"geometry_msgs/msg/PointStamped"`` or ``"geometry_msgs/PointStamped"``)."""
+    key = name.replace("/msg/", "/")
+    parts = [_MSGS[key]] + [f"{_SEP}\nMSG: {dep}\n{_MSGS[dep]}" for dep in _DEPS[key]]
+    return "".join(parts)
+
+
+#: the schemas written, by their ROS 2 type name
+DEFINITIONS = {t: definition(t) for t in ("geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
+                                           "visualization_msgs/msg/MarkerArray")}
+
 
 MARKER_TOPIC = "/sonicskin/markers"
 ARROW, SPHERE, ADD, DELETE = 0, 2, 0, 2  # visualization_msgs/Marker constants
@@ -68,12 +108,8 @@ def _time(ns: int) -> dict:
 
 
 class McapEventWriter:
-    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager; see the module docstring).
-
-    ``t0_unix_s``: the wall-clock time (UNIX seconds) of the stream's ``t_s = 0``.  ``log``: where the one warning
-    about events without a surface goes (default :func:`warnings.warn`).  ``overwrite``: replace an existing file
-    (else it is refused).  The file's life cycle: the module docstring.
-    """
+    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the
+    wall-clock time of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
 
     def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
                  overwrite: bool = False):

@@ -1,10 +1,8 @@
 """Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches.
 
-An artifact is a folder with ``skin.json`` (rig, layout, OSPA bins, feature mode, calibration,
-detector threshold, per-location force curves, checksums) and the ONNX models it names
-(``net.onnx``, ``svm.onnx``).  :class:`SkinRuntime` checks the artifact against the rig it is
-asked to run on, against its checksums, the binding inside each model file (bins, mode, rig, layout,
-parameters), its digest and its probe outputs before anything runs (:func:`sonicskin.integrity.check_integrity`).
+:class:`SkinRuntime` checks an artifact (``skin.json`` and the ONNX models it names) against the rig it is asked to
+run on and against its integrity (checksums, bindings, digest, probes: :func:`sonicskin.integrity.check_integrity`)
+before anything runs.
 """
 
 from __future__ import annotations
@@ -15,10 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from . import kinds
-from .artifact_files import load_skin, read_model_file
+from .artifact import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
+from .drift import DriftTracker
 from .dsp import log_magnitude_db
-from .errors import ArtifactError
+from .errors import ArtifactError, is_number
 from .features import FeatureSpec
 from .head import Predictions, Stream
 from .head.stream import band_rows, finite_rows
@@ -29,17 +28,8 @@ __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FO
 
 
 class SkinRuntime:
-    """Load ``folder`` and serve one of its models.
-
-    Parameters
-    ----------
-    folder : the artifact folder.
-    model : a model kind of the artifact (:mod:`sonicskin.kinds`: ``"svm"``, ``"lda"``, ``"net"``).
-    rig : the rig it will run on (a :class:`Rig`, a rig name or a YAML path); defaults to the artifact's own.  A
-        different sample rate, chirp or band raises :class:`ArtifactError`.
-    layout : the marker layout of the surface it will run on (e.g. a scenario's ``make_layout()``);
-        other ids or positions than the artifact's raise :class:`ArtifactError`.  ``None``: not checked.
-    threads : onnxruntime intra-op threads (1: predictable latency next to the audio thread).
+    """Load ``folder`` and serve its ``model``; ``rig`` and ``layout`` (``None``: not checked) must be the artifact's,
+    else :class:`ArtifactError`; ``threads``: onnxruntime intra-op threads.
     """
 
     def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,
@@ -55,7 +45,7 @@ class SkinRuntime:
         if not (layout is None or isinstance(layout, Layout)):
             raise ArtifactError(f"layout must be a sonicskin.rig.Layout (e.g. a scenario's make_layout()), got "
                                 f"{type(layout).__name__}")
-        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 1024:
+        if not is_number(threads, integer=True) or not 1 <= threads <= 1024:
             raise ArtifactError(f"threads must be an integer from 1 to 1024 (onnxruntime's intra-op threads), got {threads!r}")
         self.folder = Path(folder)
         self.meta = load_skin(self.folder)  # the whole document against the schema (sonicskin.artifact_schema)
@@ -112,8 +102,6 @@ class SkinRuntime:
         """A new stream: Alg. 2's online reference and the per-chirp path (see :class:`sonicskin.head.Stream`)."""
         drift = None
         if self.drift is not None:
-            from .drift import DriftTracker
-
             drift = DriftTracker.from_dict(self.drift, self.rig)
         return Stream(self.run, self.head, self.spec, self.rig, drift=drift)
 

@@ -1,17 +1,10 @@
 """Network vs SVM over several simulator seeds and training seeds, with a paired confidence interval.
 
-One run of a scenario is an anecdote: the network's training seed moves its accuracy by about
-2 points, and two simulated recordings of the same scenario differ by more.  Here every scenario
-is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
-training split (the network once per ``train_seeds``; the SVM is deterministic), exported to one
-ONNX artifact and evaluated by replaying each test session as the live loop runs it
-(:meth:`sonicskin.runtime.SkinRuntime.replay`: boot calibration on the first 3 s, refreshes from
-each model's own detection; no test label reaches a model).
-
-The paired difference is net minus SVM on the same simulated data.  The unit of the interval
-is the simulator seed (independent data): per seed the network's metric is averaged over its
-training seeds and the SVM's subtracted, and a Student t interval is taken over those
-differences.  Pairs of one seed share data and the SVM, so they are not counted as independent.
+Every scenario is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
+training split (the network once per ``train_seeds``), exported to one artifact and evaluated by replaying each
+test session as the live loop runs it.  The paired difference is net minus SVM on the same data; the unit of the
+interval is the simulator seed (per seed the network's mean over its training seeds minus the SVM's), a Student t
+interval over those differences.
 """
 
 from __future__ import annotations
@@ -23,18 +16,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import replay_sessions, stream_metrics
-from .dataset import Dataset
+from .compare import replay_sessions, split_line, stream_metrics
+from .dataset import Dataset, Split
 from .feature_cache import load_features_cached
+from .features import FeatureSpec, touch_mask
 from .fit import fit_models, prepare, write_artifact
 from .jsonio import json_safe
 from .kinds import BASELINE, CLOSED_FORM, NETWORK
+from .metrics import t_interval
+from .ospa import select_bins
+from .plots import pyplot
 from .rig import Rig
 from .runtime import SkinRuntime
-from .split import Split
-from .stats import t_interval
+from .sim.generate import simulate_dataset
+from .sim.scenario import Scenario
 
-__all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds"]
+__all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds",
+           "plain_floors", "FLOOR_NAMES"]
 
 # Scenario -> how it is split.  One-shot: the first session trains, every later session tests.
 SCENARIOS: dict[str, dict] = {
@@ -55,12 +53,62 @@ LABELS = {"accuracy": "accuracy", "within_2cm": "error < 2 cm", "continuous_erro
           "force_rmse_n": "force RMSE", "false_touch": "false touches", "missed_touch": "missed touches"}
 
 
+# -- the plain scikit-learn floors every accuracy claim is printed beside (a result below them is not a result): fitted
+# on the training sessions' touch chirps, scored on every test touch chirp, default parameters (svc and lda on every
+# usable bin, normalized_svc on OSPA's 300; force: a pooled SVR and the training mean), on dB minus each session's
+# boot reference
+#: floor key -> how reports name it
+FLOOR_NAMES = {"svc": "SVC floor (all bins)", "lda": "shrinkage LDA floor (all bins)",
+               "normalized_svc": "normalized SVC floor (OSPA 300)", "svr": "pooled SVR floor", "mean": "training-mean floor"}
+
+
+def boot_relative(t, rig) -> np.ndarray:
+    """Every usable bin of every chirp minus its session's boot reference (the first ``beta`` chirps)."""
+    beta = FeatureSpec((0,), "relative").reference(rig.chirps_per_s).beta
+    X = t.X[:, rig.allowed_mask].astype(np.float64)
+    for s in np.unique(t["session"]):
+        idx = np.flatnonzero(t["session"] == s)
+        X[idx] -= X[idx[:beta]].mean(axis=0)
+    return X
+
+
+def plain_floors(t, rig, *, train, test, min_force_n: float = 0.5) -> dict:
+    """The floors on the feature table ``t`` (sessions ``train`` fit, ``test`` score); keys ``<floor>_accuracy`` and
+    ``svr_force_rmse_n``/``mean_force_rmse_n`` (absent without a force sensor)."""
+    from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import Normalizer, StandardScaler
+    from sklearn.svm import SVC, SVR
+
+    X = boot_relative(t, rig)
+    touch = touch_mask(t, min_force_n)
+    tr = touch & np.isin(t["session"], list(train))
+    te = touch & np.isin(t["session"], list(test))
+    loc, f = t["location"], t["force_n"]
+    t0 = time.perf_counter()
+    allowed = np.flatnonzero(rig.allowed_mask)
+    pos = np.full(rig.n_band, -1)
+    pos[allowed] = np.arange(allowed.size)
+    ospa = pos[select_bins(t.select(np.isin(t["session"], list(train))), rig, min(300, allowed.size), min_force_n)]
+    models = {"svc": (make_pipeline(StandardScaler(), SVC()), slice(None)),
+              "lda": (LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto"), slice(None)),
+              "normalized_svc": (make_pipeline(Normalizer(), StandardScaler(), SVC(C=10)), ospa)}
+    out = {}
+    for name, (model, cols) in models.items():
+        model.fit(X[tr][:, cols], loc[tr])
+        out[f"{name}_accuracy"] = float(np.mean(model.predict(X[te][:, cols]) == loc[te]))
+    a, b = tr & np.isfinite(f), te & np.isfinite(f)
+    if a.sum() >= 8 and b.any() and np.ptp(f[a]) > 0:
+        svr = make_pipeline(StandardScaler(), SVR()).fit(X[a], f[a])
+        out["svr_force_rmse_n"] = float(np.sqrt(np.mean((np.clip(svr.predict(X[b]), 0, None) - f[b]) ** 2)))
+        out["mean_force_rmse_n"] = float(np.sqrt(np.mean((f[a].mean() - f[b]) ** 2)))
+    return {**out, "n_bins": int(X.shape[1]), "n_train_touch": int(tr.sum()), "n_test_touch": int(te.sum()),
+            "fit_s": time.perf_counter() - t0}
+
+
 def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print, **overrides) -> Dataset:
     """Scenario ``name`` simulated with ``seed`` on ``rig`` (default: jaco) under ``cache/<name>-seed<seed>``
     (``cache/<rig>/<name>-seed<seed>`` for another rig; made on first use).  ``overrides`` replace scenario fields."""
-    from .sim.generate import simulate_dataset
-    from .sim.scenario import Scenario
-
     rig = rig or Rig.load("jaco")
     path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
@@ -74,9 +122,8 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
 
 
 def _split(t, test_subjects=None, val: bool = False) -> Split:
-    """One-shot: the first session trains, every later one tests (``test_subjects``: those people's sessions test, the
-    others train).  ``val``: the next session (the last of the training people's) validates, and the deployed models
-    are refitted on training and validation sessions together."""
+    """One-shot: the first session trains, the later ones test (``test_subjects``: those people's); ``val``: the next
+    session validates, then a refit on both."""
     if test_subjects:
         sp = Split.make(t, test_subjects=test_subjects)
         return sp if val else Split(sp.train + sp.val, (), sp.test)
@@ -84,11 +131,8 @@ def _split(t, test_subjects=None, val: bool = False) -> Split:
 
 
 def _floors(ds: Dataset, t, split) -> dict:
-    """The plain scikit-learn floors on the same split (:func:`sonicskin.floors.plain_floors`): ``accuracy`` (SVC on
-    every usable bin), ``lda_accuracy``, ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR) and
-    ``force_rmse_constant_n`` (the training mean)."""
-    from .floors import plain_floors
-
+    """The plain floors on the same split (:func:`plain_floors`): ``accuracy`` (SVC), ``lda_accuracy``,
+    ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR), ``force_rmse_constant_n`` (the training mean)."""
     f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
     out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
            "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
@@ -99,11 +143,9 @@ def _floors(ds: Dataset, t, split) -> dict:
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
               train_stride: int = 1, val: bool = False) -> list[dict]:
-    """Every model on one simulated dataset through the one fit (:func:`sonicskin.fit.fit_models`), the network per
-    training seed, each exported to ``work`` and its test sessions replayed through the artifact.  ``select``: every
-    model's options chosen by validation on the training presses (:mod:`sonicskin.selection`); otherwise the paper's
-    values.  ``val``: the next session validates and the models are refitted on both (:func:`_split`).
-    ``train_stride`` k trains on every k-th training chirp (a short-chirp rig then trains on as many chirps as the paper's)."""
+    """Every model on one simulated dataset through the one fit, the network per training seed, each exported to
+    ``work`` and its test sessions replayed.  ``select``: options chosen on the training presses (else the paper's);
+    ``val``: the next session validates, then a refit on both; ``train_stride`` k: every k-th training chirp."""
     quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"), val)
@@ -234,18 +276,13 @@ def format_markdown(res: dict) -> str:
     splits = {name: next((r["split"] for rows in sc.get("runs", {}).values() for r in rows if "split" in r), None)
               for name, sc in res["scenarios"].items()}
     if any(splits.values()):
-        from .compare import split_line
-
         lines += [""] + [f"- {name}: {split_line(sp)}" for name, sp in splits.items() if sp]
     return "\n".join(lines)
 
 
 def save_seeds(res: dict, out: str | Path) -> list[Path]:
     """``seeds.json``, ``seeds.md`` and ``seeds.png`` (paired differences with their intervals)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "seeds.json").write_text(json.dumps(json_safe(res), indent=1, allow_nan=False))  # a NaN (no force sensor) as null

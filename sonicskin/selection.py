@@ -1,30 +1,18 @@
 """Model selection on the user's own presses: gamma, C, kernel width, force model and detection threshold.
 
-Every default of the paper (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location)
-was tuned where the answer is visible.  On a new rig the right values depend on the rig and on how
-much data there is, so they are chosen here by validation on the *training* data only:
-
-- with a validation session: train on the training sessions, score on the validation session
-  (:class:`~sklearn.model_selection.PredefinedSplit`);
-- otherwise, with at least two presses per location: cross-validation over *passes* (the k-th press
-  of every location forms pass k; folds are passes, so the chirps of one press are never on both
-  sides and every location is trained in every fold);
-- otherwise the paper's values, with a warning that says why.
-
-A *press* is a run of consecutive touch chirps at one location within one session and segment
-(:func:`press_ids`); the test sessions never reach this module (its callers pass the training and
-validation sessions only; ``tests/test_selection.py`` changes a test session and checks that the
-choice is bit-identical).
-
-The search is scikit-learn's :class:`~sklearn.model_selection.GridSearchCV` over a
-``Pipeline([ospa, scale, width, svc])`` whose OSPA step's ``gamma`` is a parameter; the fitted
-search's ``best_params_`` and a compact ``cv_results_`` table are returned as plain JSON data for
-``skin.json``.
+The paper's defaults (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location) are chosen here by
+validation on the *training* data only: on a validation session when there is one
+(:class:`~sklearn.model_selection.PredefinedSplit`), else by cross-validation over *passes* (the k-th press of every
+location forms pass k, so one press is never on both sides), else the paper's values with a warning.  A *press* is
+a run of consecutive touch chirps at one location within one session and segment (:func:`press_ids`); test sessions
+never reach this module.  The search is :class:`~sklearn.model_selection.GridSearchCV` over a
+``Pipeline([ospa, scale, width, svc])``; its choice and a compact ``cv_results_`` table are returned as JSON data.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 import warnings
 
 import numpy as np
@@ -34,9 +22,12 @@ from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from .force import PerLocationForce, PooledForce
+from .features import FeatureSpec, quiet_mask, touch_mask
+from .force import PerLocationForce, PooledForce, energy_db
+from .head import DETECTOR_BINS, touch_statistic
+from .metrics import t_interval
 from .ospa import OSPA
-from .stats import t_interval
+from .plots import pyplot
 
 __all__ = ["PAPER", "press_ids", "press_passes", "gamma_grid", "make_cv", "select_localizer", "select_force",
            "select_threshold", "learning_curve_by_pass", "MovingVarOSPA", "KernelWidth"]
@@ -165,9 +156,8 @@ class PooledRidge(RegressorMixin, BaseEstimator):
 # -- cross-validation ----------------------------------------------------------------------------------
 def make_cv(passes: np.ndarray, val: np.ndarray | None = None, location: np.ndarray | None = None
             ) -> tuple[PredefinedSplit | None, str]:
-    """The splitter and a description (or ``None`` and why not).  ``passes``: pass per row (>= 0), ``val``: rows
-    of the validation session(s), scored but never trained on; ``location``: label per row (the folds are as many
-    as the fewest passes any location has, so every location is trained in every fold)."""
+    """The splitter and its description (or ``None`` and why not): folds over ``passes`` (as many as the fewest any
+    ``location`` has), ``val`` rows scored but never trained on."""
     if val is not None and np.any(val):
         if np.all(val):
             return None, "every chirp is in the validation session"
@@ -228,9 +218,8 @@ def _plain(v):
 def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np.ndarray, *, val: np.ndarray | None = None,
                      moving_var: np.ndarray | None = None, gammas: list[int] | None = None, max_chirps: int = 600,
                      val_name: str = "", n_bins_fallback: int | None = None, log=None) -> dict:
-    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps ``X`` (inputs over every usable bin,
-    best-first order irrelevant), labels ``y``, press ids and passes (training rows), ``val`` rows of the
-    validation session.  Returns the choice as JSON data (``status`` "validated" or "fallback")."""
+    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps ``X`` (every usable bin), labels ``y``,
+    press ids and passes, and ``val`` rows; the choice as JSON data (``status`` "validated" or "fallback")."""
     X, y, press, passes = np.asarray(X), np.asarray(y), np.asarray(press), np.asarray(passes)
     n_feat = X.shape[1]
     gammas = list(dict.fromkeys(min(int(g), n_feat) for g in (gammas or gamma_grid(n_feat))))
@@ -276,11 +265,9 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
 
 
 def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
-    """Accuracy against presses per location (1..k) from the user's own data, a grouped loop:
-
-    - with ``val`` rows: train on the first k passes of the training rows, score on ``val``;
-    - without: for every held-out pass j, train on k of the other passes, score on pass j.
-    Returns sizes, mean accuracy and a verdict on whether one more pass would help."""
+    """Accuracy against presses per location (1..k) from the user's own data: with ``val`` rows, trained on the first
+    k passes and scored on ``val``; without, each held-out pass scored after training on k others.  Returns sizes,
+    mean accuracy and a verdict on whether one more pass would help."""
     sizes, acc, spread = [], [], []
     if val is not None and np.any(val):
         n_pass = int(passes[~val].max()) + 1
@@ -359,9 +346,8 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
 
 # -- detection -------------------------------------------------------------------------------------------
 def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str) -> dict:
-    """Detection threshold on a statistic, by Youden's J on validation chirps: of the thresholds with the largest
-    ``TPR - FPR`` the lowest (fewest missed touches), placed halfway between the two data values around it, so a
-    validation session that separates perfectly gives the middle of the gap, not its edge at the weakest touch."""
+    """Detection threshold by Youden's J on validation chirps: the lowest of the best, halfway between the two data
+    values around it (a perfect separation gives the middle of the gap)."""
     st, sq = np.asarray(stat_touch, float).ravel(), np.asarray(stat_quiet, float).ravel()
     if st.size == 0 or sq.size == 0:
         raise ValueError("need both touch and no-touch chirps to choose a detection threshold")
@@ -375,23 +361,14 @@ def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str
             "false_touch_rate": float(np.mean(sq >= thr))}
 
 
-def _finite(*v) -> bool:
-    return all(x is not None and np.isfinite(x) for x in v)
-
-
 def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.ndarray, n_locations: int,
                             threshold: float) -> dict | None:
     """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every
     no-touch chirp a negative, the session's own rest the reference); ``None`` without rest and touches there."""
-    from .features import quiet_mask
-    from .head import touch_statistic
-
     q, touch = quiet_mask(t) & val_mask, (cls < n_locations) & val_mask
     no_touch = (t["location"] < 0) & val_mask
     if q.sum() < 2 or not touch.any():
         return None
-    from .head import DETECTOR_BINS
-
     stat = touch_statistic(np.column_stack([np.zeros((len(X), n_locations)), X - X[q].mean(axis=0)]), n_locations,
                            min(DETECTOR_BINS, X.shape[1]))
     names = ", ".join(sorted(set(t["session"][val_mask])))
@@ -402,8 +379,6 @@ def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.n
 # -- on a dataset's training split -----------------------------------------------------------------------------
 def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Press ids over the whole table and the touch chirps of ``sessions`` (labels only of those sessions)."""
-    from .features import touch_mask
-
     seg = t["segment"] if "segment" in t.labels else None
     press = press_ids(t["location"], t["session"], seg)
     return press, touch_mask(t, min_force_n) & np.isin(t["session"], list(sessions))
@@ -411,12 +386,8 @@ def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np
 
 def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str = "relative", min_force_n: float = 0.5,
                           log=print, max_chirps: int = 600) -> dict:
-    """Choose gamma, C and kernel width on the training (and validation) sessions of a features table.
-
-    ``t`` may hold other sessions too (test sessions): only rows of ``train_sessions`` and
-    ``val_sessions`` are read.  Inputs are the model inputs over every usable bin (``mode``)."""
-    from .features import FeatureSpec, quiet_mask
-
+    """Choose gamma, C and kernel width on the ``train_sessions`` (and ``val_sessions``) of a features table (only
+    their rows are read), on the model inputs over every usable bin (``mode``)."""
     use = np.isin(t["session"], list(train_sessions) + list(val_sessions))
     tt = t.select(use)
     allowed = np.flatnonzero(rig.allowed_mask)
@@ -440,12 +411,8 @@ def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str 
 def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarray, val_mask: np.ndarray | None,
                      n_locations: int, location_ids, selection: dict | None = None, min_force_n: float = 0.5,
                      key: str = "localizer", log=print) -> dict:
-    """The rest of the choice once the model inputs ``X`` (the deployed bins) are fixed: C and kernel width
-    (when ``selection`` has no ``svm`` part yet, gamma fixed to the inputs' width), the force model and the
-    detection threshold.  ``train_mask``/``val_mask``: rows of the training / validation sessions (usable
-    chirps); nothing else of ``t`` is read."""
-    from .force import energy_db
-
+    """The rest of the choice once the model inputs ``X`` are fixed: C and kernel width (unless ``selection`` has
+    them), the force model and the detection threshold, on the rows of ``train_mask``/``val_mask`` only."""
     sel = dict(selection or {})
     val_mask = np.zeros(len(X), bool) if val_mask is None else np.asarray(val_mask, bool)
     seg = t["segment"] if "segment" in t.labels else None
@@ -468,9 +435,8 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
                                     val=val_mask[fr] if val_mask.any() else None, val_name=val_name, log=log)
     else:
         sel["force"] = {"status": "absent", "reason": "absent: no force sensor (or a constant force)", "model": "fourier1"}
-    # detection: the threshold stays the training chirps' (Youden's J, the paper's rule); a threshold chosen on one
-    # validation session missed 35 % of a moving random rig's test touches (design seed 1), so the validation
-    # session only estimates what the deployed threshold does (:func:`detection_on_validation`)
+    # detection: the threshold stays the training chirps' (Youden's J; one chosen on a validation session missed 35 %
+    # of a moving random rig's test touches): the validation session only estimates it (detection_on_validation)
     sel["detection"] = {"how": "Youden's J on the training chirps", "threshold": None}
     return sel
 
@@ -481,13 +447,7 @@ def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
     lc = (sel or {}).get("learning_curve")
     if not lc or not lc["accuracy"]:
         return False
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import textwrap
-
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     k, a, s = (np.asarray(lc[x], float) for x in ("presses_per_location", "accuracy", "std"))
     ax.errorbar(k, 100 * a, yerr=100 * s, fmt="o-", capsize=3, label="mean ± std over held-out passes")

@@ -1,11 +1,7 @@
-"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen` (with
-``sonicskin record`` and ``sonicskin check`` opening their device here too).
-
-:func:`open_run` opens a skin on a device: an artifact, or an arm whose links each have theirs, on the simulated device
-(``"sim"`` or ``None``: each link's scenario plays a new session of scripted touches) or on an audio interface.  A single
-artifact is an arm of one link, so each check of a run is written once, here: the artifact's layout against the
-simulated scenario, the links' frames for an MCAP file, a link without an artifact (trained on the spot on the simulated
-device when asked).  :func:`open_source` is the one place a device or the simulated device opens.
+"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen`
+(``record`` and ``check`` open their device here too).  :func:`open_run` opens an artifact, or an arm whose links
+each have theirs (a single artifact is an arm of one link, so each check of a run is written once), on the
+simulated device or an audio interface; :func:`open_source` is the one place a device opens.
 """
 
 from __future__ import annotations
@@ -60,10 +56,9 @@ def load_config(load: Callable, what):
 def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], tuple[Simulator, Timeline]] | None = None,
                 blocksize: int = 1024, realtime: bool = True, drop_every: int | None = None, offset: int = 4321,
                 **interface) -> AudioSource:
-    """The audio source carrying ``links``: on the simulated device each link's simulated wall plays ``play(link)``, a
-    ``(simulator, timeline)`` pair (real time, or as fast as read; ``drop_every``, ``offset`` as
-    :class:`~sonicskin.acquire.SimulatedSource`'s); otherwise the audio interface ``device`` (a name or an index,
-    ``sonicskin devices``), ``interface`` as :class:`~sonicskin.acquire.SoundDeviceSource` takes it."""
+    """The audio source carrying ``links``: simulated, each link's wall plays ``play(link)``, a ``(simulator,
+    timeline)`` pair (:class:`~sonicskin.acquire.SimulatedSource`); else the audio interface ``device``
+    (:class:`~sonicskin.acquire.SoundDeviceSource`)."""
     if simulated(device):
         sims, timelines = zip(*(play(lk) for lk in links))
         return acquire.SimulatedSource(list(sims), list(timelines), blocksize=blocksize, realtime=realtime,
@@ -78,9 +73,8 @@ def live_scenario(scenario: Scenario) -> Scenario:
 
 @dataclasses.dataclass(eq=False)
 class Run:
-    """An opened run: its links (one for a single artifact), a runtime per link, the one source that carries them.
-
-    :meth:`loops` gives it one live loop per link (and the live page), :meth:`run` runs them, once."""
+    """An opened run: its links (one for a single artifact), a runtime per link, the one source carrying them;
+    :meth:`loops` gives it a live loop per link (and the live page), :meth:`run` runs them, once."""
 
     links: list[Link]
     runtimes: list[SkinRuntime]
@@ -99,9 +93,8 @@ class Run:
 
     def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
               on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
-        """One :class:`~sonicskin.live.LiveLoop` per link, the ones :meth:`run` runs (``emit``, ``status``, ``on_event``
-        as LiveLoop's; every event also goes to the MCAP file), and with ``view`` (``True`` or a port) the live page,
-        :attr:`view` (its ``url``)."""
+        """One :class:`~sonicskin.live.LiveLoop` per link (``emit``, ``status``, ``on_event`` as LiveLoop's; every event
+        also to the MCAP file), and with ``view`` (``True`` or a port) the live page :attr:`view`."""
         def event(ev) -> None:
             if self.mcap is not None:
                 self.mcap.write(ev)
@@ -120,9 +113,8 @@ class Run:
         return self.live
 
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
-        """Run the loops until ``duration_s``, ``stop`` (a :class:`threading.Event`) is set, Ctrl-C, or a finite source
-        ends (:func:`sonicskin.live.run_loops`, whose errors it raises); returns :meth:`summary`.  However the run ends,
-        the MCAP file is complete and the live page stopped."""
+        """Run the loops until ``duration_s``, ``stop``, Ctrl-C or a finite source's end (:func:`sonicskin.live.run_loops`);
+        returns :meth:`summary`, the MCAP file complete and the live page stopped however it ends."""
         try:
             if self.mcap is not None:
                 self.mcap.t0_unix_s = time.time()  # t_s = 0: the stream starts now
@@ -146,17 +138,13 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
              mcap=None, overwrite: bool = False) -> Run:
     """Open a skin on a device.
 
-    ``artifact``: an artifact folder, one link (channels ``tx``/``rx`` of an interface; on the simulated device it plays
-    ``scenario``, whose layout must be the artifact's); or an arm: its arm file, or the folder ``fit-svm --links`` wrote
-    (holding arm.yaml).  ``links``: an arm or links file by name or path (``live --links``), its links' artifacts the
-    file's ``artifact:`` or ``link_artifacts`` (one per link, in order).  ``device``: ``"sim"`` or ``None``, the simulated
-    device (real time, or as fast as it is read with ``fast``; ``drop_every`` drops one block in N), or an audio
-    interface by name or index.  ``rig``: a rig name or path (default: the arm file's, else the artifact's own, else
-    jaco).  ``train``: called as ``train(scenario, rig)`` for a simulated link without an artifact, its artifact's folder
-    (the CLI: :func:`sonicskin.record.train_oneshot`); without it such a link is a one-line error.  ``mcap``: the MCAP
-    file :meth:`Run.run` writes each touch into, in its link's frame (refused, before anything opens, unless every link
-    has a frame; an existing file unless ``overwrite``: :class:`~sonicskin.rosbag.McapEventWriter`, opened and locked
-    here, written from the first touch on).
+    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario``, whose layout
+    must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
+    links file (``live --links``), its links' artifacts the file's or ``link_artifacts``.  ``device``: ``"sim"``/
+    ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
+    jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
+    ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
+    ``overwrite``), opened and locked here.
     """
     check_blocksize(blocksize)
     sim = simulated(device)

@@ -1,24 +1,11 @@
 """A link's skin placed on its real surface: layout coordinates (cm, unrolled) -> point and normal in the link's frame.
 
 A :class:`LinkSurface` names the robot frame (``frame_id``, the URDF link) and the shape the skin covers, a tube
-(URDF ``<cylinder>``) or a plate (URDF ``<box>``), with the shape's pose in that frame.  These conventions are the
-contract between a layout and the robot (docs/robot-frame.md):
-
-Tube (a cylinder of radius ``r`` and length ``L``, axis = the shape's local z, centred on its origin)
-    - ``y_cm`` (along the axis from the transmitter end) -> ``z = y/100 - L/2`` when the transmitter end is the
-      shape's ``-z`` end (``axis_from: -z``, the default), ``z = L/2 - y/100`` when it is the ``+z`` end.
-    - ``x_cm`` (arc length around the circumference) -> ``theta = theta0 + x/100/r`` (counter-clockwise about the
-      shape's +z; ``theta0`` is where ``x = 0`` lies, measured from the shape's +x axis).
-    - point ``(r cos theta, r sin theta, z)``, outward normal ``(cos theta, sin theta, 0)``.
-Plate (a box of size ``(W, L, h)``, centred on its origin)
-    - the touched face is ``+z`` (``face: +z``): point ``(x/100 - W/2, y/100 - L/2, h/2)``, normal ``(0, 0, 1)``;
-      with ``face: -z`` the point is ``(x/100 - W/2, y/100 - L/2, -h/2)`` and the normal ``(0, 0, -1)``.
-Then the shape's pose (``xyz`` in m, ``rpy`` in rad, URDF's fixed-axis roll-pitch-yaw, ``R = Rz(yaw) Ry(pitch)
-Rx(roll)``; from a URDF: the geometry's ``<origin>``) maps point and normal into the link frame.
-
-Built from a short YAML mapping (:meth:`LinkSurface.from_dict`) or from a URDF link's collision (else visual)
-geometry (:meth:`LinkSurface.from_urdf`, parsed with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one
-line naming the problem and the fix.
+(URDF ``<cylinder>``: ``y_cm`` along its z axis from the transmitter end, ``axis_from``; ``x_cm`` the arc length
+from ``theta0``) or a plate (URDF ``<box>``: the touched ``face``), with the shape's pose (``xyz``, ``rpy``) in that
+frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Built from a short
+YAML mapping (:meth:`LinkSurface.from_dict`) or a URDF link's collision (else visual) geometry
+(:meth:`LinkSurface.from_urdf`, with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one line.
 """
 
 from __future__ import annotations
@@ -33,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 
 __all__ = ["LinkSurface", "SurfaceError", "pose_matrix"]
 
@@ -63,11 +50,9 @@ def pose_matrix(xyz=(0.0, 0.0, 0.0), rpy=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class LinkSurface:
-    """The surface a link's skin covers, in the link's frame (conventions: module docstring).
-
-    ``dims_m``: ``(radius, length)`` for a tube, ``(width, length, thickness)`` for a plate.  ``pose``: the shape's
-    4x4 transform in the link frame.  ``theta0_deg``/``axis_from`` apply to a tube, ``face`` to a plate.
-    """
+    """The surface a link's skin covers, in the link's frame: ``dims_m`` ``(radius, length)`` for a tube,
+    ``(width, length, thickness)`` for a plate; ``pose`` the shape's 4x4 transform; ``theta0_deg``/``axis_from`` (tube)
+    or ``face`` (plate)."""
 
     frame_id: str
     kind: str  # "tube" | "plate"
@@ -100,7 +85,7 @@ class LinkSurface:
         if self.face not in ("+z", "-z"):
             raise SurfaceError(f"face must be '+z' or '-z' (the plate's touched face), got {brief(self.face)}")
         t0 = self.theta0_deg
-        if isinstance(t0, bool) or not isinstance(t0, (int, float)) or not math.isfinite(t0):
+        if not is_number(t0):
             raise SurfaceError(f"theta0_deg must be a finite angle in degrees, got {brief(self.theta0_deg)}")
         object.__setattr__(self, "dims_m", dims)
         object.__setattr__(self, "pose", pose)
@@ -167,9 +152,8 @@ class LinkSurface:
         return tuple(tuple(float(v) for v in row) for row in self.pose[:3, :3]), tuple(float(v) for v in self.pose[:3, 3])
 
     def check_layout(self, layout) -> None:
-        """Raise :class:`SurfaceError` when ``layout`` (a :class:`sonicskin.rig.Layout`) does not fit on this surface: its
-        circumference is not the tube's, or a marker lies off the surface (wider than the circumference or the plate,
-        longer than the link)."""
+        """Raise :class:`SurfaceError` when ``layout`` does not fit on this surface: another circumference than the
+        tube's, or a marker off the surface."""
         xy = np.asarray(layout.xy_cm, dtype=float)
         wid, length = self.width_cm, 100 * self.length_m
         what = f"the {self.kind} of {self.frame_id}"
@@ -207,12 +191,8 @@ class LinkSurface:
     # -- constructors -----------------------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
-        """A surface from a short YAML mapping, keys checked strictly (``where`` prefixes the error line).
-
-        Tube: ``{frame, kind: tube, radius_m, length_m, xyz, rpy, theta0_deg, axis_from}``; plate: ``{frame, kind:
-        plate, width_m, length_m, thickness_m, xyz, rpy, face}`` (``xyz``/``rpy`` default 0, ``thickness_m`` 0).  Or a
-        URDF link: ``{urdf: PATH, frame: LINK}`` plus ``theta0_deg``/``axis_from``/``face`` (PATH relative to
-        ``base_dir``).
+        """A surface from a short YAML mapping (keys: docs/robot-frame.md), checked strictly (``where`` prefixes the
+        error line); a URDF link ``{urdf: PATH, frame: LINK}`` is read relative to ``base_dir``.
         """
         if not isinstance(d, dict):
             raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "
@@ -241,14 +221,13 @@ class LinkSurface:
 
         def num(k, default=None):
             v = d.get(k, default)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if not is_number(v):
                 raise SurfaceError(f"{where}: {k} must be a finite number, got {brief(v)}")
             return float(v)
 
         def vec3(k):
             v = d.get(k, [0.0, 0.0, 0.0])
-            if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(
-                    isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) for a in v):
+            if not isinstance(v, (list, tuple)) or len(v) != 3 or not all(is_number(a) for a in v):
                 raise SurfaceError(f"{where}: {k} must be 3 finite numbers ({'m' if k == 'xyz' else 'rad'}), got {brief(v)}")
             return [float(a) for a in v]
 
@@ -261,10 +240,8 @@ class LinkSurface:
 
     @classmethod
     def from_urdf(cls, path: str | Path, link_name: str, **overrides) -> LinkSurface:
-        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's origin.
-
-        ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say.
-        """
+        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's
+        origin; ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say."""
         path = Path(path)
         if not path.is_file():
             raise SurfaceError(f"{path}: no such URDF file")

@@ -1,15 +1,7 @@
-"""One setting for the threads sonicskin's numerical work uses.
-
-Training (torch intra-op threads), featurisation and simulation (scipy.fft workers, BLAS/OpenMP in
-numpy, scipy and scikit-learn) and model selection all take their thread count from here, so that on a
-shared robot computer training and the live loop do not fight each other: each library's own default is
-"every core", and three libraries each taking every core of a 2-4 core computer run many times slower
-under load than one well-sized pool (measured: ``benchmarks/bench_threads.py``).
-
-The count comes from, in order: :func:`configure` (the command line's ``sonicskin --threads N``), the
-environment variable ``SONICSKIN_THREADS``, or the default, half the cores (at least 1, at most 4).
-The live loop's onnxruntime session uses one intra-op thread whatever this says (predictable latency next
-to the audio thread).
+"""One setting for the threads sonicskin's numerical work uses (torch, scipy.fft workers, BLAS/OpenMP), so that on
+a shared robot computer training and the live loop do not fight over every core (``benchmarks/bench_threads.py``).
+The count: :func:`configure` (``sonicskin --threads N``), else ``SONICSKIN_THREADS``, else half the cores (1-4).  The
+live loop's onnxruntime session uses one thread whatever this says.
 """
 
 from __future__ import annotations
@@ -57,13 +49,8 @@ def fft_workers() -> int:
 
 
 def configure(n: int | str | None = None) -> int:
-    """Fix the thread count for this process and the processes it starts; returns it.
-
-    Limits the BLAS/OpenMP pools of the libraries already loaded (threadpoolctl), sets torch's
-    intra-op threads if torch is loaded (:func:`apply_torch` does it when torch is loaded later), and
-    exports ``OMP_NUM_THREADS``/``MKL_NUM_THREADS``/``OPENBLAS_NUM_THREADS``/``SONICSKIN_THREADS`` for
-    child processes (DDP ranks, the deployment check).
-    """
+    """Fix the thread count for this process and the ones it starts (BLAS/OpenMP pools of the loaded libraries,
+    torch's intra-op threads, the ``*_NUM_THREADS`` variables); returns it."""
     global _configured
     n = get() if n is None else _parse(str(n), "--threads")
     _configured = n

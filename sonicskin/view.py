@@ -1,31 +1,18 @@
 """A live view of the skin in a web browser: each link's surface unrolled, the touch, the last events, the drift state.
 
-:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: inline CSS, JS and SVG, no CDN, nothing
-from the internet) and two JSON endpoints from an :class:`http.server.HTTPServer` on ``127.0.0.1`` (port 0: any free
-port), answered by a fixed pool of :data:`POOL_THREADS` handler threads (no thread per connection), each connection
-given :data:`CONN_TIMEOUT_S` to send its request; a browser tab that hangs up mid-answer is no error (nothing is
-printed: ``live`` prints its status line on the same stderr)::
+:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: no CDN, nothing from the internet) and
+two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
 
     GET /            the page
     GET /links.json  the links, once per page load: name, kind, surface size, markers (cm), spacing
     GET /state.json  what changes: the touch on each link, each link's status, the last events, a sequence number
 
-The page polls ``/state.json`` every 100 ms rather than holding a Server-Sent Events stream: a poll is a short,
-stateless request, so ``stop()`` never waits on an open connection, a page survives a restart of the server (it
-reloads the links when their ``run`` id changes), and a state of a few kB every 100 ms on the loopback costs nothing;
-an event reaches the page within one poll period plus one render.  A started view that is dropped without
-:meth:`ViewServer.stop` (a ``Listener(view=True)`` never started, then deleted) stops serving when it is garbage
-collected: its server holds it only by a weak reference.
-
-The live loop calls :meth:`ViewServer.push_event` and :meth:`ViewServer.set_status` from its own thread; both copy
-into the shared state under a lock held for a few dict assignments, and the HTTP threads serialise a snapshot taken
-under the same lock, so the loop never waits on a browser.  :func:`attach_view` wires a
-:class:`~sonicskin.live.LiveLoop` to a view (its events, and its reference and drift state twice a second of stream
-time).
-
-Frames: ``x_cm`` around the circumference of the unrolled surface (wrapping at the circumference on a tube), ``y_cm``
-along the link's axis from the transmitter end, as in :mod:`sonicskin.events`; the page draws ``x`` to the right and
-``y`` up, every link at the same cm-per-pixel scale.
+The page polls ``/state.json`` every 100 ms (a short stateless request: ``stop()`` never waits on an open
+connection, a page survives a restart of the server).  The live loop calls :meth:`ViewServer.push_event` and
+:meth:`ViewServer.set_status` from its own thread; both copy into the shared state under a lock the HTTP threads
+snapshot under, so the loop never waits on a browser (:func:`attach_view` wires a
+:class:`~sonicskin.live.LiveLoop`).  A dropped, unstopped view stops serving when it is garbage collected.  Frames:
+as in :mod:`sonicskin.events`; the page draws ``x`` to the right and ``y`` up, every link at one scale.
 """
 
 from __future__ import annotations
@@ -46,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import SonicskinError, brief
+from .errors import SonicskinError, brief, is_number
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
@@ -76,15 +63,8 @@ def _finite(x) -> float | None:
 
 @dataclasses.dataclass(frozen=True)
 class LinkView:
-    """One link as the page draws it.
-
-    name : the link's name (the events' ``link``; any name for a single link).
-    layout : its markers (:class:`sonicskin.rig.Layout`, e.g. ``SkinRuntime(...).layout``).
-    kind : ``"tube"`` (``x`` wraps at ``layout.circumference_cm``) or ``"plate"``; ``None``: a tube when the layout
-        has a circumference, else a plate.
-    length_cm, width_cm : the surface along the axis, and across it on a plate (``None``: the markers' extent plus
-        one marker spacing on every side).
-    tx_cm, rx_cm : the transducers' positions ``(x, y)``, drawn when given.
+    """One link as the page draws it: ``name``, ``layout``, ``kind`` (tube or plate; ``None``: a tube when the layout
+    has a circumference), the surface's ``length_cm``/``width_cm`` (``None``: around the markers), ``tx_cm``, ``rx_cm``.
     """
 
     name: str
@@ -258,11 +238,8 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 class ViewServer:
-    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free port; :attr:`url` once started).
-
-    Thread-safe: :meth:`push_event` and :meth:`set_status` may be called from any thread (the live loop's) and
-    never wait on a browser.  Use as a context manager, or :meth:`start` / :meth:`stop`.
-    """
+    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free; :attr:`url`); :meth:`push_event`
+    and :meth:`set_status` may be called from any thread.  A context manager, or :meth:`start` / :meth:`stop`."""
 
     def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS):
         links = list(links)
@@ -275,7 +252,7 @@ class ViewServer:
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
             raise SonicskinError(f"link names must be unique, {dup} appear more than once")
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        if not is_number(port, integer=True) or not 0 <= port <= 65535:
             raise SonicskinError(f"view port must be 0 (any free port) or 1-65535, got {brief(port)}")
         self.links = {lk.name: lk for lk in links}
         self.host, self.port = host, port
@@ -441,10 +418,8 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
 
 
 def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
-    """Show ``loop``'s events and its status in ``view`` (every ``every_s`` of stream time, and at each new reference).
-
-    Chains the loop's ``on_event`` and ``on_chirp`` (callbacks already set keep being called first).  The loop's
-    link name (``LiveLoop(link=...)``) must be one of the view's links, or the view must show one link only."""
+    """Show ``loop``'s events and status in ``view`` (every ``every_s`` of stream time, and at each new reference),
+    chaining the loop's ``on_event`` and ``on_chirp``; the loop's link must be one of the view's, or the view shows one."""
     name = loop.link_name
     view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
@@ -468,12 +443,8 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
                port: int = 0) -> ViewServer:
-    """Serve a started view of the live loops (one per link) and attach each (:func:`attach_view`).
-
-    ``links``: how to draw them; or ``scenarios``, ``(name, scenario)`` per loop on the simulated device
-    (:meth:`LinkView.from_scenario`: the surface's size and the transducers); default: each loop's artifact layout,
-    named by its link (``"skin"`` for a single unnamed link).
-    """
+    """Serve a started view of the live loops (one per link), each attached: drawn as ``links``, or from
+    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link."""
     loops = list(loops)
     if links is None and scenarios:
         links = [LinkView.from_scenario(name, sc) for name, sc in scenarios]

@@ -21,8 +21,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sonicskin.artifact import skin_json
-from sonicskin.artifact_files import load_skin
+from sonicskin.artifact import load_skin, skin_json
 from sonicskin.artifact_schema import validate_skin
 from sonicskin.compare import replay_sessions
 from sonicskin.dataset import Dataset
@@ -332,7 +331,7 @@ RAW = [
     ("json-string", lambda text: json.dumps("skin"), "the top level must be a JSON object, got str"),
     ("json-null", lambda text: "null", "the top level must be a JSON object, got NoneType"),
     ("not-utf8", lambda text: "\udcff", "is corrupt"),
-    ("duplicate-key", lambda text: text[:-1] + ', "version": 1}', "duplicate key 'version'"),
+    ("duplicate-key", lambda text: text[:-1] + ', "version": 1}', "the key 'version' appears twice"),
     ("deeply-nested", lambda text: "[" * 100_000 + "]" * 100_000, "is corrupt"),
     ("threshold-nan-literal", lambda text: re.sub(r'"threshold": [^,]+', '"threshold": NaN', text),
      "models.svm.threshold must be finite"),

@@ -247,6 +247,34 @@ def test_evaluate_takes_n_bins_mode_and_test(capsys, tmp_path, cli_files):
     assert rep["train_sessions"] == ["s001"] and rep["test_sessions"] == ["s002"]
 
 
+def test_alpha_and_beta_options_reach_the_artifact(capsys, tmp_path, cli_files):
+    """Alg. 2's refresh interval and reference length: one default each (FeatureSpec's), set by --alpha-s/--beta-s."""
+    from sonicskin.features import FeatureSpec
+
+    argv = ["fit-svm", "--data", cli_files["data"], "--n-bins", "40"]
+    for opts, want in (([], (FeatureSpec.alpha_s, FeatureSpec.beta_s)), (["--alpha-s", "600", "--beta-s", "2"], (600, 2))):
+        out = tmp_path / f"svm{len(opts)}"
+        code, _, err = run(capsys, [*argv, "--out", out, *opts])
+        assert code == 0, err
+        skin = json.loads((out / "skin.json").read_text())
+        assert (skin["features"]["alpha_s"], skin["features"]["beta_s"]) == want
+        assert (skin["calibration"]["alpha_s"], skin["calibration"]["beta_s"]) == want
+    line = assert_one_line_error(*run(capsys, [*argv, "--out", tmp_path / "bad", "--alpha-s", "1", "--beta-s", "2"])[::2])
+    assert line == ("sonicskin fit-svm: error: --alpha-s 1 is shorter than the no-touch reference it refreshes "
+                    "(--beta-s 2); give an interval of at least the reference's length")
+    assert not (tmp_path / "bad").exists()
+
+
+def test_alpha_and_beta_options_reach_the_network_artifact(capsys, tmp_path, cli_files):
+    """train (LightningCLI's data.alpha_s/beta_s), export and its refit keep them: compare runs all three."""
+    pytest.importorskip("lightning")
+    code, _, err = run(capsys, ["compare", "--data", cli_files["data"], "--n-bins", "40", "--alpha-s", "900", "--beta-s",
+                                "2.5", "--runs", tmp_path / "runs", "--out", tmp_path / "rep", "--trainer.max_epochs", "1"])
+    assert code == 0, err
+    skin = json.loads((tmp_path / "runs" / "compare-tiny" / "artifact" / "skin.json").read_text())
+    assert skin["training"]["refit"] and (skin["features"]["alpha_s"], skin["features"]["beta_s"]) == (900, 2.5)
+
+
 def test_train_tip_names_a_real_verb(capsys, cli_files):
     pytest.importorskip("lightning")
     line = assert_one_line_error(*run(capsys, ["train", "--data", cli_files["data"], "--trainer.bogus", "1"])[::2], "train")
@@ -276,12 +304,12 @@ def test_real_processes_print_one_line(tmp_path):
 def test_library_warnings_are_one_line(capsys, monkeypatch):
     import warnings
 
-    from sonicskin.cli import live
+    from sonicskin.cli import data
 
     def warn_and_fail(a):
         warnings.warn("something to know\n  across lines", UserWarning, stacklevel=1)
         return 0
 
-    monkeypatch.setattr(live, "cmd_info", warn_and_fail)
+    monkeypatch.setattr(data, "cmd_info", warn_and_fail)
     code, _, err = run(capsys, ["info"])
     assert code == 0 and err == "sonicskin info: warning: something to know across lines\n"

@@ -154,7 +154,7 @@ def test_udp_to_an_unresolvable_host_is_one_line_before_the_run(cli_files, capsy
 
 def test_live_publishes_on_lab_streaming_layer(cli_files, capsys):
     pylsl = pytest.importorskip("pylsl")
-    from sonicskin.lsl import STREAM_TYPE
+    from sonicskin.live import STREAM_TYPE
 
     name = f"sonicskin-test-{time.monotonic_ns()}"
     result = {}

@@ -539,7 +539,7 @@ def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeyp
 
     def boom(*a, **k):
         raise exc("interrupted")
-    module, target = {"export_pipeline": (S, "export_pipeline"), "skin_json": (A, "stamp_binding"), "swap": (A, "_swap_in")}[where]
+    module, target = {"export_pipeline": (S, "export_pipeline"), "skin_json": (A, "stamp_binding"), "swap": (A, "swap_folders")}[where]
     monkeypatch.setattr(module, target, boom)
     with pytest.raises(exc):
         build_svm_artifact(cli_files["data"], out, n_bins=60, progress=False, log=lambda *_: None)
@@ -549,7 +549,7 @@ def test_interrupted_fit_svm_keeps_the_old_artifact(cli_files, tmp_path, monkeyp
 
 
 def test_interrupted_export_keeps_the_old_artifact(sealed, cli_files, tmp_path, monkeypatch):
-    import sonicskin.export.onnx as X
+    import sonicskin.training.fit as X  # the network's kind exports through the export_net it imported
     from sonicskin.training.fit import artifact_from_checkpoint
 
     ckpt = _checkpoint(tmp_path / "run.ckpt", sealed, cli_files["data"])
@@ -597,10 +597,10 @@ def test_sigkill_during_fit_svm_keeps_the_old_artifact(cli_files, tmp_path):
 
 @pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two-renames"])
 def test_atomic_replace_swaps_the_whole_folder(tmp_path, monkeypatch, exchange):
-    import sonicskin.artifact as A
+    import sonicskin.dataset as D
 
     if not exchange:
-        monkeypatch.setattr(A, "_exchange", lambda a, b: False)
+        monkeypatch.setattr(D, "_exchange", lambda a, b: False)
     out = tmp_path / "art"
     out.mkdir()
     (out / "skin.json").write_text("old")

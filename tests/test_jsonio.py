@@ -1,4 +1,4 @@
-"""The one JSON conversion (sonicskin.jsonio) and the one t interval (sonicskin.stats): known answers."""
+"""The one JSON conversion (sonicskin.jsonio) and the one t interval (sonicskin.metrics): known answers."""
 
 import json
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from sonicskin.jsonio import OMIT, json_safe
-from sonicskin.stats import t_interval
+from sonicskin.metrics import t_interval
 
 
 def test_json_safe_gives_strict_plain_json():

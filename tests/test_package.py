@@ -165,6 +165,6 @@ def test_built_wheel_holds_one_top_level_package(tmp_path):
     names = zipfile.ZipFile(whl).namelist()
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith((".dist-info", ".data"))}
     assert top == {"sonicskin"}, f"the wheel installs top-level {sorted(top)}"
-    for mod in ("sonicskin/models/net.py", "sonicskin/training/module.py", "sonicskin/export/onnx.py",
+    for mod in ("sonicskin/models/__init__.py", "sonicskin/training/module.py", "sonicskin/export/onnx.py",
                 "sonicskin/configs/rigs/jaco.yaml", "sonicskin/view.html"):
         assert mod in names, f"the wheel lacks {mod}"

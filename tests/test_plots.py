@@ -216,7 +216,7 @@ def test_ids_when_the_user_gave_no_names(tmp_path):
 
 
 def test_fig12_legend_names_only_visible_lines():
-    from sonicskin.reproduce.fig12 import draw as _draw_fig12
+    from sonicskin.reproduce.experiments import draw_fig12 as _draw_fig12
 
     same = [0.9, 0.8, 0.85]
     res = {"minutes": [30, 60, 90], "temperature_c": [25, 27, 28], "svm alpha=5 min": same, "svm alpha=20 min": same,
@@ -241,7 +241,7 @@ def test_fig12_legend_names_only_visible_lines():
 
 
 def test_fig16_legend_covers_no_bar():
-    from sonicskin.reproduce.fig16 import draw as _draw_fig16
+    from sonicskin.reproduce.experiments import draw_fig16 as _draw_fig16
 
     res = {m: {"svm": {"accuracy": 1.0, "force": {"rmse_n": 0.4}}, "net": {"accuracy": 0.98, "force": {"rmse_n": 0.6}}}
            for m in ("cfrp", "aluminium", "abs", "glass", "wood", "aluminium plate, 36 markers")}
@@ -282,7 +282,7 @@ def _options(text: str) -> dict[str, str]:
 def test_train_help_describes_every_option_with_the_default_train_uses(capsys):
     pytest.importorskip("lightning")
     from sonicskin.cli import main
-    from sonicskin.rig import CONFIG_DIR
+    from sonicskin.rig import config_dir
 
     try:
         assert main(["train", "--help"]) in (0, None)
@@ -296,7 +296,7 @@ def test_train_help_describes_every_option_with_the_default_train_uses(capsys):
     # --data means one thing on `sonicskin train`: LightningCLI's --data CONFIG says it is not reachable here.
     assert "dataset folder" in opts["--data"]
     assert text.count("\n  --data CONFIG ") == 1 and "not on `sonicskin train`" in text
-    cfg = yaml.safe_load((CONFIG_DIR / "train" / "moving.yaml").read_text())
+    cfg = yaml.safe_load((config_dir() / "train" / "moving.yaml").read_text())
     checked = 0
     for group in ("model", "data"):
         for key, want in cfg[group].items():

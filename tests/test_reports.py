@@ -8,14 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sonicskin.dataset import Dataset
+from sonicskin.dataset import Dataset, Split
 from sonicskin.features import touch_mask
 from sonicskin.fit import build_svm_artifact, prepare
 from sonicskin.importers import import_spectra
 from sonicskin.rig import Rig
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
-from sonicskin.split import Split
 from tests.cli_helpers import assert_one_line_error, run
 
 EX = Path(__file__).resolve().parents[1] / "examples"
@@ -59,7 +58,7 @@ def test_split_with_no_validation_tests_every_other_session(four_sessions):
 
 def test_val_none_and_test_reach_training_as_an_empty_validation(four_sessions, capsys):
     from sonicskin.cli import build_parser
-    from sonicskin.cli.models import _train_args
+    from sonicskin.cli.train import _train_args
 
     def overrides(*argv):
         a, extra = build_parser().parse_known_args(["compare", "--data", str(four_sessions), *argv])

@@ -39,7 +39,7 @@ def test_quick_reproduction(quick_run):
 
 @pytest.mark.slow
 def test_reproduce_runs_only_the_named_experiments(tmp_path, quick_run):
-    from sonicskin.cli.models import REPRODUCE_EXPERIMENTS
+    from sonicskin.cli.parser import REPRODUCE_EXPERIMENTS
     from sonicskin.reproduce import EXPERIMENTS
 
     assert REPRODUCE_EXPERIMENTS == EXPERIMENTS  # the CLI's choices are the experiments

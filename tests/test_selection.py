@@ -181,7 +181,7 @@ def test_threshold_sits_in_the_middle_of_a_clean_gap_and_prefers_fewer_misses():
 
 def test_intervals_stay_inside_what_the_quantity_can_be():
     # Per-press RMSEs of 0.1 and 5 N: the plain t interval of their mean reaches far below 0 N, which no RMSE can.
-    from sonicskin.stats import t_interval as _t_interval
+    from sonicskin.metrics import t_interval as _t_interval
 
     lo, hi = _t_interval(np.array([0.1, 5.0]))
     assert lo < -20 and hi > 25

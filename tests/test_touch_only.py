@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from sonicskin.dataset import FeatureTable
-from sonicskin.features import MIN_REST_CHIRPS, rest_beta, select_bins
+from sonicskin.features import MIN_REST_CHIRPS, rest_beta
 from sonicskin.kinds.closed import score_entry
 from sonicskin.kinds.svm import SVMHead, fit_pipeline, ovo_decision, ovr_scores_from_ovo
 from sonicskin.metrics import force_report
+from sonicskin.ospa import select_bins
 from sonicskin.rig import Layout, Rig
 
 RIG = Rig(fs_hz=8000, f_lo_hz=1000, f_hi_hz=2000, n_chirp=400, pwm_hz=(), pwm_halfwidth_hz=0.0, name="small")

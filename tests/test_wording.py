@@ -77,7 +77,7 @@ def test_live_links_runs_one_loop_per_link(capsys, cli_files, monkeypatch):
 
 
 def test_training_report_says_force_is_not_measurable_without_a_force_sensor(capsys):
-    from sonicskin.cli.models import _report_training
+    from sonicskin.cli.train import _report_training
 
     res = {"epochs": 3, "train_time_s": 1.0, "val_loss": 0.5, "val_acc": 0.9, "val_force_rmse": 0.0}
     for force, want in ((np.full(4, np.nan), "val_force_rmse n/a (no force sensor)"), (np.array([1.0, np.nan]), "val_force_rmse 0.000")):

@@ -1,12 +1,9 @@
 """Lightning training of the networks in ``models``: ``sonicskin train --config configs/train/<name>.yaml``.
 
-Reproducibility (issue 27.3): a given seed trains bit-identical weights on one machine with one thread count
-(``sonicskin --threads``; :func:`training.quick.fit_net` and the Lightning configs' ``deterministic: true`` switch torch
-to its deterministic algorithms).  MKL, torch's BLAS on x86, may pick code paths by the memory alignment of its inputs,
-which changes from run to run; ``MKL_CBWR=AUTO,STRICT`` (set here unless the environment sets it, before torch's first
-BLAS call) asks it for run-to-run reproducible results.  Not reproducible: other thread counts, other CPUs (another
-instruction set), other torch/MKL versions; there the same seed can give slightly different weights, and a selection
-between candidates within a validation press of each other (``training.quick.choose_layer``) can go the other way.
+Reproducibility: a given seed trains bit-identical weights on one machine with one thread count (deterministic torch
+algorithms; ``MKL_CBWR=AUTO,STRICT``, set here unless the environment sets it, before torch's first BLAS call, so MKL
+does not pick code paths by memory alignment).  Other thread counts, CPUs or torch/MKL versions can give slightly
+different weights.
 """
 
 import os

@@ -1,38 +1,21 @@
-"""Augmentation along what varies between presses at one marker, measured from the user's own session (issue 26).
+"""Augmentation along what varies between presses at one marker, measured from the user's own session.
 
 With one press per marker the network sees one cloud of chirps per marker.  :class:`Augmenter` draws new touch
 chirps along the nuisance directions a later press will move along, each measured from the training session
-itself or fixed by physics, never from a test session:
-
-``press``
-    the force ramp within each press: a chirp moved toward (or past) another chirp of the same press,
-    ``x_i + lam (x_j - x_i)``, ``lam`` in ``[-e, 1 + e]``: a firmer or softer moment of the same touch.
-``strength``
-    the whole relative spectrum scaled by ``exp(N(0, sigma))``: a small touch changes the channel by
-    ``dH ~ K(w) G_tx G_rx``, linear in the finger's impedance ``K`` (mostly its damping, which grows with force
-    and differs from person to person), so in the small-change regime the relative dB pattern scales with it.
-``aim``
-    the fingertip landing off the marker: the chirp moved toward a neighbouring marker's mean pattern by
-    ``alpha (mu_j - mu_k)``, ``alpha ~ |N(0, aim_cm / distance)|`` (linear interpolation of the pattern
-    between markers; the finger's own contact patch already averages the pattern over ~1 cm).
-``stretch``
-    warm-up: the wall's modes move with ``sqrt(E)``, so the whole channel's frequency axis is stretched by
-    ``s`` (-3.5e-4 per K on the simulated CFRP wall); the relative pattern is resampled at ``f (1 + s)``,
-    ``s ~ U(-stretch, stretch)``, over every usable bin.
-``gain``, ``tilt``
-    a constant and a frequency-linear dB offset (transducer gain, bond and coupling change between the boot
-    reference and the chirp), ``N(0, gain_db)``, ``N(0, tilt_db)`` across the band.
-``motion``
-    a hands-off chirp of the training session recorded while the robot moved, minus their mean, added at a
-    random level ``U(0, motion_level)``: motion and noise as this rig records them.
-
-Every augmentation is linear in the chirp except ``stretch`` (a resampling) and ``strength`` (a product); all
-work on relative dB over every usable bin and the model's inputs are selected afterwards.
+itself or fixed by physics, never from a test session (sizes: :data:`AUGMENTATIONS`): ``press``, a chirp moved
+toward (or past) another chirp of the same press, ``x_i + lam (x_j - x_i)`` (a firmer or softer moment);
+``strength``, the relative spectrum scaled by ``exp(N(0, sigma))`` (a small touch's change is linear in the finger's
+impedance); ``aim``, moved toward a neighbouring marker's mean pattern (the fingertip landing off the marker);
+``stretch``, resampled at ``f (1 + s)`` (warm-up stretches the wall's modes); ``gain`` and ``tilt``, a constant and a
+frequency-linear dB offset; ``motion``, a hands-off chirp of the moving robot (minus their mean) added at a random
+level.  All work on relative dB over every usable bin; the model's inputs are selected afterwards.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from sonicskin.selection import press_ids
 
 __all__ = ["AUGMENTATIONS", "Augmenter", "make_augmenter", "neighbour_rings"]
 
@@ -60,17 +43,10 @@ def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None)
 
 
 class Augmenter:
-    """Draws one augmented copy of every training touch chirp per call.
-
-    Parameters
-    ----------
-    X : (n, D) relative dB of the training touch chirps over every usable bin.
-    y : (n,) marker labels; ``press`` : (n,) press ids (a run of chirps at one marker).
-    cols : the model's input columns among the D (e.g. OSPA's bins); the draws are returned over them.
-    freqs_hz : (D,) frequency of every column (``stretch``, ``tilt``).
-    X_rest : (m, D) hands-off chirps of the training session (while the robot moves, if it does) (``motion``).
-    positions_cm : (K, 2) marker positions in the order of ``np.unique(y)``; ``circumference_cm`` for a tube (``aim``).
-    sizes : augmentation -> size (:data:`AUGMENTATIONS`); a missing or zero entry turns it off.
+    """Draws one augmented copy of every training touch chirp per call: ``X`` (n, D) relative dB over every usable
+    bin, ``y`` marker labels and ``press`` ids per chirp; draws returned over ``cols``.  ``freqs_hz`` (D,) for
+    ``stretch`` and ``tilt``; ``X_rest`` (m, D) hands-off chirps for ``motion``; ``positions_cm`` (K, 2) in the order
+    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off).
     """
 
     def __init__(self, X, y, press, *, cols=None, freqs_hz=None, X_rest=None, positions_cm=None,
@@ -107,14 +83,6 @@ class Augmenter:
         self.neigh: list[tuple[np.ndarray, np.ndarray]] = []
         if positions_cm is not None:
             self.neigh = neighbour_rings(positions_cm, K, circumference_cm)
-
-    def restricted(self, k: int) -> Augmenter:
-        """The same augmenter returning only the first ``k`` of its input columns."""
-        import copy
-
-        out = copy.copy(self)
-        out.cols = self.cols[:k]
-        return out
 
     def draw(self, rng: np.random.Generator, rows: np.ndarray | None = None) -> np.ndarray:
         """Augmented copies of the touch chirps ``rows`` (default: all), over the input columns."""
@@ -155,13 +123,9 @@ class Augmenter:
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):
-    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``): every
-    nuisance measured there (its presses' force ramps, its hands-off chirps while the robot moves, or at rest after
-    the boot reference when it never moves, its markers' positions), over all of the data's inputs (OSPA order), drawn
-    over the first ``n_cols``.  Returns the augmenter and, for each of the ``rows``, its row in the augmenter (-1: not
-    a touch chirp)."""
-    from sonicskin.selection import press_ids
-
+    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``), every
+    nuisance measured there, over the data's inputs, drawn over the first ``n_cols``; and for each of the ``rows``
+    its row in the augmenter (-1: not a touch chirp)."""
     t = data.table
     rows = np.asarray(rows, bool)
     n_loc = data.n_locations

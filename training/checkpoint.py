@@ -1,10 +1,8 @@
 """Load a training checkpoint without running code from it.
 
-A Lightning ``.ckpt`` is a pickle: ``torch.load`` with weights-only mode off (what ``load_from_checkpoint``
-did here before) executes whatever ``__reduce__`` the file names.  :func:`load_checkpoint` reads it
-with ``weights_only=True`` (tensors and plain containers only; numpy's scalar and dtype are the one
-allow-listed extra, for checkpoints written before the metadata was kept plain), then rebuilds the
-module from its hyper-parameters and state dict.  Anything else in the file is refused with one line.
+A Lightning ``.ckpt`` is a pickle; :func:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (tensors
+and plain containers; numpy's scalar and dtype allow-listed for older checkpoints), then rebuilds the module from
+its hyper-parameters and state dict.  Anything else in the file is refused with one line.
 """
 
 from __future__ import annotations
@@ -18,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from sonicskin.artifact_schema import _check_features, _check_layout, _check_rig, _Doc
 from sonicskin.errors import SonicskinError
 
 from .module import SkinLitModule
@@ -56,11 +55,8 @@ def _first_line(e: BaseException) -> str:
 
 
 def load_checkpoint(path: str | Path) -> SkinLitModule:
-    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint.
-
-    Raises :class:`CheckpointError` (one line) for a file that is not such a checkpoint or that holds
-    Python objects other than tensors and plain data; nothing in the file is executed.
-    """
+    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint; a one-line
+    :class:`CheckpointError` for anything else (nothing in the file is executed)."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")
@@ -108,8 +104,6 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
 def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
     """The sonicskin metadata with the artifact schema's own checks (rig, layout, features), and against the
     network it describes (input width = bins, outputs = locations): one line naming the field."""
-    from sonicskin.artifact_schema import _check_features, _check_layout, _check_rig, _Doc
-
     class Doc(_Doc):
         def fail(self, field, problem, fix=None):
             raise CheckpointError(f"{self.source}: its sonicskin metadata {field} {problem}; {HINT}")

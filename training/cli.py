@@ -21,9 +21,11 @@ from collections.abc import Iterator
 import lightning as L
 from lightning.pytorch.cli import LightningCLI
 
-from sonicskin.errors import UsageError
+from sonicskin import threads
+from sonicskin.errors import UsageError, is_number
 
 from .data import SkinDataModule
+from .fit import choose_auto_layer
 from .module import LAYER_KINDS, SkinLitModule
 
 __all__ = ["SkinCLI", "EpochBar", "main", "quiet_third_party"]
@@ -182,10 +184,6 @@ def refuse_unlisted_classes(args: list[str]) -> None:
         _walk_classes(parsed, tuple(key.split(".")), f"--{key}")
 
 
-def _num(v: object) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 # option -> (check, what it must be); None values are Lightning's "not set" and pass
 _INT_GE = {"trainer.min_epochs": 0, "trainer.min_steps": 0, "trainer.log_every_n_steps": 1, "trainer.num_nodes": 1,
            "trainer.accumulate_grad_batches": 1, "trainer.check_val_every_n_epoch": 1, "trainer.num_sanity_val_steps": -1,
@@ -196,6 +194,7 @@ _FLOAT_RANGES = {  # (lo, lo_open, hi)
     "model.force_weight": (0.0, False, 1e6), "model.kernel_lr": (0.0, False, 10.0), "model.tau": (0.0, True, 1e6),
     "model.rest_mix": (0.0, False, 1.0), "model.noise_db": (0.0, False, 100.0),
     "data.noise_db": (0.0, False, 100.0), "data.min_force_n": (0.0, False, 1e4), "trainer.gradient_clip_val": (0.0, False, 1e9),
+    "data.alpha_s": (0.0, True, 1e7), "data.beta_s": (0.0, True, 3600.0),
 }
 MAX_EPOCHS = 1_000_000
 MAX_BATCH = 1_000_000
@@ -217,23 +216,23 @@ def check_ranges(cfg) -> None:
 
     for key, hi in (("trainer.max_epochs", MAX_EPOCHS), ("trainer.max_steps", MAX_EPOCHS * 1000)):
         v = get(key)
-        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or not (v == -1 or 1 <= v <= hi)):
+        if v is not None and (not is_number(v, integer=True) or not (v == -1 or 1 <= v <= hi)):
             bad(key, f"-1 (no limit) or an integer from 1 to {hi}", v)
     for key, lo in _INT_GE.items():
         v = get(key)
-        if v is not None and (not isinstance(v, int) or isinstance(v, bool) or v < lo or v > 2**31):
+        if v is not None and (not is_number(v, integer=True) or v < lo or v > 2**31):
             bad(key, f"an integer >= {lo}", v)
     v = get("data.batch_size")
-    if v is not None and (not isinstance(v, int) or isinstance(v, bool) or not 1 <= v <= MAX_BATCH):
+    if v is not None and (not is_number(v, integer=True) or not 1 <= v <= MAX_BATCH):
         bad("data.batch_size", f"an integer from 1 to {MAX_BATCH}", v)
     for key, (lo, lo_open, hi) in _FLOAT_RANGES.items():
         v = get(key)
         if v is None:
             continue
-        if not _num(v) or not math.isfinite(v) or (v <= lo if lo_open else v < lo) or v > hi:
+        if not is_number(v) or (v <= lo if lo_open else v < lo) or v > hi:
             bad(key, f"a finite number {'>' if lo_open else '>='} {lo:g} and <= {hi:g}", v)
     hidden = get("model.hidden")
-    if hidden is not None and (not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= 65536 for h in hidden)):
+    if hidden is not None and not all(is_number(h, integer=True) and 1 <= h <= 65536 for h in hidden):
         bad("model.hidden", "a list of layer widths from 1 to 65536", list(hidden))
     # Sizes that would be allocated before anything runs: [65536, 65536] is 17 GB of weights, n_centres 1e8 x 60 inputs
     # 24 GB (the machine's memory; the OOM killer ends the run, or another process).
@@ -252,21 +251,20 @@ def check_ranges(cfg) -> None:
         v, lo = get(key), (0 if key == "trainer.limit_val_batches" else 1)  # 0 validation batches: no validation
         if v is None:
             continue
-        is_int = isinstance(v, int) and not isinstance(v, bool)
+        is_int = is_number(v, integer=True)
         if not ((is_int and v >= lo) or (isinstance(v, float) and math.isfinite(v) and (lo == 0 or v > 0) and 0 <= v <= 1)):
             bad(key, f"a fraction in {'[0' if lo == 0 else '(0'}, 1] or a batch count >= {lo}", v)
     v = get("trainer.fast_dev_run")
     if v is not None and not isinstance(v, bool) and (not isinstance(v, int) or v < 0):
         bad("trainer.fast_dev_run", "true, false or a batch count >= 0", v)
     devices = get("trainer.devices")  # Lightning: an int >= 1, -1 (all), "auto", or a list / comma string of indices
-    ok = (devices is None or devices == "auto" or (isinstance(devices, int) and not isinstance(devices, bool) and
-                                                    (devices >= 1 or devices == -1)))
+    ok = devices is None or devices == "auto" or (is_number(devices, integer=True) and (devices >= 1 or devices == -1))
     if not ok and isinstance(devices, str):
         parts = [x.strip() for x in devices.split(",") if x.strip()]
         ok = bool(parts) and all(x.lstrip("-").isdigit() for x in parts) and (
             int(parts[0]) >= 1 or int(parts[0]) == -1 if len(parts) == 1 else all(int(x) >= 0 for x in parts))
     if not ok and isinstance(devices, (list, tuple)):
-        ok = bool(devices) and all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in devices)
+        ok = bool(devices) and all(is_number(x, integer=True) and x >= 0 for x in devices)
     if ok and get("trainer.accelerator") == "cpu" and not (devices is None or devices == "auto" or isinstance(devices, int)
                                                             or (isinstance(devices, str) and "," not in devices)):
         bad("trainer.devices", "a number of processes (an integer >= 1) on the CPU; device index lists are for GPUs", devices)
@@ -318,8 +316,6 @@ class SkinCLI(LightningCLI):
 
     def before_fit(self) -> None:
         if self.model.hparams.layer == "auto":  # the location layer, chosen on data it does not train on
-            from .fit import choose_auto_layer
-
             choose_auto_layer(self.model, self.datamodule, epochs=self.trainer.max_epochs or 40)
 
     def add_arguments_to_parser(self, parser) -> None:
@@ -329,16 +325,10 @@ class SkinCLI(LightningCLI):
 
 
 def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
-    """``args`` as on the command line after ``sonicskin train`` (e.g. ``--config configs/train/moving.yaml``).
-
-    With ``run`` the model is fitted; ``cli.epoch_bar.results`` then holds the final metrics.
-    A bad option or value raises :class:`sonicskin.errors.UsageError` (one line) instead of
-    printing jsonargparse's usage.
-    """
+    """``args`` as after ``sonicskin train``; with ``run`` the model is fitted (``cli.epoch_bar.results``).  A bad
+    option or value is a one-line :class:`sonicskin.errors.UsageError`, not jsonargparse's usage."""
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
-
-    from sonicskin import threads
 
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     refuse_unlisted_classes(list(args or []))  # before jsonargparse imports any class a file names

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -10,6 +11,9 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, TensorDataset
 
+from sonicskin.dataset import Dataset
+from sonicskin.feature_cache import load_features_cached
+from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_models, prepare
 from sonicskin.kinds import CLOSED_FORM
 from sonicskin.rig import Rig
@@ -20,8 +24,6 @@ __all__ = ["SkinDataModule"]
 def session_fingerprints(root: str | Path, sessions) -> dict[str, str]:
     """sha256 of each session's ``session.json`` (the manifest binding its parts by their sha256): which recording a
     checkpoint was trained on, so ``export --data`` can tell a copy of it from other data under the same names."""
-    import hashlib
-
     return {str(s): hashlib.sha256((Path(root) / str(s) / "session.json").read_bytes()).hexdigest() for s in sessions}
 
 
@@ -33,9 +35,8 @@ class SkinDataModule(L.LightningDataModule):
     data : str
         Dataset folder (``sonicskin simulate`` / ``record`` / ``import-*``); ``sonicskin train --data`` sets it.
     n_bins : int, optional
-        OSPA's gamma: bins kept, selected on the training split only (clamped to the rig's band).  ``None``: chosen
-        (with the SVM's C and kernel width) by validation on the validation session or the training session's
-        presses (:mod:`sonicskin.selection`); the paper's 300 when neither can validate.
+        OSPA's gamma, the bins the SVM reads (selected on the training split).  ``None``: chosen by validation, the
+        paper's 300 when nothing can validate.
     mode : str
         Model inputs: ``relative`` (minus the running no-touch reference, Alg. 2 on features) or ``absolute``.
     train_sessions : list of str, optional
@@ -45,17 +46,21 @@ class SkinDataModule(L.LightningDataModule):
     test_subjects : list of int, optional
         Leave-subjects-out instead: sessions of these people are the test set.
     min_force_n : float
-        Labelled chirps pressed lighter than this (N) are left out of training, neither a clear touch nor
-        no touch (without a force sensor every labelled chirp is a touch).
+        Labelled chirps pressed lighter than this (N) are neither a clear touch nor no touch: left out of training.
     batch_size : int
         Chirps per optimisation step.
     noise_db : float
         Std of Gaussian noise added to training features (augmentation), in dB; passed to ``model.noise_db``.
+    alpha_s : float
+        Alg. 2's refresh interval: the no-touch reference of relative inputs is renewed every ``alpha_s`` seconds.
+    beta_s : float
+        Alg. 2's reference length in seconds (shorter when some session has less rest).
     """
 
     def __init__(self, data: str, n_bins: int | None = None, mode: str = "relative", train_sessions: list[str] | None = None,
                  val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
-                 min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3):
+                 min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3,
+                 alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s):
         super().__init__()
         self.save_hyperparameters()
         meta = json.loads((Path(data) / "dataset.json").read_text()) if (Path(data) / "dataset.json").is_file() else None
@@ -85,9 +90,6 @@ class SkinDataModule(L.LightningDataModule):
     def prepare_data(self) -> None:
         # Lightning calls this once per machine before `setup` on every rank: the feature cache is built here,
         # so DDP ranks read it instead of all computing (and writing) it at once.
-        from sonicskin.dataset import Dataset
-        from sonicskin.feature_cache import load_features_cached
-
         load_features_cached(Dataset(self.hparams.data), progress=False)
 
     def setup(self, stage: str | None = None) -> None:
@@ -95,7 +97,8 @@ class SkinDataModule(L.LightningDataModule):
             return
         h = self.hparams
         p = prepare(h.data, n_bins=h.n_bins, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
-                    test_subjects=h.test_subjects, min_force_n=h.min_force_n, log=lambda m: print(f"sonicskin: {m}"))
+                    test_subjects=h.test_subjects, min_force_n=h.min_force_n, alpha_s=h.alpha_s, beta_s=h.beta_s,
+                    log=lambda m: print(f"sonicskin: {m}"))
         self.prepared = p
         _, self.fitted = fit_models(p, (CLOSED_FORM,), refit=False, log=lambda m: None)
         p.selection = {k: v for f in self.fitted.values() for k, v in f.selection.items()} | p.selection

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from sonicskin.export.onnx import export_net
 
-from sonicskin.dataset import Dataset
+from sonicskin.dataset import Dataset, Split
 from sonicskin.errors import ArtifactError
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_artifact, prepare, summary_lines
@@ -24,7 +24,6 @@ from sonicskin.head import DETECTOR_BINS
 from sonicskin.integrity import check_layout, check_rig
 from sonicskin.kinds import BASELINE, NETWORK, Fitted
 from sonicskin.kinds.net import NetKind
-from sonicskin.split import Split
 
 from .augment import make_augmenter
 from .checkpoint import load_checkpoint
@@ -69,13 +68,10 @@ def _plain_hparams(h) -> dict:
 
 def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epochs: int | None = None,
                   layer: dict | None = None, chosen: dict | None = None, **hparams) -> Fitted:
-    """Train the network on the training chirps of ``data`` (a :class:`sonicskin.fit.TrainingData`) in-process.
-
-    ``select``: its location layer is chosen first (:func:`choose_network_layer`); without validation it is the
-    closed form (:data:`training.quick.UNVALIDATED`).  ``layer``: that choice already made (several training seeds
-    share it).  ``chosen``: every choice of an earlier pass (layer, epochs, seed, touch decision, force), trained anew on
-    these rows (a refit).  The network reads the first inputs its layer asks for (OSPA order) and trains on augmented
-    presses of its own training sessions (:func:`training.augment.make_augmenter`).  Then :func:`finish_network`."""
+    """Train the network on the training chirps of ``data`` in-process: its location layer chosen first
+    (:func:`choose_network_layer`; without validation the closed form), or ``layer`` given; ``chosen``: every choice of
+    an earlier pass, trained anew (a refit).  It reads the first inputs its layer asks for and trains on augmented
+    presses of its own training sessions; then :func:`finish_network`."""
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     if chosen is not None:
@@ -121,9 +117,8 @@ def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | Non
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
-    """``sonicskin train`` with ``model.layer: auto``: the Lightning module's location layer chosen as
-    :func:`choose_network_layer` chooses it for an in-process network, set on the module (its hyperparameters, then
-    the network rebuilt) and recorded in its checkpoint's selection."""
+    """``sonicskin train`` with ``model.layer: auto``: the module's location layer chosen as for an in-process network
+    (:func:`choose_network_layer`), set on it and recorded in its checkpoint's selection."""
     datamodule.setup("fit")
     h = module.hparams
     data = datamodule.prepared
@@ -141,15 +136,11 @@ def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
 
 def finish_network(model, data, *, fitted: dict, selection: dict | None = None, train_time_s: float | None = None,
                    hparams: dict | None = None, seed: int | None = None, chosen: dict | None = None) -> Fitted:
-    """The touch decision and the force of a trained network, chosen on chirps it did not train on.
-
-    Touch: with a validation session holding hands-off and touch chirps, the best of its own head, its head
-    recalibrated there, the SVM's input-RMS detector and either of them
-    (:func:`sonicskin.training.quick.choose_detector`); without one its head cannot be judged on data it did not
-    train on, so it is combined with the input-RMS detector (``either``: never more misses than the SVM's).  Force:
-    its own head or the SVM's validated force model, whichever has the lower RMSE on the validation presses
-    (:func:`choose_force`; without them :data:`UNVALIDATED_FORCE`).
-    ``chosen``: both choices made by an earlier pass (a refit), applied with this data's SVM threshold and ridge."""
+    """The touch decision and the force of a trained network, chosen on chirps it did not train on: touch, the SVM's
+    input-RMS detector or ``either`` of it and the network's own logit (:func:`sonicskin.training.quick.choose_detector`;
+    without a validation session ``either``: never more misses than the SVM's); force, its own head or the SVM's
+    validated force model (:func:`choose_force`; without a validation session :data:`UNVALIDATED_FORCE`).  ``chosen``:
+    both choices of an earlier pass (a refit), applied with this data's SVM."""
     sel = {k: v for k, v in (selection or {}).items() if k not in ("hparams", "fold_model")}
     model = model.eval()
     n, ids = data.n_locations, np.asarray(data.layout.ids)
@@ -234,9 +225,8 @@ def svm_force(svm, X: np.ndarray, location) -> np.ndarray:
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
-    """The dataset holds the sessions of the checkpoint's split, and (checkpoints that record it) the very recordings:
-    the SVM is trained here on them, next to a network trained on the checkpoint's.  Other data under the same rig,
-    layout and session names gave an artifact whose two models were trained on different recordings."""
+    """The dataset holds the sessions of the checkpoint's split and (where the checkpoint records them) the very
+    recordings, so the SVM trained here and the checkpoint's network see the same data."""
     split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
     missing = [s for s in split if s not in set(ds.sessions)]
     if missing:
@@ -255,14 +245,10 @@ def check_same_sessions(meta: dict, ds, ckpt) -> None:
 def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | Path | None = None, refit: bool = True,
                              log=print) -> dict:
     """``sonicskin export``: the checkpoint's network beside the closed-form models, through the one fit
-    (:mod:`sonicskin.fit`).
-
-    The SVM and the LDA are fitted on the checkpoint's own split, bins and inputs, so every model in the artifact sees
-    exactly the same bins, reference and sessions; the network's touch decision and force are chosen as for an
-    in-process network (:func:`finish_network`); with a validation session and ``refit`` every model is then fitted
-    again on the training and validation sessions (the network retrained in-process with the checkpoint's choices and
-    epochs).  ``data`` (default: the checkpoint's) must have the checkpoint's rig and marker layout and hold the very
-    recordings it was trained on.  ``out`` is replaced as a whole at the end."""
+    (:mod:`sonicskin.fit`), all on the checkpoint's split, bins and inputs; the network's touch decision and force as
+    for an in-process network, then (a validation session and ``refit``) every model fitted again on the training
+    and validation sessions.  ``data`` (default: the checkpoint's) must hold the very recordings it was trained on.
+    ``out`` is replaced as a whole at the end."""
     lit = load_checkpoint(ckpt)  # weights_only: nothing in the file is executed
     meta = lit.meta
     spec = FeatureSpec.from_dict(meta["spec"])
@@ -272,8 +258,8 @@ def artifact_from_checkpoint(ckpt: str | Path, out: str | Path, *, data: str | P
     check_layout({"layout": meta["layout"]}, ds.layout, what=f"checkpoint {Path(ckpt).name}", here=f"dataset {ds.root}")
     check_same_sessions(meta, ds, ckpt)
     split = Split(**{k: tuple(v) for k, v in meta["split"].items()})
-    d = prepare(ds, split=split, bins=spec.bins, mode=spec.mode, alpha_s=spec.alpha_s, min_force_n=meta["min_force_n"],
-                progress=False, log=log)
+    d = prepare(ds, split=split, bins=spec.bins, mode=spec.mode, alpha_s=spec.alpha_s, beta_s=spec.beta_s,
+                min_force_n=meta["min_force_n"], progress=False, log=log)
     if d.spec != spec:
         raise ArtifactError(f"dataset {ds.root} gives other model inputs than checkpoint {Path(ckpt).name} was trained on "
                             f"({d.spec.mode}, beta {d.spec.beta_s:g} s vs {spec.mode}, beta {spec.beta_s:g} s); pass the "

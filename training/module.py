@@ -59,14 +59,10 @@ class SkinLitModule(L.LightningModule):
     label_smoothing : float
         Label smoothing of the location cross-entropy (training only).
     kernel : bool or "auto"
-        The older name of ``layer``: ``True`` the SVM's kernel machine, ``False`` an MLP, ``"auto"`` chosen by
-        validation; ``layer`` wins when given.
+        The older name of ``layer`` (``True``: kernel, ``False``: mlp); ``layer`` wins when given.
     layer : str
-        The location layer: ``"lda"`` (the artifact's shrinkage LDA, frozen: :class:`models.LDASkinNet`),
-        ``"kernel"`` (the artifact's SVM as a kernel machine, RBF units at its support vectors), ``"mlp"`` (the
-        trunk's own location logits), or ``"auto"``: chosen before training by validation
-        (:func:`training.fit.choose_network_layer`).  The closed-form layers are the models the artifact's
-        ``lda.onnx`` and ``svm.onnx`` hold, fitted on the same training chirps (:mod:`sonicskin.kinds`).
+        The location layer: ``"lda"`` (the artifact's shrinkage LDA, frozen), ``"kernel"`` (the artifact's SVM as a
+        kernel machine), ``"mlp"`` (the trunk's own logits), or ``"auto"``: chosen before training by validation.
     n_inputs : int, optional
         The network reads the first ``n_inputs`` inputs only (OSPA's best bins); ``None``: all ``n_in``.
     n_trunk : int
@@ -77,9 +73,7 @@ class SkinLitModule(L.LightningModule):
         LDA layer: the LDA reads the first ``n_lda`` inputs (its own bins); the network reads ``n_inputs`` >= them
         (the SVM's force model, which its head may apply, reads the first gamma).
     augment : bool
-        Train on augmented touch chirps too (:class:`training.augment.Augmenter`: the force ramp within each press, the
-        touch's strength, aim toward neighbouring markers, warm-up stretch, gain and tilt, the robot's motion, each
-        measured from the training session); the trainer sets the augmenter (:attr:`augmenter`).
+        Train on augmented touch chirps too (:class:`training.augment.Augmenter`, set by the trainer).
     aug_share : float
         Augmented copies per batch, as a share of the batch's touch chirps.
     kernel_lr : float
@@ -87,11 +81,9 @@ class SkinLitModule(L.LightningModule):
     tau : float
         Softness of the kernel layer's one-vs-one votes.
     n_centres : int
-        RBF units; set when the SVM is fitted (stored so a checkpoint rebuilds the same shapes); leave at 0.
+        RBF units, set when the SVM is fitted (a checkpoint rebuilds the same shapes); leave at 0.
     rest_mix : float
-        Augmentation with the rig's own noise: each training touch chirp gets a random no-touch chirp's
-        deviation (from the batch's no-touch mean) times ``rest_mix`` (0 = off; measured no gain over
-        ``noise_db`` 0.3 on the simulated moving/stationary/two-points scenarios).
+        Each training touch chirp gets a random no-touch chirp's deviation from their mean times this (0 = off).
     """
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
@@ -128,9 +120,8 @@ class SkinLitModule(L.LightningModule):
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 
     def init_closed_form(self, fitted: dict) -> None:
-        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the
-        :class:`sonicskin.kinds.Fitted` SVM and LDA on this network's training chirps): the kernel layer is the SVM
-        (its support vectors; the network's normalisation its scaler), the LDA layer the LDA, frozen."""
+        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the SVM and LDA on this
+        network's training chirps): the kernel layer the SVM (its scaler the normalisation), the LDA layer the LDA."""
         h = self.hparams
         if h.layer == "kernel":
             pipe = fitted[BASELINE].model

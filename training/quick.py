@@ -1,8 +1,5 @@
-"""Train SkinNet on arrays in-process (no CLI, no checkpoints): model selection, refits, ``reproduce`` and ``seeds``.
-
-The same module, loss and optimizer as ``sonicskin train`` (:class:`training.module.SkinLitModule`), in a
-plain torch loop: a Lightning ``Trainer`` costs more than the training itself on one session's
-chirps (measured 20 s vs 3 s for 40 epochs of ~1,100 chirps).
+"""Train SkinNet on arrays in-process (no CLI, no checkpoints): model selection, refits, ``reproduce`` and ``seeds``;
+a plain torch loop (a Lightning ``Trainer`` costs more than the training itself on one session's chirps).
 """
 
 from __future__ import annotations
@@ -39,13 +36,9 @@ UNVALIDATED = "LDA (closed form)"
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
             batch_size: int = 128, fitted: dict | None = None, augmenter=None, **hparams):
-    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy.
-
-    ``hparams`` override :data:`DEFAULTS` and :class:`~training.module.SkinLitModule`'s arguments.  A closed-form
-    layer (``layer`` ``"lda"`` or ``"kernel"``) starts as the artifact's model in ``fitted`` (the
-    :class:`sonicskin.kinds.Fitted` LDA and SVM on the touch chirps of the same X, cls).  ``augmenter``: ``(Augmenter,
-    row -> augmenter row)`` over the touch chirps of (X, cls) (:func:`training.augment.make_augmenter`), used when
-    ``augment`` is set.  ``predict.model`` is the trained :class:`models.SkinNet`.
+    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the
+    :class:`models.SkinNet`).  A ``layer`` ``"lda"`` or ``"kernel"`` starts as the artifact's model in ``fitted``;
+    ``augmenter``: ``(Augmenter, row -> augmenter row)``, used when ``augment`` is set.
     """
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)

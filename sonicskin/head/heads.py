@@ -1,24 +1,20 @@
-"""Model outputs -> :class:`Predictions`: the one place a touch, a location, a position and a force are decided.
-
-A head is built from an artifact's model entry (``skin.json``) and its marker layout; :meth:`decide`
-takes the outputs of the model's ONNX graph on a block of model inputs and the stream's Alg. 2
-reference.  Nothing here runs a model: :class:`sonicskin.runtime.SkinRuntime` runs the graph,
-:class:`~sonicskin.head.stream.Stream` keeps the reference.
-"""
+"""Model outputs -> :class:`Predictions`: the one place a touch, a location, a position and a force are decided,
+from an artifact's model entry and marker layout (:meth:`decide`: the graph's outputs and the stream's Alg. 2
+reference).  Nothing here runs a model."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
 from ..force import energy_db, force_from_dict
 from ..rig import Layout
-from .predictions import Predictions
 
-__all__ = ["ScoreHead", "touch_statistic", "input_rms", "DETECTOR_BINS", "DETECTORS", "centroid", "softmax"]
+__all__ = ["Predictions", "ScoreHead", "touch_statistic", "input_rms", "DETECTOR_BINS", "DETECTORS", "centroid", "softmax"]
 
-#: The input-RMS detector reads the first (best, OSPA order) bins only, at most the paper's 300: with a gamma chosen
-#: for localization (up to every usable bin) the extra bins are the motion-sensitive ones, and a statistic over
-#: 1,884 bins missed 56 % of a moving random rig's touches where the 300-bin one missed none (design seed 1).
+#: The input-RMS detector reads the first (best, OSPA order) bins only, at most the paper's 300: beyond them are the
+#: motion-sensitive bins (over 1,884 bins it missed 56 % of a moving random rig's touches, over 300 none).
 DETECTOR_BINS = 300
 
 #: Touch detectors of a closed-form head: ``input-rms`` (how far the inputs moved from the no-touch reference, the
@@ -26,17 +22,50 @@ DETECTOR_BINS = 300
 DETECTORS = ("input-rms", "paper")
 
 
+# -- the per-chirp decisions of one model: the one record every path returns
+@dataclasses.dataclass
+class Predictions:
+    touch: np.ndarray        # (n,) bool
+    location: np.ndarray     # (n,) location id (most likely marker); -1 during the boot calibration
+    xy_cm: np.ndarray        # (n, 2) continuous estimate: probability-weighted centroid of nearby markers
+    force_n: np.ndarray      # (n,) 0 where no touch is detected; NaN where the artifact has no force model
+    confidence: np.ndarray   # (n,) probability of the chosen marker given a touch (net) / vote share (svm)
+    scores: np.ndarray       # (n, N) per-location scores (net: probabilities; svm: calibrated S_final)
+    calibrating: np.ndarray | None = None  # (n,) bool: boot calibration, no prediction (replays only)
+    #: (n,) bool: the chirps Alg. 2 must not take as no-touch for its reference, where that differs from ``touch``
+    #: (the network's ``either`` detector: its input-RMS part alone; None: ``touch``)
+    reference_touch: np.ndarray | None = None
+
+    def touched_for_reference(self) -> np.ndarray:
+        """What Alg. 2 counts as touched when it picks the no-touch chirps of a reference refresh."""
+        return self.touch if self.reference_touch is None else self.reference_touch
+
+    def take(self, sel) -> Predictions:
+        """The chirps ``sel`` (index, slice or mask)."""
+        return Predictions(*(None if v is None else v[sel] for v in (getattr(self, f.name) for f in dataclasses.fields(self))))
+
+    @classmethod
+    def concat(cls, parts: list[Predictions]) -> Predictions:
+        cols = [[getattr(p, f.name) for p in parts] for f in dataclasses.fields(cls)]
+        return cls(*(None if any(v is None for v in c) else np.concatenate(c) for c in cols))
+
+    @classmethod
+    def boot(cls, n: int, n_locations: int) -> Predictions:
+        """``n`` chirps of the boot calibration: no touch, no location (-1), no position (NaN)."""
+        return cls(np.zeros(n, bool), np.full(n, -1), np.full((n, 2), np.nan), np.zeros(n), np.zeros(n),
+                   np.zeros((n, n_locations)), np.ones(n, bool))
+
+    def __len__(self) -> int:
+        return len(self.touch)
+
+
 def touch_statistic(V_cal: np.ndarray, n_locations: int, n_bins: int | None = None, *, detector: str = "input-rms"
                     ) -> np.ndarray:
-    """The touch detection statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`).
-
-    ``input-rms`` (default): the RMS change (dB) of the model inputs from the no-touch reference.  The paper
-    thresholds the calibrated per-location score ``max(S - S_c)`` (``paper``).  An RBF SVM trained on touches only
-    gives the same decision values (its intercepts) to every input far from its training touches, at rest or under
-    an unusually firm press, so a press at the location that wins the vote at rest goes unseen (measured: a 12 N
-    press missed for 2 s on a 3-marker rig).  How far the OSPA bins moved from rest is what a touch does
-    physically; that is thresholded.  ``n_bins``: over the first ``n_bins`` inputs only (the best bins, see
-    :data:`DETECTOR_BINS`); ``None``: all.
+    """The touch statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`):
+    ``input-rms`` (default), the RMS change (dB) of the first ``n_bins`` model inputs from the no-touch reference
+    (how far the bins moved is what a touch does physically; an RBF SVM gives the same scores to every input far
+    from its training touches, so a firm press at the location that wins at rest went unseen); ``paper``, the
+    calibrated per-location score ``max(S - S_c)``.
     """
     V_cal = np.asarray(V_cal, np.float64)
     if detector == "paper":
@@ -80,13 +109,8 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 
 class ScoreHead:
-    """The decisions of a closed-form model from its per-location scores (the SVM's, the LDA's).
-
-    Location: the argmax of the raw per-location scores ``S`` (subtracting ``S_c`` scrambles their argmax: measured
-    96 % raw vs 33 % calibrated on the simulated moving robot).  Touch: the detector (:data:`DETECTORS`) on ``V - S_c``,
-    ``V = [S, inputs]`` (Alg. 2: ``S_c`` from the stream, or the training session's).  Force: the artifact's force
-    model at the chosen location.  A subclass says how its outputs give ``S`` (:meth:`location_scores`), its
-    confidence and the weights of its position estimate.
+    """The decisions of a closed-form model from its per-location scores ``S``: the argmax of the raw ``S``, the
+    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights.
     """
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)

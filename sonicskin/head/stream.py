@@ -11,8 +11,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..dsp import log_magnitude_db
 from ..errors import ArtifactError
-from .predictions import Predictions
+from .heads import Predictions
 
 __all__ = ["Stream", "band_rows", "finite_rows"]
 
@@ -37,23 +38,13 @@ def band_rows(X, n_band: int) -> np.ndarray:
 class Stream:
     """Alg. 2's online reference and the per-chirp path of one model.
 
-    Both :meth:`chirp` and :meth:`replay` decide the reference with the same
-    :class:`~sonicskin.calibration.OnlineReference`: the first ``beta`` seconds are the boot calibration
-    (hands off, no predictions), later refreshes take ``beta`` seconds that this model's own detector calls
-    no-touch, every ``alpha`` seconds.  No label reaches it.
-
-    Parameters
-    ----------
-    run : ``inputs (n, len(spec.bins)) -> outputs`` of the model (its ONNX graph).
-    head : the model kind's head (:mod:`sonicskin.kinds`); a ``calibrated`` head's score vectors are what Alg. 2
-        averages (its ``S_c``), any other reads the stream's no-touch inputs.
-    spec : the artifact's :class:`~sonicskin.features.FeatureSpec` (bins, mode, beta, alpha).
-    rig : the artifact's :class:`~sonicskin.rig.Rig`.
-    drift : a :class:`~sonicskin.drift.DriftTracker` holding the training session's rest spectrum (the artifact's
-        ``drift``), or ``None``.  With one, every new reference (the boot's and each refresh's hands-off chirps) also
-        estimates the channel's frequency stretch against the training rest (a warming wall's modes all move by one
-        factor), and every chirp and the reference are mapped back onto the training frequency axis before the
-        model: the reference then tracks gain, tilt *and* stretch.
+    :meth:`chirp` and :meth:`replay` decide the reference with the same
+    :class:`~sonicskin.calibration.OnlineReference` (boot, then refreshes on chirps this model's own detector calls
+    no-touch); no label reaches it.  ``run``: ``inputs (n, len(spec.bins)) -> outputs`` (the ONNX graph); ``head``:
+    the kind's head (a ``calibrated`` head's scores are what Alg. 2 averages, any other reads the no-touch inputs);
+    ``spec``, ``rig``: the artifact's.  ``drift``: a :class:`~sonicskin.drift.DriftTracker` (or ``None``): every new
+    reference then also estimates the channel's frequency stretch, and every chirp and the reference are mapped back
+    onto the training frequency axis before the model.
     """
 
     def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head, spec, rig, *, drift=None):
@@ -103,8 +94,6 @@ class Stream:
 
     def frame(self, frame: np.ndarray, t_s: float) -> Predictions | None:
         """One chirp-aligned frame (n_chirp,) at stream time ``t_s``; ``None`` during the boot calibration."""
-        from ..dsp import log_magnitude_db
-
         frame = np.asarray(frame)
         if frame.shape != (self.rig.n_chirp,):
             raise ArtifactError(f"expected one chirp-aligned frame of {self.rig.n_chirp} samples (the artifact's rig), "
@@ -129,9 +118,8 @@ class Stream:
         return p
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
-        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes; the same
-        output as :meth:`chirp` one at a time.  Boot chirps have ``calibrating`` set, no touch, location -1 and NaN
-        position."""
+        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes, as :meth:`chirp`
+        gives them one at a time (boot chirps: ``calibrating``, no touch, location -1, NaN position)."""
         X = band_rows(X_band, self.rig.n_band)
         if self.drift is None:
             X = X[:, self.bins]

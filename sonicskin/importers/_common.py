@@ -22,9 +22,7 @@ class ImportDataError(SonicskinError):
 @contextlib.contextmanager
 def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
     """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one.
-
-    ``out`` is locked for the whole import (:func:`sonicskin.dataset.writer_lock`): a second import (or simulate,
-    record) into the same folder is refused before it touches the first one's staging folder."""
+    ``out`` is locked for the whole import, so a second writer is refused before it touches the staging folder."""
     if mode not in ("create", "overwrite", "resume"):
         raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
     if out.exists() and not out.is_dir():

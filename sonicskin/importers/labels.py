@@ -67,20 +67,8 @@ def _is_no_touch(v) -> bool:
 
 
 def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=print) -> tuple[np.ndarray, Layout, dict]:
-    """Location ids (``-1`` = no touch) for a column of raw labels, the layout and the id -> label mapping.
-
-    Parameters
-    ----------
-    labels : (n,) integers, numbers or strings (see the module docstring).
-    x_cm, y_cm : (n,) marker coordinates per row (NaN where unknown), optional.
-    where : the input's name for messages.
-
-    Returns
-    -------
-    ids : (n,) int location ids, -1 for no touch.
-    layout : one marker per distinct touch label.
-    names : ``{id: label}`` as printed.
-    """
+    """``(ids, layout, names)`` for a column of raw ``labels`` (integers, numbers or strings): each row's location
+    id (-1: no touch), one marker per distinct touch label (at ``x_cm``/``y_cm`` where given), and ``{id: label}``."""
     raw = np.asarray(labels)
     vals = [v.strip() if isinstance(v, str) else v for v in raw.tolist()]
     touch = np.array([not _is_no_touch(v) for v in vals], bool)

@@ -13,7 +13,7 @@ import scipy.fft
 
 from ..dataset import DatasetWriter, check_name, read_npz
 from ..dsp import chirp_spectrum
-from ..limits import check_memory
+from ..errors import check_memory
 from ..rig import Rig
 from ._common import PEAK_LEVEL, ImportDataError, _first_touch, _staged, _write_session
 from .labels import _check_values, label_layout
@@ -26,13 +26,8 @@ MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table 
 
 def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
                   log=print) -> Rig:
-    """The rig whose FFT bins are a table's frequency axis.
-
-    The bin spacing is ``fs / frame``.  Give ``fs_hz`` or ``frame`` (samples per FFT frame) when
-    you know them; otherwise ``fs`` is the lowest standard audio rate above twice the top frequency
-    for which ``fs / spacing`` is a whole number of samples.  The axis may be off the bin grid
-    by up to half a bin (bin edges instead of centres, a rounding of a few Hz): each column is
-    assigned to its nearest bin.  The rig's band is exactly the table's columns.
+    """The rig whose FFT bins are a table's frequency axis (spacing ``fs / frame``; without ``fs_hz``/``frame``
+    the lowest standard rate that fits), each column at its nearest bin; its band is the table's columns.
     """
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size < 2:
@@ -105,8 +100,7 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
 
 def _segments(touch: np.ndarray, moving: np.ndarray) -> np.ndarray:
     """Segments of a session's rows: touches, the hands-off rows before the first touch as the boot calibration, the
-    later hands-off rows as no-touch chirps ("gap", or "moving" with the robot moving).  Every hands-off row used to be
-    "calibration", as if the whole session's rest were the boot reference's."""
+    later ones as no-touch chirps ("gap", or "moving" with the robot moving)."""
     later = np.arange(touch.size) >= _first_touch(touch)
     return np.where(touch, "touch", np.where(~later, "calibration", np.where(moving > 0, "moving", "gap")))
 
@@ -141,17 +135,8 @@ def _check_array_names(table: Path) -> None:
 
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
-    """Import a table of magnitude spectra with labels (see the module docstring); returns the dataset.
-
-    Parameters
-    ----------
-    table : ``.npz`` file.
-    out : dataset folder to write.
-    rig : use this rig (its band must lie inside the table, give or take one table bin); default:
-        derived from the frequency axis (:func:`rig_from_axis`, with ``fs_hz``/``frame``).
-    linear : the magnitudes are linear (``|H|``), not dB; converted with ``20 log10``.
-    mode : ``"create"``, ``"overwrite"`` or ``"resume"``.
-    """
+    """Import the ``.npz`` ``table`` of magnitude spectra into the dataset folder ``out``: ``rig`` instead of the one
+    of the axis, ``linear`` magnitudes (not dB), ``mode`` create/overwrite/resume."""
     table, out = Path(table), Path(out)
     _check_array_names(table)
     # Only the arrays this importer uses are read, each checked from its header first.

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import scipy.fft
 
-from ..dataset import COLUMNS, DatasetWriter
-from ..dsp import frame_stream
-from ..limits import check_memory
+from ..dataset import COLUMNS, DatasetWriter, load_json
+from ..dsp import frame_faults, frame_stream, rig_chirp
+from ..errors import check_memory
 from ..rig import Rig
 from ._common import ImportDataError, _first_touch, _staged, _write_session
 from .labels import _check_intervals, _read_labels, label_layout
@@ -72,9 +72,8 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
 
 
 def _repeats(x: np.ndarray) -> int | None:
-    """How many times a shorter period repeats within the periods ``x`` (n,) or (rows, n): the most repeats k in
-    16..2 whose lag ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does.
-    The most repeats first: a WAV of 4 periods also repeats every 2."""
+    """How many times a shorter period repeats within the periods ``x``: the most repeats k in 16..2 whose lag
+    ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does."""
     x = np.atleast_2d(np.asarray(x, np.float64))
     n = x.shape[1]
     r = scipy.fft.irfft(np.abs(scipy.fft.rfft(x, axis=1)) ** 2, n=n, axis=1)
@@ -86,10 +85,8 @@ def _repeats(x: np.ndarray) -> int | None:
 
 def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
     """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
-    the repeating part has power in the sweep's band.  Otherwise --period/--sweep/--chirp do not describe the file
-    (or the file holds no received sweep) and every feature would be silently meaningless.  No sweep may be clipped."""
-    from ..dsp import frame_faults, rig_chirp
-
+    the repeating part has power in the sweep's band (else --period/--sweep/--chirp do not describe the file); no
+    sweep may be clipped."""
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
     if n < 2:
@@ -160,11 +157,8 @@ def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
 def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, sweep_wav: str | Path | None = None,
                chirp_hz: tuple[float, float] | None = None, period_s: float | None = None, amplitude: float = 1.0,
                channel: int = 0, pwm_hz=(), pwm_halfwidth_hz: float = 0.0, mode: str = "create", log=print) -> Path:
-    """Import WAV recordings into a dataset folder; returns it.
-
-    ``mode``: ``"create"`` (refuses an existing dataset), ``"overwrite"`` or ``"resume"`` (keeps the
-    recordings imported already).  A failed import leaves no new dataset behind.
-    """
+    """Import WAV recordings into a dataset folder; returns it.  ``mode``: ``"create"``, ``"overwrite"`` or
+    ``"resume"`` (keeps the recordings imported already); a failed import leaves no new dataset behind."""
 
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
     if not wav_dir.is_dir():
@@ -201,7 +195,6 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
                                       where=str(labels), log=log)
     for r, i in zip(rows, ids):
         r["location"] = int(i)
-    from ..dsp import rig_chirp
 
     ref = rig_chirp(rig)
     for p in files:
@@ -218,8 +211,6 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
     source = {"kind": "import-wav", "from": str(wav_dir.resolve()), "labels": {str(k): v for k, v in names.items()},
               "files": [p.name for p in files], "labels_sha256": hashlib.sha256(labels.read_bytes()).hexdigest()}
     if mode == "resume" and (out / "dataset.json").is_file():
-        from ..dataset import load_json
-
         old = load_json(out / "dataset.json").get("source", {})
         if isinstance(old, dict) and "files" not in old:
             raise ImportDataError(f"cannot resume {out}: it was imported by an older sonicskin that did not record which "

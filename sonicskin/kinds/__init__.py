@@ -1,15 +1,10 @@
 """Model kinds: what an artifact can deploy, one module each, one registry.
 
-A kind declares everything the package needs to know about one model (:class:`ModelKind`): how it is fitted on a
-:class:`~sonicskin.fit.TrainingData` (choosing its own options on the validation presses, then refitted with them),
-how it is exported to ONNX with its parity check, its ``skin.json`` entry and the graph's outputs, its head (the
-decisions from its outputs, :mod:`sonicskin.head`) and the lines it prints about its choices.  The writer, the schema,
-the integrity checks, ``compare``, the CLI's ``--model``, ``seeds`` and ``reproduce`` iterate :data:`KINDS`.
-
-Kinds here: ``svm`` (the paper's RBF SVM, :mod:`.svm`), ``lda`` (the closed-form shrinkage LDA, :mod:`.lda`) and the
-network's runtime half (:mod:`.net`: head and entry); the network's fit and export need torch and come from the
-``sonicskin.kinds`` entry point (``sonicskin.training.kind``), loaded by :func:`get` only when a network is fitted,
-so this package never imports the training side.
+A kind (:class:`ModelKind`) declares how it is fitted on a :class:`~sonicskin.fit.TrainingData` (its options chosen on
+the validation presses), exported to ONNX with its parity check, its ``skin.json`` entry, its head and the lines it
+prints; the writer, the schema, the integrity checks, ``compare``, ``--model``, ``seeds`` and ``reproduce`` iterate
+:data:`KINDS`.  Here: ``svm`` (:mod:`.svm`), ``lda`` (:mod:`.lda`) and the network's runtime half (:mod:`.net`); its
+fit and export need torch and come from the ``sonicskin.kinds`` entry point, loaded by :func:`get` only to fit one.
 """
 
 from __future__ import annotations
@@ -25,9 +20,8 @@ __all__ = ["ModelKind", "Fitted", "KINDS", "BASELINE", "NETWORK", "CLOSED_FORM",
 
 @dataclasses.dataclass
 class Fitted:
-    """One fitted model: the estimator (what :meth:`ModelKind.export` writes), its ``skin.json`` entry fields (besides
-    ``file``, ``kind``, ``n_in``, ``n_locations``, ``parity``), the first ``n_in`` inputs it reads, what it chose and on
-    what (merged into ``skin.json``'s ``selection``), and its fit time."""
+    """One fitted model: its estimator, ``skin.json`` entry fields, the first ``n_in`` inputs it reads, what it chose
+    (``selection``) and its fit time."""
 
     model: Any
     entry: dict

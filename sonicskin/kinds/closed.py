@@ -8,7 +8,7 @@ import numpy as np
 
 from ..calibration import TouchDetector
 from ..force import PerLocationForce, PooledForce, energy_db
-from ..head import DETECTOR_BINS, touch_statistic
+from ..head import DETECTOR_BINS, DETECTORS, touch_statistic
 
 __all__ = ["score_entry", "check_score_entry", "SCORE_KEYS"]
 
@@ -20,13 +20,9 @@ SCORE_KEYS = frozenset({"reference_scores", "threshold", "detector", "detector_b
 def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray, quiet: np.ndarray, *, n_locations: int,
                 location_ids, force_model: str = "fourier1", force_alpha: float = 10.0, force_cols: int | None = None,
                 detector: str = "input-rms") -> dict:
-    """The ``skin.json`` fields of a closed-form head from its per-location scores ``S`` (n, K) on the training chirps
-    ``X`` (n, n_in; ``cls == n_locations``: no touch): Alg. 2's reference scores (the mean score vector ``[S, X]`` of
-    the ``quiet`` chirps), the detection threshold (Youden's J on the training chirps, of the ``detector`` statistic:
-    the input-RMS change, or the paper's max calibrated score) and the force model (per-location curves of the energy
-    over the inputs, or ``"pooled-ridge"`` over the first ``force_cols`` inputs and the location, see
-    :class:`sonicskin.force.PooledForce`).  A table of touches only has no rest: no reference (zero) and no detector
-    (threshold 0 on a statistic >= 0: every chirp is a touch); ``detection: false`` says so."""
+    """The ``skin.json`` fields of a closed-form head from its scores ``S`` (n, K) on the training chirps ``X``:
+    Alg. 2's reference scores, the ``detector``'s threshold (Youden's J) and the force model (``force_cols`` inputs);
+    without rest, no reference and no detector (``detection: false``)."""
     touch = cls < n_locations
     V = np.column_stack([S, np.asarray(X, np.float64)])
     rest = quiet.sum() >= 2 and (~touch).any()
@@ -55,8 +51,6 @@ def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray
 
 def check_score_entry(doc, m: dict, f: str, *, n_in: int, layout_ids: list) -> None:
     """The closed-form fields of entry ``m`` (at ``f``, e.g. ``models.svm``)."""
-    from ..head import DETECTORS
-
     n_loc = len(layout_ids)
     if n_loc < 2:
         doc.fail(f"{f}.n_locations", "must be >= 2 for a closed-form model (it separates locations)")

@@ -1,14 +1,10 @@
 """The closed-form model: shrinkage LDA on OSPA's best bins, each chirp's level removed or scaled to unit length.
 
-Linear discriminant analysis with one within-marker covariance shared by every marker (Ledoit-Wolf shrunk, as
-scikit-learn's ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto")``, computed in the sample space:
-:class:`sonicskin.nuisance.ShrinkageLDA`) learns what varies between two presses at one marker from all markers at
-once, which an RBF SVM with one press per marker cannot (:class:`ShrinkageLDA`: scikit-learn's estimator, computed in the
-sample space).  Its bins (the first ``k`` in OSPA's order) and the per-chirp
-normalisation (none, the chirp's mean dB removed, or the chirp scaled to unit length) are chosen on the validation
-presses (:meth:`sonicskin.fit.TrainingData.folds`); with none, the default measured across the random rig family
-(:data:`DEFAULTS`).  Its scores go through the same head as the SVM's (:class:`~sonicskin.head.ScoreHead`), and the
-network starts from it (its ``LDA`` location layer is this model, frozen).
+One within-marker covariance shared by every marker (Ledoit-Wolf shrunk, :class:`ShrinkageLDA`) learns what varies
+between two presses at one marker from all markers at once, which an RBF SVM with one press per marker cannot.
+Its bins (the first ``k`` in OSPA's order) and normalisation are chosen on the validation presses, else
+:data:`DEFAULTS`.  Its scores go through the SVM's head (:class:`~sonicskin.head.ScoreHead`), and the network's
+``lda`` location layer is this model, frozen.
 """
 
 from __future__ import annotations
@@ -44,9 +40,8 @@ DEFAULTS = {"relative": (1000, "unit"), "absolute": (None, "unit")}
 
 
 def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
-    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d), computed from the n x n Gram
-    matrix: the value of :func:`sklearn.covariance.ledoit_wolf_shrinkage` (``assume_centered=True``) in
-    O(n^2 d) instead of O(n d^2)."""
+    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d) from the n x n Gram matrix:
+    :func:`sklearn.covariance.ledoit_wolf_shrinkage`'s value in O(n^2 d) instead of O(n d^2)."""
     n, d = Z.shape
     if d == 1 or n == 0:
         return 0.0
@@ -65,23 +60,12 @@ def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
 
 class ShrinkageLDA(LinearClassifierMixin, BaseEstimator):
     """Linear discriminant analysis with a shrunk within-class covariance: scikit-learn's
-    ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage=shrinkage)`` (same covariance: per class standardised,
-    Ledoit-Wolf shrunk, rescaled and averaged with the class priors; same ``coef_`` and ``intercept_`` up to rounding,
-    ``tests/test_lda.py``), solved with the Woodbury identity in the space of the training samples, so 5,000 bins and a
-    few hundred chirps take milliseconds instead of the d x d covariance's seconds and hundreds of MB.
-
-    Parameters
-    ----------
-    shrinkage : "auto" or float in [0, 1], default="auto"
-        Ledoit-Wolf per class (on standardised features, as scikit-learn), or a fixed shrinkage of each class's
-        empirical covariance toward ``trace / d`` times the identity.
-    priors : array of shape (n_classes,), optional
-        Class priors; default the class proportions.
-
-    Attributes
-    ----------
-    classes_, means_ (n_classes, d), priors_, shrinkage_ (per class), coef_ (n_classes, d) or (1, d) for two
-    classes, intercept_, n_features_in_.
+    ``LinearDiscriminantAnalysis(solver="lsqr", shrinkage=shrinkage)`` (same covariance, same ``coef_`` and
+    ``intercept_`` up to rounding, ``tests/test_lda.py``), solved with the Woodbury identity in the space of the
+    training samples, so 5,000 bins and a few hundred chirps take milliseconds instead of seconds and hundreds of MB.
+    ``shrinkage``: "auto" (Ledoit-Wolf per class on standardised features) or a fixed value in [0, 1]; ``priors``:
+    default the class proportions.  Fitted: ``classes_``, ``means_``, ``priors_``, ``shrinkage_`` (per class),
+    ``coef_``, ``intercept_``, ``n_features_in_``.
     """
 
     def __init__(self, shrinkage="auto", priors=None):
@@ -172,11 +156,8 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
 
 
 def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` (a binary LDA's one row expanded),
-    about the training chirps' centre ``c`` (so float32 graphs never subtract two large sums: absolute dB inputs are
-    all near one level and the LDA reads their small differences), scaled so that at the class means the best score
-    leads the second by ``margin`` (the median over classes): a softmax over them is confident but not saturated (the
-    confidence the events carry; raw scores over thousands of bins differ by hundreds).  The argmax is the LDA's."""
+    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` about the training centre ``c``,
+    scaled so that at the class means the best leads the second by ``margin`` (a confident, unsaturated softmax)."""
     W, b = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
     if W.shape[0] == 1:  # scikit-learn's binary convention: one row, positive for classes_[1]
         W, b = np.vstack([-W / 2, W / 2]), np.r_[-b / 2, b / 2]

@@ -29,14 +29,10 @@ def touch_logit(logits: np.ndarray) -> np.ndarray:
 
 
 class NetHead:
-    """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]``.
-
-    ``logits`` are log-probabilities of the N locations and (last) no touch.  Touch: by the entry's ``detector``
-    (:data:`NET_DETECTORS`; absent: the head's own ``p(touch) >= 0.5``), the input-RMS statistic measured from the
-    stream's no-touch inputs as the SVM head measures it.  Location: the most likely marker; confidence its
-    probability given a touch; force: the force output at that marker, or (an entry with ``force``) the closed-form
-    force model the SVM validated, on the first ``force_bins`` inputs (:meth:`force`).  Training chooses the detector
-    and the force by calling :meth:`touch` and :meth:`force` on validation outputs, so what it chooses is what runs.
+    """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]``: touch by the entry's
+    ``detector`` (:data:`NET_DETECTORS`; absent: ``p(touch) >= 0.5``), the most likely marker, the force there or (an
+    entry with ``force``) the SVM's validated force model on the first ``force_bins`` inputs.  Training chooses the
+    detector and the force by calling :meth:`touch` and :meth:`force`, so what it chooses is what runs.
     """
 
     calibrated = False  # Alg. 2 gives it the stream's no-touch inputs, not score vectors
@@ -84,8 +80,7 @@ class NetHead:
         conf = place[np.arange(len(idx)), idx] / np.maximum(place.sum(axis=1), 1e-12)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
         # Alg. 2's no-touch chirps by the physical statistic alone: the head's logit, trained on one session, calls rest
-        # chirps touched once warm-up has moved them, and an OR with it then blocked every reference refresh (measured:
-        # drift-2h simulator seed 1, from the 5th session on every rest chirp "touched", one reference in 2 h)
+        # chirps touched once warm-up has moved them, and an OR with it then blocks every reference refresh
         return Predictions(touch, self.ids[idx], centroid(place, self.layout), f, conf, place,
                            reference_touch=by_rms if self.mode == "either" else None)
 

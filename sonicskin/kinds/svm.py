@@ -24,21 +24,8 @@ __all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decisio
 
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
-    """Per-class scores from the ``K (K-1) / 2`` pairwise SVM decision values.
-
-    The same transform scikit-learn applies for ``decision_function_shape="ovr"``: votes plus the summed
-    pairwise confidences squashed into ``(-1/3, 1/3)``, vectorised.  Computing it outside the model keeps the
-    ONNX graph tiny (2 nodes for ovo vs ~2,400 for ovr).
-
-    Parameters
-    ----------
-    ovo : (n, K (K-1) / 2) pairwise decision values, libsvm pair order; for K = 2 also scikit-learn's
-        1-D binary decision values or skl2onnx's ``[d, -d]``.
-    n_classes : K.
-
-    Returns
-    -------
-    scores : (n, K) float64.
+    """Per-class scores (n, K) from the pairwise SVM decision values ``ovo`` (libsvm pair order): scikit-learn's
+    ``decision_function_shape="ovr"`` transform, outside the model so the ONNX graph stays tiny.
     """
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
@@ -57,9 +44,7 @@ def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=32)
 def _pair_matrices(n_classes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """For libsvm's pair order (0,1), (0,2), ..., (1,2), ...: ``P`` (+1 for the pair's first class, -1 for its second),
-    and the one-hot first (``Vi``) and second (``Vj``) class of each pair; built once per class count (the live loop
-    calls :func:`ovr_scores_from_ovo` every chirp of every link)."""
+    """libsvm's pair order as matrices: ``P`` (+1 a pair's first class, -1 its second), one-hot ``Vi``, ``Vj``."""
     i, j = np.triu_indices(n_classes, k=1)
     rows = np.arange(i.size)
     P = np.zeros((i.size, n_classes))
@@ -82,9 +67,8 @@ def pairwise(ovo: np.ndarray, n_locations: int) -> np.ndarray:
 
 
 def ovo_decision(pipe, X: np.ndarray, block: int = 2048) -> np.ndarray:
-    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(decision_function_shape="ovo")``, with the
-    kernel matrix from one BLAS product per block of chirps (libsvm's own loop is 10-20x slower on thousands of
-    bins).  Equal to scikit-learn's up to float64 rounding (``tests/test_reproduce.py`` checks it)."""
+    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(ovo)``, the kernel matrix one BLAS product per
+    block (libsvm's loop is 10-20x slower on thousands of bins); scikit-learn's up to float64 rounding."""
     svc = pipe[-1]
     Z = np.asarray(pipe[:-1].transform(X), np.float64)
     S = np.asarray(svc.support_vectors_, np.float64)
@@ -134,9 +118,8 @@ def fit_pipeline(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float =
 
 
 def export_pipeline(pipe, path, X_check: np.ndarray) -> dict:
-    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check``: the location the runtime reads
-    (argmax of the per-location scores), the scores and the pairwise decision values within
-    :data:`~sonicskin.parity.PARITY_TOL` of their scale; :class:`~sonicskin.parity.ParityError` (one line) otherwise."""
+    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check`` (location, scores, pairwise
+    decision values within :data:`~sonicskin.parity.PARITY_TOL`); :class:`~sonicskin.parity.ParityError` otherwise."""
     import sklearn
     from skl2onnx import to_onnx
 
@@ -193,11 +176,8 @@ class SVMKind(ModelKind):
 
     def fit(self, data, *, fitted, selection=None, log=print, select: bool = True, C: float = 10.0,
             kernel_width: float | None = None, force_model: str = "fourier1", detector: str = "input-rms") -> Fitted:
-        """Scaler + SVC on the training touch chirps of ``data``'s first ``n_svm`` inputs (OSPA's gamma), then its
-        reference, detector and force (:func:`.closed.score_entry`).  ``select``: C, kernel width and force model
-        validated on the training and validation presses (:func:`sonicskin.selection.select_on_inputs`; gamma was
-        chosen by :func:`sonicskin.fit.prepare`), else the given values (the paper's: C 10, ``gamma="scale"``,
-        per-location Fourier-1)."""
+        """Scaler + SVC on the training touch chirps of ``data``'s first ``n_svm`` inputs, then its reference, detector
+        and force; ``select``: C, kernel width and force model validated, else the given (the paper's) values."""
         d = data.narrow(data.n_svm)
         train, val = d.rows("train"), d.rows("val")
         n = d.n_locations

@@ -1,13 +1,9 @@
 """``sonicskin reproduce``: the paper's Sec. V on the simulated rig, SVM and network side by side.
 
-Every experiment trains both models on the same split of a simulated dataset (generated on first use under
-``<out>/data``) through the one fit (:mod:`sonicskin.fit`), exports them and replays the test streams through
-the deployed artifact (:class:`sonicskin.head.Stream`), and writes a PNG; ``report.md`` puts the measured numbers
-next to the paper's.  The network needs the training extra (torch); without it its columns read n/a.
-``--quick`` shrinks every dataset (fewer sessions and presses) and the network's training.
-
-One module per experiment (:mod:`.fig6b`, :mod:`.fig11`, :mod:`.fig12`, :mod:`.fig13`, :mod:`.table1`,
-:mod:`.fig16`), sharing a :class:`~.context.Context` per simulator seed.
+Every experiment (:mod:`.experiments`, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
+same split of a simulated dataset (made on first use under ``<out>/data``) through the one fit, exports them,
+replays the test streams through the artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's.
+Without torch the network's columns read n/a; ``--quick`` shrinks every dataset and the network's training.
 """
 
 from __future__ import annotations
@@ -17,10 +13,11 @@ import os
 import time
 from pathlib import Path
 
+from .. import threads
 from ..feature_cache import load_features_cached
 from ..jsonio import OMIT, json_safe
 from ..rig import Rig
-from . import fig6b, fig11, fig12, fig13, fig16, table1
+from . import experiments
 from .aggregate import Spread, aggregate
 from .context import USES, Context, datasets
 from .report import report
@@ -29,8 +26,7 @@ __all__ = ["reproduce", "Spread", "SEEDS", "EXPERIMENTS", "default_jobs"]
 
 SEEDS = {"quick": (0, 1), "full": (0, 1, 2)}
 EXPERIMENTS = ("fig6b", "fig11", "fig12", "fig13", "table1", "fig16")
-STEPS = {"fig6b": fig6b.run, "fig11": fig11.run, "fig12": fig12.run, "fig13": fig13.run, "table1": table1.run,
-         "fig16": fig16.run}
+STEPS = {name: getattr(experiments, name) for name in EXPERIMENTS}
 # Experiments that run in one worker process when seeds run in parallel: those sharing datasets and fits stay
 # together (Fig. 6b's OSPA model is Table I's moving model; Fig. 13 and Table I share the stationary dataset).
 GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
@@ -39,8 +35,6 @@ GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
 def default_jobs() -> int:
     """Worker processes for ``reproduce``: the cores this process may use divided by the thread setting
     (:mod:`sonicskin.threads`), at most 4 (each worker holds its datasets' features in memory)."""
-    from .. import threads
-
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -50,8 +44,6 @@ def default_jobs() -> int:
 
 def _simulate_task(out, quick, rig, seed, name, n_threads):
     """Worker: simulate (if not there yet) and featurise one dataset of one simulator seed."""
-    from .. import threads
-
     threads.configure(n_threads)
     lines: list[str] = []
     ctx = Context(Path(out), quick, lines.append, rig)
@@ -63,10 +55,8 @@ def _simulate_task(out, quick, rig, seed, name, n_threads):
 
 
 def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
-    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`_Ctx`).
+    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`Context`).
     Returns (seed, results, log lines, figures written, per-experiment (wall, CPU) seconds, sharing counts)."""
-    from .. import threads
-
     if n_threads is not None:
         threads.configure(n_threads)
     lines: list[str] = []
@@ -86,16 +76,10 @@ def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
 
 def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
               log=print, jobs: int | None = None) -> dict:
-    """Run every experiment (or those in ``only``, names from :data:`EXPERIMENTS`) once per simulator
-    seed (default: 2 seeds quick, 3 full) on ``rig`` (default: the paper's, jaco) and report the mean
-    and spread of each number.
-
-    ``jobs`` worker processes (default :func:`default_jobs`) share the work: first every dataset is simulated
-    and featurised (one task per dataset and seed), then the experiments run (one task per seed and group of
-    experiments that share data).  Each number is the same whatever ``jobs`` is: tasks only read what they share."""
+    """Run every experiment (or those in ``only``) once per simulator seed on ``rig`` and report each number's mean and
+    spread; ``jobs`` worker processes simulate the datasets, then run the experiments (the numbers do not depend on
+    ``jobs``)."""
     from tqdm.auto import tqdm
-
-    from .. import threads
 
     t0 = time.perf_counter()
     out = Path(out)
@@ -118,13 +102,18 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
     results: dict[int, dict] = {s: {} for s in seeds}
     timing: dict = {}
     shared_all: dict = {}
+
+    def merge(seed, res, lines, figs, times, shared):  # one experiment task's results
+        for line in lines:
+            log(line)
+        results[seed].update(res)
+        ctx.figs += figs
+        timing.update({(seed, k): v for k, v in times.items()})
+        shared_all.update({k: shared_all.get(k, 0) + v for k, v in shared.items()})
+
     if jobs == 1:
         for seed in tqdm(seeds, desc="simulator seeds", unit="seed"):
-            _, res, _, figs, times, shared = _experiment_task(out, quick, ctx.rig, seed, seed == seeds[0], names, None, log)
-            results[seed].update(res)
-            ctx.figs += figs
-            timing.update({(seed, k): v for k, v in times.items()})
-            shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+            merge(*_experiment_task(out, quick, ctx.rig, seed, seed == seeds[0], names, None, log))
     else:
         import concurrent.futures
         import multiprocessing
@@ -147,14 +136,8 @@ def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, see
             log(f"datasets ready: {time.perf_counter() - ts:.0f} s")
             tasks = [(s, [n for n in g if n in names]) for g in GROUPS for s in seeds]
             tasks = [(s, g) for s, g in tasks if g]
-            for seed, res, lines, figs, times, shared in par(
-                    (_experiment_task, (str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads)) for s, g in tasks):
-                for line in lines:
-                    log(line)
-                results[seed].update(res)
-                ctx.figs += figs
-                timing.update({(seed, k): v for k, v in times.items()})
-                shared_all = {k: shared_all.get(k, 0) + v for k, v in shared.items()}
+            for task in par((_experiment_task, (str(out), quick, ctx.rig, s, s == seeds[0], g, n_threads)) for s, g in tasks):
+                merge(*task)
     runs = [{n: results[s][n] for n in names} for s in seeds]
     ctx.timing = timing
     ctx.jobs, ctx.names = jobs, names

@@ -8,10 +8,8 @@ __all__ = ["Spread", "aggregate", "pool"]
 
 
 class Spread(float):
-    """A mean over simulator seeds that remembers its spread: formats as ``mean +- std``.
-
-    ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``; ``float(x)`` is the mean; ``x.values`` the per-seed numbers.
-    """
+    """A mean over simulator seeds that remembers its spread: ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``,
+    ``float(x)`` the mean, ``x.values`` the per-seed numbers."""
 
     def __new__(cls, values):
         v = np.asarray(values, float)
@@ -27,9 +25,8 @@ class Spread(float):
 
 
 def aggregate(runs: list):
-    """Combine the results of several simulator seeds: numbers become :class:`Spread`, lists of numbers
-    element-wise Spreads, confusion matrices are summed, error lists pooled; other objects are taken from the
-    first seed."""
+    """Combine the results of several simulator seeds: numbers become :class:`Spread` (lists element-wise), confusion
+    matrices are summed, error lists pooled, anything else taken from the first seed."""
     first = runs[0]
     if isinstance(first, dict):
         return {k: aggregate([r[k] for r in runs]) for k in first if all(isinstance(r, dict) and k in r for r in runs)}

@@ -1,12 +1,7 @@
 """What the experiments share: the simulated datasets of one simulator seed, and fitting and scoring a model the way
-it is deployed.
-
-Every number of the reproduction comes from an exported artifact replayed through
-:class:`sonicskin.runtime.SkinRuntime` (:class:`sonicskin.head.Stream`: boot calibration on the stream's first
-beta seconds, refreshes from the model's own detection, no test label), fitted by the one fit
-(:mod:`sonicskin.fit`).  Work with the same inputs is done once per simulator seed: a model is fitted, exported
-and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by the experiments
-that use it.
+it is deployed (the one fit, an exported artifact replayed through :class:`sonicskin.runtime.SkinRuntime`).  A model
+is fitted, exported and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by
+the experiments that use it.
 """
 
 from __future__ import annotations
@@ -18,16 +13,19 @@ from pathlib import Path
 import numpy as np
 
 from .. import kinds
-from ..dataset import Dataset, FeatureTable
+from ..compare import replay_sessions, stream_metrics
+from ..dataset import Dataset, FeatureTable, Split
 from ..feature_cache import load_features_cached
-from ..features import select_bins
+from ..features import FeatureSpec
 from ..fit import prepare, write_artifact
 from ..head import Predictions
 from ..kinds import BASELINE, CLOSED_FORM, NETWORK
+from ..ospa import select_bins
+from ..plots import pyplot as plt
 from ..rig import Rig
+from ..runtime import SkinRuntime
 from ..sim.generate import simulate_dataset
 from ..sim.scenario import Scenario
-from ..split import Split
 
 __all__ = ["Context", "datasets", "MATERIALS", "USES", "QUICK_SIZE", "MODEL", "net_available", "plt", "first_session_split",
            "deployed_data"]
@@ -52,13 +50,6 @@ def net_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def plt():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as pyplot
-    return pyplot
 
 
 def datasets(quick: bool) -> dict[str, tuple[str, dict]]:
@@ -159,12 +150,10 @@ class Context:
             self._orders[key] = have = select_bins(t.select(train), ds.rig, max(n, min(1000, int(ds.rig.allowed_mask.sum()))))
         return have[:n]
 
-    def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = 1200.0, keep: np.ndarray | None = None,
+    def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = FeatureSpec.alpha_s, keep: np.ndarray | None = None,
              notches: bool = True, n_svm: int | None = None):
-        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows, on ``bins``.  ``keep``: only
-        these training chirps train (a resample).  ``notches=False``: the artifact's rig has no PWM notches (the
-        paper's no-matched-filter ablation: every band bin may be read).  ``n_svm``: the SVM reads the first ``n_svm``
-        of ``bins`` (OSPA order), the network may read them all (default: both read every one)."""
+        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows on ``bins`` (``keep``: only these
+        chirps train; ``notches=False``: no PWM notches; ``n_svm``: the SVM reads the first ``n_svm``)."""
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
         key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)
@@ -181,10 +170,8 @@ class Context:
 
     # -- models ----------------------------------------------------------------------------------------------------
     def artifact(self, kind: str, data_key, *, seed: int = 0) -> Path:
-        """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM (gamma
-        from the bins, C 10, ``gamma="scale"``, per-location Fourier-1, the input-RMS detector), or the network as the
-        package deploys it (its location layer, touch decision and force chosen on the training chirps' held-out
-        pass, :mod:`sonicskin.kinds`).  Each is fitted and exported once."""
+        """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM, or the network
+        as the package deploys it; each fitted and exported once."""
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, self.epochs if kind == NETWORK else 0)
         if key in self._arts:
@@ -209,9 +196,6 @@ class Context:
     def predict(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> Predictions:
         """Predictions of the ``test`` rows of the data's table, replayed as the live loop runs: each session is a
         stream (``one_stream``: the whole recording from power-on is one stream, sessions are gaps in it)."""
-        from ..compare import replay_sessions
-        from ..runtime import SkinRuntime
-
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, mask_key(test), one_stream)
         if key in self._preds:
@@ -229,8 +213,6 @@ class Context:
     def evaluate(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> dict:
         """Localization, detection and force of the deployed model on the ``test`` rows
         (:func:`sonicskin.compare.stream_metrics`, as ``compare`` reports them)."""
-        from ..compare import stream_metrics
-
         data = data_key[0]
         p = self.predict(kind, data_key, test, seed=seed, one_stream=one_stream)
         te = data.table.select(test)

@@ -7,7 +7,7 @@ import numpy as np
 from ..force import MODELS
 from .aggregate import pool
 from .context import MODEL, QUICK_SIZE, datasets
-from .fig11 import sizes as fig11_sizes
+from .experiments import fig11_sizes
 
 PAPER = {
     "fig6b": "54.3 % -> 96.7 %", "fig11": "> 95 % from a few hundred bins; drops with more", "fig12": "drops after 30 min "

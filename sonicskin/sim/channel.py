@@ -1,28 +1,18 @@
 """Acoustic channel of a thin-walled robot link: modal synthesis of bending (A0 Lamb) waves.
 
-The link wall is a thin plate: a tube of circumference ``C`` unrolled with periodic edges
-(above its ring frequency a tube behaves like this plate) or a flat plate, simply supported
-at its ends.  Bending waves follow Mindlin plate theory (shear and rotary inertia), whose
-flexural branch is slower than Kirchhoff's at 80 kHz.  The transfer function between two
-points is the modal sum
+The wall is a thin plate (a tube unrolled with periodic edges, or a flat plate), simply supported at its ends, with
+Mindlin dispersion.  The transfer function between two points is the modal sum
 
     G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2),
 
-with mass-normalised mode shapes.  Transducers and the finger are discs, so each point's
-mode shape is averaged over the disc: for a mode of wavenumber ``k`` that is
-``2 J1(k a) / (k a)``.  A finger is a contact patch of radius ``a(F)`` with a dynamic
-stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)`` (tissue damping, added mass, contact
-stiffness, all growing with the contact area); the touched response follows exactly from
-the untouched one by a Woodbury update.  A single rigid piston (rank one,
-``G_rs - G_rc K G_cs / (1 + K G_cc)``) would average the wall's motion over the whole pad, and
-for pads wider than half a wavelength (a firm press at 60-80 kHz) it would make the finger
-vanish; a finger is a soft, distributed load, so the pad is split into P sub-contacts (a centre
-and a ring) each carrying its share of the impedance, coupled exactly through the wall:
+each point's mode shape averaged over its disc (``2 J1(k a) / (k a)``).  A finger is a contact patch of radius
+``a(F)`` with dynamic stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)``, split into P sub-contacts coupled exactly
+through the wall (a Woodbury update of the untouched response):
 
-    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s.
+    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s,
 
-The update is computed at a few contact radii per press and interpolated in radius, so once a
-press is set up each chirp costs O(bins).
+computed at a few contact radii per press and interpolated in radius (each chirp then costs O(bins)).  The physics
+and its sources: docs/simulator.md.
 """
 
 from __future__ import annotations
@@ -39,12 +29,8 @@ __all__ = ["Material", "MATERIALS", "Geometry", "ChannelModel", "mindlin_omega",
 
 @dataclasses.dataclass(frozen=True)
 class Material:
-    """Wall material and thickness.
-
-    kappa_per_k : relative shift of every modal frequency per kelvin, ``f_n(T) = f_n (1 + kappa dT)``,
-        i.e. ``H_T(f) = H_0(f / (1 + kappa dT))``; negative: a warmer wall is softer and rings lower.
-    deta_per_k : relative rise of the loss factor per kelvin.
-    """
+    """Wall material and thickness; ``kappa_per_k``: relative shift of every modal frequency per kelvin,
+    ``H_T(f) = H_0(f / (1 + kappa dT))`` (negative: a warmer wall rings lower); ``deta_per_k``: the loss factor's."""
 
     name: str
     youngs_pa: float
@@ -86,11 +72,8 @@ MATERIALS: dict[str, Material] = {
 
 
 def mindlin_omega(k: np.ndarray, mat: Material) -> np.ndarray:
-    """Angular frequency of the flexural Mindlin branch at wavenumber ``k`` (rad/s).
-
-    Solves ``(-k^2 + rho w^2 / (kappa^2 G)) (-D k^2 + rho h^3 w^2 / 12) - rho h w^2 = 0`` for
-    the lower root in ``w^2``, with shear correction ``kappa^2 = pi^2 / 12``.
-    """
+    """Angular frequency (rad/s) of the flexural Mindlin branch at wavenumber ``k``: the lower root in ``w^2`` of
+    ``(-k^2 + rho w^2 / (kappa^2 G)) (-D k^2 + rho h^3 w^2 / 12) - rho h w^2 = 0``, ``kappa^2 = pi^2 / 12``."""
     k = np.asarray(k, float)
     D, rh, rho, h = mat.bending_stiffness, mat.mass_per_area, mat.density, mat.thickness_m
     Gk = (np.pi ** 2 / 12) * mat.youngs_pa / (2 * (1 + mat.poisson))
@@ -131,19 +114,11 @@ class Geometry:
 
 
 class ChannelModel:
-    """Green's functions of one link between transducers and contact points.
-
-    Parameters
-    ----------
-    rig : acquisition rig (frequency grid).
-    material, geometry : the wall.
-    tx_m, rx_m : transducer centres on the unrolled surface (x around, y along), metres.
-    transducer_radius_m : bonded radius of the piezo discs.
-    transducer_fr_hz, transducer_q : the piezo's resonance (most efficient at 20-30 kHz, paper Sec. III-B).
-    irregularity : relative random spread of modal frequencies from manufacturing and fittings;
-        it also breaks the degeneracy of a perfect tube's mode pairs, as cables and seams do.
-    margin_hz : computed band beyond the chirp band, room for the temperature stretch.
-    seed : fixes the irregularities: one seed is one physical link.
+    """Green's functions of one link between transducers and contact points, on the rig's frequency grid (plus
+    ``margin_hz`` for the temperature stretch).  ``tx_m``, ``rx_m``: transducer centres on the unrolled surface (x
+    around, y along), m; ``transducer_fr_hz``, ``transducer_q``: the piezo's resonance (paper Sec. III-B);
+    ``irregularity``: relative random spread of the modal frequencies (manufacturing, fittings; it also splits a
+    perfect tube's mode pairs); ``seed`` fixes it: one seed is one physical link.
     """
 
     def __init__(self, rig: Rig, material: Material, geometry: Geometry, *, tx_m=(0.0, 0.025),
@@ -238,12 +213,8 @@ class ChannelModel:
         return np.matmul(w, M, out=out).view(np.complex64)
 
     def contact_greens(self, pts_m: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
-        """Green's functions of disc contacts at ``pts_m`` (P, 2) for each radius in ``radii_m`` (R,).
-
-        Returns
-        -------
-        G : (P, R, 3, n_f) complex64 with [G_rc, G_cs, G_cc] (RX-contact, contact-TX, contact-contact).
-        """
+        """Green's functions (P, R, 3, n_f) complex64 ``[G_rc, G_cs, G_cc]`` of disc contacts at ``pts_m`` (P, 2) for
+        each radius in ``radii_m`` (R,)."""
         phi_c = self.mode_shapes(pts_m)  # (P, n)
         A = disc_average(self.k, np.asarray(radii_m, float))  # (R, n)
         pa = phi_c[:, None, :] * A[None, :, :]  # (P, R, n)
@@ -260,16 +231,11 @@ class ChannelModel:
     def gradient_greens(self, order: int = 1, *, n_y: int = 400) -> np.ndarray:
         """First-order change of ``G_rs`` (n_f,) per unit of a stiffness profile along the link.
 
-        A relative stiffness change ``delta_e(y) = psi(y)``, the Legendre polynomial ``P_order(1 - 2 y / L)``
-        (order 1: linear, +1 at the motor end y = 0, -1 at the far end; order 2: ends vs middle),
-        perturbs the stiffness operator by
-        ``dK_nm = w_n w_m rho h integral(psi phi_n phi_m) dA`` (bending energy ``D (lap w)^2`` with
-        ``D k^4 = rho h w^2``; twisting terms neglected), and the Green's function by the Born term
-        ``dG = -sum_nm phi_n(r) dK_nm phi_m(s) / (D_n D_m)`` with ``D_n = w_n^2 (1 + i eta) - w^2``.
-        It couples modes of the same circumferential order: the mode shapes change, and (order 2)
-        modal frequencies shift by different amounts; the mean warming is the separate frequency
-        stretch.  The odd (order 1) term cancels exactly at first order when TX and RX sit at mirror
-        positions along the link (y_rx = L - y_tx, as on the default link): only even profiles act there.
+        A relative stiffness change ``psi(y) = P_order(1 - 2 y / L)`` (order 1: +1 at the motor end, -1 at the far
+        end; 2: ends vs middle) perturbs the stiffness operator by ``dK_nm = w_n w_m rho h integral(psi phi_n phi_m)
+        dA`` and the Green's function by the Born term ``dG = -sum_nm phi_n(r) dK_nm phi_m(s) / (D_n D_m)``, ``D_n =
+        w_n^2 (1 + i eta) - w^2``: modes of the same circumferential order couple, so mode shapes change.  The odd
+        term cancels at first order when TX and RX sit at mirror positions along the link (the default link).
         """
         L = self.geometry.length_m
         y = (np.arange(n_y) + 0.5) / n_y * L

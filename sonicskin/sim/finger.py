@@ -1,26 +1,10 @@
 """Fingers and the people they belong to: contact patch, tissue impedance, press profiles.
 
-What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time:
-
-- **Gross contact patch** of radius ``a = a_1N (F / 1 N)^n``, ``n`` 0.15-0.33 (Hertz-like: the
-  pad's displacement grows as ``F^(2/3)`` for a Hertzian pad, i.e. ``n = 1/3``; real pads saturate
-  sooner because the bone limits the pulp's spread: Serina, Mote & Rempel 1997, J. Biomech.
-  30:1035-1040; Serina et al. 1998, J. Biomech. 31:639-646).
-- **Skin damping** ``c = c_1N (F / 1 N)^q g(t)``: energy leaves the wall through the *real*
-  contact of the fingerprint ridges, not the gross patch.  The real contact area keeps growing with
-  load where the gross area saturates (ink-print and OCT measurements: apparent and real contact
-  area grow about linearly with load, Liu et al. 2018, Skin Res. Technol. 24:31-44), so
-  ``q`` = 0.6-1.0 (gross area alone gives ``2 n`` = 0.3-0.66).  On a smooth impermeable surface
-  (a coated CFRP link, like the glass of Dzidek et al. 2017, PNAS 114:10864-10869) the real contact
-  grows while the press is held, by first-order kinetics that saturate within ~20 s: ``g(t) =
-  1 - (1 - r_0) exp(-t / tau)``, ``tau`` 3-8 s, ``r_0`` 0.4-0.7 the share at first contact.  The
-  scale: soft tissue's acoustic impedance ``rho c`` ~ 1.6 MRayl (Duck 1990, *Physical Properties
-  of Tissue*) over ~30 mm^2 of real contact at 1 N gives ~50 N s/m; ``c_1N`` is 25-60 N s/m.
-- **Pad stiffness** ``k = k_1N (0.2 + 0.8 F / 1 N)``: the fingertip's force-displacement curve is
-  exponential (Serina et al. 1997; Pawluk & Howe 1999, J. Biomech. Eng. 121:178-183 and 605-611),
-  so its stiffness ``dF / d delta = b + m F`` grows linearly with force (b ~ 0.2 of the 1 N value).
-  At ultrasonic frequencies it hardly matters: ``k`` ~ 1e3-1e4 N/m against ``w c`` ~ 1e7 N/m.
-- **Tissue mass** moving with the wall grows with the gross patch.
+What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time: a gross contact patch
+of radius ``a = a_1N (F / 1 N)^n`` (Hertz-like, saturating); skin damping ``c = c_1N (F / 1 N)^q g(t)`` through
+the real contact of the ridges, which keeps growing while a press is held (``g(t) = 1 - (1 - r_0) exp(-t / tau)``);
+a pad stiffness ``k = k_1N (0.2 + 0.8 F / 1 N)``; and tissue mass growing with the patch.  The ranges and their
+sources (Serina et al., Dzidek et al., Pawluk & Howe): docs/simulator.md.
 """
 
 from __future__ import annotations
@@ -34,19 +18,8 @@ __all__ = ["Subject", "make_subjects", "press_profile"]
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One simulated person's finger.
-
-    radius_1n_m : contact radius at 1 N; the radius grows as ``(F / 1 N) ** radius_exp``
-        (sub-linear, Hertz-like: 0.15-0.33).
-    damping_1n : tissue damping at 1 N in N s / m (scales with contact area).
-    mass_1n_kg : tissue mass moving with the wall at 1 N (scales with contact area).
-    stiffness_1n : contact stiffness at 1 N in N / m (scales with radius).
-    aim_bias_m : where this person habitually presses relative to a marker (x, y).
-    aim_jitter_m : spread of single presses around that point.
-    max_force_n : typical peak force of this person's presses.
-    damping_exp : ``q``, the skin damping's (real contact area's) growth with force, ``c ~ F^q``.
-    occlusion_tau_s, occlusion_r0 : the real contact's growth while a press is held (module notes).
-    """
+    """One simulated person's finger: at 1 N its contact radius, tissue damping, mass and stiffness (growing as
+    ``F ** radius_exp``, ``F ** damping_exp``), the aim, the peak force and the real contact's growth while held."""
 
     name: str
     radius_1n_m: float
@@ -73,10 +46,7 @@ class Subject:
         return 1 - (1 - self.occlusion_r0) * np.exp(-t / self.occlusion_tau_s)
 
     def dynamic_stiffness(self, force_n: np.ndarray, f_hz: np.ndarray, occlusion: np.ndarray | float = 1.0) -> np.ndarray:
-        """``K(w) = k(F) + i w c(F, t) - w^2 m(F)`` per chirp and frequency, shape (n, n_f); zero where F = 0.
-
-        ``occlusion`` : ``g(t)`` of the press (1: saturated real contact).
-        """
+        """``K(w) = k(F) + i w c(F, t) - w^2 m(F)`` (n, n_f), zero where F = 0; ``occlusion``: the press's ``g(t)``."""
         F = np.atleast_1d(np.asarray(force_n, float))
         Fp = np.maximum(F, 1e-3)
         area = (self.radius_m(F) / self.radius_1n_m) ** 2  # relative gross contact area

@@ -18,12 +18,8 @@ __all__ = ["simulate_dataset"]
 
 def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str = "create",
                      progress: bool = True, log=print) -> dict:
-    """Render every session of ``scenario`` into the dataset folder ``out``.
-
-    Each session becomes one continuous stream starting at a random point of the chirp train,
-    cut into parts of ``scenario.part_s`` seconds.  With ``mode="resume"`` finished sessions are
-    kept and the others are rendered again.  Returns timing figures.
-    """
+    """Render every session of ``scenario`` into the dataset ``out``, one stream each (starting at a random point of the
+    chirp train, parts of ``part_s`` seconds; ``mode="resume"`` keeps finished ones); returns timing figures."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()

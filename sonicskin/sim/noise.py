@@ -1,15 +1,8 @@
-"""Additive noise of a moving robot, in the frequency domain of one chirp frame.
-
-Everything is synthesised directly as rfft spectra of a frame (batch, n_chirp // 2 + 1), so a
-chirp of noise costs O(bins), not a time-domain oscillator bank:
-
-- motor PWM: lines at ``m f_c +- n f_0`` (carrier harmonics with sidebands at the motor's
-  electrical frequency), the carrier jittering slowly, amplitude following the motor current;
-  each line is the exact DFT of a sinusoid that is not bin-centred (a Dirichlet kernel), so it
-  leaks into neighbouring bins as a real tone does in a rectangular frame;
-- mechanical noise: ``1/f^alpha`` below ~20 kHz with its tail into the band, gear-mesh tones
-  scaled with joint speed, and rare broadband impacts;
-- sensor noise: white.
+"""Additive noise of a moving robot, synthesised directly as rfft spectra of a frame (batch, n_chirp // 2 + 1):
+O(bins) per chirp.  Motor PWM: lines at ``m f_c +- n f_0`` (carrier harmonics with sidebands at the motor's
+electrical frequency, the carrier jittering, the amplitude following the current), each the exact DFT of a
+sinusoid that is not bin-centred; mechanical: ``1/f^alpha`` with its tail into the band, gear-mesh tones and rare
+impacts; sensor: white.
 """
 
 from __future__ import annotations
@@ -18,6 +11,8 @@ import dataclasses
 import functools
 
 import numpy as np
+
+from ..rig import check_keys
 
 __all__ = ["NoiseConfig", "white_spectrum", "tone_spectrum", "motion_noise_spectrum"]
 
@@ -43,8 +38,6 @@ class NoiseConfig:
 
     @classmethod
     def from_dict(cls, d: dict | None) -> NoiseConfig:
-        from ..rig import check_keys
-
         d = dict(d or {})
         check_keys(cls, d, "noise")
         return cls(**d)
@@ -61,16 +54,8 @@ def white_spectrum(rng: np.random.Generator, n: int, n_fft: int, rms: float) -> 
 
 def tone_spectrum(freq_hz: np.ndarray, amp: np.ndarray, phase: np.ndarray, *, n_fft: int, fs_hz: float,
                   half_width_bins: int = 128) -> np.ndarray:
-    """rfft of sinusoids ``amp cos(2 pi f t + phase)`` over one rectangular frame.
-
-    freq_hz, amp, phase : (n, T) tones per frame.  For a tone at fractional bin ``nu`` the exact
-    DFT is the Dirichlet kernel ``X[k] = A/2 e^{i phase} sum_t e^{-2 pi i (k - nu) t / N}``
-    ``= A/2 e^{i phase} (-sin(pi frac) e^{i pi frac}) e^{i pi d / N} / (N sin(pi d / N))`` with
-    ``d = k - nu``; near the tone (``|d| << N``) the last factor is ``1 / (pi d) + i / N`` to
-    relative order ``(pi d / N)^2`` (< 2e-3 here).  Only ``half_width_bins`` bins either side
-    are evaluated: the kernel has fallen by > 50 dB there.
-    Returns (n, n_fft // 2 + 1) complex64.
-    """
+    """rfft (n, n_fft // 2 + 1) complex64 of tones ``amp cos(2 pi f t + phase)`` (n, T) over one rectangular frame:
+    the Dirichlet kernel (near the tone ``1 / (pi d) + i / N``), ``half_width_bins`` either side (> 50 dB down)."""
     freq_hz, amp, phase = (np.atleast_2d(a).astype(np.float64) for a in (freq_hz, amp, phase))
     n, T = freq_hz.shape
     nb = n_fft // 2 + 1
@@ -110,11 +95,8 @@ def _kernel_table(half_width_bins: int, n_fft: int) -> np.ndarray:
 
 def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int,
                           fs_hz: float, floor_rms: float = 0.0) -> np.ndarray:
-    """Noise of a moving robot for frames with motion ``level`` in [0, 1] (speed/current), (n, nb).
-
-    ``floor_rms`` adds white (sensor) noise of that per-sample rms in the same Gaussian draw as the
-    mechanical noise (the sum of independent Gaussians is one Gaussian), saving a second draw.
-    """
+    """Noise of a moving robot for frames with motion ``level`` in [0, 1], (n, nb); ``floor_rms`` adds white
+    (sensor) noise in the same Gaussian draw as the mechanical noise."""
     level = np.asarray(level, float)
     out = np.empty((level.size, n_fft // 2 + 1), np.complex64)
     draws = NoiseDraws(rng, level, cfg, n_fft=n_fft, fs_hz=fs_hz, floor_rms=floor_rms)
@@ -124,13 +106,8 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
 
 
 class NoiseDraws:
-    """Every random draw of :func:`motion_noise_spectrum` for a batch of frames, made up front in the
-    function's fixed order, then turned into spectra a few rows at a time (:meth:`fill`): the
-    rendering stays in cache instead of streaming several (n, nb) temporaries through memory.
-
-    ``buffers``: optional pair of float32 arrays of at least (n, nb) reused for the two big Gaussian
-    draws (the simulator keeps them between batches: no fresh pages to fault in).  ``work``: optional
-    dict in which :meth:`fill` keeps its scratch arrays (the simulator passes the same one every batch).
+    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra a few rows at
+    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches.
     """
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,

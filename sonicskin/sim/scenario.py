@@ -1,30 +1,29 @@
 """Scenario configs: what happens on the simulated rig, chirp by chirp.
 
-A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer
-positions), the touch layout, who touches, how hard, whether the robot moves, and how the
-temperature evolves.  :func:`build_timeline` turns it into a per-chirp table of ground truth;
-:class:`sonicskin.sim.simulator.Simulator` renders that table into received audio.
-
-Each *session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta),
-``moving_s`` of no-touch while the robot moves (OSPA's moving variance; only when motion is
-on), then one press-hold-release at each location (``repeats`` times, in random order) with
-``gap_s`` of no-touch between presses.
-
-A scenario *family* (``configs/scenarios/random.yaml``, :class:`RandomFamily`) draws a whole scenario
-from a seed: ``Scenario.load("random", seed=N)`` is rig N, one we did not design on.
+A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer positions), the touch
+layout, who touches, how hard, whether the robot moves, and how the temperature evolves; :func:`build_timeline`
+turns it into a per-chirp table of ground truth, which :class:`sonicskin.sim.simulator.Simulator` renders.  Each
+*session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta), ``moving_s`` of no-touch
+while the robot moves (when motion is on), then one press at each location (``repeats`` times, in random order)
+with ``gap_s`` between presses.  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import brief
-from ..rig import MAX_LOCATIONS, Layout, Rig, _resolve_config, check_keys, load_yaml
+from ..dataset import TEMPERATURE_C, check_name
+from ..errors import brief, check_memory, is_number
+from ..rig import MAX_LOCATIONS, Layout, Rig, check_keys, load_yaml, resolve_config
+from .channel import MATERIALS, ChannelModel
 from .finger import make_subjects, press_profile
+from .noise import NoiseConfig
+from .thermal import HotMeltBond
 
 __all__ = ["Scenario", "Timeline", "build_timeline", "SEGMENTS", "RandomFamily", "family_seeds", "is_family"]
 
@@ -79,10 +78,9 @@ class Scenario:
 
     @classmethod
     def load(cls, name_or_path: str | Path, *, seed: int | None = None) -> Scenario:
-        """A scenario YAML, with ``seed`` (presses, noise) replaced when given.  A scenario *family*
-        (a YAML with ``family:``, e.g. ``random``) draws a whole new rig from ``seed`` (default: its
-        first design seed), see :class:`RandomFamily`."""
-        d = load_yaml(_resolve_config(name_or_path, "scenarios"))
+        """A scenario YAML, ``seed`` (presses, noise) replaced when given; a *family* (``family:``, e.g. ``random``)
+        draws a whole rig from ``seed`` (default: its first design seed, :class:`RandomFamily`)."""
+        d = load_yaml(resolve_config(name_or_path, "scenarios"))
         if "family" in d:
             fam = RandomFamily.from_dict(d)
             return fam.draw(fam.design_seeds[0] if seed is None else int(seed))
@@ -107,9 +105,6 @@ class Scenario:
             raise ValueError(f"subjects are indices 0..11 of the 12 simulated people, got {list(self.subjects)}")
         if self.order not in ("random", "sequential"):
             raise ValueError(f"order must be 'random' or 'sequential', got {brief(self.order)}")
-        from .noise import NoiseConfig
-        from .thermal import HotMeltBond
-
         check_keys(HotMeltBond, self.bond, "bond")
         check_keys(NoiseConfig, self.noise, "noise")  # here, before a value of an unknown key is kept (and copied)
         if self.touch_s <= 0 or self.calibration_s <= 0:
@@ -119,7 +114,7 @@ class Scenario:
         _check_parts(self)
         layout_count(self)
         level = self.motion.get("level", 1.0)
-        if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0 <= level <= 1:
+        if not (is_number(level) and 0 <= level <= 1):
             raise ValueError(f"motion.level is the robot's motion level in [0, 1], got {brief(level)}")
         if self.loss_factor is not None and not 0 < self.loss_factor < 1:
             raise ValueError(f"loss_factor is the wall's eta, 0 < eta < 1, got {self.loss_factor}")
@@ -221,9 +216,8 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
             subj_of_seg.append(subj)
             if sc.gap_s > 0:
                 segs.append(("gap", rig.seconds_to_chirps(sc.gap_s), -1, np.nan, np.nan, None))
-        # Sessions start every session_interval_s, or when the one before ends if it ran longer (a one-shot session of
-        # three passes over 31 markers takes 330 s; drift-2h tests every 300 s): one person, one link, one clock, so
-        # a recording replayed from power-on as one stream is in time order.
+        # Sessions start every session_interval_s, or when the one before ends if it ran longer: one link, one clock,
+        # so a recording replayed from power-on as one stream is in time order.
         n_session = sum(seg[1] for seg in segs)
         t0 = max(sc.start_s + s * sc.session_interval_s, t_free)
         t_free = t0 + n_session / cps
@@ -259,8 +253,6 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
 
 def _check_types(cls, d: dict) -> None:
     """Numbers where the scenario has numbers (finite), whole numbers where it has counts: one line each."""
-    import math
-
     for f in dataclasses.fields(cls):
         if f.name not in d:
             continue
@@ -268,17 +260,16 @@ def _check_types(cls, d: dict) -> None:
         if isinstance(default, bool):
             continue
         if f.name in ("sessions", "repeats", "seed", "link_seed") or (f.name == "train_repeats" and v is not None):
-            if isinstance(v, bool) or not isinstance(v, int):
+            if not is_number(v, integer=True):
                 raise ValueError(f"scenario {f.name} must be a whole number, got {brief(v)}")
         elif isinstance(default, float):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if not is_number(v):
                 raise ValueError(f"scenario {f.name} must be a finite number, got {brief(v)}")
         elif f.name in ("tx_cm", "rx_cm", "peak_force_n"):
-            if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(
-                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+            if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(is_number(x) for x in v)):
                 raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {brief(v)}")
         elif f.name == "subjects":
-            if not (isinstance(v, (list, tuple)) and v and all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+            if not (isinstance(v, (list, tuple)) and v and all(is_number(x, integer=True) for x in v)):
                 raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {brief(v)}")
         elif isinstance(f.default, str) or f.name == "name":
             if not isinstance(v, str):
@@ -297,12 +288,6 @@ MIN_TX_RX_CM = 1.0  # the discs (5 mm bonded radius) cannot overlap
 MAX_DISC_RADIUS_M = 0.05  # a piezo disc of 10 cm diameter is already large for a robot link
 
 
-def _number(v) -> bool:
-    import math
-
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
 def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
     valid = {*required, *optional} | ({"kind"} if kind else set())
     unknown = sorted(set(d) - valid, key=str)
@@ -316,15 +301,13 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
 def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
     """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
     its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
-    import dataclasses
-
     kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
     for k, v in d.items():
         if kinds.get(k) is int:
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+            if not (is_number(v, integer=True) and v >= 0):
                 raise ValueError(f"{what}.{k} must be a whole number >= 0, got {brief(v)}")
         elif k in kinds:
-            if not _number(v):
+            if not is_number(v):
                 raise ValueError(f"{what}.{k} must be a finite number, got {brief(v)}")
             if (k in positive and not v > 0) or (nonneg(k) and v < 0):
                 raise ValueError(f"{what}.{k} must be {'> 0' if k in positive else '>= 0'}, got {brief(v)}")
@@ -332,8 +315,6 @@ def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
 
 def _check_parts(sc: Scenario) -> None:
     """The scenario's mappings: known keys, numbers where numbers go, sizes > 0, transducers apart, markers on the link."""
-    from ..dataset import check_name
-
     check_name(sc.name, "scenario name")  # `simulate` writes to data/<name> by default: a name stays a name
     g = sc.geometry
     kind = g.get("kind", "tube")
@@ -341,7 +322,7 @@ def _check_parts(sc: Scenario) -> None:
         raise ValueError(f"geometry kind must be 'tube' or 'plate', got {brief(kind)}")
     _keys(f"geometry ({kind})", g, *_GEOMETRY_KEYS[kind], kind=True)
     for k in _GEOMETRY_KEYS[kind][0]:
-        if not (_number(g[k]) and g[k] > 0):
+        if not (is_number(g[k]) and g[k] > 0):
             raise ValueError(f"geometry {k} must be a positive number of cm, got {brief(g[k])}")
     lay = sc.layout
     lkind = lay.get("kind", "rings")
@@ -353,26 +334,25 @@ def _check_parts(sc: Scenario) -> None:
     else:
         rings = lay.get("counts", [16, 15])
         counts = list(rings) if isinstance(rings, (list, tuple)) and rings else [None]
-    if not all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in counts):
+    if not all(is_number(c, integer=True) and c >= 1 for c in counts):
         raise ValueError(f"layout {brief(lay)}: marker counts (counts, nx, ny) are whole numbers >= 1")
     for k in ("spacing_cm", "x0_cm", "y0_cm"):
-        if k in lay and not _number(lay[k]):
+        if k in lay and not is_number(lay[k]):
             raise ValueError(f"layout {k} must be a number of cm, got {brief(lay[k])}")
     if "spacing_cm" in lay and not lay["spacing_cm"] > 0:
         raise ValueError(f"layout spacing_cm must be > 0 (markers apart), got {brief(lay['spacing_cm'])}")
     _keys("motion", sc.motion, (), _MOTION_KEYS)
     if not isinstance(sc.motion.get("enabled", False), bool):
         raise ValueError(f"motion.enabled must be true or false, got {brief(sc.motion['enabled'])}")
-    if "perturbation" in sc.motion and not (_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
+    if "perturbation" in sc.motion and not (is_number(sc.motion["perturbation"]) and sc.motion["perturbation"] >= 0):
         raise ValueError(f"motion.perturbation must be a number >= 0, got {brief(sc.motion['perturbation'])}")
     _keys("temperature", sc.temperature, (), _TEMPERATURE_KEYS)
     for k, v in sc.temperature.items():
-        if not _number(v):
+        if not is_number(v):
             raise ValueError(f"temperature.{k} must be a finite number, got {brief(v)}")
     for k in ("warmup_tau_s", "swing_period_s"):
         if k in sc.temperature and not sc.temperature[k] > 0:
             raise ValueError(f"temperature.{k} must be > 0 s, got {brief(sc.temperature[k])}")
-    from ..dataset import TEMPERATURE_C
 
     T = sc.temperature
     lo = T.get("ambient_c", 23.0) + min(0.0, T.get("warmup_c", 0.0)) - abs(T.get("swing_c", 0.0))
@@ -380,19 +360,12 @@ def _check_parts(sc: Scenario) -> None:
     if lo < TEMPERATURE_C[0] or hi > TEMPERATURE_C[1]:
         raise ValueError(f"temperature: ambient_c, warmup_c and swing_c reach {lo:g}..{hi:g} C, outside the "
                          f"{TEMPERATURE_C[0]:g}..{TEMPERATURE_C[1]:g} C a link can be at; give degrees Celsius")
-    import inspect
-
-    from .channel import ChannelModel
-
     allowed = [n for n, prm in inspect.signature(ChannelModel).parameters.items() if prm.kind is prm.KEYWORD_ONLY
                and n not in ("tx_m", "rx_m", "seed")]
     _keys("channel", sc.channel, (), allowed)
     for k, v in sc.channel.items():
-        if not (_number(v) and v >= 0):
+        if not (is_number(v) and v >= 0):
             raise ValueError(f"channel.{k} must be a number >= 0, got {brief(v)}")
-    from .noise import NoiseConfig
-    from .thermal import HotMeltBond
-
     _field_values("noise", sc.noise, NoiseConfig, positive=(), nonneg=lambda k: k.endswith(("_rms", "_hz", "_per_chirp")))
     _field_values("bond", sc.bond, HotMeltBond, positive=("fr_hz", "tan_delta"), nonneg=lambda k: False)
     r = sc.channel.get("transducer_radius_m", 5e-3)
@@ -443,13 +416,8 @@ def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
 
 
 def check_size(sc: Scenario, rig: Rig) -> int:
-    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything.
-
-    Returns the total number of chirps.  The estimate: ~256 bytes per chirp of ground truth (plus one
-    press profile), and one rendering block (about 1024 chirps, or one part) of spectra and frames.
-    """
-    from ..limits import check_memory
-
+    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything (~256
+    bytes per chirp of ground truth, one rendering block of spectra and frames); returns the total number of chirps."""
     first, other = session_chirps(sc, rig)
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
@@ -461,13 +429,13 @@ def check_size(sc: Scenario, rig: Rig) -> int:
     return int(total)
 def is_family(name_or_path: str | Path) -> bool:
     """Whether ``name_or_path`` is a scenario family (a YAML with ``family:``) rather than one scenario."""
-    return "family" in load_yaml(_resolve_config(name_or_path, "scenarios"))
+    return "family" in load_yaml(resolve_config(name_or_path, "scenarios"))
 
 
 def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
     """The family's ``design`` seeds (free to develop on), ``heldout`` seeds (never tuned on) and ``previous``
     (an earlier held-out set, seen by earlier rounds: evaluated, no longer unseen)."""
-    fam = RandomFamily.from_dict(load_yaml(_resolve_config(name_or_path, "scenarios")))
+    fam = RandomFamily.from_dict(load_yaml(resolve_config(name_or_path, "scenarios")))
     return {"design": fam.design_seeds, "heldout": fam.heldout_seeds, "previous": fam.previous_seeds}
 
 
@@ -480,20 +448,13 @@ def _pair(v, what: str) -> tuple[float, float]:
 
 @dataclasses.dataclass(frozen=True)
 class RandomFamily:
-    """Rigs we did not design on: every seed draws another link, people, motion and warm-up.
-
-    Each draw is an ordinary :class:`Scenario` (so the simulator, the dataset writer and every verb
-    see nothing new): a material of :data:`sonicskin.sim.channel.MATERIALS` with its sourced
-    stiffness, density, thickness and thermal coefficients; a tube or a flat plate of random size;
-    transducers near either end at random positions; the material's loss factor times a log-uniform
-    factor (``loss_factor_scale``; the literature ranges in DESIGN.md span about a factor 2 either
-    way); a random modal irregularity (manufacturing, fittings); a grid of ``grid_n`` x ``grid_n``
-    markers between the transducers; one person per session (drawn from the 12 simulated people);
-    motion on or off with a random level; a random ambient temperature, warm-up and start time.
-    Every session presses each marker once (random order): s000 trains, s001 validates, the rest test.
-
-    ``design_seeds`` may be used for development; ``heldout_seeds`` were fixed before anything was
-    tuned on this family and are only ever evaluated (``benchmarks/bench_random_rigs.py``).
+    """Rigs we did not design on: every seed draws another link, people, motion and warm-up, as an ordinary
+    :class:`Scenario`: a material of :data:`sonicskin.sim.channel.MATERIALS`, a tube or a plate of random size,
+    transducers near either end, the material's loss factor times a log-uniform factor, a random modal irregularity,
+    a grid of markers between the transducers, one person per session, motion on or off, a random ambient
+    temperature, warm-up and start time.  Every session presses each marker once: s000 trains, s001 validates, the
+    rest test.  ``design_seeds`` may be developed on; ``heldout_seeds`` are only ever evaluated
+    (``benchmarks/bench_random_rigs.py``).
     """
 
     family: str = "random"
@@ -550,8 +511,6 @@ class RandomFamily:
         return fam
 
     def validate(self) -> None:
-        from .channel import MATERIALS
-
         if self.family != "random":
             raise ValueError(f"unknown scenario family {brief(self.family)}; the simulator knows 'random'")
         bad = [m for m in self.materials if m not in MATERIALS]
@@ -572,8 +531,6 @@ class RandomFamily:
 
     def draw(self, seed: int) -> Scenario:
         """The rig and protocol of ``seed`` (deterministic)."""
-        from .channel import MATERIALS
-
         rng = np.random.default_rng([int(seed), 2026, 15])
 
         def uni(r):

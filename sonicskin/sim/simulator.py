@@ -1,10 +1,6 @@
-"""Render a scenario's timeline into received audio, chirp by chirp, in batches.
-
-Per chirp: the untouched channel at the link's temperature (frequency-axis stretch plus a
-first-order damping rise), the finger's rank-one update when touched, a small motion-dependent
-perturbation of the channel, both transducers' responses, the chirp spectrum, additive noise
-(sensor, PWM, mechanical), then one inverse FFT (steady-state periodic chirp train through a
-linear channel = circular convolution) and 24-bit quantisation.
+"""Render a scenario's timeline into received audio, chirp by chirp, in batches: the untouched channel at the
+link's temperature, the finger's update when touched, the robot's motion, both transducers, the chirp spectrum, the
+noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation.
 """
 
 from __future__ import annotations
@@ -26,20 +22,12 @@ from .thermal import HotMeltBond, project_field, warmup_field
 
 __all__ = ["Simulator"]
 
-_FULL_SCALE = 2 ** 23 - 1
 _BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce simulates several datasets per link)
 
 
 class Simulator:
-    """The simulated rig of one scenario.
-
-    Parameters
-    ----------
-    scenario : what the link is and what happens on it.
-    rig : acquisition parameters (sample rate, chirp).
-    target_rms : level of the untouched received signal (full scale = 1).
-    quantize_bits : ADC resolution (the paper's interface: 24 bit); ``None`` keeps float.
-    """
+    """The simulated rig of one scenario on ``rig``: the untouched received signal at ``target_rms`` of full scale,
+    quantised to ``quantize_bits`` (the paper's interface: 24; ``None``: float)."""
 
     def __init__(self, scenario: Scenario, rig: Rig, *, target_rms: float = 0.05, quantize_bits: int | None = 24):
         if scenario.material not in MATERIALS:
@@ -84,11 +72,8 @@ class Simulator:
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f).
-
-        Every modal frequency moves to ``f_n (1 + kappa dT)``: with kappa < 0 a warmer (softer)
-        wall rings lower.  (Writing it ``G_0(f (1 + kappa dT))`` would move them up.)
-        """
+        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f): every
+        modal frequency moves to ``f_n (1 + kappa dT)`` (kappa < 0: a warmer wall rings lower)."""
         f = self.channel.f_hz
         pos = (f[None, :] / (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
         pos = np.clip(pos, 0, f.size - 1.000001)
@@ -109,12 +94,8 @@ class Simulator:
     _Y_GRID = np.linspace(0.0, 1.0, 41)
 
     def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
-        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer),
-        and the TX and RX bond temperatures (C).
-
-        The label ``tl.temperature_c`` is the link's middle; the warm-up field of the scenario
-        (:func:`~sonicskin.sim.thermal.warmup_field`) adds the non-uniform part around it.
-        """
+        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer), and the TX
+        and RX bond temperatures (C), the scenario's warm-up field around the label ``tl.temperature_c`` (the middle)."""
         T = self.scenario.temperature
         L = self.geometry.length_m
         ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
@@ -137,9 +118,8 @@ class Simulator:
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
     def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
-        """Untouched channel H_rs at mean temperature offsets ``dT`` (n,) and non-uniform parts
-        ``dT_grad`` (n, 2) along the link (K; Legendre coefficients of order 1 and 2, see
-        :func:`~sonicskin.sim.thermal.project_field`), shape (n, n_f)."""
+        """Untouched channel H_rs (n, n_f) at mean temperature offsets ``dT`` (n,) and the non-uniform parts ``dT_grad``
+        (n, 2) along the link (Legendre orders 1 and 2, :func:`~sonicskin.sim.thermal.project_field`)."""
         G, inv = self._untouched_rows(dT, dT_grad)
         return G[inv]
 
@@ -254,13 +234,8 @@ class Simulator:
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session, in order), written
-        into ``out`` (n, n_chirp) float32 when given.
-
-        An int32 ``out`` receives the same frames as a 24-bit file holds them, left-aligned in 32 bits
-        (soundfile's int convention): ``min(round(x 2^23), 2^23 - 1) << 8`` of each float sample ``x``,
-        libsndfile's own float -> PCM_24 conversion.  :func:`~sonicskin.sim.generate.simulate_dataset`
-        writes those to FLAC directly (the same file samples, without libsndfile's slower conversion)."""
+        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session), into ``out`` when given; an int32
+        ``out`` gets them as a 24-bit file holds them (libsndfile's float -> PCM_24), which generate writes as is."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
@@ -318,14 +293,8 @@ _WB_DTYPE = np.complex64
 
 
 def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
-    """Change of H by a distributed contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s``.
-
-    Gp : (R, 2P + P(P+1)/2, n_f) projected patch rows (:meth:`ChannelModel.patch_weights`) per contact radius.
-    K : (R, O, n_f) dynamic stiffness per sub-contact for O real-contact shares at each radius.
-    Returns (R, O, n_f) complex64.  The P x P systems of every radius, share and frequency are solved
-    together by Gaussian elimination written over whole arrays (P = 4: a few dozen array operations
-    instead of one LAPACK call per frequency).  ``I + K G_pp`` is complex symmetric with a dominant
-    identity where the finger is light; it is solved without pivoting in complex128 for headroom.
+    """Change of H by a contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s`` (R, O, n_f), every P x P
+    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128).
     """
     R, _, F = Gp.shape
     n_o = K.shape[1]

@@ -1,39 +1,11 @@
 """What moves with temperature on a warming robot link: the piezo's hot-melt bond and the wall.
 
-Two temperature-sensitive parts, with very different coefficients:
-
-**The hot-melt bond of each piezo** (the paper glues its discs with "thermoplastic adhesive (e.g.,
-with hot glue)", Sec. IV).  Hot-melt sticks are EVA copolymers blended with a tackifying resin and
-wax; such blends have their glass transition near room temperature: "most blends showed a glass
-transition temperature at about 25 C and a melting peak between 30 C and 100 C" (Park & Kim 2003,
-Int. J. Adhesion & Adhesives 23:383-392), and their storage modulus falls while the loss tangent
-rises with temperature (Park et al. 2006, Int. J. Adhesion & Adhesives 26:571-576).  At the chirp's
-20-80 kHz the transition sits some ten kelvin higher than in a 1 Hz DMA scan (time-temperature
-superposition, WLF), so room temperature lies on the glassy side of it where ``E'`` falls by roughly
-a decade over 40-60 K.  We take ``d log10 E' / dT = -0.02 /K`` (-4.5 %/K) and
-``d ln(tan delta) / dT = +0.02 /K``: estimates read from the shape of such DMA curves, not a
-number quoted to the digit by those papers; they are the least certain coefficients of the rig.
-
-The disc (mass ``m``) sits on the bond layer (stiffness ``k = E* A / t``): a mounted resonance
-``f_r = sqrt(k / m) / 2 pi`` (28 kHz at 23 C: 1-2 g of brass and ceramic on a 0.1-0.3 mm layer of
-a ~10-100 MPa adhesive) whose transmissibility ``(1 + i eta) / (1 + i eta - (f / f_r)^2)`` shapes
-both the drive and the pick-up.  With ``k`` proportional to ``E'``, ``f_r`` moves by
-``0.5 d ln E' / dT = -2.3 %/K``.
-
-**The wall.**  Modal frequencies of a plate scale with ``sqrt(E)``; the matrix-dominated stiffness
-of carbon/epoxy softens by ~0.05-0.1 %/K near room temperature (guided-wave SHM measurements on
-CFRP report A0/S0 velocity and phase changes of that order, reviewed in Gorgin, Luo & Wu 2020,
-Ultrasonics 105:106114; Lanza di Scalea & Salamone 2008, J. Acoust. Soc. Am. 124:161-174), so modal
-frequencies move by ``kappa = -3.5e-4 /K`` (:data:`sonicskin.sim.channel.MATERIALS`); ABS and wood
-soften several times faster.
-
-**Non-uniform warm-up.**  The link warms from the actuator at its motor end (paper Fig. 7: the
-thermal images warm from the joints; +5.4 C over 5 h).  :func:`warmup_field` gives the temperature
-along the link: the motor end rises further (``gradient``) and sooner (``lag``) than the far end.
-Both parameters are assumptions read qualitatively off Fig. 7, not measured values.  The TX bond sits
-at the motor end and warms first; the wall's stiffness gradient couples modes of the same
-circumferential order (first-order Born term, :meth:`ChannelModel.gradient_greens`), so mode shapes
-change, not only frequencies.
+The disc (mass ``m``) sits on the bond layer (stiffness ``k = E* A / t``): a mounted resonance ``f_r = sqrt(k / m)
+/ 2 pi`` whose transmissibility ``(1 + i eta) / (1 + i eta - (f / f_r)^2)`` shapes both the drive and the pick-up;
+the EVA adhesive softens near its glass transition (``E'`` and ``tan delta`` move with ``T``), so ``f_r`` moves by
+``0.5 d ln E' / dT``.  The wall's modes move by ``kappa`` per kelvin (:data:`sonicskin.sim.channel.MATERIALS`).  The
+link warms from its motor end (:func:`warmup_field`: further, ``gradient``, and sooner, ``lag``, than the far end;
+both read qualitatively off the paper's Fig. 7).  The coefficients and their sources: docs/simulator.md.
 """
 
 from __future__ import annotations
@@ -47,13 +19,8 @@ __all__ = ["HotMeltBond", "warmup_field", "project_field"]
 
 @dataclasses.dataclass(frozen=True)
 class HotMeltBond:
-    """A piezo disc on a hot-melt (EVA) bond layer: a mounted resonance that softens with temperature.
-
-    fr_hz : mounted resonance at ``t_ref_c``.
-    tan_delta : loss tangent of the bond at ``t_ref_c`` (0.67: Q = 1.5, a broad 20-30 kHz optimum, paper Sec. III-B).
-    log10_modulus_per_k : ``d log10 E' / dT`` of the adhesive (see the module notes).
-    ln_tan_delta_per_k : ``d ln(tan delta) / dT``.
-    """
+    """A piezo disc on a hot-melt (EVA) bond: a mounted resonance ``fr_hz`` with loss tangent ``tan_delta`` at
+    ``t_ref_c`` (0.67: Q = 1.5, paper Sec. III-B), moving with ``log10_modulus_per_k`` and ``ln_tan_delta_per_k``."""
 
     fr_hz: float = 28e3
     tan_delta: float = 0.67
@@ -81,12 +48,8 @@ class HotMeltBond:
 
 def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s: float, gradient: float = 0.0,
                  lag: float = 0.0) -> np.ndarray:
-    """Warm-up temperature rise (K) at times ``t_s`` (n,) and positions ``y_frac`` (m,) along the link, (n, m).
-
-    ``y_frac`` = 0 is the motor end, 1 the far end.  The final rise is ``warmup_c (1 + gradient (0.5 - y))``
-    and the time constant ``tau_s (1 + lag (y - 0.5))``: the link's middle follows
-    ``warmup_c (1 - exp(-t / tau_s))`` whatever ``gradient`` and ``lag`` are.
-    """
+    """Warm-up temperature rise (K), (n, m), at times ``t_s`` and positions ``y_frac`` from the motor end (0): a final
+    rise ``warmup_c (1 + gradient (0.5 - y))`` with time constant ``tau_s (1 + lag (y - 0.5))``."""
     t = np.asarray(t_s, float)[:, None]
     y = np.asarray(y_frac, float)[None, :]
     amp = warmup_c * (1 + gradient * (0.5 - y))
@@ -95,9 +58,8 @@ def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s:
 
 
 def project_field(field: np.ndarray, y_frac: np.ndarray, order: int = 2) -> np.ndarray:
-    """Legendre coefficients (n, order + 1) of a field (n, m) sampled on ``y_frac`` (m,) in [0, 1]:
-    ``field ~ sum_k c_k P_k(1 - 2 y)``; ``c_0`` is the mean, ``c_1`` the linear part (+: motor end
-    warmer), ``c_2`` ends vs middle."""
+    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac`` in [0, 1]: ``c_0`` the mean, ``c_1`` the
+    linear part (+: motor end warmer), ``c_2`` ends vs middle."""
     x = 1 - 2 * np.asarray(y_frac, float)
     V = np.polynomial.legendre.legvander(x, order)  # (m, order + 1)
     coef, *_ = np.linalg.lstsq(V, np.asarray(field, float).T, rcond=None)
