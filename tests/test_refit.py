@@ -1,0 +1,61 @@
+"""Every press counts (issue 36): the choices are made on the validation session, then every model is refitted on
+the training and validation sessions together; and the network places touches exactly as the closed form it starts
+from when that is its layer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sonicskin import kinds
+from sonicskin.dataset import Split
+from sonicskin.fit import fit_models, prepare, summary_lines, write_artifact
+from sonicskin.runtime import SkinRuntime
+
+
+def _data(cli_files, val=("s001",)):
+    return prepare(cli_files["data"], split=Split(("s000",), tuple(val), ("s002",)), n_bins=60, wide=True, progress=False,
+                   log=lambda *_: None)
+
+
+def test_refit_fits_the_chosen_configuration_on_every_labelled_press(cli_files):
+    data = _data(cli_files)
+    final, fits = fit_models(data, [kinds.BASELINE, kinds.CLOSED_FORM], log=lambda *_: None)
+    # the deployed data: s000 and s001 train, nothing validates, the test session untouched
+    assert final.split.train == ("s000", "s001") and final.split.val == () and final.split.test == ("s002",)
+    assert final.options["refit_of"] == {"train": ["s000"], "val": ["s001"], "test": ["s002"]}
+    touch = final.rows("train") & (final.cls < final.n_locations)
+    once = data.rows("train") & (data.cls < data.n_locations)
+    assert touch.sum() > once.sum()  # the validation presses joined the training ones
+    assert fits[kinds.BASELINE].model[-1].shape_fit_[0] == touch.sum()  # the SVM was fitted on all of them
+    # the choices are the first pass's: the LDA's bins and normalisation, the SVM's C and kernel width
+    _, first = fit_models(data, [kinds.BASELINE, kinds.CLOSED_FORM], refit=False, log=lambda *_: None)
+    assert fits[kinds.CLOSED_FORM].selection == first[kinds.CLOSED_FORM].selection
+    assert fits[kinds.BASELINE].selection["svm"]["params"] == first[kinds.BASELINE].selection["svm"]["params"]
+    assert first[kinds.BASELINE].model[-1].shape_fit_[0] == once.sum()  # --no-refit: the training session alone
+
+
+def test_the_artifact_says_it_was_refitted_and_on_what(cli_files, tmp_path):
+    final, fits = fit_models(_data(cli_files), [kinds.BASELINE], log=lambda *_: None)
+    skin = write_artifact(final, tmp_path / "art", fits, log=lambda *_: None)
+    assert skin["training"]["split"] == {"train": ["s000"], "val": ["s001"], "test": ["s002"]} and skin["training"]["refit"]
+    assert "deployed models refitted on s000 + s001 (every labelled press; the estimates above are from the held-out pass)" \
+        in summary_lines(tmp_path / "art", skin)
+    nothing_to_validate, _ = fit_models(_data(cli_files, val=()), [kinds.BASELINE], log=lambda *_: None)
+    assert nothing_to_validate.split.train == ("s000",)  # no validation session: nothing to refit
+
+
+def test_the_network_with_the_lda_layer_places_every_chirp_where_the_lda_does(cli_files, tmp_path):
+    """Through the deployed artifact (onnxruntime, both heads): the same marker on every test chirp."""
+    pytest.importorskip("torch")
+    data = _data(cli_files)
+    final, fits = fit_models(data, [kinds.NETWORK], log=lambda *_: None,
+                             options={kinds.NETWORK: {"epochs": 2, "layer": {"location_layer": "LDA (closed form)",
+                                                                             "layer_how": "test"}}})
+    write_artifact(final, tmp_path / "art", fits, log=lambda *_: None)
+    t = final.table
+    X = t.X[t["session"] == "s002"]
+    net, lda = SkinRuntime(tmp_path / "art", kinds.NETWORK), SkinRuntime(tmp_path / "art", kinds.CLOSED_FORM)
+    pn, pl = net.replay(X, t["time_s"][t["session"] == "s002"]), lda.replay(X, t["time_s"][t["session"] == "s002"])
+    run = ~pn.calibrating
+    np.testing.assert_array_equal(pn.location[run], pl.location[run])
