@@ -59,3 +59,16 @@ def test_the_network_with_the_lda_layer_places_every_chirp_where_the_lda_does(cl
     pn, pl = net.replay(X, t["time_s"][t["session"] == "s002"]), lda.replay(X, t["time_s"][t["session"] == "s002"])
     run = ~pn.calibrating
     np.testing.assert_array_equal(pn.location[run], pl.location[run])
+
+
+def test_the_networks_frozen_kernel_is_the_artifacts_svm(cli_files):
+    """One SVM per artifact (issue 34): a kernel-layer network freezes the very SVM svm.onnx holds, before and after
+    the refit (its support vectors are the kernel's centres, its scaler the network's normalisation)."""
+    pytest.importorskip("torch")
+    for refit in (False, True):
+        _, fits = fit_models(_data(cli_files), [kinds.NETWORK], refit=refit, log=lambda *_: None,
+                             options={kinds.NETWORK: {"epochs": 1, "layer": {"location_layer": "kernel", "layer_how": "test",
+                                                                             "hparams": {"layer": "kernel", "n_inputs": 60}}}})
+        pipe, net = fits[kinds.BASELINE].model, fits[kinds.NETWORK].model
+        np.testing.assert_allclose(net.kernel.centres.detach().numpy(), pipe[-1].support_vectors_, rtol=1e-6)
+        np.testing.assert_allclose(net.mean.numpy(), pipe[0].mean_, rtol=1e-6)
