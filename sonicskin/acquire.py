@@ -11,12 +11,14 @@ discontinuity, never fatal: the live loop re-locks its framing on them.
 
 from __future__ import annotations
 
+import atexit
 import collections
 import contextlib
 import dataclasses
 import itertools
 import os
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -97,6 +99,41 @@ def import_sounddevice():
         raise AudioError(f"the PortAudio library is not installed ({e}); on Debian/Ubuntu: "
                          f"sudo apt-get install libportaudio2") from None
     return sd
+
+
+_EXIT = {"code": 2, "armed": False}
+
+
+def exit_unhung(code: int | None = None) -> None:
+    """A process that opened an audio interface exits even when its audio server died during the run: PortAudio's exit
+    handler (Pa_Terminate) hangs then, so at exit it runs in a daemon thread and after 5 s the process ends without it,
+    outputs flushed, with the verb's exit code (``code``, once known; 2 until then).  The device arms it (no ``code``)."""
+    if code is not None:
+        _EXIT["code"] = code
+    elif not _EXIT["armed"]:
+        _EXIT["armed"] = True
+        atexit.register(_exit_without_portaudio)  # after sounddevice's own handler: runs before it
+
+
+def _exit_without_portaudio() -> None:
+    sd = sys.modules.get("sounddevice")
+    if sd is None:
+        return
+
+    def terminate() -> None:
+        with contextlib.suppress(Exception):  # a PortAudioError of a dead server: nothing left to close
+            sd._exit_handler()
+
+    t = threading.Thread(target=terminate, daemon=True)
+    t.start()
+    t.join(timeout=5.0)
+    if not t.is_alive():
+        atexit.unregister(sd._exit_handler)  # done: not again
+        return
+    for f in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            f.flush()
+    os._exit(_EXIT["code"])
 
 
 def list_devices() -> list[dict]:
@@ -358,6 +395,7 @@ class SoundDeviceSource(_QueueSource):
         self.link = self.links[0]
         self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
                                      channels=(n_in, n_out), dtype="float32", callback=self._callback)
+        exit_unhung()
 
     def _callback(self, indata, outdata, frames, time_info, status) -> None:
         # Audio thread: copy only (the output a slice of the precomputed period, the input the one copy queued).

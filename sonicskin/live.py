@@ -261,7 +261,8 @@ class LiveLoop:
         self.warn = warn or (lambda msg: print(f"sonicskin: warning: {msg}", file=sys.stderr, flush=True))
         self.boot_faults = 0  # chirps skipped before the boot reference was taken
         self._drift_warned: str | None = None  # the drift tracker's last warning, said once
-        self.touching = False
+        self.touching, self._held = False, False  # a press is open; the chirp before was a held first chirp at 0 N
+        self._press: dict[int, tuple[int, float, float]] = {}  # the open press: marker -> (chirps, x_cm, y_cm)
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
         self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0, "constant": 0, "no_chirp": 0}
@@ -331,15 +332,25 @@ class LiveLoop:
             self.on_chirp(t_s, p)
         if p is None:  # boot calibration
             return None
-        touch = bool(p.touch[0])
-        ev = None
-        if touch or self.touching:
-            ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
-                            float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
-                            (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
+        # A press opens at its first touched chirp with a force, else at its second touched chirp (a first chirp at 0 N
+        # is held: alone, it is no press); each touched chirp is a touch event at its marker; the release names the
+        # press's marker, the one most of its chirps named (its last chirp may have slid to a neighbour).
+        touch, loc, ev = bool(p.touch[0]), int(p.location[0]), None
+        self._held = touch and not self.touching and not self._held and not float(p.force_n[0]) > 0
+        if touch and not self._held:
+            self._press = {} if not self.touching else self._press
+            n, _, _ = self._press.get(loc, (0, 0.0, 0.0))
+            self._press[loc] = (n + 1, float(p.xy_cm[0, 0]), float(p.xy_cm[0, 1]))
+            x, y = self._press[loc][1:]
+        elif self.touching:
+            loc = max(self._press, key=lambda k: self._press[k][0])  # ties: the marker the press named first
+            x, y = self._press[loc][1:]
+        if (touch and not self._held) or self.touching:
+            ev = TouchEvent(t_s, "touch" if touch else "release", loc, x, y, float(p.force_n[0]), float(p.confidence[0]),
+                            self.rt.kind, (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
-        self.touching = touch
+        self.touching = touch and not self._held
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
         return ev
 
@@ -470,7 +481,7 @@ class LiveLoop:
     def summary(self, wall_s: float, cpu_s: float, stream_s: float) -> dict:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.full(1, np.nan)
         return {"chirps": self.n_chirps, "stream_s": stream_s, "wall_s": wall_s, "cpu_share": cpu_s / max(wall_s, 1e-9),
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
+                "latency_ms_median": float(np.median(lat)), **{f"latency_ms_p{q}": float(np.percentile(lat, q)) for q in (95, 99)},
                 "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
                 "reference_refreshes": self.refreshes, "boot_disturbed": self.stream.reference.boot_disturbed,
                 "drift": None if self.stream.drift is None else self.stream.drift.report(),

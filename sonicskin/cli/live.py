@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..acquire import DeviceLost, check_blocksize
+from ..acquire import DeviceLost, check_blocksize, exit_unhung
 from ..check import analyse, capture
 from ..errors import UsageError
 from ..jsonio import json_safe
@@ -84,6 +84,7 @@ def cmd_live(a: argparse.Namespace) -> int:
     print(json.dumps(out, allow_nan=False), file=sys.stderr)
     if lost is not None:
         raise lost
+    exit_unhung(0)  # an audio server that died at the end does not hang the exit, nor change its code
     return 0
 
 
