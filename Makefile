@@ -21,7 +21,7 @@ install: $(VENV)/.installed
 
 # The main job on the simulated rig: a moving robot, 31 markers 1.2 cm apart; the paper's SVM
 # pipeline with its ablations, then the network and the SVM trained on the same split, exported
-# to ONNX and compared in onnxruntime. A smaller run (tests/test_readme.py uses one):
+# to ONNX and compared in onnxruntime. A smaller run (`python tools/readme.py --check` uses one):
 # make demo SIM_OPTS="--set sessions=2 --set touch_s=1" TRAIN_OPTS="--trainer.max_epochs 2"
 SIM_OPTS ?=
 TRAIN_OPTS ?=

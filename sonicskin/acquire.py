@@ -11,13 +11,17 @@ discontinuity, never fatal: the live loop re-locks its framing on them.
 
 from __future__ import annotations
 
+import atexit
+import collections
+import contextlib
 import dataclasses
 import itertools
 import os
 import queue
+import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,7 +31,7 @@ from .dsp import rig_chirp
 from .errors import SonicskinError, is_number
 from .rig import Rig
 
-__all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksize", "Link", "import_sounddevice",
+__all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksize", "Link", "realtime_thread", "import_sounddevice",
            "list_devices", "find_device", "resolve_device", "check_device_rate", "AudioSource", "blocks",
            "SoundDeviceSource", "SimulatedSource", "RecordingSource"]
 
@@ -58,6 +62,7 @@ class Block:
     index: int              # sequence number of the block (gaps mean lost blocks)
     start: int              # sample index of the first sample in the stream
     discontinuity: bool     # samples before this block were lost (overflow, dropped block)
+    t: float = 0.0          # time.perf_counter() when the source delivered it (its chirps' latency starts here)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +99,41 @@ def import_sounddevice():
         raise AudioError(f"the PortAudio library is not installed ({e}); on Debian/Ubuntu: "
                          f"sudo apt-get install libportaudio2") from None
     return sd
+
+
+_EXIT = {"code": 2, "armed": False}
+
+
+def exit_unhung(code: int | None = None) -> None:
+    """A process that opened an audio interface exits even when its audio server died during the run: PortAudio's exit
+    handler (Pa_Terminate) hangs then, so at exit it runs in a daemon thread and after 5 s the process ends without it,
+    outputs flushed, with the verb's exit code (``code``, once known; 2 until then).  The device arms it (no ``code``)."""
+    if code is not None:
+        _EXIT["code"] = code
+    elif not _EXIT["armed"]:
+        _EXIT["armed"] = True
+        atexit.register(_exit_without_portaudio)  # after sounddevice's own handler: runs before it
+
+
+def _exit_without_portaudio() -> None:
+    sd = sys.modules.get("sounddevice")
+    if sd is None:
+        return
+
+    def terminate() -> None:
+        with contextlib.suppress(Exception):  # a PortAudioError of a dead server: nothing left to close
+            sd._exit_handler()
+
+    t = threading.Thread(target=terminate, daemon=True)
+    t.start()
+    t.join(timeout=5.0)
+    if not t.is_alive():
+        atexit.unregister(sd._exit_handler)  # done: not again
+        return
+    for f in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            f.flush()
+    os._exit(_EXIT["code"])
 
 
 def list_devices() -> list[dict]:
@@ -163,6 +203,38 @@ def thread_cpu_s(thread: threading.Thread | None) -> float | None:
         return None
 
 
+#: SCHED_FIFO priorities of ``--realtime``: the audio thread above the processing thread (both below the kernel's own)
+AUDIO_PRIORITY, LOOP_PRIORITY = 70, 60
+
+
+def realtime_thread(priority: int) -> tuple[str, Callable[[], None]]:
+    """Real-time scheduling of the calling thread (Linux): SCHED_FIFO at ``priority`` where permitted, else the lowest
+    nice value permitted; returns what was granted, in words, and the function that undoes it."""
+    tid = threading.get_native_id()
+    try:
+        old = os.sched_getscheduler(tid), os.sched_getparam(tid), os.getpriority(os.PRIO_PROCESS, tid)
+    except (AttributeError, OSError):
+        return "not available on this system", lambda: None
+
+    def undo() -> None:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(tid, *old[:2])
+            os.setpriority(os.PRIO_PROCESS, tid, old[2])
+
+    if old[0] == os.SCHED_FIFO:  # already (a JACK client's thread)
+        return f"SCHED_FIFO {old[1].sched_priority} (the audio server's)", lambda: None
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        return f"SCHED_FIFO {priority}", undo
+    except OSError as e:
+        denied = f"SCHED_FIFO not permitted ({e.strerror})"
+    for nice in (-10, -5, -1):
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+            return f"{denied}, nice {nice} instead", undo
+    return f"{denied}, nor a negative nice: normal priority (root or an rtprio limit grants it)", undo
+
+
 class AudioSource(Protocol):
     """The contract between a source and its consumers (:func:`blocks`): blocks of the receiver channel(s) from
     :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several; a finite source sets :attr:`finished`."""
@@ -176,6 +248,9 @@ class AudioSource(Protocol):
     error: BaseException | None
     #: what the watchdog says when nothing arrives (``{s}``: its seconds)
     stall_text: str
+    #: ask real-time scheduling for the thread that delivers the blocks (``--realtime``); what it got, once started
+    rt_sched: bool
+    rt_granted: str | None
 
     def read(self, timeout: float = 1.0) -> Block | None: ...
     def counters(self) -> dict: ...
@@ -221,13 +296,18 @@ class _QueueSource:
     realtime = True
     finished: threading.Event | None = None
     error: BaseException | None = None
+    rt_sched, rt_granted = False, None
 
-    def __init__(self, rig: Rig, blocksize: int, max_queued_s: float = 2.0):
+    def __init__(self, rig: Rig, blocksize: int, max_queued_s: float | None = None):
         self.rig, self.blocksize = rig, int(blocksize)
-        self.queue: queue.Queue = queue.Queue(maxsize=max(4, int(max_queued_s * rig.fs_hz / blocksize)))
+        # A stall of the loop up to max(2 s, 16 chirp periods) loses no audio (jaco: 1.7 s of chirps -> 2 s; a 0.5 s
+        # chirp: 8 s); longer, blocks drop and lost_spans says which stream time is missing.
+        self.queued_s = max(2.0, 16 * rig.period_s) if max_queued_s is None else max_queued_s
+        self.queue: queue.Queue = queue.Queue(maxsize=max(4, int(self.queued_s * rig.fs_hz / blocksize)))
         self.overflows = 0       # driver-reported input overflows
         self.underflows = 0      # driver-reported output underflows
         self.dropped_blocks = 0  # blocks the consumer was too slow to take
+        self.lost_spans: collections.deque = collections.deque(maxlen=100)  # [first, end) samples of stream lost
         self._index = 0
         self._pos = 0
         self._lost = False
@@ -236,7 +316,8 @@ class _QueueSource:
     def _deliver(self, samples: np.ndarray, lost_before: bool = False, *, wait: bool = False) -> None:
         """Called by the producer (audio callback or producer thread): queue the next block.  A full queue drops it
         (flagging the next) unless ``wait``: a source paced by its reader waits until the block is taken or it stops."""
-        block = Block(samples, self._index, self._pos, lost_before or self._lost)
+        # t: the arrival, for a source at the sample rate (one paced by its reader has none: latency is processing)
+        block = Block(samples, self._index, self._pos, lost_before or self._lost, 0.0 if wait else time.perf_counter())
         self._index += 1
         self._pos += len(samples)
         while True:
@@ -247,10 +328,23 @@ class _QueueSource:
             except queue.Full:
                 if not wait:
                     self.dropped_blocks += 1
-                    self._lost = True
+                    self._lose(block.start, self._pos)
                     return
                 if self._stop.is_set():
                     return
+
+    def _lose(self, a: int, b: int) -> None:
+        """Samples ``a`` to ``b`` of the stream never reach the loop: kept in :attr:`lost_spans`, the next block flagged."""
+        self._lost = True
+        if self.lost_spans and self.lost_spans[-1][1] == a:
+            self.lost_spans[-1][1] = b
+        else:
+            self.lost_spans.append([a, b])
+
+    def _rt_start(self) -> None:
+        """In the thread that delivers the blocks, once: its real-time scheduling (``rt_sched``)."""
+        if self.rt_sched and self.rt_granted is None:
+            self.rt_granted = realtime_thread(AUDIO_PRIORITY)[0]
 
     def read(self, timeout: float = 1.0) -> Block | None:
         try:
@@ -259,7 +353,9 @@ class _QueueSource:
             return None
 
     def counters(self) -> dict:
-        return {"overflows": self.overflows, "underflows": self.underflows, "dropped_blocks": self.dropped_blocks}
+        spans = [[round(a / self.rig.fs_hz, 4), round(b / self.rig.fs_hz, 4)] for a, b in list(self.lost_spans)]
+        return {"overflows": self.overflows, "underflows": self.underflows, "dropped_blocks": self.dropped_blocks,
+                "lost_s": round(sum(b - a for a, b in spans), 4), "lost_spans_s": spans[-10:]}
 
     def producer_cpu_s(self) -> float | None:
         """CPU seconds the producer thread has used (a simulated or recorded source's; ``None`` for a device, whose
@@ -289,20 +385,26 @@ class SoundDeviceSource(_QueueSource):
         # One period of every output channel, precomputed: the callback only indexes into it.
         signals = [lk.tx_period(rig) if playback is None else np.asarray(playback, np.float32) for lk in self.links]
         period = max(len(sig) for sig in signals)
-        self._tx = np.zeros((period, n_out), np.float32)
+        tx = np.zeros((period, n_out), np.float32)
         for lk, sig in zip(self.links, signals):
-            self._tx[:, lk.tx] += np.resize(sig, period)  # a shorter period repeats
+            tx[:, lk.tx] += np.resize(sig, period)  # a shorter period repeats
+        self._tx = tx[np.arange(period + self.blocksize) % period]  # a block past the period: one slice per callback
+        self._period = period
         self._rx = list(rx_channels) if rx_channels else [lk.rx for lk in self.links]
         self._tx_pos = 0
         self.link = self.links[0]
         self.stream = self.sd.Stream(samplerate=rig.fs_hz, blocksize=self.blocksize, device=self.device,
                                      channels=(n_in, n_out), dtype="float32", callback=self._callback)
+        exit_unhung()
 
     def _callback(self, indata, outdata, frames, time_info, status) -> None:
-        # Audio thread: copy only.
-        n = len(self._tx)
-        idx = (self._tx_pos + np.arange(frames)) % n
-        outdata[:] = self._tx[idx]
+        # Audio thread: copy only (the output a slice of the precomputed period, the input the one copy queued).
+        self._rt_start()
+        n = self._period
+        if frames <= self.blocksize:
+            outdata[:] = self._tx[self._tx_pos:self._tx_pos + frames]
+        else:  # a host that calls with more frames than asked
+            outdata[:] = self._tx[(self._tx_pos + np.arange(frames)) % n]
         self._tx_pos = (self._tx_pos + frames) % n
         if status.input_overflow:
             self.overflows += 1
@@ -353,6 +455,7 @@ class _ProducerSource(_QueueSource):
         """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
         instead of a stream that just stops."""
         try:
+            self._rt_start()
             chunks, pending, t_next = self._chunks(), None, time.perf_counter()
             for n_block in itertools.count(1):
                 while (pending is None or len(pending) < self.blocksize) and not self._stop.is_set():
@@ -365,7 +468,8 @@ class _ProducerSource(_QueueSource):
                 block, pending = pending[:self.blocksize], pending[self.blocksize:]
                 if self.drop_every and n_block % self.drop_every == 0:  # what a driver reports when input is lost
                     self.overflows += 1
-                    self._index, self._pos, self._lost = self._index + 1, self._pos + len(block), True
+                    self._index, self._pos = self._index + 1, self._pos + len(block)
+                    self._lose(self._pos - len(block), self._pos)
                 else:
                     self._deliver(block, wait=not self.realtime)
                 if self.realtime:
@@ -405,6 +509,11 @@ class SimulatedSource(_ProducerSource):
         self.sims, self.timelines = sims, [t if len(t) == n else t.select(np.arange(n)) for t in tls]
         self.sim, self.timeline = sims[0], self.timelines[0]
         self.offset, self.chunk = int(offset) % self.rig.n_chirp, int(chunk_chirps)
+
+    @property
+    def length_s(self) -> float:
+        """Seconds of stream the session holds (its chirps from ``offset`` on, and half a chirp)."""
+        return (len(self.timeline) * self.rig.n_chirp - self.offset + self.rig.n_chirp // 2) / self.rig.fs_hz
 
     def _chunks(self) -> Iterator[np.ndarray]:
         L, last = self.rig.n_chirp, None

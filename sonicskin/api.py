@@ -23,7 +23,7 @@ _END = object()
 
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
-                     on_event=None) -> None:
+                     realtime=False, on_event=None) -> None:
     """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them
     (``blocksize`` is :func:`sonicskin.session.open_run`'s to check)."""
     if not isinstance(artifact, (str, Path)):
@@ -37,12 +37,13 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
     for name, v in (("tx", tx), ("rx", rx)):
         if not (is_number(v, integer=True) and v >= 0):
             raise SonicskinError(f"{name} must be a 0-based channel number (an integer >= 0), got {v!r}")
-    if not isinstance(scenario, (str, Path)):
+    if not (scenario is None or isinstance(scenario, (str, Path))):
         raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")
     if not (rig is None or isinstance(rig, (str, Path))):
         raise SonicskinError(f"rig must be None (the artifact's own), a rig name or a YAML path, got {rig!r}")
-    if not isinstance(fast, bool):
-        raise SonicskinError(f"fast must be True or False, got {fast!r}")
+    for name, v in (("fast", fast), ("realtime", realtime)):
+        if not isinstance(v, bool):
+            raise SonicskinError(f"{name} must be True or False, got {v!r}")
     if not (on_event is None or callable(on_event)):
         raise SonicskinError(f"on_event must be a function called with each TouchEvent (or None), got {on_event!r}")
 
@@ -54,7 +55,9 @@ class Listener:
     loop runs per link, each event names its link and carries the contact in the link's frame, and :attr:`summary`
     is keyed by link.  ``device``: ``None``/``"sim"`` or an audio device index or name; ``model``: a model kind of the
     artifact (default: the paper's SVM); ``duration_s``: wall-clock seconds (``None``: until :meth:`stop`);
-    ``scenario`` and ``fast``: the simulated device's link and touches, and faster than real time; ``rig``: default
+    ``scenario`` (default stationary; an arm's links have their own) and ``fast``: the simulated device's link and
+    touches, and faster than real time; ``realtime``: real-time scheduling of the audio and processing threads (one
+    line on stderr says what was granted); ``rig``: default
     the artifact's own; ``tx``, ``rx``: channels of a real interface; ``on_event``: called in the listener's thread
     with each event (keep it short); ``mcap``: with an arm, every touch also as ROS 2 messages into this MCAP file
     (an existing one refused unless ``overwrite``); ``view``: ``True`` or a port, the browser view at
@@ -66,14 +69,14 @@ class Listener:
     """
 
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
-                 duration_s: float | None = None, scenario: str | Path = "stationary", rig: str | Path | None = None,
+                 duration_s: float | None = None, scenario: str | Path | None = None, rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
                  watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None, overwrite: bool = False,
-                 view: bool | int | None = None):
+                 view: bool | int | None = None, realtime: bool = False):
         from .session import open_run  # here: `import sonicskin` loads neither onnxruntime nor scikit-learn
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
-                         scenario=scenario, rig=rig, fast=fast, on_event=on_event)
+                         scenario=scenario, rig=rig, fast=fast, realtime=realtime, on_event=on_event)
         self._queue: queue.Queue = queue.Queue()
         self._user_cb = on_event
         self.duration_s, self.watchdog_s = duration_s, watchdog_s
@@ -83,7 +86,7 @@ class Listener:
         self.summary: dict | None = None
         #: the opened run (:class:`sonicskin.session.Run`): its links, runtimes, source and live loops
         self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
-                               blocksize=blocksize, mcap=mcap, overwrite=overwrite)
+                               blocksize=blocksize, mcap=mcap, overwrite=overwrite, realtime=realtime)
         self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
         self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
         self.view_url = self.opened.view.url if self.opened.view is not None else None

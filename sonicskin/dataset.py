@@ -76,6 +76,23 @@ def check_name(name, what: str = "session name", where: str = "") -> str:
     return name
 
 
+#: what makes a simulated link's wall (scenario keys): not its touches, people, noise, clock or name
+WALL_KEYS = ("material", "geometry", "tx_cm", "rx_cm", "loss_factor", "channel", "bond", "link_seed")
+
+
+def wall_record(source, rig: Rig, layout: Layout) -> dict:
+    """The wall a dataset was recorded on (an artifact's ``training.wall``): its simulated scenario's wall
+    (:data:`WALL_KEYS`) from the dataset's ``source``, else the rig and layout of the recording; ``sha256`` compares."""
+    sc = source.get("scenario") if isinstance(source, dict) and source.get("kind") == "simulator" else None
+    if isinstance(sc, dict):
+        g = sc.get("geometry") if isinstance(sc.get("geometry"), dict) else {}
+        what, text = {k: sc.get(k) for k in WALL_KEYS}, f"{sc.get('material')} {g.get('kind', 'tube')} " + " x ".join(
+            f"{k[:-3]} {v:g} cm" for k, v in g.items() if k.endswith("_cm") and is_number(v))
+    else:
+        what, text = {"rig": rig.to_dict(), "layout": layout.to_dict()}, f"recorded on rig {rig.name}, {len(layout)} markers"
+    return {"sha256": hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16], "what": text}
+
+
 def unique_keys(pairs) -> dict:
     """A JSON object's ``object_pairs_hook`` that refuses a key given twice (``json`` keeps the last one silently)."""
     out = {}

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import kinds
 from .artifact import PROBE_ROWS, atomic_artifact, skin_json
-from .dataset import Dataset, FeatureTable, Split
+from .dataset import Dataset, FeatureTable, Split, wall_record
 from .drift import DriftError, DriftTracker
 from .feature_cache import load_features_cached
 from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, training_targets, usable_bins
@@ -238,7 +238,8 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
         skin = skin_json(tmp, rig=data.rig.to_dict(), layout=data.layout.to_dict(), spec=data.spec,
                          min_force_n=data.min_force_n,
                          training={"data": str(Path(data.dataset.root).resolve()), "split": refit or split, **times,
-                                   **({"refit": True} if refit else {}), **(training or {})},
+                                   **({"refit": True} if refit else {}), "wall": wall_record(
+                                       data.dataset.meta.get("source"), data.dataset.rig, data.layout), **(training or {})},
                          models=models, probe_inputs=check[:PROBE_ROWS], selection=sel,
                          drift=drift_reference(data, log) if drift else None)
         if learning_curve and save_learning_curve(sel.get(kinds.BASELINE), tmp / "learning_curve.png",
@@ -279,13 +280,14 @@ def summary_lines(out: str | Path, skin: dict) -> list[str]:
 
 
 def build_svm_artifact(data, out, *, n_bins: int | None = None, mode: str = "relative", train_sessions=None,
-                       min_force_n: float = 0.5, progress: bool = True, log=print, **alg2) -> dict:
+                       min_force_n: float = 0.5, progress: bool = True, log=print, training: dict | None = None, **alg2) -> dict:
     """``fit-svm`` (and ``record``): an SVM-only artifact, torch-free, trained on every session (or ``train_sessions``),
-    gamma chosen by validation on their presses unless ``n_bins`` (``alg2``: :func:`prepare`'s ``alpha_s``/``beta_s``)."""
+    gamma chosen by validation on their presses unless ``n_bins`` (``alg2``: :func:`prepare`'s ``alpha_s``/``beta_s``;
+    ``training``: added to skin.json's ``training``, e.g. the arm's ``link`` it was trained for)."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     d = prepare(ds, n_bins=n_bins, mode=mode, train_sessions=list(train_sessions or ds.sessions), val_sessions=[],
                 min_force_n=min_force_n, allow_no_test=True, progress=progress, log=log, **alg2)
-    skin = fit_artifact(d, out, learning_curve=True, log=log)
+    skin = fit_artifact(d, out, learning_curve=True, training=training, log=log)
     for line in summary_lines(out, skin):
         log(line)
     return skin

@@ -115,32 +115,47 @@ class Framer:
         self.ref = np.asarray(reference, np.float64)
         self.L = self.ref.size
         self.check_every, self.tolerance = check_every, tolerance
-        self.buf = np.zeros(0, np.float32)
+        self._bufs = [np.zeros(2 * self.L, np.float32) for _ in range(2)]  # preallocated: a block is copied, not joined
+        self.n = 0                  # samples held, buf = _bufs[0][:n]
         self.buf_start = 0          # stream sample index of buf[0]
         self.next_start: int | None = None
         self.relocks = 0
         self.n_frames = 0
 
+    @property
+    def buf(self) -> np.ndarray:
+        return self._bufs[0][:self.n]
+
     def reset(self) -> None:
-        self.buf = np.zeros(0, np.float32)
-        self.next_start = None
+        self.n, self.next_start = 0, None
+
+    def _drop(self, k: int) -> None:
+        """Forget the first ``k`` samples held (copied to the other buffer, never allocated)."""
+        if k > 0:
+            self._bufs[1][:self.n - k] = self._bufs[0][k:self.n]
+            self._bufs.reverse()
+            self.n, self.buf_start = self.n - k, self.buf_start + k
 
     def push(self, samples: np.ndarray, start: int, discontinuity: bool = False) -> list[tuple[int, np.ndarray]]:
         """Add a block (starting at stream sample ``start``); return the complete ``(start, frame)`` pairs."""
-        if discontinuity or (self.buf.size and start != self.buf_start + self.buf.size):
+        if discontinuity or (self.n and start != self.buf_start + self.n):
             if self.next_start is not None:
                 self.relocks += 1
             self.reset()
-        if self.buf.size == 0:
+        if self.n == 0:
             self.buf_start = start
-        self.buf = np.concatenate([self.buf, np.asarray(samples, np.float32)])
+        m = len(samples)
+        if self.n + m > self._bufs[0].size:  # a longer block than any before: the buffers grow, once
+            self._bufs = [np.concatenate([self.buf, np.zeros(self.L + m, np.float32)]) for _ in range(2)]
+        self._bufs[0][self.n:self.n + m] = samples
+        self.n += m
         out = []
         if self.next_start is None:
             if self.buf.size < self.L:
                 return out
             off = find_chirp_offset(np.nan_to_num(self.buf[: self.L], nan=0.0, posinf=0.0, neginf=0.0), self.ref, max_periods=1)
             self.next_start = self.buf_start + off
-        while self.next_start + self.L <= self.buf_start + self.buf.size:
+        while self.next_start + self.L <= self.buf_start + self.n:
             a = self.next_start - self.buf_start
             frame = self.buf[a:a + self.L]
             self.n_frames += 1
@@ -149,17 +164,12 @@ class Framer:
                 drift = min(drift, self.L - drift)
                 if drift > self.tolerance:  # lost lock without a reported gap
                     self.relocks += 1
-                    keep = self.buf[a:]
-                    self.buf_start += a
-                    self.buf = keep
+                    self._drop(a)
                     self.next_start = None
                     return out
             out.append((self.next_start, frame.copy()))
             self.next_start += self.L
-        cut = self.next_start - self.buf_start
-        if cut > 0:
-            self.buf = self.buf[cut:]
-            self.buf_start += cut
+        self._drop(self.next_start - self.buf_start)
         return out
 
 
@@ -251,7 +261,8 @@ class LiveLoop:
         self.warn = warn or (lambda msg: print(f"sonicskin: warning: {msg}", file=sys.stderr, flush=True))
         self.boot_faults = 0  # chirps skipped before the boot reference was taken
         self._drift_warned: str | None = None  # the drift tracker's last warning, said once
-        self.touching = False
+        self.touching, self._held = False, False  # a press is open; the chirp before was a held first chirp at 0 N
+        self._press: dict[int, tuple[int, float, float]] = {}  # the open press: marker -> (chirps, x_cm, y_cm)
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
         self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0, "constant": 0, "no_chirp": 0}
@@ -321,15 +332,25 @@ class LiveLoop:
             self.on_chirp(t_s, p)
         if p is None:  # boot calibration
             return None
-        touch = bool(p.touch[0])
-        ev = None
-        if touch or self.touching:
-            ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
-                            float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
-                            (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
+        # A press opens at its first touched chirp with a force, else at its second touched chirp (a first chirp at 0 N
+        # is held: alone, it is no press); each touched chirp is a touch event at its marker; the release names the
+        # press's marker, the one most of its chirps named (its last chirp may have slid to a neighbour).
+        touch, loc, ev = bool(p.touch[0]), int(p.location[0]), None
+        self._held = touch and not self.touching and not self._held and not float(p.force_n[0]) > 0
+        if touch and not self._held:
+            self._press = {} if not self.touching else self._press
+            n, _, _ = self._press.get(loc, (0, 0.0, 0.0))
+            self._press[loc] = (n + 1, float(p.xy_cm[0, 0]), float(p.xy_cm[0, 1]))
+            x, y = self._press[loc][1:]
+        elif self.touching:
+            loc = max(self._press, key=lambda k: self._press[k][0])  # ties: the marker the press named first
+            x, y = self._press[loc][1:]
+        if (touch and not self._held) or self.touching:
+            ev = TouchEvent(t_s, "touch" if touch else "release", loc, x, y, float(p.force_n[0]), float(p.confidence[0]),
+                            self.rt.kind, (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
-        self.touching = touch
+        self.touching = touch and not self._held
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
         return ev
 
@@ -344,7 +365,7 @@ class LiveLoop:
             if self.slot[1] > 1:  # this link's chirp within the duplex period
                 L = self.rig.n_chirp
                 start, frame = start + self.slot[0] * L, frame[self.slot[0] * L:(self.slot[0] + 1) * L]
-            ev = self.process_frame(start, frame, time.perf_counter())
+            ev = self.process_frame(start, frame, block.t or time.perf_counter())  # latency from the block's arrival
             if ev is not None:
                 self.events.append(ev)
                 self.emit(ev.to_json())
@@ -443,7 +464,12 @@ class LiveLoop:
         drift = f"  {self.stream.drift.status()}" if self.stream.drift is not None else ""
         return (f"{state}{drift}  {self.n_chirps} chirps  latency median {np.median(lat):.2f} ms p99 {np.percentile(lat, 99):.2f} ms  "
                 f"{touch}  relocks {self.framer.relocks}  driver overflows {c['overflows']}  dropped blocks {c['dropped_blocks']}"
-                f"{self._startup_note(c['dropped_blocks'])}  skipped frames {sum(self.skipped.values())}   ")
+                f"{self._startup_note(c['dropped_blocks'])}{self._lost_note(c)}  skipped frames {sum(self.skipped.values())}   ")
+
+    @staticmethod
+    def _lost_note(c: dict) -> str:
+        return f"  lost {c['lost_s']:.2f} s of stream (the last {c['lost_spans_s'][-1][0]:.2f}-{c['lost_spans_s'][-1][1]:.2f} s)" \
+            if c.get("lost_spans_s") else ""
 
     def _startup_note(self, dropped: int) -> str:
         """Blocks dropped at start-up (the queue filled before the loop framed its first chirp): not the link's fault."""
@@ -455,7 +481,7 @@ class LiveLoop:
     def summary(self, wall_s: float, cpu_s: float, stream_s: float) -> dict:
         lat = np.asarray(self.latencies_ms) if self.latencies_ms else np.full(1, np.nan)
         return {"chirps": self.n_chirps, "stream_s": stream_s, "wall_s": wall_s, "cpu_share": cpu_s / max(wall_s, 1e-9),
-                "latency_ms_median": float(np.median(lat)), "latency_ms_p99": float(np.percentile(lat, 99)),
+                "latency_ms_median": float(np.median(lat)), **{f"latency_ms_p{q}": float(np.percentile(lat, q)) for q in (95, 99)},
                 "touch_events": sum(e.kind == "touch" for e in self.events), "relocks": self.framer.relocks,
                 "reference_refreshes": self.refreshes, "boot_disturbed": self.stream.reference.boot_disturbed,
                 "drift": None if self.stream.drift is None else self.stream.drift.report(),
@@ -474,7 +500,7 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
     :class:`InputUnusable`.  A block is waited for at most ``min(0.1, idle_timeout_s)`` s.
     """
     t_last_status = started = time.perf_counter()
-    cpu0 = time.process_time()
+    cpu0, lost_seen = time.process_time(), 0.0
     stream_s = 0.0
     status = any(lp.status for lp in loops)
     # A faster-than-real-time simulated source (--fast) runs on its own stream clock; everything that
@@ -493,9 +519,10 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
                 if watchdog_s is not None and lp.blind_s > max(watchdog_s, 2 * lp.framer.L / source.rig.fs_hz):
                     raise InputUnusable(lp.unusable_input())
             stream_s = (block.start + len(block.samples)) / source.rig.fs_hz
-            if status and time.perf_counter() - t_last_status > 1.0:
-                t_last_status = time.perf_counter()
-                print("\r" + " | ".join(lp.status_line() for lp in loops), end="", file=sys.stderr, flush=True)
+            if time.perf_counter() - t_last_status > 1.0:
+                t_last_status, lost_seen = time.perf_counter(), _warn_lost(loops[0], source, lost_seen, status)
+                if status:
+                    print("\r" + " | ".join(lp.status_line() for lp in loops), end="", file=sys.stderr, flush=True)
             if (duration_s is not None and stream_s >= duration_s) or (max_chirps and min(lp.n_chirps for lp in loops) >= max_chirps):
                 break
     except KeyboardInterrupt:
@@ -504,6 +531,7 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
         if status:
             print(file=sys.stderr)
         raise
+    _warn_lost(loops[0], source, lost_seen, status)
     for lp in loops:  # a finite source that ended before the watchdog's time, without one usable chirp in it
         if lp.n_chirps == 0 and lp.blind_s > 2 * lp.framer.L / source.rig.fs_hz:
             lp.warn(lp.unusable_input())
@@ -511,6 +539,19 @@ def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float |
         print("\r" + " | ".join(lp.status_line() for lp in loops), file=sys.stderr, flush=True)
     wall = time.perf_counter() - started
     return [lp.summary(wall, time.process_time() - cpu0, stream_s) for lp in loops]
+
+
+def _warn_lost(loop: LiveLoop, source: AudioSource, seen: float, status: bool) -> float:
+    """One warning line (at most one a second) naming the stream time lost since the last one; returns the lost end."""
+    spans = [s for s in source.counters().get("lost_spans_s", []) if s[1] > seen]
+    if not spans:
+        return seen
+    c = source.counters()
+    print("\n" if status else "", end="", file=sys.stderr)  # the status line ends before the warning's
+    loop.warn(f"audio lost: stream time {', '.join(f'{a:.3f}-{b:.3f} s' for a, b in spans[-3:])} is missing "
+              f"({c['lost_s']:.3f} s in all: {c['dropped_blocks']} blocks dropped as the loop fell behind the audio, "
+              f"{c['overflows']} lost by the driver)" + ("; --realtime, or fewer busy programs" if c["dropped_blocks"] else ""))
+    return spans[-1][1]
 
 
 # -- Lab Streaming Layer (optional: pip install 'sonicskin[lsl]'): one irregular-rate string stream of type

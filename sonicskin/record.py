@@ -360,11 +360,11 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
                    overwrite: bool = False, realtime: bool = True, calibration_s: float = 3.0, moving_s: float = 10.0,
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
-                   report=None) -> dict:
-    """``sonicskin record``: one guided session into the dataset ``out``.  With ``resume`` only the requested
-    locations without touch chirps yet are prompted.  ``artifact``: once every marker has been pressed, the SVM
-    artifact trained on everything recorded so far is written there (what ``fit-svm`` writes), so ``record`` then
-    ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
+                   report=None, link=None) -> dict:
+    """``sonicskin record``: one guided session into the dataset ``out`` (``link``: an arm's, its artifact records it).
+    With ``resume`` only the requested locations without touch chirps yet are prompted.  ``artifact``: once every marker
+    has been pressed, the SVM artifact trained on everything recorded so far is written there (what ``fit-svm``
+    writes), so ``record`` then ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
     (``{"locations": []}`` when nothing is missing).
     """
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
@@ -444,7 +444,8 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
             report(f"no artifact yet: location(s) {', '.join(map(str, missing[:12]))}{', ...' if len(missing) > 12 else ''} "
                    f"of the layout were never pressed; `--resume` records them, then the artifact is written")
         else:  # the skin trained on everything recorded so far, with what validation expects of it
-            build_svm_artifact(out, artifact, min_force_n=min_force_n, progress=False, log=report)
+            build_svm_artifact(out, artifact, min_force_n=min_force_n, progress=False, log=report,
+                               training={"link": {"name": link.name, "frame": link.frame}} if link else None)
             report(f"deploy it: sonicskin live --artifact {artifact}" + ("" if simulated(device) else f" --device {device}"))
     return {**res, "session": session, "locations": todo}
 

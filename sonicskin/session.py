@@ -7,13 +7,17 @@ simulated device or an audio interface; :func:`open_source` is the one place a d
 from __future__ import annotations
 
 import dataclasses
+import gc
+import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
 from . import acquire
-from .acquire import AudioSource, Link, check_blocksize
-from .errors import ConfigNotFoundError, UsageError
+from .acquire import LOOP_PRIORITY, AudioSource, Link, check_blocksize, realtime_thread
+from .dataset import wall_record
+from .errors import ConfigNotFoundError, UsageError, brief
 from .kinds import BASELINE
 from .links import ARM_FILE, load_arm
 from .live import LiveLoop, run_loops
@@ -85,6 +89,8 @@ class Run:
     live: list[LiveLoop] = dataclasses.field(default_factory=list)  # the loops run() runs
     view: ViewServer | None = None
     mcap: McapEventWriter | None = None
+    realtime: bool = False  # real-time scheduling of the audio and processing threads; what they got: granted
+    granted: dict = dataclasses.field(default_factory=dict)
 
     @property
     def arm(self) -> bool:
@@ -115,13 +121,30 @@ class Run:
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
         """Run the loops until ``duration_s``, ``stop``, Ctrl-C or a finite source's end (:func:`sonicskin.live.run_loops`);
         returns :meth:`summary`, the MCAP file complete and the live page stopped however it ends."""
+        length = getattr(self.source, "length_s", None)  # a simulated session ends by itself
+        if duration_s is not None and length is not None and duration_s > length and self.live:
+            self.live[0].warn(f"the simulated session is {length:.1f} s long (one scripted session of touches per link): "
+                              f"the run ends with it, before the {duration_s:g} s asked for")
+        undo = None
         try:
             if self.mcap is not None:
                 self.mcap.t0_unix_s = time.time()  # t_s = 0: the stream starts now
             with self.source:
+                if self.realtime:  # the source's thread asks for itself as it starts (rt_sched); this thread processes
+                    for _ in range(100):  # the audio thread's first callback (a device) or start (simulated)
+                        if self.source.rt_granted is not None:
+                            break
+                        time.sleep(0.01)
+                    self.granted["audio"] = self.source.rt_granted or "its thread had not started after 1 s"
+                    self.granted["processing"], undo = realtime_thread(LOOP_PRIORITY)
+                    gc.freeze()  # what the run opened is never scanned again by the collector
+                    print(f"sonicskin: real-time scheduling: audio thread {self.granted['audio']}; processing thread "
+                          f"{self.granted['processing']}", file=sys.stderr, flush=True)
                 return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
                                               stop=stop))
         finally:
+            if undo is not None:
+                undo()
             if self.mcap is not None:
                 self.mcap.close()
             if self.view is not None:
@@ -132,24 +155,34 @@ class Run:
         return {lk.name: s for lk, s in zip(self.links, sums)} if self.arm else sums[0]
 
 
-def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario="stationary", rig=None,
+def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario=None, rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
-             mcap=None, overwrite: bool = False) -> Run:
+             mcap=None, overwrite: bool = False, realtime: bool = False) -> Run:
     """Open a skin on a device.
 
-    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario``, whose layout
-    must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
+    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario`` (stationary),
+    whose layout must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
     links file (``live --links``), its links' artifacts the file's or ``link_artifacts``.  ``device``: ``"sim"``/
     ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
     jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
     ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
-    ``overwrite``), opened and locked here.
+    ``overwrite``), opened and locked here.  ``realtime``: real-time scheduling of the audio and processing threads
+    (:func:`sonicskin.acquire.realtime_thread`; what they got: :attr:`Run.granted`, and one line on stderr).
     """
     check_blocksize(blocksize)
     sim = simulated(device)
+    if realtime and fast and sim:
+        raise UsageError("--realtime/realtime= schedules a run at the sample rate, --fast/fast= runs as fast as it goes; "
+                         "drop one of them")
     given = load_config(Rig.load, rig) if isinstance(rig, (str, Path)) else rig
     spec = links if links is not None else arm_file_of(artifact) if artifact is not None else None
+    if links is not None and artifact is not None:
+        raise UsageError(f"--artifact {artifact} with --links {links}: an arm's links carry their artifacts (its arm file's "
+                         f"`artifact:`, or --link-artifact DIR once per link); drop --artifact")
+    if spec is not None and (tx or rx or scenario is not None):
+        raise UsageError(f"{spec} is an arm: each link takes its channels and its simulated wall from the arm file (tx:, "
+                         f"rx:, scenario:); drop --tx/--rx/--scenario (tx=, rx=, scenario=)")
     if spec is not None:
         the_rig, lks = load_arm(spec, given)
         if sim and any(lk.scenario is None for lk in lks):
@@ -158,14 +191,16 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
                              f"lists the arms, e.g. --links arm6)")
     else:  # one artifact: an arm of one link (its rig: the given one, else the artifact's own, else jaco to train one)
         the_rig = given if given is not None or artifact is not None else Rig.load("jaco")
-        lks = [Link(tx=tx, rx=rx, name="skin", scenario=load_config(Scenario.load, scenario) if sim else None,
+        lks = [Link(tx=tx, rx=rx, name="skin", scenario=load_config(Scenario.load, scenario or "stationary") if sim else None,
                     artifact=artifact)]
     writer = None
     if mcap is not None:
         _require_frames(lks, spec)
         writer = McapEventWriter(mcap, t0_unix_s=time.time(), overwrite=overwrite)  # a bad or taken path: refused now
     try:
-        return _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer)
+        run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer)
+        run.source.rt_sched = run.realtime = bool(realtime)
+        return run
     except BaseException:
         if writer is not None:
             writer.discard()  # nothing recorded: no file left behind
@@ -176,6 +211,8 @@ def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksi
     arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
     runtimes = [SkinRuntime(Path(art), model or BASELINE, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
     the_rig = the_rig or runtimes[0].rig
+    for lk, rt in zip(lks if spec else [], runtimes):
+        _check_trained_for(spec, lk, rt, lks)
     if not sim:
         return Run(lks, runtimes, open_source(the_rig, device, lks, blocksize=blocksize), the_rig, spec, mcap=writer)
     for lk, rt in zip(lks, runtimes):
@@ -192,6 +229,26 @@ def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksi
 
     source = open_source(the_rig, device, lks, play=play, blocksize=blocksize, realtime=not fast, drop_every=drop_every)
     return Run(lks, runtimes, source, the_rig, spec, [(lk.name, live_scenario(lk.scenario)) for lk in lks], mcap=writer)
+
+
+def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> None:
+    """An arm's link runs an artifact trained for it: one trained for another link or wall (what its ``training`` block
+    records, :func:`sonicskin.dataset.wall_record`) is refused; one that records neither (older) is warned about."""
+    tr = rt.meta["training"]
+    rec, wall = tr.get("link") if isinstance(tr.get("link"), dict) else {}, tr.get("wall")
+    fix = (f"give each link its own artifact (--link-artifact DIR once per link, in the order "
+           f"{', '.join(x.name for x in links)}), or train this link: `sonicskin fit-svm --links {spec} --data DIR --out ART`")
+    if not rec and not isinstance(wall, dict):
+        return warnings.warn(f"link {lk.name!r}: {rt.folder} does not record which link and wall it was trained for (an "
+                             f"artifact from before sonicskin recorded them), so it is not checked against this link; {fix}",
+                             stacklevel=4)
+    mine = wall_record({"kind": "simulator", "scenario": lk.scenario.to_dict()}, rt.rig, rt.layout) if lk.scenario else None
+    other = [f"link {brief(rec['name'])}"] if rec.get("name") not in (None, lk.name) else []
+    other += [f"frame {brief(rec['frame'])}"] if rec.get("frame") not in (None, lk.frame) else []
+    if mine and isinstance(wall, dict) and wall.get("sha256") != mine["sha256"]:
+        other.append(f"another wall ({brief(wall.get('what'))}; this link's: {mine['what']})")
+    if other:
+        raise UsageError(f"link {lk.name!r}: {rt.folder} was trained for {' and '.join(other)}, not this link; {fix}")
 
 
 def _require_frames(links: list[Link], spec) -> None:

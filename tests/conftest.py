@@ -39,7 +39,8 @@ def cli_files(tmp_path_factory) -> dict[str, Path]:
 # chirps), DDP starts two training processes.  Marked slow and serial here: `make test` runs them after
 # the parallel part, alone (`-m serial`).
 _SERIAL = {"test_end_to_end_through_jack", "test_rig_check_through_jack",
-           "test_rig_check_through_jack_names_a_rate_the_server_does_not_run", "test_train_ddp_two_cpu_processes"}
+           "test_rig_check_through_jack_names_a_rate_the_server_does_not_run", "test_train_ddp_two_cpu_processes",
+           "test_live_exits_when_its_jack_server_dies"}
 _LONGEST = {"test_reproduce.py"}  # handed out first: the quick reproduction is most of the suite's time
 
 

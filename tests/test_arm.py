@@ -17,6 +17,7 @@ from sonicskin.acquire import SimulatedSource
 from sonicskin.cli import main
 from sonicskin.links import load_links
 from sonicskin.rig import Rig, config_dir
+from sonicskin.session import open_run
 from sonicskin.sim import Simulator, build_timeline
 
 FAST = Rig.load("fast")
@@ -138,6 +139,10 @@ def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, cap
     arm = tmp_path / "art" / "arm.yaml"
     written = yaml.safe_load(arm.read_text())
     assert [d["artifact"] for d in written["links"]] == ["upper", "plate"] and written["rig"]["name"] == "fast"
+    trained = json.loads((tmp_path / "art" / "plate" / "skin.json").read_text())["training"]  # the link it is for
+    assert trained["link"] == {"name": "plate", "frame": "plate_link"} and trained["wall"]["what"].startswith("aluminium plate")
+    with pytest.raises(ValueError, match="link 'upper': .* was trained for link 'plate' and frame 'plate_link' and another wall"):
+        open_run(links=f, link_artifacts=[tmp_path / "art" / "plate", tmp_path / "art" / "upper"], fast=True)
     capsys.readouterr()
     assert main(["live", "--links", str(arm), "--fast", "--duration", "14", "--no-status"]) == 0
     out = capsys.readouterr()
@@ -212,13 +217,63 @@ def test_live_on_an_untrained_simulated_arm_trains_each_link_once(tmp_path, caps
     assert {json.loads(x)["link"] for x in out.out.splitlines()} == {"a", "b"}
     assert main(["live", "--links", str(f), "--fast", "--duration", "6", "--no-status"]) == 0
     assert "using artifacts/sim-t-b-svm, trained on the simulated 't-b' link by an earlier run" in capsys.readouterr().err
+    # issue 37: the two links share a layout, not a wall; their artifacts swapped ran (every touch at the wrong marker)
+    code = main(["live", "--links", str(f), "--fast", "--duration", "6", "--no-status", "--link-artifact",
+                 "artifacts/sim-t-b-svm", "--link-artifact", "artifacts/sim-t-a-svm"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and (
+        "sonicskin live: error: link 'a': artifacts/sim-t-b-svm was trained for another wall ('aluminium tube radius 3.75 "
+        "cm x length 25 cm'; this link's: cfrp tube radius 3.75 cm x length 25 cm), not this link; give each link its own "
+        "artifact (--link-artifact DIR once per link, in the order a, b), or train this link: `sonicskin fit-svm --links "
+        f"{f} --data DIR --out ART`") in err, err
+
+
+def test_an_artifact_trained_for_another_link_is_refused_and_an_older_one_warned_about(tmp_path):
+    """What an artifact's training block records (the link's name and frame from fit-svm/record --links, the wall's
+    fingerprint always) is checked against the arm's link it is given to; an artifact that records neither (older) runs
+    with a warning that says how to have it checked."""
+    from types import SimpleNamespace
+
+    from sonicskin.dataset import wall_record
+    from sonicskin.session import _check_trained_for
+
+    links = load_links(_arm_file(tmp_path, [{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "seed": 1}},
+                                            {"name": "b", "tx": 1, "rx": 1, "frame": "b_frame",
+                                             "scenario": {**TINY, "material": "aluminium"}}]), FAST)
+    a, b = links
+    lay = a.scenario.make_layout()
+    wall_a = wall_record({"kind": "simulator", "scenario": a.scenario.to_dict()}, FAST, lay)
+    wall_b = wall_record({"kind": "simulator", "scenario": b.scenario.to_dict()}, FAST, lay)
+    assert wall_a["sha256"] != wall_b["sha256"] and wall_a["what"] == "cfrp tube radius 3.75 cm x length 25 cm"
+    # the same wall of another session or person is the same wall
+    assert wall_record({"kind": "simulator", "scenario": a.scenario.replace(seed=9, sessions=3).to_dict()}, FAST,
+                       lay) == wall_a
+
+    def rt(**training):
+        return SimpleNamespace(meta={"training": training}, folder=tmp_path / "art", rig=FAST, layout=lay)
+
+    _check_trained_for("arm.yaml", a, rt(link={"name": "a", "frame": "a_link"}, wall=wall_a), links)  # its own: runs
+    _check_trained_for("arm.yaml", b, rt(wall=wall_b), links)  # trained without --links: its wall is checked
+    for training, why in [({"link": {"name": "b", "frame": "b_frame"}, "wall": wall_b},
+                           "link 'b' and frame 'b_frame' and another wall"),
+                          ({"link": {"name": "a", "frame": "x_link"}, "wall": wall_a}, "frame 'x_link'"),
+                          ({"wall": wall_b}, "another wall")]:
+        with pytest.raises(ValueError) as e:
+            _check_trained_for("arm.yaml", a, rt(**training), links)
+        assert str(e.value).startswith(f"link 'a': {tmp_path / 'art'} was trained for {why}") and "\n" not in str(e.value)
+    real = [lk.__class__(lk.tx, lk.rx, name=lk.name, frame=lk.frame) for lk in links]  # a real arm: names and frames
+    _check_trained_for("arm.yaml", real[1], rt(link={"name": "b", "frame": "b_frame"}, wall=wall_b), real)
+    with pytest.raises(ValueError, match="was trained for link 'a' and frame 'a_link', not this link"):
+        _check_trained_for("arm.yaml", real[1], rt(link={"name": "a", "frame": "a_link"}, wall=wall_a), real)
+    with pytest.warns(UserWarning, match=r"link 'a': .* does not record which link and wall it was trained for \(an "
+                                         r"artifact from before sonicskin recorded them\), so it is not checked"):
+        _check_trained_for("arm.yaml", a, rt(), links)
 
 
 def test_mcap_needs_every_link_in_a_frame(tmp_path):
     """MCAP writes touches in the links' frames: an arm whose links have no surface (a real interface's links file) is
     refused in one line that names those links and how to place them, and so is a single artifact, before any device,
     artifact or training is touched (``--mcap`` and ``mcap=`` alike: both open the run through session.open_run)."""
-    from sonicskin.session import open_run
 
     f = tmp_path / "links.yaml"
     f.write_text(yaml.safe_dump({"duplex": "none", "links": [{"name": "a", "tx": 0, "rx": 0}, {"name": "b", "tx": 1, "rx": 1}]}))

@@ -178,3 +178,46 @@ def test_live_publishes_on_lab_streaming_layer(cli_files, capsys):
     assert result["r"][0] == 0
     assert samples and all(validate_event(d) is None for d in samples)
     assert any(d["kind"] == "touch" for d in samples)
+
+
+def _scripted_loop(cli_files, script, force=True):
+    """A live loop whose stream says, chirp after chirp, ``script``: (touched, marker, force N); its events."""
+    import numpy as np
+
+    from sonicskin import acquire
+    from sonicskin.dsp import rig_chirp
+    from sonicskin.head.heads import Predictions
+    from sonicskin.live import LiveLoop
+    from sonicskin.rig import Rig
+    from sonicskin.runtime import SkinRuntime
+
+    rig = Rig.load(cli_files["rig"])
+    loop = LiveLoop(SkinRuntime(cli_files["artifact"], "svm"), acquire._QueueSource(rig, 1024), emit=lambda line: None)
+    said = iter(script)
+
+    def chirp(x, t_s):
+        touched, marker, f = next(said)
+        return Predictions(np.array([touched]), np.array([marker]), np.array([[1.2 * marker, 12.5]]),
+                           np.array([f if force else math.nan]), np.array([0.9]), np.zeros((1, 3)))
+
+    loop.stream.chirp = chirp
+    frame = (rig_chirp(rig) * 0.1).astype(np.float32)
+    evs = [loop.process_frame(k * rig.n_chirp, frame, time.perf_counter()) for k in range(len(script))]
+    return [(e.kind, e.location, e.force_n) for e in evs if e is not None]
+
+
+def test_a_release_names_its_press_and_a_0_n_blip_is_no_press(cli_files):
+    """Issue 37: a release named the marker of the press's last chirp (touch marker 30 ... release marker 5), and a
+    press could open with a one-chirp 0 N touch at another marker.  A press opens at its first touched chirp with a
+    force (at once) or at its second touched chirp; its release names the marker most of its chirps named."""
+    no, touch = (False, 0, 0.0), lambda m, f=3.0: (True, m, f)
+    events = _scripted_loop(cli_files, [no, touch(2, 0.0), touch(1), touch(1), touch(1), touch(0, 1.0), no,
+                                        no, touch(0, 0.0), no,                 # a one-chirp 0 N blip: no press at all
+                                        touch(2), touch(2, 0.0), touch(1), no,  # firm at once: it opens at its first chirp
+                                        touch(1, 0.0), touch(1, 0.0), touch(0, 0.0), no])  # 0 N throughout: the second
+    assert events == [("touch", 1, 3.0), ("touch", 1, 3.0), ("touch", 1, 3.0), ("touch", 0, 1.0), ("release", 1, 0.0),
+                      ("touch", 2, 3.0), ("touch", 2, 0.0), ("touch", 1, 3.0), ("release", 2, 0.0),
+                      ("touch", 1, 0.0), ("touch", 0, 0.0), ("release", 1, 0.0)]
+    # without a force model every press opens at its second touched chirp
+    events = _scripted_loop(cli_files, [no, touch(2), touch(1), touch(1), no, touch(0), no], force=False)
+    assert [(k, m) for k, m, _ in events] == [("touch", 1), ("touch", 1), ("release", 1)]

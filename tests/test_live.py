@@ -6,6 +6,7 @@ import os
 import shutil
 import socket
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -592,3 +593,59 @@ def test_a_pause_longer_than_alpha_reboots_alike_live_and_offline(rig, artifact)
         np.testing.assert_array_equal(off.calibrating, cal)
         np.testing.assert_array_equal(off.touch[~cal], [p.touch[0] for p in one if p is not None])
         np.testing.assert_array_equal(off.location[~cal], [p.location[0] for p in one if p is not None])
+
+
+_DEAD_SERVER_LIVE = """
+import functools, sys
+import numpy as np
+from sonicskin import acquire
+from sonicskin.dsp import rig_chirp
+from sonicskin.rig import Rig
+rig = Rig.load("jaco")  # the chirp through a made-up wall on the output, so the loopback sounds like a link
+h = np.random.default_rng(0).normal(size=400) * np.exp(-np.arange(400) / 80)
+period = np.real(np.fft.ifft(np.fft.fft(rig_chirp(rig)) * np.fft.fft(h, rig.n_chirp))).astype(np.float32)
+acquire.SoundDeviceSource = functools.partial(acquire.SoundDeviceSource, playback=0.3 * period / np.abs(period).max())
+from sonicskin.cli import main
+raise SystemExit(main(["live", "--device", "system", "--artifact", sys.argv[1], "--duration", "60", "--watchdog", "2",
+                       "--no-status"]))
+"""
+
+
+def test_live_exits_when_its_jack_server_dies(rig, artifact, tmp_path):
+    """Issue 37: `live --device system` whose JACK server died mid-run printed its error and summary, then never exited
+    (PortAudio's terminate hangs at interpreter exit): a supervisor that restarts the sensor waited forever.  It exits
+    now, with the error's code 2."""
+    if shutil.which("jackd") is None:
+        pytest.skip("JACK is not installed (apt-get install jackd2); .ci/run installs it")
+    env, live = dict(os.environ, JACK_DEFAULT_SERVER=f"sonicskin-dies-{os.getpid()}"), None
+    server = subprocess.Popen(["jackd", "-n", env["JACK_DEFAULT_SERVER"], "--no-realtime", "-d", "dummy", "-r",
+                               str(int(rig.fs_hz)), "-p", str(JACK_PERIOD)], env=env, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(50):
+            if subprocess.run(["jack_lsp"], env=env, capture_output=True).returncode == 0:
+                break
+            time.sleep(0.1)
+        else:
+            pytest.skip("jackd did not start with the dummy driver at 192 kHz")
+        live = subprocess.Popen([sys.executable, "-c", _DEAD_SERVER_LIVE, str(artifact)], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        for _ in range(300):  # its client's ports, then wired out -> in
+            ports = subprocess.run(["jack_lsp"], env=env, capture_output=True, text=True).stdout.split()
+            if any(p.startswith("PortAudio") and ":in_" in p for p in ports):
+                break
+            time.sleep(0.1)
+        client = next(p for p in ports if p.startswith("PortAudio")).split(":")[0]
+        subprocess.run(["jack_disconnect", "system:capture_1", f"{client}:in_0"], env=env, capture_output=True)
+        subprocess.run(["jack_connect", f"{client}:out_0", f"{client}:in_0"], env=env, capture_output=True)
+        time.sleep(4)
+        server.terminate()  # the audio server goes away mid-run
+        out, err = live.communicate(timeout=120)  # a hang guard (it hung for ever), not a speed bound
+    finally:
+        for p in (server, live):
+            if p is not None:
+                p.kill()
+                p.wait()
+    lines = err.strip().splitlines()
+    assert live.returncode == 2 and lines[-1].startswith("sonicskin live: error: no audio from the device for 2 s"), err
+    assert lines[-2].startswith('{"summary"') and json.loads(lines[-2])["summary"]["chirps"] > 0

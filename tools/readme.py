@@ -25,7 +25,7 @@ documents as they are by then (edits made meanwhile are kept).
 
     python tools/readme.py            # make docs: run the blocks, rewrite the documents and docs/*.png
     python tools/readme.py --full     # the same, every block as written (hours: the seed sweeps)
-    python tools/readme.py --check    # what the test does: small variants, compare exact outputs
+    python tools/readme.py --check    # small variants, compare exact outputs (the test: the blocks that train nothing)
     python tools/readme.py --list     # the blocks in the order they run
     python tools/readme.py --only spectra wav   # re-run blocks that need nothing before them
 """

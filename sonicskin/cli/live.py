@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..acquire import DeviceLost, check_blocksize
+from ..acquire import DeviceLost, check_blocksize, exit_unhung
 from ..check import analyse, capture
 from ..errors import UsageError
 from ..jsonio import json_safe
@@ -66,7 +66,7 @@ def cmd_live(a: argparse.Namespace) -> int:
         sinks.append(LslSink(a.lsl))
     run = open_run(a.artifact, links=a.links, device=a.device, model=a.model, scenario=a.scenario, rig=a.rig, tx=a.tx,
                    rx=a.rx, fast=a.fast, blocksize=a.blocksize, drop_every=a.drop_every, link_artifacts=a.link_artifact,
-                   train=train_oneshot, mcap=a.mcap, overwrite=a.overwrite)
+                   train=train_oneshot, mcap=a.mcap, overwrite=a.overwrite, realtime=a.realtime)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
         print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
@@ -77,11 +77,14 @@ def cmd_live(a: argparse.Namespace) -> int:
     except DeviceLost as e:
         lost, summary = e, run.summary([lp.summary(0.0, 0.0, 0.0) for lp in loops])
     out = {"summary": json_safe(summary)}
+    if run.granted:
+        out["realtime"] = run.granted
     if run.mcap is not None:
         out["mcap"] = {"path": str(a.mcap), "events": run.mcap.written, "messages": run.mcap.messages}
     print(json.dumps(out, allow_nan=False), file=sys.stderr)
     if lost is not None:
         raise lost
+    exit_unhung(0)  # an audio server that died at the end does not hang the exit, nor change its code
     return 0
 
 
@@ -133,7 +136,7 @@ def _record_arm(a: argparse.Namespace) -> int:
             record_session(out, lk.rig or rig, lk.scenario, device=a.device, resume=a.resume, overwrite=a.overwrite,
                            realtime=not a.fast, calibration_s=a.calibration_s, moving_s=a.moving_s, touch_s=a.touch_s,
                            gap_s=a.gap_s, force_csv=a.force_csv, force_serial=a.force_serial, tx=lk.tx, rx=lk.rx,
-                           passes=a.passes,
+                           passes=a.passes, link=lk,
                            artifact=None if a.no_artifact else Path(f"{out}-artifact"))
     print(f"{len(links)} links recorded under {root}/<link>; train the arm: `sonicskin fit-svm --links {a.links} --data "
           f"{root} --out ART`", file=sys.stderr)

@@ -96,7 +96,8 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
         print(f"link {lk.name}: training on {data / lk.name}", file=sys.stderr)
         with removed_on_failure(out / lk.name):
             build_svm_artifact(data / lk.name, out / lk.name, n_bins=n_bins, mode=a.mode or "relative",
-                               train_sessions=a.train, **alg2_options(a))
+                               train_sessions=a.train, training={"link": {"name": lk.name, "frame": lk.frame}},
+                               **alg2_options(a))
         arts[lk.name] = out / lk.name
     path = write_arm(a.links, out, arts, rig)
     print(f"arm file written to {path}: run it with `sonicskin live --links {path}`")

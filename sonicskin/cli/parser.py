@@ -314,8 +314,7 @@ def _device_verbs(sub) -> None:
                                        "later)")
     lv.add_argument("--model", metavar="KIND", help="which model of the artifact: svm (the paper's), lda (the closed-form LDA) or net "
                                                     "(the network) (default: svm)")
-    lv.add_argument("--scenario", default="stationary",
-                    help="simulated device: scenario of the link and the touches (default: stationary)")
+    lv.add_argument("--scenario", help="simulated device: scenario of the link and the touches (default: stationary)")
     lv.add_argument("--rig", help="rig name or YAML path (default: the --artifact's own rig, else jaco)")
     lv.add_argument("--duration", type=positive_float, default=30.0,
                     help="seconds to run, by the clock (--fast: seconds of simulated stream) (default: 30)")
@@ -328,6 +327,9 @@ def _device_verbs(sub) -> None:
                     help="stop with an error when the device (or the simulated one, --fast too) delivers no audio, or no usable chirp, "
                          "for S seconds (default: 3)")
     lv.add_argument("--fast", action="store_true", help="simulated device: run faster than real time (default: real time)")
+    lv.add_argument("--realtime", action="store_true",
+                    help="real-time scheduling (SCHED_FIFO where permitted, e.g. as root; else a higher priority) of the audio "
+                         "and processing threads, for a busy robot PC; one line on stderr says what was granted (default: off)")
     lv.add_argument("--drop-every", type=positive_int, metavar="N",
                     help="simulated device: drop one audio block in N (N >= 2), fault injection (default: none)")
     lv.add_argument("--no-status", action="store_true", help="no status line on stderr (default: one a second)")
