@@ -184,7 +184,7 @@ class Publisher:
         self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
         self._last: dict[str, tuple[float, int]] = {}  # frame_id -> (t_s, state) of its last Contact
         self.static: list[tuple] = []  # the latched messages: (topic, type, msg, ns)
-        self._joints: dict[str, dict] = {}
+        self._urdf, self._joints, self._pending, self._started = None, {}, None, False
         self._closed = False
         self._lock = threading.Lock()
 
@@ -220,19 +220,30 @@ class Publisher:
         raise NotImplementedError
 
     # -- the robot ----------------------------------------------------------------------------------------------------
-    def start(self, urdf: str | Path | None) -> None:
-        """``/robot_description`` (the URDF's text) and ``/tf_static`` (every joint at zero) at the stream's start."""
-        if urdf is not None:
-            text = Path(urdf).read_text()
-            self._joints = urdf_joints(text)
-            self.static = [("/robot_description", STRING, {"data": text}, self._t0_ns),
-                           ("/tf_static", TF, {"transforms": [_joint_tf(j, 0.0, self._t0_ns) for j in self._joints.values()]},
-                            self._t0_ns)]
-        self._call(lambda: [self._put(*m) for m in self.static])
+    def robot(self, urdf: str | Path) -> None:
+        """The arm's URDF: its text for ``/robot_description``, its joints for ``/tf_static`` and :meth:`joints`."""
+        self._urdf = Path(urdf).read_text()
+        self._joints = urdf_joints(self._urdf)
+
+    def start(self) -> None:
+        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state
+        given before it."""
+        t = self._t0_ns
+        if self._urdf is not None:
+            self.static = [("/robot_description", STRING, {"data": self._urdf}, t),
+                           ("/tf_static", TF, {"transforms": [_joint_tf(j, 0.0, t) for j in self._joints.values()]}, t)]
+
+        def send():
+            for m in self.static:
+                self._put(*m)
+            self._started = True
+            if self._pending:
+                self._joint_state(self._pending, t)
+        self._call(send)
 
     def joints(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
         """``/joint_states`` and the ``/tf`` of those joints at ``positions`` (joint name -> rad or m), stamped
-        ``t_unix_s`` (default: now), so a viewer moves the arm."""
+        ``t_unix_s`` (default: now; before the stream starts: at its start), so a viewer moves the arm."""
         moving = sorted(n for n, j in self._joints.items() if j["type"] in ("revolute", "continuous", "prismatic"))
         if not moving:
             raise SonicskinError("joint states move the joints of the arm's URDF, and this run has none (an arm file with "
@@ -243,11 +254,13 @@ class Publisher:
             raise SonicskinError(f"joint positions are a dict of joint name -> finite rad (or m) over the URDF's moving "
                                  f"joints {moving}, got {brief(positions)}")
         ns = round((time.time() if t_unix_s is None else t_unix_s) * 1e9)
+        self._call(lambda: self._joint_state(positions, ns) if self._started else setattr(self, "_pending", dict(positions)))
+
+    def _joint_state(self, positions: dict, ns: int) -> None:
         names = sorted(positions)
-        self._call(lambda: (self._put("/joint_states", JOINTS, {"header": {"stamp": _time(ns)}, "name": names,
-                                                                "position": [float(positions[n]) for n in names]}, ns),
-                            self._put("/tf", TF, {"transforms": [_joint_tf(self._joints[n], positions[n], ns) for n in names]},
-                                      ns)))
+        self._put("/joint_states", JOINTS, {"header": {"stamp": _time(ns)}, "name": names,
+                                            "position": [float(positions[n]) for n in names]}, ns)
+        self._put("/tf", TF, {"transforms": [_joint_tf(self._joints[n], positions[n], ns) for n in names]}, ns)
 
     # -- the skin -----------------------------------------------------------------------------------------------------
     def contact(self, lp, t_s: float, p) -> None:

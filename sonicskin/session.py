@@ -88,7 +88,6 @@ class Run:
     view: ViewServer | None = None
     mcap: McapEventWriter | None = None
     buses: list[Publisher] = dataclasses.field(default_factory=list)  # the live ROS 2 (DDS) and Foxglove publishers
-    urdf: Path | None = None  # the arm's URDF: /robot_description and /tf_static
 
     @property
     def publishers(self) -> list[Publisher]:
@@ -134,7 +133,7 @@ class Run:
             t0 = time.time()  # t_s = 0: the stream starts now
             for pub in self.publishers:
                 pub.t0_unix_s = t0
-                pub.start(self.urdf)
+                pub.start()
             with self.source:
                 return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
                                               stop=stop))
@@ -183,7 +182,9 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         pubs += open_buses(ros2, foxglove)
         run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every,
                     pubs[0] if mcap is not None else None)
-        run.buses, run.urdf = pubs[mcap is not None:], arm_urdf(spec) if spec is not None else None
+        run.buses = pubs[mcap is not None:]
+        for pub in pubs if spec is not None and arm_urdf(spec) is not None else ():
+            pub.robot(arm_urdf(spec))  # /robot_description, /tf_static and the joints set_joint_state moves
         return run
     except BaseException:
         for pub in pubs:

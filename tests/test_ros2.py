@@ -5,6 +5,7 @@ live over DDS (ROS 2 topics, a subscriber in another process) and Foxglove's Web
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -152,3 +153,91 @@ def test_a_live_run_killed_hard_loses_at_most_its_last_second(arm, tmp_path):
     assert max(t for _, _, t, _ in msgs) >= t0_ns + (t_last - 1.0) * 1e9
     bad = subprocess.run([sys.executable, "-m", "sonicskin.rosbag", str(tmp_path / "none.mcap")], capture_output=True, text=True)
     assert bad.returncode == 1 and bad.stderr.startswith("usage: python -m sonicskin.rosbag IN.mcap OUT.mcap")
+
+
+def _matrix(tf) -> np.ndarray:
+    """The 4x4 of a geometry_msgs/Transform (a decoded message or the dict sent)."""
+    g = (lambda o, k: o[k]) if isinstance(tf, dict) else getattr
+    t, q = g(tf, "translation"), g(tf, "rotation")
+    x, y, z, w = (g(q, k) for k in "xyzw")
+    T = np.eye(4)
+    T[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
+    T[:3, 3] = [g(t, k) for k in "xyz"]
+    return T
+
+
+def test_the_robot_its_static_transforms_and_joint_states(arm, tmp_path):
+    """The MCAP file opens with /robot_description (the URDF the arm file names) and /tf_static (every joint at zero);
+    Listener.set_joint_state adds /joint_states and the /tf of those joints: each transform what yourdfpy's forward
+    kinematics of the same URDF gives."""
+    yourdfpy = pytest.importorskip("yourdfpy")
+    from sonicskin.api import Listener
+    from sonicskin.errors import SonicskinError
+
+    urdf = arm.parent / "arm6.urdf"
+    model = yourdfpy.URDF.load(str(urdf), build_scene_graph=True, load_meshes=False)
+    lst = Listener(arm, fast=True, duration_s=6, mcap=tmp_path / "a.mcap")
+    lst.set_joint_state({"elbow_joint": 0.5})  # before the run: sent at its start
+    for bad, why in (({"knee": 1.0}, "'knee'"), ({"elbow_joint": math.nan}, "nan"), ([0.5], "[0.5]"), ({}, "{}")):
+        with pytest.raises(SonicskinError) as e:
+            lst.set_joint_state(bad)
+        assert str(e.value).startswith("joint positions are a dict of joint name -> finite rad (or m) over the URDF's "
+                                       "moving joints ['elbow_joint', 'shoulder_lift_joint', ") and why in str(e.value)
+    from sonicskin.rosbag import McapEventWriter
+
+    with McapEventWriter(tmp_path / "no-urdf.mcap", t0_unix_s=0) as w, pytest.raises(SonicskinError) as e:
+        w.joints({"elbow_joint": 0.5})
+    assert str(e.value).startswith("joint states move the joints of the arm's URDF, and this run has none (an arm file ")
+    later = {"elbow_joint": -0.25, "wrist_roll_joint": 1.0, "shoulder_pan_joint": 2.0}
+    for i, _ in enumerate(lst):
+        if i == 0:
+            lst.set_joint_state(later, t_unix_s=1_800_000_000.5)
+    msgs = _messages(tmp_path / "a.mcap")
+    t0 = round(lst.opened.mcap.t0_unix_s * 1e9)
+    topic, schema, t, desc = msgs[0]
+    assert (topic, schema, t, desc.data) == ("/robot_description", "std_msgs/msg/String", t0, urdf.read_text())
+    assert urdf.read_text() == (REPO / "configs" / "arms" / "arm6.urdf").read_text()
+    topic, schema, t, static = msgs[1]
+    assert (topic, schema, t) == ("/tf_static", "tf2_msgs/msg/TFMessage", t0)
+    assert len(static.transforms) == len(model.joint_map) == 5
+    for tf in static.transforms:
+        j = next(j for j in model.joint_map.values() if j.child == tf.child_frame_id)
+        assert tf.header.frame_id == j.parent and _ns(tf.header.stamp) == t0
+        np.testing.assert_allclose(_matrix(tf.transform), j.origin, atol=1e-12)
+    states = [(t, m) for topic, _, t, m in msgs if topic == "/joint_states"]
+    moved = [(t, m) for topic, _, t, m in msgs if topic == "/tf" and not m.transforms[0].child_frame_id.endswith("_contact")]
+    assert [(t, list(m.name), list(m.position)) for t, m in states] == [
+        (t0, ["elbow_joint"], [0.5]), (1_800_000_000_500_000_000, sorted(later), [later[k] for k in sorted(later)])]
+    assert [t for t, _ in moved] == [t for t, _ in states]
+    for (_, m), cfg in zip(moved, ({"elbow_joint": 0.5}, later)):
+        model.update_cfg({k: cfg.get(k, 0.0) for k in model.actuated_joint_names})
+        assert len(m.transforms) == len(cfg)
+        for tf in m.transforms:
+            np.testing.assert_allclose(_matrix(tf.transform), model.get_transform(tf.child_frame_id, tf.header.frame_id),
+                                       atol=1e-12)
+
+
+def test_joint_transforms_follow_the_urdf_conventions():
+    """rpy origins (URDF's fixed-axis roll, pitch, yaw), revolute and prismatic joints on tilted axes: the transforms
+    published are yourdfpy's."""
+    yourdfpy = pytest.importorskip("yourdfpy")
+    import io
+
+    from sonicskin.rosbag import _joint_tf, urdf_joints
+
+    text = """<robot name="r"><link name="a"/><link name="b"/><link name="c"/><link name="d"/>
+      <joint name="j1" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0.1 -0.2 0.3" rpy="0.3 -1.1 2.5"/>
+        <axis xyz="0.6 0 0.8"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>
+      <joint name="j2" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.05 0" rpy="1.2 0.4 -0.7"/>
+        <axis xyz="0 1 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="j3" type="fixed"><parent link="c"/><child link="d"/><origin rpy="0 1.5707963 0"/></joint></robot>"""
+    model = yourdfpy.URDF.load(io.StringIO(text), build_scene_graph=True, load_meshes=False)
+    joints = urdf_joints(text)
+    for cfg in ({"j1": 0.0, "j2": 0.0}, {"j1": 0.7, "j2": -0.3}, {"j1": -2.9, "j2": 0.9}):
+        model.update_cfg(cfg)
+        for name, j in joints.items():
+            tf = _joint_tf(j, cfg.get(name, 0.0), 0)
+            assert (tf["header"]["frame_id"], tf["child_frame_id"]) == (j["parent"], j["child"])
+            np.testing.assert_allclose(_matrix(tf["transform"]), model.get_transform(j["child"], j["parent"]), atol=1e-9)
