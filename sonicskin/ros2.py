@@ -85,10 +85,12 @@ class DdsPublisher(Publisher):
         self._writers: dict = {}
 
     def _send(self, topic: str, typ: str, msg: dict, ns: int, seq: int) -> None:
-        w = self._writers.get(topic) or self._writer(topic, typ)
-        w.write(dds_type(typ).deserialize(encode(typ, msg)), timestamp=ns)
+        self._open(topic, typ)
+        self._writers[topic].write(dds_type(typ).deserialize(encode(typ, msg)), timestamp=ns)
 
-    def _writer(self, topic: str, typ: str):
+    def _open(self, topic: str, typ: str) -> None:
+        if topic in self._writers:
+            return
         from cyclonedds.pub import DataWriter
         from cyclonedds.qos import Policy, Qos
         from cyclonedds.topic import Topic
@@ -99,7 +101,6 @@ class DdsPublisher(Publisher):
                Qos(reliable, Policy.Durability.Volatile, Policy.History.KeepLast(100)) if topic in RELIABLE else
                Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile, Policy.History.KeepLast(10)))
         self._writers[topic] = DataWriter(self._dp, Topic(self._dp, "rt" + topic, dds_type(typ)), qos=qos)
-        return self._writers[topic]
 
     def _end(self) -> None:
         self._writers.clear()
@@ -134,10 +135,13 @@ class FoxglovePublisher(Publisher):
         self.url = self.name = f"ws://127.0.0.1:{self.server.port}"
 
     def _send(self, topic: str, typ: str, msg: dict, ns: int, seq: int) -> None:
+        self._open(topic, typ)
+        self._channels[topic].log(encode(typ, msg), log_time=ns)
+
+    def _open(self, topic: str, typ: str) -> None:
         if topic not in self._channels:
             schema = self._fg.Schema(name=typ, encoding="ros2msg", data=definition(typ).encode())
             self._channels[topic] = self._fg.Channel(topic, schema=schema, message_encoding="cdr", context=self._ctx)
-        self._channels[topic].log(encode(typ, msg), log_time=ns)
 
     def _end(self) -> None:
         self.server.stop()

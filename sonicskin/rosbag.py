@@ -41,7 +41,8 @@ try:
 except ImportError:  # not POSIX: a second writer on one file is not refused
     fcntl = None
 
-__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "definition", "encode", "recover", "urdf_joints"]
+__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover",
+           "urdf_joints"]
 
 _SEP = "=" * 80
 _PRIMITIVES = {"bool", "byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32",
@@ -170,6 +171,13 @@ def _joint_tf(j: dict, pos: float, ns: int) -> dict:
     return _transform(j["parent"], j["child"], xyz, q, ns)
 
 
+def topics(frames: list[str]) -> dict[str, str]:
+    """Every topic a run of links in ``frames`` sends on, with its type."""
+    per_link = (("contact", CONTACT), ("contact_point", POINT), ("contact_wrench", WRENCH))
+    return {"/robot_description": STRING, "/tf_static": TF, "/tf": TF, "/joint_states": JOINTS, MARKER_TOPIC: MARKERS,
+            **{topic_for(f, what): typ for f in frames for what, typ in per_link}}
+
+
 class Publisher:
     """The messages of a run (module docstring), sent by a subclass's ``_send(topic, type, msg, ns, seq)``;
     ``t0_unix_s``: the wall-clock time of the stream's ``t_s = 0``.  Thread-safe: the loops of all links share one."""
@@ -220,10 +228,17 @@ class Publisher:
         raise NotImplementedError
 
     # -- the robot ----------------------------------------------------------------------------------------------------
-    def robot(self, urdf: str | Path) -> None:
-        """The arm's URDF: its text for ``/robot_description``, its joints for ``/tf_static`` and :meth:`joints`."""
-        self._urdf = Path(urdf).read_text()
-        self._joints = urdf_joints(self._urdf)
+    def announce(self, frames: list[str], urdf: str | Path | None = None) -> None:
+        """Before the run: open every topic of the links in ``frames`` (a live bus's subscribers match them before the
+        first message), and read the arm's ``urdf`` (``/robot_description``, ``/tf_static``, :meth:`joints`)."""
+        if urdf is not None:
+            self._urdf = Path(urdf).read_text()
+            self._joints = urdf_joints(self._urdf)
+        for topic, typ in topics(frames).items():
+            self._open(topic, typ)
+
+    def _open(self, topic: str, typ: str) -> None:
+        pass
 
     def start(self) -> None:
         """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state

@@ -180,11 +180,11 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         if mcap is not None:
             pubs.append(McapEventWriter(mcap, t0_unix_s=time.time(), overwrite=overwrite))
         pubs += open_buses(ros2, foxglove)
+        for pub in pubs:  # every link's topics, and the arm's URDF: /robot_description, /tf_static, set_joint_state
+            pub.announce([lk.surface.frame_id for lk in lks], arm_urdf(spec))
         run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every,
                     pubs[0] if mcap is not None else None)
         run.buses = pubs[mcap is not None:]
-        for pub in pubs if spec is not None and arm_urdf(spec) is not None else ():
-            pub.robot(arm_urdf(spec))  # /robot_description, /tf_static and the joints set_joint_state moves
         return run
     except BaseException:
         for pub in pubs:

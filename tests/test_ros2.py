@@ -241,3 +241,257 @@ def test_joint_transforms_follow_the_urdf_conventions():
             tf = _joint_tf(j, cfg.get(name, 0.0), 0)
             assert (tf["header"]["frame_id"], tf["child_frame_id"]) == (j["parent"], j["child"])
             np.testing.assert_allclose(_matrix(tf["transform"]), model.get_transform(j["child"], j["parent"]), atol=1e-9)
+
+
+# -- live: ROS 2 over DDS ---------------------------------------------------------------------------------------------
+# Cyclone DDS on the loopback interface alone, discovery by unicast to 127.0.0.1: nothing leaves this machine.
+LOOPBACK = ('<CycloneDDS><Domain Id="any"><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
+            '<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>'
+            '<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex><Peers><Peer address="127.0.0.1"/></Peers></Discovery>'
+            '</Domain></CycloneDDS>')
+FRAMES = ["forearm_link", "hand_plate"]
+
+
+@pytest.fixture(scope="module")
+def dds_run(arm, tmp_path_factory):
+    """`live --ros2 DOMAIN --mcap F` on the arm while tests/ros2_subscriber.py subscribes in another process: what it
+    received and what discovery announced, the run's MCAP file, and the run's stderr."""
+    pytest.importorskip("cyclonedds")
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from sonicskin.rosbag import topics
+
+    root = tmp_path_factory.mktemp("dds")
+    domain = 100 + os.getpid() % 100  # its own domain: another test run on this machine does not cross it
+    env = {**os.environ, "CYCLONEDDS_URI": LOOPBACK}
+    (root / "topics.json").write_text(json.dumps(topics(FRAMES)))
+    sub = subprocess.Popen([sys.executable, str(REPO / "tests" / "ros2_subscriber.py"), str(domain), str(root / "topics.json"),
+                            str(root / "got.json"), str(root / "stop")], env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert sub.stdout.readline().strip() == "ready"
+        run = subprocess.run([sys.executable, "-m", "sonicskin", "live", "--links", str(arm), "--fast", "--duration", "6",
+                              "--no-status", "--ros2", str(domain), "--mcap", str(root / "run.mcap")], env=env,
+                             capture_output=True, text=True, timeout=600)
+        assert run.returncode == 0, run.stderr[-2000:]
+        time.sleep(1.0)  # what is still in the subscriber's socket reaches its readers
+        (root / "stop").touch()
+        assert sub.wait(timeout=120) == 0
+    finally:
+        sub.kill()
+    return json.loads((root / "got.json").read_text()), root / "run.mcap", run.stderr
+
+
+def test_a_ros2_subscriber_in_another_process_receives_every_message(dds_run):
+    """Every message of the run's MCAP file reaches the subscriber over DDS, byte for byte, and ROS 2's own types
+    (rosbags' Jazzy store, sonicskin_msgs from its .msg) decode each one."""
+    import base64
+
+    rosbags = pytest.importorskip("rosbags.typesys")
+    from mcap.reader import make_reader
+
+    got, mcap, stderr = dds_run
+    assert "sonicskin live: the ROS 2 publisher is on DDS domain" in stderr
+    with open(mcap, "rb") as f:
+        sent = [(c.topic, s.name, m.data) for s, c, m in make_reader(f).iter_messages(log_time_order=False)]  # as sent
+    ts = rosbags.get_typestore(rosbags.Stores.ROS2_JAZZY)
+    ts.register(rosbags.get_types_from_msg((REPO / "sonicskin/msg/sonicskin_msgs/msg/Contact.msg").read_text(),
+                                           "sonicskin_msgs/msg/Contact"))
+    types = dict((t, s) for t, s, _ in sent)
+    assert len(sent) > 500 and {t for t, _, _ in sent} >= {"/robot_description", "/tf_static", "/tf", "/sonicskin/markers",
+                                                            *(f"/sonicskin/{f}/contact{w}" for f in FRAMES
+                                                              for w in ("", "_point", "_wrench"))}
+    for topic in types:
+        mine = [d for t, _, d in sent if t == topic]
+        theirs = [base64.b64decode(x) for x in got["messages"][topic]]
+        assert theirs == mine, (topic, len(theirs), len(mine))  # every message, in order, the same bytes
+        for data in theirs:
+            msg = ts.deserialize_cdr(data, types[topic])
+            assert bytes(ts.serialize_cdr(msg, types[topic])) == data
+    contact = ts.deserialize_cdr(base64.b64decode(got["messages"]["/sonicskin/hand_plate/contact"][-1]),
+                                 "sonicskin_msgs/msg/Contact")
+    assert contact.link == "hand" and contact.header.frame_id == "hand_plate" and contact.model == "svm"
+
+
+def test_ros2_topic_and_type_names_and_qos_are_a_ros2_nodes(dds_run):
+    """What DDS discovery announces is what a ROS 2 node (rmw_cyclonedds, rmw_fastrtps) expects: ``rt/`` topics, types
+    ``pkg::msg::dds_::Type_``, the sensor stream best effort, /tf reliable, the URDF and /tf_static latched."""
+    got, _, _ = dds_run
+    pubs = got["publications"]
+    want = {"rt/robot_description": ["std_msgs::msg::dds_::String_", "Reliable", "TransientLocal"],
+            "rt/tf_static": ["tf2_msgs::msg::dds_::TFMessage_", "Reliable", "TransientLocal"],
+            "rt/tf": ["tf2_msgs::msg::dds_::TFMessage_", "Reliable", "Volatile"],
+            "rt/joint_states": ["sensor_msgs::msg::dds_::JointState_", "Reliable", "Volatile"],
+            "rt/sonicskin/markers": ["visualization_msgs::msg::dds_::MarkerArray_", "BestEffort", "Volatile"]}
+    for f in FRAMES:
+        want |= {f"rt/sonicskin/{f}/contact": ["sonicskin_msgs::msg::dds_::Contact_", "BestEffort", "Volatile"],
+                 f"rt/sonicskin/{f}/contact_point": ["geometry_msgs::msg::dds_::PointStamped_", "BestEffort", "Volatile"],
+                 f"rt/sonicskin/{f}/contact_wrench": ["geometry_msgs::msg::dds_::WrenchStamped_", "BestEffort",
+                                                      "Volatile"]}
+    assert pubs == want
+
+
+def test_bad_bus_options_are_one_line(arm, tmp_path, capsys, monkeypatch):
+    """A domain out of range, a bad ROS_DOMAIN_ID, no cyclonedds or foxglove-sdk installed, a taken or bad Foxglove port:
+    one line each naming the problem and the fix, before the models load."""
+    import subprocess
+    import sys
+
+    cases = [(["--ros2", "300"], "--ros2 300: a ROS 2 domain id is an integer 0-232 (0-101 on every OS), the one the robot's "
+                                 "nodes use (their ROS_DOMAIN_ID)"),
+             (["--ros2", "x"], "--ros2 x: a ROS 2 domain id is an integer 0-232"),
+             (["--foxglove", "70000"], "--foxglove '70000': give a TCP port 1-65535 (or 0 for any free one, or --foxglove "
+                                       "alone for Foxglove's 8765)")]
+    for extra, message in cases:
+        assert main(["live", "--links", str(arm), "--fast", "--duration", "1", "--no-status", *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    monkeypatch.setenv("ROS_DOMAIN_ID", "-3")
+    assert main(["live", "--links", str(arm), "--fast", "--duration", "1", "--no-status", "--ros2"]) == 2
+    assert "ROS_DOMAIN_ID='-3': a ROS 2 domain id is an integer 0-232" in capsys.readouterr().err
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    for module, option, package in (("cyclonedds", "--ros2", "cyclonedds"), ("foxglove", "--foxglove", "foxglove-sdk")):
+        code = (f"import sys; sys.modules[{module!r}] = None  # as if not installed\n"
+                f"from sonicskin.cli import main; sys.exit(main(['live', '--links', {str(arm)!r}, '--fast', '--no-status', "
+                f"{option!r}]))")
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+        assert f"{option}/{option[2:]}= needs {package} (" in r.stderr and r.stderr.strip().endswith(
+            "pip install 'sonicskin[ros]'")
+    pytest.importorskip("foxglove")
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert main(["live", "--links", str(arm), "--fast", "--duration", "1", "--no-status", "--foxglove", str(port),
+                     "--mcap", str(tmp_path / "a.mcap")]) == 2
+        err = capsys.readouterr().err.strip()
+    assert err == (f"sonicskin live: error: --foxglove {port}: cannot serve on 127.0.0.1:{port} (Failed to bind port: "
+                   f"Address already in use (os error 98)); pick another port, or 0 for any free one")
+    assert not (tmp_path / "a.mcap").exists()  # refused before anything was recorded
+
+
+# -- live: Foxglove's WebSocket -----------------------------------------------------------------------------------------
+def _foxglove_client(url: str, got: list, ready, stop) -> None:
+    """A Foxglove WebSocket client: subscribes to every channel the server advertises and keeps each message as
+    (topic, schema name, schema text, log time, payload)."""
+    import struct
+
+    from websockets.sync.client import connect
+
+    channels = {}
+    with connect(url, subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
+        while not stop.is_set():
+            try:
+                m = ws.recv(timeout=0.2)
+            except TimeoutError:
+                ready.set()  # every channel announced so far is subscribed
+                continue
+            except Exception:  # the server stopped: the run is over
+                break
+            if isinstance(m, str):
+                d = json.loads(m)
+                if d["op"] == "advertise":
+                    subs = [{"id": c["id"], "channelId": c["id"]} for c in d["channels"]]
+                    channels |= {c["id"]: c for c in d["channels"]}
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+            elif m[0] == 1:  # message data: opcode, subscription id, log time, payload
+                sub, t = struct.unpack_from("<IQ", m, 1)
+                c = channels[sub]
+                got.append((c["topic"], c["schemaName"], c["schema"], t, bytes(m[13:])))
+                ready.set()
+
+
+def test_a_foxglove_client_subscribes_and_decodes_every_channel(arm, tmp_path):
+    """`foxglove=` serves the run's channels on 127.0.0.1 (ros2msg schemas, cdr messages): a WebSocket client subscribed
+    before the run starts gets every message of the MCAP file, byte for byte, each decoded with its own schema; one
+    that subscribes after the start still gets /robot_description and /tf_static."""
+    pytest.importorskip("foxglove")
+    pytest.importorskip("websockets")
+    import threading
+    import time
+
+    from mcap.reader import make_reader
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    from sonicskin.api import Listener
+
+    lst = Listener(arm, fast=True, duration_s=6, mcap=tmp_path / "a.mcap", foxglove=0)
+    (bus,) = lst.opened.buses
+    assert bus.url.startswith("ws://127.0.0.1:") and bus.server.port > 0
+    got, ready, stop = [], threading.Event(), threading.Event()
+    client = threading.Thread(target=_foxglove_client, args=(bus.url, got, ready, stop), daemon=True)
+    client.start()
+    assert ready.wait(60)
+    events = list(lst)
+    assert len(events) > 20
+    stop.set()
+    client.join(60)
+    with open(tmp_path / "a.mcap", "rb") as f:
+        sent = [(c.topic, s.name, m.log_time, m.data) for s, c, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert [g[:2] + g[3:] for g in got] == sent  # every message, in order, the same bytes and log times
+    decoders = {}
+    for _topic, name, schema, _, data in got:
+        if name not in decoders:
+            decoders[name] = DecoderFactory().decoder_for("cdr", Schema(id=len(decoders) + 1, name=name, encoding="ros2msg",
+                                                                        data=schema.encode()))
+        dec = decoders[name]
+        msg = dec(data)
+        if name == "sonicskin_msgs/msg/Contact":
+            assert msg.header.frame_id in FRAMES and abs(math.hypot(msg.normal.x, msg.normal.y, msg.normal.z) - 1) < 1e-9
+    assert {t for t, *_ in got} >= {"/robot_description", "/tf_static", "/sonicskin/markers", "/sonicskin/hand_plate/contact"}
+    # a client that connects during a run, after the latched messages went out, gets them when it subscribes
+    late, late_ready = [], threading.Event()
+    lst = Listener(arm, fast=False, duration_s=30, foxglove=0)
+    lst.start()
+    for _ in lst:  # the stream is on
+        break
+    stop = threading.Event()
+    client = threading.Thread(target=_foxglove_client, args=(lst.opened.buses[0].url, late, late_ready, stop), daemon=True)
+    client.start()
+    assert late_ready.wait(60)
+    time.sleep(0.5)  # its subscriptions answered
+    lst.stop()
+    stop.set()
+    client.join(60)
+    urdf = [d for t, _, _, _, d in late if t == "/robot_description"]
+    assert len(urdf) == 1 and (arm.parent / "arm6.urdf").read_text() in urdf[0].decode(errors="replace")
+    assert [t for t, *_ in late].count("/tf_static") == 1
+
+
+def test_the_shipped_foxglove_layout_opens_the_3d_panel_on_the_arm():
+    """configs/arms/arm6.foxglove.json is what foxglove-sdk's layout classes write (tools/foxglove_layout.py): a 3D panel
+    following the URDF's root frame, showing the robot from /robot_description, the markers and every link's wrench,
+    beside a plot of every link's contact force."""
+    pytest.importorskip("foxglove.layouts")
+    import subprocess
+    import sys
+
+    from sonicskin.links import load_links
+    from sonicskin.rig import Rig
+    from sonicskin.rosbag import urdf_joints
+
+    r = subprocess.run([sys.executable, str(REPO / "tools" / "foxglove_layout.py"), "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, "the shipped layout differs: run python tools/foxglove_layout.py"
+    layout = json.loads((REPO / "configs" / "arms" / "arm6.foxglove.json").read_text())
+
+    def panels(node):
+        if node.get("type") == "panel":
+            yield node
+        for item in node.get("items", []):
+            yield from panels(item["content"])
+
+    by_type = {p["panelType"]: p["config"] for p in panels(layout["content"])}
+    frames = [lk.surface.frame_id for lk in load_links("arm6", Rig.load("fast"))]
+    joints = urdf_joints((REPO / "configs" / "arms" / "arm6.urdf").read_text())
+    root = ({j["parent"] for j in joints.values()} - {j["child"] for j in joints.values()}).pop()
+    three_d = by_type["ThreeDee"]
+    assert three_d["followTf"] == root == "base_link"
+    assert three_d["topics"]["/robot_description"]["visible"] and three_d["topics"]["/sonicskin/markers"]["visible"]
+    assert all(three_d["topics"][f"/sonicskin/{f}/contact_wrench"]["visible"] for f in frames)
+    assert [p["value"] for p in by_type["Plot"]["paths"]] == [f"/sonicskin/{f}/contact.force_n" for f in frames]
