@@ -326,7 +326,8 @@ class LiveLoop:
         if touch or self.touching:
             ev = TouchEvent(t_s, "touch" if touch else "release", int(p.location[0]), float(p.xy_cm[0, 0]),
                             float(p.xy_cm[0, 1]), float(p.force_n[0]), float(p.confidence[0]), self.rt.kind,
-                            (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
+                            (time.perf_counter() - t_ready) * 1e3, link=self.link_name,
+                            force_reliable=self.rt.m.get("force_reliable"))
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
         self.touching = touch

@@ -495,3 +495,45 @@ def test_the_shipped_foxglove_layout_opens_the_3d_panel_on_the_arm():
     assert three_d["topics"]["/robot_description"]["visible"] and three_d["topics"]["/sonicskin/markers"]["visible"]
     assert all(three_d["topics"][f"/sonicskin/{f}/contact_wrench"]["visible"] for f in frames)
     assert [p["value"] for p in by_type["Plot"]["paths"]] == [f"/sonicskin/{f}/contact.force_n" for f in frames]
+
+
+# -- force you can trust ----------------------------------------------------------------------------------------------
+def test_a_force_no_better_than_a_constant_is_marked_and_its_wrench_not_published(tmp_path, capsys, arm):
+    """arm6's wrist (ABS): the validated force RMSE (3.35 N) is worse than a constant's (2.91 N). fit-svm and compare say
+    so, skin.json marks the SVM's force_reliable false, its events and Contact say so, and no wrench goes out for it;
+    the forearm's force (better than a constant) is marked reliable and its wrenches go out."""
+    from sonicskin.api import Listener
+    from sonicskin.artifact_schema import validate_skin
+    from sonicskin.errors import ArtifactError
+
+    shutil.copyfile(REPO / "configs" / "arms" / "arm6.urdf", tmp_path / "arm6.urdf")
+    wrist = next(d for d in yaml.safe_load((REPO / "configs" / "arms" / "arm6.yaml").read_text())["links"] if d["name"] == "wrist")
+    f = tmp_path / "arm.yaml"
+    f.write_text(yaml.safe_dump({"name": "w", "rig": "fast", "urdf": "arm6.urdf", "duplex": "none",
+                                 "links": [{**wrist, "tx": 0, "rx": 0}]}))
+    assert main(["simulate", "--links", str(f), "--out", str(tmp_path / "data"), "--quiet"]) == 0
+    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "art"), "--n-bins",
+                 "300"]) == 0
+    line = ("svm force UNRELIABLE: validated RMSE 3.35 N, a constant's 2.91 N (its events say force_reliable false; no "
+            "wrench is published)")
+    assert line in capsys.readouterr().out
+    skin = json.loads((tmp_path / "art" / "wrist" / "skin.json").read_text())
+    assert skin["models"]["svm"]["force_reliable"] is False
+    assert json.loads((arm.parent / "forearm" / "skin.json").read_text())["models"]["svm"]["force_reliable"] is True
+    assert main(["compare", "--data", str(tmp_path / "data" / "wrist"), "--artifact", str(tmp_path / "art" / "wrist"),
+                 "--test", "s001", "--out", str(tmp_path / "cmp")]) == 0
+    assert f"expected at training: {line}" in capsys.readouterr().out
+    with pytest.raises(ArtifactError, match=r"models.svm.force_reliable must be true or false, got 'no'"):
+        validate_skin({**skin, "models": {"svm": {**skin["models"]["svm"], "force_reliable": "no"}}})
+    events = list(Listener(tmp_path / "art", fast=True, duration_s=8, mcap=tmp_path / "w.mcap"))
+    assert len(events) > 20 and all(ev.force_reliable is False and '"force_reliable": false' in ev.to_json() for ev in events)
+    msgs = _messages(tmp_path / "w.mcap")
+    topics = {topic for topic, *_ in msgs}
+    assert "/sonicskin/wrist_link/contact_point" in topics and "/sonicskin/wrist_link/contact_wrench" not in topics
+    contacts = [m for topic, _, _, m in msgs if topic == "/sonicskin/wrist_link/contact"]
+    assert contacts and not any(m.force_reliable for m in contacts)
+    arrows = [m.markers[0] for topic, _, _, m in msgs if topic == "/sonicskin/markers" and m.markers[0].action == 0]
+    for a in arrows:  # the arrow says where, not how hard: its base length
+        assert math.dist(*([p.x, p.y, p.z] for p in a.points)) == pytest.approx(0.01)
+    events = list(Listener(arm, fast=True, duration_s=6))  # the trusted links
+    assert events and all(ev.force_reliable is True for ev in events)
