@@ -115,7 +115,8 @@ class Run:
             lp.on_chirp = lambda t_s, p, lp=lp: [pub.contact(lp, t_s, p) for pub in self.publishers]
         if view is not None and view is not False:
             try:
-                self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view))
+                self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view),
+                                       urdf=arm_urdf(self.spec) if self.arm else None)
             except BaseException:  # e.g. a taken port: the run never starts, so nothing of it is written
                 for pub in self.publishers:
                     pub.discard()

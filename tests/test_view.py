@@ -73,9 +73,12 @@ def test_touch_and_release_in_the_state():
     assert t["location"] == 14 and t["x_cm"] == pytest.approx(13.8) and t["y_cm"] == pytest.approx(15.3)
     assert t["force_n"] == 3.25 and t["t_s"] == 1.5 and s["links"]["forearm"]["touch"] is None
     assert s["seq"] > s0["seq"] and s["links"]["hand-plate"]["touches"] == 1
+    view.push_event(_event(plate, 14, force=3.5, t=1.55))  # the same press, its next chirp
     view.push_event(_event(plate, 14, kind="release", t=1.6))
     s = view.state()
-    assert s["links"]["hand-plate"]["touch"] is None and [e["kind"] for e in s["events"]] == ["release", "touch"]
+    assert s["links"]["hand-plate"]["touch"] is None and [e["kind"] for e in s["events"]] == ["release", "touch", "touch"]
+    view.push_event(_event(plate, 3, t=2.5))
+    assert view.state()["links"]["hand-plate"]["touches"] == 2  # the counter counts presses, not touched chirps
     # a tube's x wraps at its circumference; the list keeps the last ten, newest first
     C = tube.layout.circumference_cm
     view.push_event(TouchEvent(2.0, "touch", 0, C + 1.0, 12.0, 1.0, 0.9, "svm", 0.5, link="forearm"))
@@ -286,7 +289,7 @@ def test_events_from_many_threads_while_pages_read():
         r.join()
         s = view.state()
     assert s["seq"] == 600 and len(s["events"]) == 600
-    assert s["links"]["forearm"]["touches"] == 400 and s["links"]["hand-plate"]["touches"] == 200
+    assert s["links"]["forearm"]["touches"] == s["links"]["hand-plate"]["touches"] == 1  # one press each, never released
     assert reads == sorted(reads)
 
 
@@ -411,6 +414,64 @@ def _run_and_read(view, src, runner, held, go, seen, rt, tl, rig):
         assert _dots(b) == [] and seen[1].kind == "release"
         go.set()
         runner.join(timeout=300)
+
+
+@needs_chromium
+def test_the_arm_is_drawn_in_3d_with_every_link_and_the_touch_with_its_arrow():
+    """arm6 as docs/view.png shows it (tools/view_screenshot.py), read from the page at 1280 x 800: the six skins drawn in
+    3D in their URDF frames, each whole in the window and named; the touch at its point (metres, placed by the URDF's
+    joints) with an arrow along the link's outward normal, 5 cm + 2 cm per N; the counters count presses."""
+    import importlib.util
+
+    from sonicskin.rosbag import _joint_tf, urdf_joints
+
+    spec = importlib.util.spec_from_file_location("view_screenshot", REPO / "tools" / "view_screenshot.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    view, events = tool.view_of_arm6()
+    with view, Browser(window=(1280, 800)) as b:
+        b.open(view.url, ready="document.querySelectorAll('#mesh3d g.skin').length === 6 && document.body.dataset.seq")
+        b.advance(1000)
+        skins = b.js("[...document.querySelectorAll('#mesh3d g.skin')].map(g => { const r = g.getBoundingClientRect(); "
+                     "return {link: g.dataset.link, frame: g.dataset.frame, faces: g.querySelectorAll('polygon').length, "
+                     "box: [r.left, r.top, r.right, r.bottom]}; })")
+        assert sorted(s["link"] for s in skins) == sorted(["base", "shoulder", "upper-arm", "forearm", "wrist", "hand"])
+        assert {s["link"]: s["frame"] for s in skins}["upper-arm"] == "upper_arm_link"
+        for s in skins:  # drawn, and whole inside the window
+            x0, y0, x1, y1 = s["box"]
+            assert s["faces"] >= 3 and x1 - x0 > 5 and y1 - y0 > 5 and 0 <= x0 and x1 <= 1280 and 0 <= y0 and y1 <= 800, s
+        labels = b.js("[...document.querySelectorAll('#mesh3d text.label3d')].map(t => [t.dataset.link, t.textContent, "
+                      "t.getBoundingClientRect().right])")
+        assert len(labels) == 6 and all(right <= 1280 for _, _, right in labels)
+        said = {link: text for link, text, _ in labels}
+        assert said["forearm"] == "forearm · 1 pressforearm_link" and said["hand"] == "hand · 1 presshand_plate"
+        assert said["base"] == "base · 0 pressesbase_link"
+        (touch,) = b.js("[...document.querySelectorAll('#touch3d g.touch3d')].map(g => ({...g.dataset, "
+                        "arrow: g.querySelectorAll('line.arrow').length, head: g.querySelector('polygon.head')"
+                        ".getAttribute('points'), dot: [+g.querySelector('circle').getAttribute('cx'), "
+                        "+g.querySelector('circle').getAttribute('cy')]}))")
+        ev = events[-1]
+        assert touch["link"] == "forearm" and touch["frame"] == "forearm_link" and float(touch["forceN"]) == 4.2
+        joints = urdf_joints((REPO / "configs" / "arms" / "arm6.urdf").read_text())
+        T, frame = np.eye(4), "forearm_link"  # forearm_link in the world: the joints from the root, at zero
+        while (j := next((j for j in joints.values() if j["child"] == frame), None)) is not None:
+            tf = _joint_tf(j, 0.0, 0)["transform"]
+            A = np.eye(4)
+            A[:3, 3] = [tf["translation"][k] for k in "xyz"]
+            q = [tf["rotation"][k] for k in "xyzw"]
+            assert np.allclose(q, [0, 0, 0, 1])  # arm6's joints have no rotation at zero
+            T, frame = A @ T, j["parent"]
+        world = T[:3, :3] @ np.asarray(ev.point_m) + T[:3, 3]
+        np.testing.assert_allclose([float(v) for v in touch["world"].split(",")], world, atol=1e-9)
+        tail = np.array([float(v) for v in touch["tailWorld"].split(",")])
+        np.testing.assert_allclose(tail - world, (0.05 + 0.02 * 4.2) * (T[:3, :3] @ np.asarray(ev.normal)), atol=1e-9)
+        tip = b.js(f"arm3d.project([{','.join(map(str, world))}])")
+        assert touch["arrow"] == 1 and np.allclose(touch["dot"], tip) and np.allclose(
+            [float(v) for v in touch["head"].split()[0].split(",")], tip)  # the arrow's head on the point
+        assert 0 < tip[0] < 1280 and 0 < tip[1] < 800
+        assert "forearm: 4.20 N at (" in b.js("document.getElementById('readout3d').textContent")
+        assert b.js("document.querySelector(\"section[data-link='forearm'] .count\").textContent") == "1 press"
+        assert b.js("document.querySelector('#mesh3d g.skin[data-link=forearm]').classList.contains('touched')")
 
 
 def test_docs_screenshot_is_shipped_and_small():
