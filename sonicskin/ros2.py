@@ -1,13 +1,8 @@
-"""Touch on the robot's own bus, live: the messages of :mod:`sonicskin.rosbag` as ROS 2 topics over DDS
-(:class:`DdsPublisher`, ``live --ros2 [DOMAIN]``, with ``cyclonedds``) and as Foxglove WebSocket channels
-(:class:`FoxglovePublisher`, ``live --foxglove [PORT]``, with ``foxglove-sdk``): the optional extra ``sonicskin[ros]``,
-each imported only when asked for.
-
-DDS as a ROS 2 node speaks it: topic ``/x`` is ``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_`` (made from the MCAP
-file's definitions: the same bytes), the sensor stream best effort, ``/tf`` and ``/joint_states`` reliable,
-``/robot_description`` and ``/tf_static`` reliable and transient local (latched); Cyclone's own configuration applies
-(``CYCLONEDDS_URI``).  Foxglove: a server on 127.0.0.1, a ``ros2msg``/``cdr`` channel per topic; a client subscribing
-to a latched topic gets its message again.  How a ROS 2 node or Foxglove subscribes: docs/robot-frame.md.
+"""Touch on the robot's own bus, live: :mod:`sonicskin.rosbag`'s messages as ROS 2 topics over DDS (``live --ros2``,
+with ``cyclonedds``) and as Foxglove WebSocket channels on 127.0.0.1 (``live --foxglove``, with ``foxglove-sdk``): the
+optional extra ``sonicskin[ros]``, imported only when asked for.  DDS as a ROS 2 node speaks it (topic ``/x`` is
+``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_``, ROS 2's QoS; Cyclone's configuration: ``CYCLONEDDS_URI``); a
+Foxglove client subscribing to a latched topic gets its message again.  How to subscribe: docs/robot-frame.md.
 """
 
 from __future__ import annotations
@@ -32,22 +27,18 @@ def _need(module: str, option: str, package: str):
         raise SonicskinError(f"{option} needs {package} ({str(e).splitlines()[0][:100]}): pip install 'sonicskin[ros]'") from None
 
 
-def dds_type(name: str):
-    """The cyclonedds type of ROS 2 message ``pkg/msg/Type``, named ``pkg::msg::dds_::Type_`` as rosidl names it."""
-    return _dds_type(name.replace("/msg/", "/"))
-
-
 @functools.cache
-def _dds_type(name: str):
+def dds_type(name: str):
+    """The cyclonedds type of ROS 2 message ``pkg/msg/Type`` (or ``pkg/Type``), named ``pkg::msg::dds_::Type_`` as rosidl
+    names it."""
     from cyclonedds.idl import make_idl_struct
     from cyclonedds.idl import types as t
 
-    prim = {"bool": bool, "string": str, "byte": t.uint8, "char": t.uint8}
-    out = {}
+    prim, out = {"bool": bool, "string": str, "byte": t.uint8, "char": t.uint8}, {}
     for typ, field, arr in fields(name):
-        ft = prim.get(typ) or (_dds_type(typ) if "/" in typ else getattr(t, typ))
+        ft = prim.get(typ) or (dds_type(typ) if "/" in typ else getattr(t, typ))
         out[field] = ft if arr is None else t.sequence[ft] if arr == "" else t.array[ft, int(arr)]
-    pkg, typ = name.split("/")
+    pkg, typ = name.replace("/msg/", "/").split("/")
     return make_idl_struct(typ, f"{pkg}::msg::dds_::{typ}_", out)
 
 

@@ -1,16 +1,11 @@
-"""Touch as ROS 2 messages, one set for the MCAP file (``ros2 bag play FILE``, Foxglove) and the live buses (DDS and
-Foxglove's WebSocket, :mod:`sonicskin.ros2`), without ROS installed.
+"""Touch as ROS 2 messages, the same in the MCAP file and on the live buses (:mod:`sonicskin.ros2`), without ROS.
 
-A :class:`Publisher` turns a run into messages (the topics: docs/robot-frame.md): every link's Contact (sonicskin's
-``sonicskin_msgs/msg/Contact``: at each touched chirp and each change, else every :data:`IDLE_S`), each event's
-PointStamped, WrenchStamped (in the frame ``<frame>_contact`` that ``/tf`` puts at the point, its z the outward normal;
-none where the link's force is unreliable) and MarkerArray, the URDF and ``/tf_static`` at the start, joint states when
-given; a subclass sends them (``_send``).  The definitions are package data (``sonicskin/msg``: ROS 2's own, and the
-``sonicskin_msgs`` package a ROS 2 workspace builds).  :class:`McapEventWriter` writes an MCAP file in 1 MiB zstd
-chunks, each closed and flushed after at most a second of stream or wall time, so a process killed hard loses at most
-its last second (:func:`recover`, ``python -m sonicskin.rosbag IN OUT``, restores the rest).  An existing file is
-refused unless ``overwrite=True``; the file is opened and locked (``flock``) when the writer is made, and removed again
-when the writer is dropped before its first message.  An ``OSError`` (a full disk) is one line naming the file.
+A :class:`Publisher` makes a run's messages (topics, types and rates: docs/robot-frame.md); a subclass sends them.  The
+definitions are package data (``sonicskin/msg``: ROS 2's, and the ``sonicskin_msgs`` package a ROS 2 workspace builds).
+:class:`McapEventWriter` writes an MCAP file in 1 MiB zstd chunks, each closed and flushed after at most a second of
+stream or wall time, so a process killed hard loses at most its last second (:func:`recover` restores the rest); it
+refuses an existing file unless ``overwrite=True``, locks its file (``flock``) from the start and removes it again when
+dropped before its first message; an ``OSError`` (a full disk) is one line naming the file.
 """
 
 from __future__ import annotations
@@ -45,8 +40,7 @@ __all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics"
            "urdf_joints"]
 
 _SEP = "=" * 80
-_PRIMITIVES = {"bool", "byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "float32",
-               "float64", "string"}
+_PRIMITIVES = set("bool byte char int8 uint8 int16 uint16 int32 uint32 int64 uint64 float32 float64 string".split())
 POINT, WRENCH, MARKERS, CONTACT = ("geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
                                    "visualization_msgs/msg/MarkerArray", "sonicskin_msgs/msg/Contact")
 TF, STRING, JOINTS = "tf2_msgs/msg/TFMessage", "std_msgs/msg/String", "sensor_msgs/msg/JointState"
@@ -114,9 +108,7 @@ def encode(name: str, msg: dict) -> bytes:
 def topic_for(frame_id: str, what: str) -> str:
     """``/sonicskin/<frame>/<what>``, the frame made a valid ROS name token."""
     tok = re.sub(r"[^A-Za-z0-9_]", "_", frame_id) or "_"
-    if tok[0].isdigit():
-        tok = "_" + tok
-    return f"/sonicskin/{tok}/{what}"
+    return f"/sonicskin/{'_' * tok[0].isdigit()}{tok}/{what}"
 
 
 def _time(ns: int) -> dict:
@@ -215,17 +207,13 @@ class Publisher:
                 raise SonicskinError(f"{self.name}: {self.kind} is closed")
             self._io(fn, *args)
 
-    def _io(self, fn, *args) -> None:
-        fn(*args)
+    _io = staticmethod(lambda fn, *args: fn(*args))  # MCAP: the file's errors as one line
 
     def _put(self, topic: str, typ: str, msg: dict, ns: int) -> None:
         seq = self._seq.get(topic, 0)
         self._send(topic, typ, msg, ns, seq)
         self._seq[topic] = seq + 1
         self.messages += 1
-
-    def _send(self, topic: str, typ: str, msg: dict, ns: int, seq: int) -> None:
-        raise NotImplementedError
 
     # -- the robot ----------------------------------------------------------------------------------------------------
     def announce(self, frames: list[str], urdf: str | Path | None = None) -> None:
@@ -237,8 +225,7 @@ class Publisher:
         for topic, typ in topics(frames).items():
             self._open(topic, typ)
 
-    def _open(self, topic: str, typ: str) -> None:
-        pass
+    _open = _end = staticmethod(lambda *args: None)  # a bus opens a topic's writer or channel; ends
 
     def start(self) -> None:
         """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state
@@ -363,9 +350,6 @@ class Publisher:
     def _finish(self) -> None:
         for frame, ns in sorted(self._touching.items()):
             self._put(MARKER_TOPIC, MARKERS, self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
-
-    def _end(self) -> None:
-        pass
 
     def discard(self) -> None:
         """A run that never started: end."""
