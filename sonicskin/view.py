@@ -5,7 +5,7 @@ unrolled (the bring-up panel), the last events, the drift state.
 two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
 
     GET /            the page
-    GET /links.json  once per page load: each link's name, kind, surface size, markers (cm), spacing, and its frame and
+    GET /links.json  once per page load: each link's name, kind, surface size, markers (cm), and its frame and
                      shape in metres (a :class:`~sonicskin.surface.LinkSurface`); the arm's URDF (which places them)
     GET /state.json  what changes: the touch on each link (and its point and normal in the link's frame), each link's
                      status and presses, the last events, a sequence number
@@ -115,35 +115,10 @@ class LinkView:
         return cls(name, scenario.make_layout(), kind=g["kind"], length_cm=g.get("length_cm"), width_cm=g.get("width_cm"),
                    tx_cm=getattr(scenario, "tx_cm", None), rx_cm=getattr(scenario, "rx_cm", None), surface=surface)
 
-    @property
-    def spacing_cm(self) -> float:
-        """The median distance from a marker to its nearest neighbour on the surface (1 cm for a single marker)."""
-        xy = self.layout.xy_cm
-        if len(xy) < 2:
-            return 1.0
-        d = self.layout.distance_cm(xy[:, None, :], xy[None, :, :])
-        np.fill_diagonal(d, np.inf)
-        return float(np.median(d.min(axis=1)))
-
-    def extent_cm(self) -> tuple[float, float, float, float]:
-        """``(x0, x1, y0, y1)`` of the drawn surface, cm."""
-        xy, s = self.layout.xy_cm, self.spacing_cm
-        pts = [xy] + [np.asarray([p]) for p in (self.tx_cm, self.rx_cm) if p is not None]
-        allp = np.concatenate(pts)
-        y0 = min(0.0, float(allp[:, 1].min()) - s)
-        y1 = self.length_cm if self.length_cm is not None else float(allp[:, 1].max()) + s
-        if self.kind == "tube":
-            x0, x1 = 0.0, float(self.layout.circumference_cm)
-        else:
-            x0 = min(0.0, float(allp[:, 0].min()) - s)
-            x1 = self.width_cm if self.width_cm is not None else float(allp[:, 0].max()) + s
-        return x0, max(x1, float(allp[:, 0].max())), y0, max(y1, float(allp[:, 1].max()))
-
     def to_dict(self) -> dict[str, Any]:
-        x0, x1, y0, y1 = self.extent_cm()
+        """What ``/links.json`` says of the link (the page works out the markers' spacing and the extent it draws)."""
         return {"name": self.name, "kind": self.kind, "circumference_cm": self.layout.circumference_cm,
-                "length_cm": self.length_cm, "width_cm": self.width_cm, "extent_cm": [x0, x1, y0, y1],
-                "spacing_cm": round(self.spacing_cm, 4), "tx_cm": self.tx_cm, "rx_cm": self.rx_cm,
+                "length_cm": self.length_cm, "width_cm": self.width_cm, "tx_cm": self.tx_cm, "rx_cm": self.rx_cm,
                 "markers": [{"id": i, "x_cm": round(float(x), 4), "y_cm": round(float(y), 4)}
                             for i, (x, y) in zip(self.layout.ids, self.layout.xy_cm)],
                 "shape": None if self.surface is None else {"frame": self.surface.frame_id, "kind": self.surface.kind,

@@ -48,18 +48,22 @@ def _get(url: str, host: str | None = None):
 
 
 # -- state and server, no browser ----------------------------------------------------------------------------------
+def _spacing(link: LinkView) -> float:
+    """The median distance from a marker to its nearest neighbour on the surface (what the page works out)."""
+    xy = link.layout.xy_cm
+    d = link.layout.distance_cm(xy[:, None, :], xy[None, :, :])
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
 def test_linkview_geometry_from_scenarios():
     tube, plate = _links()
     assert (tube.kind, plate.kind) == ("tube", "plate")
-    assert tube.spacing_cm == pytest.approx(1.2) and plate.spacing_cm == pytest.approx(3.0)
-    assert tube.extent_cm() == pytest.approx((0.0, 2 * np.pi * 3.75, 0.0, 25.0))
-    assert plate.extent_cm() == pytest.approx((0.0, 30.0, 0.0, 34.0))
     assert (tube.tx_cm, tube.rx_cm) == ((0.0, 2.5), (5.9, 22.5))
     d = plate.to_dict()
     assert len(d["markers"]) == 36 and d["markers"][7] == {"id": 7, "x_cm": 10.5, "y_cm": 12.5}
-    # kind inferred from the layout; no size given: the markers' extent plus one spacing
-    grid = LinkView("g", Layout.grid(3, 1, 2.4, 6, 12))
-    assert grid.kind == "plate" and grid.extent_cm() == pytest.approx((0.0, 13.2, 0.0, 14.4))
+    assert (d["width_cm"], d["length_cm"], d["shape"]) == (30.0, 34.0, None)
+    assert LinkView("g", Layout.grid(3, 1, 2.4, 6, 12)).kind == "plate"  # kind inferred from the layout
 
 
 def test_touch_and_release_in_the_state():
@@ -315,6 +319,9 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
     with ViewServer([tube, plate]) as view, Browser() as b:
         b.open(view.url, ready="document.querySelectorAll('section.link').length === 2 && document.body.dataset.seq")
         assert b.js("[...document.querySelectorAll('section.link')].map(s => s.dataset.link)") == ["forearm", "hand-plate"]
+        geo = b.js("links.map(l => [l.spacing_cm, l.extent_cm])")  # the page's spacing and extent, as the view draws them
+        assert geo[0][0] == pytest.approx(_spacing(tube)) == pytest.approx(1.2) and geo[1][0] == pytest.approx(3.0)
+        assert geo[0][1] == pytest.approx([0.0, 2 * np.pi * 3.75, 0.0, 25.0]) and geo[1][1] == pytest.approx([0, 30, 0, 34])
         assert b.js("document.querySelectorAll('section[data-link=forearm] circle.marker').length") == 31
         assert _dots(b) == []
         for link, loc, other in ((plate, 14, tube), (tube, 20, plate)):
@@ -325,7 +332,7 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
             assert dot["panel"] == dot["link"] == link.name and int(dot["location"]) == loc
             assert float(dot["xCm"]) == pytest.approx(ev.x_cm, abs=1e-3) and float(dot["yCm"]) == pytest.approx(ev.y_cm, abs=1e-3)
             true_xy = link.layout.coords(np.asarray([loc]))[0]
-            assert link.layout.distance_cm(np.array([float(dot["xCm"]), float(dot["yCm"])]), true_xy) < link.spacing_cm
+            assert link.layout.distance_cm(np.array([float(dot["xCm"]), float(dot["yCm"])]), true_xy) < _spacing(link)
             assert float(dot["forceN"]) == 3.4 and float(dot["tS"]) == 12.25
             sel = f"section[data-link='{link.name}']"
             assert b.js(f"[...document.querySelectorAll(\"{sel} circle.marker.hit\")].map(m => m.dataset.location)") == [str(loc)]
@@ -345,6 +352,10 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
         view.stop()
         b.advance(1000)
         assert b.js("document.getElementById('conn').textContent").startswith("disconnected")
+    # no size given: the plate drawn is the markers' extent plus one spacing
+    with ViewServer([LinkView("g", Layout.grid(3, 1, 2.4, 6, 12))]) as grid, Browser() as b:
+        b.open(grid.url, ready="document.querySelectorAll('section.link').length === 1")
+        assert b.js("links[0].extent_cm") == pytest.approx([0.0, 13.2, 0.0, 14.4])
 
 
 @needs_chromium
