@@ -60,9 +60,11 @@ class Listener:
     line on stderr says what was granted); ``rig``: default
     the artifact's own; ``tx``, ``rx``: channels of a real interface; ``on_event``: called in the listener's thread
     with each event (keep it short); ``mcap``: with an arm, every touch also as ROS 2 messages into this MCAP file
-    (an existing one refused unless ``overwrite``); ``view``: ``True`` or a port, the browser view at
-    :attr:`view_url`; ``watchdog_s``: no audio (or no usable chirp) for this long ends the run with
-    :class:`sonicskin.live.DeviceLost`, re-raised by :meth:`poll`, iteration and :meth:`stop`.
+    (an existing one refused unless ``overwrite``), and live: ``ros2`` on this DDS domain (``True``: ROS_DOMAIN_ID),
+    ``foxglove`` on Foxglove's WebSocket at this port (``True``: 8765; :meth:`set_joint_state` moves the arm there);
+    ``view``: ``True`` or a port, the browser view at :attr:`view_url`; ``watchdog_s``: no audio (or no usable chirp)
+    for this long ends the run with :class:`sonicskin.live.DeviceLost`, re-raised by :meth:`poll`, iteration and
+    :meth:`stop`.
 
     Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`, one line naming
     the fix.
@@ -72,7 +74,8 @@ class Listener:
                  duration_s: float | None = None, scenario: str | Path | None = None, rig: str | Path | None = None,
                  tx: int = 0, rx: int = 0, fast: bool = False, on_event: Callable[[TouchEvent], None] | None = None,
                  watchdog_s: float = 3.0, blocksize: int = 1024, mcap: str | Path | None = None, overwrite: bool = False,
-                 view: bool | int | None = None, realtime: bool = False):
+                 view: bool | int | None = None, realtime: bool = False, ros2: bool | int | None = None,
+                 foxglove: bool | int | None = None):
         from .session import open_run  # here: `import sonicskin` loads neither onnxruntime nor scikit-learn
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
@@ -86,7 +89,8 @@ class Listener:
         self.summary: dict | None = None
         #: the opened run (:class:`sonicskin.session.Run`): its links, runtimes, source and live loops
         self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
-                               blocksize=blocksize, mcap=mcap, overwrite=overwrite, realtime=realtime)
+                               blocksize=blocksize, mcap=mcap, overwrite=overwrite, realtime=realtime, ros2=ros2,
+                               foxglove=foxglove)
         self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
         self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
         self.view_url = self.opened.view.url if self.opened.view is not None else None
@@ -138,6 +142,12 @@ class Listener:
         self._halt()
         if exc[0] is None:
             self._raise()
+
+    def set_joint_state(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
+        """The arm's joint positions (URDF joint name -> rad or m) at ``t_unix_s`` (default now): ``/joint_states`` and
+        ``/tf`` into the MCAP file and onto the live buses, so a viewer moves the links (an arm file with ``urdf:``)."""
+        for pub in self.opened.publishers:
+            pub.joints(positions, t_unix_s)
 
     # -- events --------------------------------------------------------------------------
     def poll(self) -> list[TouchEvent]:

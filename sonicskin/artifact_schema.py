@@ -43,7 +43,7 @@ _TOP = {"format", "version", "sonicskin_version", "rig", "layout", "features", "
         "models", "digest", "selection", "drift"}
 _RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp", "pwm_hz", "pwm_halfwidth_hz")
 _RIG_OPTIONAL = ("amplitude", "name", "sweep_b64")
-_COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe"}
+_COMMON = {"file", "sha256", "kind", "n_in", "n_locations", "parity", "probe", "force_reliable"}
 _CURVE_KEYS = {"model", "theta", "coef", "center", "scale", "r2", "e_lo", "e_hi"}
 _SHA = re.compile(r"[0-9a-f]{64}")
 
@@ -282,6 +282,8 @@ def _check_model(doc: _Doc, name: str, m: Any, *, n_in: int, layout_ids: list[in
         doc.fail(f"{f}.n_locations", f"is {m_loc} but layout.ids lists {n_loc} locations")
     if "parity" in m:
         doc.obj(m["parity"], f"{f}.parity")
+    if not isinstance(m.get("force_reliable", False), bool):
+        doc.fail(f"{f}.force_reliable", f"must be true or false, got {_short(m['force_reliable'])}")
     if sealed:
         _check_probe(doc, doc.get(m, "probe", f), f"{f}.probe", m_in, kind.outputs(n_loc))
     kind.check_entry(doc, m, f, n_in=m_in, layout_ids=layout_ids)

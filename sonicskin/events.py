@@ -35,7 +35,7 @@ class EventError(SonicskinError):
 _NUM_OR_NULL = {"type": ["number", "null"]}
 _VEC3 = {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
 _UNIT_TOL = 1e-3  # |normal| within 1 +- this (the JSON keeps 6 decimals)
-_OPTIONAL = ("link", "frame_id", "point_m", "normal", "force_vec_n")  # written only when set
+_OPTIONAL = ("link", "frame_id", "point_m", "normal", "force_vec_n", "force_reliable")  # written only when set
 
 EVENT_SCHEMA: dict[str, Any] = {
     "$schema": "https://json-schema.org/draft/2020-12/schema",
@@ -62,6 +62,8 @@ EVENT_SCHEMA: dict[str, Any] = {
         "normal": {**_VEC3, "description": "v2: unit outward surface normal [x, y, z] at the point, link frame"},
         "force_vec_n": {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3,
                         "description": "v2: force of the finger on the link, -force_n * normal, N, link frame; null: no force model"},
+        "force_reliable": {"type": "boolean", "description": "false: validation found the link's force no better than a "
+                                                             "constant; absent: not validated"},
     },
 }
 
@@ -86,6 +88,7 @@ class TouchEvent:
     point_m: tuple[float, float, float] | None = None
     normal: tuple[float, float, float] | None = None
     force_vec_n: tuple[float, float, float] | None = None
+    force_reliable: bool | None = None  # the artifact's verdict on its force (not written when None)
     #: fields of the event this reader does not know (a later writer of the same major version), kept as read
     extra: dict[str, Any] = dataclasses.field(default_factory=dict, hash=False, repr=False)
 
@@ -98,8 +101,9 @@ class TouchEvent:
         out = {"v": d.pop("v"), **d}
         if self.link is not None:
             out["link"] = self.link
-        if self.frame_id is not None:
-            out["frame_id"] = self.frame_id
+        for k in ("frame_id", "force_reliable"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
         for k, nd in (("point_m", 6), ("normal", 6), ("force_vec_n", 4)):
             vec = getattr(self, k)
             if vec is not None:
@@ -134,7 +138,7 @@ def _type_ok(value, types) -> bool:
             return True
         if (t == "integer" and is_number(value, integer=True)) or (t == "number" and is_number(value)):
             return True
-        if t == "string" and isinstance(value, str):
+        if (t == "string" and isinstance(value, str)) or (t == "boolean" and isinstance(value, bool)):
             return True
         if t == "array" and isinstance(value, list):
             return True

@@ -233,6 +233,9 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
                             "parity": parity, **f.entry}
             sel.update(f.selection)
             times[f"{name}_train_time_s"] = f.fit_s
+        for name, (rmse, const) in force_checks(sel).items():  # a force no better than a constant is marked so
+            if name in models:
+                models[name]["force_reliable"] = bool(rmse < const)
         split = data.split.to_dict()
         refit = data.options.get("refit_of")
         skin = skin_json(tmp, rig=data.rig.to_dict(), layout=data.layout.to_dict(), spec=data.spec,
@@ -258,8 +261,19 @@ def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), 
 
 def selection_lines(sel: dict | None) -> list[str]:
     """What every training verb prints about its choices: each kind's lines (:mod:`sonicskin.artifact_schema` refuses
-    an artifact whose report they cannot read)."""
-    return [line for name in kinds.names() for line in kinds.get(name).selection_lines(sel or {})]
+    an artifact whose report they cannot read), then whether each one's force beats a constant."""
+    return [line for name in kinds.names() for line in kinds.get(name).selection_lines(sel or {})] + [
+        f"{name} force {'reliable' if r < c else 'UNRELIABLE'}: validated RMSE {r:.2f} N, a constant's {c:.2f} N" +
+        ("" if r < c else " (its events say force_reliable false; no wrench is published)")
+        for name, (r, c) in force_checks(sel).items()]
+
+
+def force_checks(sel: dict | None) -> dict[str, tuple[float, float]]:
+    """Per kind in ``sel`` whose force was validated: its RMSE and a constant's (the training mean's), N."""
+    sel = sel or {}
+    const = (sel.get("force") or {}).get("constant_rmse_n")
+    rmse = {n: kinds.get(n).force_rmse(sel) for n in kinds.names() if any(k in sel for k in kinds.get(n).selection_keys)}
+    return {n: (r, const) for n, r in rmse.items() if r is not None and const is not None}
 
 
 def summary_lines(out: str | Path, skin: dict) -> list[str]:

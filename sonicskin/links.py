@@ -25,7 +25,7 @@ from .sim import Scenario
 from .sim.channel import MATERIALS
 from .surface import LinkSurface
 
-__all__ = ["load_links", "load_arm", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
+__all__ = ["load_links", "load_arm", "arm_urdf", "missing_datasets", "write_arm", "link_scenario", "ARM_FILE"]
 
 #: The arm file :func:`write_arm` writes next to the trained links' artifacts.
 ARM_FILE = "arm.yaml"
@@ -68,6 +68,12 @@ def load_arm(spec, rig=None) -> tuple[Rig, list[Link]]:
     names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.session.open_run` read an arm through here."""
     the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
     return the_rig, load_links(spec, the_rig)
+
+
+def arm_urdf(spec) -> Path | None:
+    """The URDF an arm file names (``urdf:``, relative to the file), else ``None``."""
+    where = _resolve(spec)
+    return where.parent / u if isinstance(u := load_yaml(where).get("urdf"), str) else None
 
 
 def missing_datasets(links: list[Link], data: Path) -> list[str]:

@@ -347,7 +347,8 @@ class LiveLoop:
             x, y = self._press[loc][1:]
         if (touch and not self._held) or self.touching:
             ev = TouchEvent(t_s, "touch" if touch else "release", loc, x, y, float(p.force_n[0]), float(p.confidence[0]),
-                            self.rt.kind, (time.perf_counter() - t_ready) * 1e3, link=self.link_name)
+                            self.rt.kind, (time.perf_counter() - t_ready) * 1e3, link=self.link_name,
+                            force_reliable=self.rt.m.get("force_reliable"))
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
         self.touching = touch and not self._held

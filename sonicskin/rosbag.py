@@ -1,123 +1,379 @@
-"""Touch events as ROS 2 messages in an MCAP file (``ros2 bag play FILE``, Foxglove), without ROS installed.
+"""Touch as ROS 2 messages, the same in the MCAP file and on the live buses (:mod:`sonicskin.ros2`), without ROS.
 
-:class:`McapEventWriter` writes each event that carries the robot-frame fields (schema v2,
-:func:`sonicskin.events.attach_surface`) as ``/sonicskin/<frame>/contact_point`` (PointStamped),
-``/sonicskin/<frame>/contact_wrench`` (WrenchStamped: ``F = -force_n * normal``, torque ``p x F``) and
-``/sonicskin/markers`` (MarkerArray: an arrow and a sphere at the point, deleted on a release), CDR-encoded by
-``mcap-ros2-support``, stamped ``t0_unix_s + t_s``; the topics: docs/robot-frame.md.  Events without those fields
-are counted (:attr:`McapEventWriter.skipped`), with one warning.  Each event's messages close their own chunk and are
-flushed, so a process killed hard loses nothing written (``mcap recover`` restores the index); :meth:`close` writes
-the summary.  An existing file is refused unless ``overwrite=True``; the file is opened and locked (``flock``) when
-the writer is made, written from the first event on, and removed again when the writer is dropped before that.  An
-``OSError`` (a full disk) is one line naming the file, and closes the writer.
+A :class:`Publisher` makes a run's messages (topics, types and rates: docs/robot-frame.md); a subclass sends them.  The
+definitions are package data (``sonicskin/msg``: ROS 2's, and the ``sonicskin_msgs`` package a ROS 2 workspace builds).
+:class:`McapEventWriter` writes an MCAP file in 1 MiB zstd chunks, each closed and flushed after at most a second of
+stream or wall time, so a process killed hard loses at most its last second (:func:`recover` restores the rest); it
+refuses an existing file unless ``overwrite=True``, locks its file (``flock``) from the start and removes it again when
+dropped before its first message; an ``OSError`` (a full disk) is one line naming the file.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import re
+import sys
 import threading
+import time
 import warnings
 import weakref
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
+from importlib import resources
 from pathlib import Path
 
-from .errors import SonicskinError, brief
+import numpy as np
+
+from .errors import SonicskinError, brief, is_number
 from .events import TouchEvent
+from .surface import pose_matrix
 
 try:
     import fcntl
 except ImportError:  # not POSIX: a second writer on one file is not refused
     fcntl = None
 
-__all__ = ["McapEventWriter", "MARKER_TOPIC", "topic_for"]
+__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover",
+           "urdf_joints"]
 
-# -- the ROS 2 message definitions written, in the concatenated form MCAP's ``ros2msg`` schema encoding takes (the
-# type's ``.msg`` text, then each type it uses after a line of 80 ``=`` and ``MSG: pkg/Type``): the field lists of ROS 2
-# Humble and later, so ``ros2 bag play`` decodes the CDR bytes with the installed types; comments left out.
 _SEP = "=" * 80
-
-_MSGS = {
-    "builtin_interfaces/Time": "int32 sec\nuint32 nanosec\n",
-    "builtin_interfaces/Duration": "int32 sec\nuint32 nanosec\n",
-    "std_msgs/Header": "builtin_interfaces/Time stamp\nstring frame_id\n",
-    "std_msgs/ColorRGBA": "float32 r\nfloat32 g\nfloat32 b\nfloat32 a\n",
-    "geometry_msgs/Point": "float64 x\nfloat64 y\nfloat64 z\n",
-    "geometry_msgs/Vector3": "float64 x\nfloat64 y\nfloat64 z\n",
-    "geometry_msgs/Quaternion": "float64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n",
-    "geometry_msgs/Pose": "Point position\nQuaternion orientation\n",
-    "geometry_msgs/PointStamped": "std_msgs/Header header\nPoint point\n",
-    "geometry_msgs/Wrench": "Vector3 force\nVector3 torque\n",
-    "geometry_msgs/WrenchStamped": "std_msgs/Header header\nWrench wrench\n",
-    "sensor_msgs/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n",
-    "visualization_msgs/UVCoordinate": "float32 u\nfloat32 v\n",
-    "visualization_msgs/MeshFile": "string filename\nuint8[] data\n",
-    "visualization_msgs/Marker": (
-        "int32 ARROW=0\nint32 CUBE=1\nint32 SPHERE=2\nint32 CYLINDER=3\nint32 LINE_STRIP=4\nint32 LINE_LIST=5\n"
-        "int32 CUBE_LIST=6\nint32 SPHERE_LIST=7\nint32 POINTS=8\nint32 TEXT_VIEW_FACING=9\nint32 MESH_RESOURCE=10\n"
-        "int32 TRIANGLE_LIST=11\nint32 ARROW_STRIP=12\n"
-        "int32 ADD=0\nint32 MODIFY=0\nint32 DELETE=2\nint32 DELETEALL=3\n"
-        "std_msgs/Header header\nstring ns\nint32 id\nint32 type\nint32 action\ngeometry_msgs/Pose pose\n"
-        "geometry_msgs/Vector3 scale\nstd_msgs/ColorRGBA color\nbuiltin_interfaces/Duration lifetime\nbool frame_locked\n"
-        "geometry_msgs/Point[] points\nstd_msgs/ColorRGBA[] colors\nstring texture_resource\n"
-        "sensor_msgs/CompressedImage texture\nUVCoordinate[] uv_coordinates\nstring text\nstring mesh_resource\n"
-        "MeshFile mesh_file\nbool mesh_use_embedded_materials\n"),
-    "visualization_msgs/MarkerArray": "Marker[] markers\n",
-}
-
-# The types each message uses, directly or not, in the order they are appended.
-_DEPS = {
-    "geometry_msgs/PointStamped": ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Point"],
-    "geometry_msgs/WrenchStamped": ["std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Wrench", "geometry_msgs/Vector3"],
-    "visualization_msgs/MarkerArray": [
-        "visualization_msgs/Marker", "std_msgs/Header", "builtin_interfaces/Time", "geometry_msgs/Pose", "geometry_msgs/Point",
-        "geometry_msgs/Quaternion", "geometry_msgs/Vector3", "std_msgs/ColorRGBA", "builtin_interfaces/Duration",
-        "sensor_msgs/CompressedImage", "visualization_msgs/UVCoordinate", "visualization_msgs/MeshFile"],
-}
-
-
-def definition(name: str) -> str:
-    """The concatenated definition of ``name`` (``"geometry_msgs/msg/PointStamped"`` or ``"geometry_msgs/PointStamped"``)."""
-    key = name.replace("/msg/", "/")
-    parts = [_MSGS[key]] + [f"{_SEP}\nMSG: {dep}\n{_MSGS[dep]}" for dep in _DEPS[key]]
-    return "".join(parts)
-
-
-#: the schemas written, by their ROS 2 type name
-DEFINITIONS = {t: definition(t) for t in ("geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
-                                           "visualization_msgs/msg/MarkerArray")}
-
-
+_PRIMITIVES = set("bool byte char int8 uint8 int16 uint16 int32 uint32 int64 uint64 float32 float64 string".split())
+POINT, WRENCH, MARKERS, CONTACT = ("geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
+                                   "visualization_msgs/msg/MarkerArray", "sonicskin_msgs/msg/Contact")
+TF, STRING, JOINTS = "tf2_msgs/msg/TFMessage", "std_msgs/msg/String", "sensor_msgs/msg/JointState"
 MARKER_TOPIC = "/sonicskin/markers"
+LATCHED = ("/robot_description", "/tf_static")  # sent once, kept for late subscribers (ROS 2: transient local)
+RELIABLE = ("/tf", "/joint_states")  # what tf2 and robot_state_publisher read reliably; the rest is a sensor stream
 ARROW, SPHERE, ADD, DELETE = 0, 2, 0, 2  # visualization_msgs/Marker constants
 ARROW_BASE_M, ARROW_M_PER_N, SPHERE_M = 0.01, 0.02, 0.01
+CALIBRATING, FREE, TOUCHED = 0, 1, 2  # sonicskin_msgs/Contact's states
+IDLE_S = 0.05  #: while nothing changes a link's Contact goes out at the first chirp this long (of stream) after its last
+CHUNK_BYTES, FLUSH_S = 1 << 20, 1.0  # the MCAP file's chunks: at most this big, closed and flushed at least this often
+
+
+@functools.cache
+def _texts() -> dict[str, str]:
+    """Each message's own text by ``pkg/Type``: ROS 2's (``msg/ros2.msg``) and ``sonicskin_msgs/Contact``."""
+    root = resources.files("sonicskin") / "msg"
+    out = dict(b.partition("\n")[::2] for b in (root / "ros2.msg").read_text().split(f"{_SEP}\nMSG: ")[1:])
+    out["sonicskin_msgs/Contact"] = (root / "sonicskin_msgs" / "msg" / "Contact.msg").read_text()
+    return out
+
+
+def fields(name: str) -> list[tuple[str, str, str | None]]:
+    """The fields of ``pkg/Type`` (or ``pkg/msg/Type``) as ``(type, name, array)``: the type a primitive or ``pkg/Type``,
+    the array None, ``""`` (a sequence) or its length."""
+    name = name.replace("/msg/", "/")
+    out = []
+    for line in _texts()[name].splitlines():
+        tok = line.split("#")[0].split()
+        if len(tok) < 2 or "=" in tok[1]:  # a blank or comment line, a constant
+            continue
+        typ, _, arr = tok[0].partition("[")
+        out.append((typ if typ in _PRIMITIVES or "/" in typ else f"{name.split('/')[0]}/{typ}", tok[1], arr[:-1] if arr else None))
+    return out
+
+
+def _uses(name: str, seen: dict) -> dict:
+    for typ, _, _ in fields(name):
+        if typ not in _PRIMITIVES and typ not in seen:
+            seen[typ] = None
+            _uses(typ, seen)
+    return seen
+
+
+@functools.cache
+def definition(name: str) -> str:
+    """``name``'s definition as MCAP's ``ros2msg`` schemas hold it: its text, then each type it uses after a line of 80
+    ``=`` and ``MSG: pkg/Type`` (``name``: ``"geometry_msgs/msg/PointStamped"`` or ``"geometry_msgs/PointStamped"``)."""
+    key = name.replace("/msg/", "/")
+    return _texts()[key] + "".join(f"{_SEP}\nMSG: {t}\n{_texts()[t]}" for t in _uses(key, {}))
+
+
+@functools.cache
+def _encoder(name: str) -> Callable[[dict], bytes]:
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    return serialize_dynamic(name, definition(name))[name]
+
+
+def encode(name: str, msg: dict) -> bytes:
+    """``msg`` (a dict of its fields; a missing one takes its default) as the CDR bytes a ROS 2 node sends for ``name``."""
+    return _encoder(name)(msg)
 
 
 def topic_for(frame_id: str, what: str) -> str:
     """``/sonicskin/<frame>/<what>``, the frame made a valid ROS name token."""
     tok = re.sub(r"[^A-Za-z0-9_]", "_", frame_id) or "_"
-    if tok[0].isdigit():
-        tok = "_" + tok
-    return f"/sonicskin/{tok}/{what}"
+    return f"/sonicskin/{'_' * tok[0].isdigit()}{tok}/{what}"
 
 
 def _time(ns: int) -> dict:
     return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
 
 
-class McapEventWriter:
-    """Write touch events as ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the
-    wall-clock time of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
+def _xyz(v) -> dict:
+    return dict(zip("xyz", (float(a) for a in v)))
+
+
+# -- the robot: its joints from the URDF, transforms as quaternions (x, y, z, w) ---------------------------------------
+def urdf_joints(text: str) -> dict[str, dict]:
+    """The joints of a URDF document: name -> ``parent``, ``child``, ``type``, the origin's ``xyz``/``rpy`` and ``axis``."""
+    def vec(el, key, default):
+        return [float(v) for v in (el.get(key) if el is not None and el.get(key) else default).split()]
+
+    return {j.get("name"): {"parent": j.find("parent").get("link"), "child": j.find("child").get("link"), "type": j.get("type"),
+                            "xyz": vec(j.find("origin"), "xyz", "0 0 0"), "rpy": vec(j.find("origin"), "rpy", "0 0 0"),
+                            "axis": vec(j.find("axis"), "xyz", "1 0 0")} for j in ET.fromstring(text).findall("joint")}
+
+
+def _quat(axis, angle: float) -> np.ndarray:
+    a = np.asarray(axis, float)
+    return np.r_[a / np.linalg.norm(a) * math.sin(angle / 2), math.cos(angle / 2)]
+
+
+def _qmul(a, b) -> np.ndarray:
+    (x1, y1, z1, w1), (x2, y2, z2, w2) = a, b
+    return np.array([w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2])
+
+
+def _z_to(n) -> np.ndarray:
+    """The rotation that takes +z to the unit vector ``n``."""
+    q = np.array([-n[1], n[0], 0.0, 1.0 + n[2]])
+    return q / np.linalg.norm(q) if q[3] > 1e-9 else np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _transform(parent: str, child: str, xyz, q, ns: int) -> dict:
+    return {"header": {"stamp": _time(ns), "frame_id": parent}, "child_frame_id": child,
+            "transform": {"translation": _xyz(xyz), "rotation": dict(zip("xyzw", map(float, q)))}}
+
+
+def _joint_tf(j: dict, pos: float, ns: int) -> dict:
+    """A joint's transform (parent -> child) at position ``pos`` (rad or m)."""
+    r, p, y = j["rpy"]
+    q, xyz = _qmul(_qmul(_quat((0, 0, 1), y), _quat((0, 1, 0), p)), _quat((1, 0, 0), r)), np.asarray(j["xyz"])
+    if j["type"] in ("revolute", "continuous"):
+        q = _qmul(q, _quat(j["axis"], pos))
+    elif j["type"] == "prismatic":
+        xyz = xyz + pose_matrix(rpy=j["rpy"])[:3, :3] @ np.asarray(j["axis"]) * pos
+    return _transform(j["parent"], j["child"], xyz, q, ns)
+
+
+def topics(frames: list[str]) -> dict[str, str]:
+    """Every topic a run of links in ``frames`` sends on, with its type."""
+    per_link = (("contact", CONTACT), ("contact_point", POINT), ("contact_wrench", WRENCH))
+    return {"/robot_description": STRING, "/tf_static": TF, "/tf": TF, "/joint_states": JOINTS, MARKER_TOPIC: MARKERS,
+            **{topic_for(f, what): typ for f in frames for what, typ in per_link}}
+
+
+class Publisher:
+    """The messages of a run (module docstring), sent by a subclass's ``_send(topic, type, msg, ns, seq)``;
+    ``t0_unix_s``: the wall-clock time of the stream's ``t_s = 0``.  Thread-safe: the loops of all links share one."""
+
+    name, kind = "sonicskin", "the publisher"  # as errors name it
+
+    def __init__(self, *, t0_unix_s: float, log: Callable[[str], None] | None = None):
+        self.written = self.skipped = self.messages = 0  # events written, events without a frame, messages sent
+        self.t0_unix_s = t0_unix_s
+        self._log = log or (lambda m: warnings.warn(m, stacklevel=3))
+        self._seq: dict[str, int] = {}
+        self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
+        self._last: dict[str, tuple[float, int]] = {}  # frame_id -> (t_s, state) of its last Contact
+        self.static: list[tuple] = []  # the latched messages: (topic, type, msg, ns)
+        self._urdf, self._joints, self._pending, self._started = None, {}, None, False
+        self._closed = False
+        self._lock = threading.Lock()
+
+    @property
+    def t0_unix_s(self) -> float:
+        """The wall-clock time (UNIX seconds) of the stream's ``t_s = 0``; settable until the first message."""
+        return self._t0_ns / 1e9
+
+    @t0_unix_s.setter
+    def t0_unix_s(self, t0_unix_s: float) -> None:
+        if not (is_number(t0_unix_s) and t0_unix_s >= 0):
+            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
+        if self.messages:
+            raise SonicskinError(f"{self.name}: the stream start cannot move once events are written")
+        self._t0_ns = round(float(t0_unix_s) * 1e9)
+
+    def _call(self, fn, *args) -> None:
+        with self._lock:
+            if self._closed:
+                raise SonicskinError(f"{self.name}: {self.kind} is closed")
+            self._io(fn, *args)
+
+    _io = staticmethod(lambda fn, *args: fn(*args))  # MCAP: the file's errors as one line
+
+    def _put(self, topic: str, typ: str, msg: dict, ns: int) -> None:
+        seq = self._seq.get(topic, 0)
+        self._send(topic, typ, msg, ns, seq)
+        self._seq[topic] = seq + 1
+        self.messages += 1
+
+    # -- the robot ----------------------------------------------------------------------------------------------------
+    def announce(self, frames: list[str], urdf: str | Path | None = None) -> None:
+        """Before the run: open every topic of the links in ``frames`` (a live bus's subscribers match them before the
+        first message), and read the arm's ``urdf`` (``/robot_description``, ``/tf_static``, :meth:`joints`)."""
+        if urdf is not None:
+            self._urdf = Path(urdf).read_text()
+            self._joints = urdf_joints(self._urdf)
+        for topic, typ in topics(frames).items():
+            self._open(topic, typ)
+
+    _open = _end = staticmethod(lambda *args: None)  # a bus opens a topic's writer or channel; ends
+
+    def start(self) -> None:
+        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state
+        given before it."""
+        t = self._t0_ns
+        if self._urdf is not None:
+            self.static = [("/robot_description", STRING, {"data": self._urdf}, t),
+                           ("/tf_static", TF, {"transforms": [_joint_tf(j, 0.0, t) for j in self._joints.values()]}, t)]
+
+        def send():
+            for m in self.static:
+                self._put(*m)
+            self._started = True
+            if self._pending:
+                self._joint_state(self._pending, t)
+        self._call(send)
+
+    def joints(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
+        """``/joint_states`` and the ``/tf`` of those joints at ``positions`` (joint name -> rad or m), stamped
+        ``t_unix_s`` (default: now; before the stream starts: at its start), so a viewer moves the arm."""
+        moving = sorted(n for n, j in self._joints.items() if j["type"] in ("revolute", "continuous", "prismatic"))
+        if not moving:
+            raise SonicskinError("joint states move the joints of the arm's URDF, and this run has none (an arm file with "
+                                 "`urdf:` naming a URDF with revolute, continuous or prismatic joints)")
+        bad = next((k for k, v in positions.items() if k not in moving or not is_number(v)), None) if isinstance(
+            positions, dict) and positions else "?"
+        if bad is not None:
+            raise SonicskinError(f"joint positions are a dict of joint name -> finite rad (or m) over the URDF's moving "
+                                 f"joints {moving}, got {brief(positions)}")
+        ns = round((time.time() if t_unix_s is None else t_unix_s) * 1e9)
+        self._call(lambda: self._joint_state(positions, ns) if self._started else setattr(self, "_pending", dict(positions)))
+
+    def _joint_state(self, positions: dict, ns: int) -> None:
+        names = sorted(positions)
+        self._put("/joint_states", JOINTS, {"header": {"stamp": _time(ns)}, "name": names,
+                                            "position": [float(positions[n]) for n in names]}, ns)
+        self._put("/tf", TF, {"transforms": [_joint_tf(self._joints[n], positions[n], ns) for n in names]}, ns)
+
+    # -- the skin -----------------------------------------------------------------------------------------------------
+    def contact(self, lp, t_s: float, p) -> None:
+        """The Contact of live loop ``lp``'s link at one chirp (``p`` None while calibrating): at each touched chirp and
+        each change of state, else when :data:`IDLE_S` of stream time have passed since its last one."""
+        state = CALIBRATING if p is None else TOUCHED if p.touch[0] else FREE
+        surf, lay = lp.surface, lp.rt.layout
+        last = self._last.get(surf.frame_id)
+        if state != TOUCHED and last is not None and last[1] == state and t_s - last[0] < IDLE_S - 1e-9:
+            return
+        self._last[surf.frame_id] = (t_s, state)
+        loc, xy, f, conf = (-1, (math.nan,) * 2, 0.0, 0.0) if p is None else (
+            int(p.location[0]), p.xy_cm[0], float(p.force_n[0]), float(p.confidence[0]))
+        if not np.all(np.isfinite(xy)):  # no centroid: the marker's place (calibrating: the markers' centre)
+            xy = lay.coords(np.asarray([loc]))[0] if loc in lay.ids else np.mean(lay.xy_cm, axis=0)
+        point, normal = surf.point_normal_one(float(xy[0]), float(xy[1]))
+        ns = self._ns(t_s)
+        msg = {"header": {"stamp": _time(ns), "frame_id": surf.frame_id}, "link": lp.link_name or surf.frame_id,
+               "state": state, "touched": state == TOUCHED, "location": loc, "point": _xyz(point), "normal": _xyz(normal),
+               "force_n": f, "force": _xyz(0.0 - f * a for a in normal), "confidence": conf, "model": lp.rt.kind,
+               "force_reliable": lp.rt.m.get("force_reliable") is not False and math.isfinite(f)}
+        self._call(self._put, topic_for(surf.frame_id, "contact"), CONTACT, msg, ns)
+
+    def _ns(self, t_s: float) -> int:
+        return self._t0_ns + round(t_s * 1e9)
+
+    @staticmethod
+    def _markers(frame: str, header: dict, action: int, p=None, n=None, force_n: float = math.nan) -> dict:
+        ns = f"sonicskin/{frame}"
+        base = {"header": header, "ns": ns, "action": action, "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": True,
+                "pose": {"position": _xyz((0, 0, 0)), "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
+        if action == DELETE:
+            return {"markers": [{**base, "id": 0, "type": ARROW}, {**base, "id": 1, "type": SPHERE}]}
+        length = ARROW_BASE_M + ARROW_M_PER_N * (force_n if math.isfinite(force_n) else 0.0)
+        tail, tip = _xyz(a + length * b for a, b in zip(p, n)), _xyz(p)
+        arrow = {**base, "id": 0, "type": ARROW, "points": [tail, tip], "scale": {"x": 0.003, "y": 0.006, "z": 0.006},
+                 "color": {"r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0}}
+        sphere = {**base, "id": 1, "type": SPHERE, "pose": {**base["pose"], "position": tip},
+                  "scale": {"x": SPHERE_M, "y": SPHERE_M, "z": SPHERE_M}, "color": {"r": 1.0, "g": 0.8, "b": 0.1, "a": 1.0}}
+        return {"markers": [arrow, sphere]}
+
+    def write(self, ev: TouchEvent) -> None:
+        """Send the messages of one event (nothing, counted in :attr:`skipped`, when it has no robot-frame fields)."""
+        self._call(self._write, ev)
+
+    def _write(self, ev: TouchEvent) -> None:
+        if ev.frame_id is None or ev.point_m is None or ev.normal is None:
+            self.skipped += 1
+            if self.skipped == 1:
+                self._log(f"warning: {self.name}: an event without the robot-frame fields (no surface for link "
+                          f"{ev.link or '(single link)'}) is not written to the MCAP file; give the link a surface "
+                          "(frame, URDF) to record it")
+            return
+        ns, frame = self._ns(ev.t_s), ev.frame_id
+        header = {"stamp": _time(ns), "frame_id": frame}
+        p, n = [float(a) for a in ev.point_m], [float(a) for a in ev.normal]
+        trusted = ev.force_vec_n is not None and ev.force_reliable is not False  # else no wrench, a short arrow
+        self._put(topic_for(frame, "contact_point"), POINT, {"header": header, "point": _xyz(p)}, ns)
+        self._put("/tf", TF, {"transforms": [_transform(frame, f"{frame}_contact", p, _z_to(n), ns)]}, ns)
+        if trusted:  # in the contact frame: the finger pushes along -z, no torque about the point
+            self._put(topic_for(frame, "contact_wrench"), WRENCH, {"header": {**header, "frame_id": f"{frame}_contact"},
+                      "wrench": {"force": _xyz((0, 0, 0.0 - ev.force_n)), "torque": _xyz((0, 0, 0))}}, ns)
+        if ev.kind == "release":
+            self._touching.pop(frame, None)
+            markers = self._markers(frame, header, DELETE)
+        else:
+            self._touching[frame] = ns
+            markers = self._markers(frame, header, ADD, p, n, ev.force_n if trusted else math.nan)
+        self._put(MARKER_TOPIC, MARKERS, markers, ns)
+        self.written += 1
+
+    # -- life cycle -------------------------------------------------------------------------------------------------
+    def close(self) -> None:
+        """Delete the markers of links still touched (at their last touch's stamp, so a viewer shows no stale contact),
+        then end (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            try:
+                self._io(self._finish)
+            finally:
+                self._closed = True
+                self._end()
+
+    def _finish(self) -> None:
+        for frame, ns in sorted(self._touching.items()):
+            self._put(MARKER_TOPIC, MARKERS, self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
+
+    def discard(self) -> None:
+        """A run that never started: end."""
+        self.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class McapEventWriter(Publisher):
+    """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the wall-clock time
+    of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
+
+    kind = "the MCAP writer"
 
     def __init__(self, path: str | Path, *, t0_unix_s: float, log: Callable[[str], None] | None = None,
                  overwrite: bool = False):
-        self.written = 0  # events written
-        self.t0_unix_s = t0_unix_s
         if not isinstance(path, (str, os.PathLike)) or not str(path):
             raise SonicskinError(f"the MCAP file must be a file path, got {brief(path)}")
-        self.path = Path(path)
+        self.path, self.name = Path(path), str(path)
+        super().__init__(t0_unix_s=t0_unix_s, log=log)
         created = not (overwrite and self.path.exists())
         try:  # O_EXCL: an existing file (an earlier recording, an arm.yaml) is never replaced unasked
             fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | (0 if overwrite else os.O_EXCL), 0o644)
@@ -134,79 +390,15 @@ class McapEventWriter:
             raise SonicskinError(f"{path}: another writer is recording into this MCAP file (it holds the file's lock); "
                                  f"give each recording its own file") from None
         self._file = os.fdopen(fd, "wb")
-        self._w = None  # the MCAP writer, started at the first event or at close
+        self._w = None  # the MCAP writer, started at the first message or at close
         # a writer dropped before it wrote anything (its run failed to start) leaves no empty file behind
         self._abandon = weakref.finalize(self, _abandon, self._file, self.path if created else None)
-        self._log = log or (lambda m: warnings.warn(m, stacklevel=3))
-        self._seq: dict[str, int] = {}
-        self._touching: dict[str, int] = {}  # frame_id -> stamp (ns) of its last touch, while touched
-        self.skipped = 0  # events without the robot-frame fields
-        self.messages = 0
-        self._closed = False
-        self._lock = threading.Lock()  # one writer for the loops of all links
-
-    @property
-    def t0_unix_s(self) -> float:
-        """The wall-clock time (UNIX seconds) of the stream's ``t_s = 0``; settable until the first event is written (a
-        writer made, and its file claimed, before the stream starts)."""
-        return self._t0_ns / 1e9
-
-    @t0_unix_s.setter
-    def t0_unix_s(self, t0_unix_s: float) -> None:
-        if not (isinstance(t0_unix_s, (int, float)) and math.isfinite(t0_unix_s) and t0_unix_s >= 0):
-            raise SonicskinError(f"t0_unix_s must be the stream start as UNIX seconds (e.g. time.time()), got {brief(t0_unix_s)}")
-        if self.written:
-            raise SonicskinError(f"{self.path}: the stream start cannot move once events are written")
-        self._t0_ns = round(float(t0_unix_s) * 1e9)
-
-    # -- messages ---------------------------------------------------------------------------------------------------
-    def _start(self) -> None:
-        """Truncate the file (an overwritten one) and write the MCAP header and schemas."""
-        from mcap.writer import CompressionType
-        from mcap_ros2.writer import Writer
-
-        self._abandon.detach()
-        if os.fstat(self._file.fileno()).st_size:
-            self._file.truncate(0)
-        # chunk_size=0: every message closes its chunk; with the flush after each event the file holds all of it
-        self._w = Writer(self._file, chunk_size=0, compression=CompressionType.NONE)
-        self._schemas = {name: self._w.register_msgdef(name, text) for name, text in DEFINITIONS.items()}
-
-    def _put(self, topic: str, schema: str, msg: dict, ns: int) -> None:
-        seq = self._seq.get(topic, 0)
-        self._w.write_message(topic, self._schemas[schema], msg, log_time=ns, publish_time=ns, sequence=seq)
-        self._seq[topic] = seq + 1
-        self.messages += 1
-
-    @staticmethod
-    def _markers(frame: str, header: dict, action: int, p=None, n=None, force_n: float = math.nan) -> dict:
-        ns = f"sonicskin/{frame}"
-        base = {"header": header, "ns": ns, "action": action, "lifetime": {"sec": 0, "nanosec": 0}, "frame_locked": True,
-                "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}}
-        if action == DELETE:
-            return {"markers": [{**base, "id": 0, "type": ARROW}, {**base, "id": 1, "type": SPHERE}]}
-        length = ARROW_BASE_M + ARROW_M_PER_N * (force_n if math.isfinite(force_n) else 0.0)
-        tail = {"x": p[0] + length * n[0], "y": p[1] + length * n[1], "z": p[2] + length * n[2]}
-        tip = {"x": p[0], "y": p[1], "z": p[2]}
-        arrow = {**base, "id": 0, "type": ARROW, "points": [tail, tip], "scale": {"x": 0.003, "y": 0.006, "z": 0.006},
-                 "color": {"r": 0.9, "g": 0.2, "b": 0.1, "a": 1.0}}
-        sphere = {**base, "id": 1, "type": SPHERE, "pose": {**base["pose"], "position": tip},
-                  "scale": {"x": SPHERE_M, "y": SPHERE_M, "z": SPHERE_M}, "color": {"r": 1.0, "g": 0.8, "b": 0.1, "a": 1.0}}
-        return {"markers": [arrow, sphere]}
-
-    def write(self, ev: TouchEvent) -> None:
-        """Write the messages of one event (nothing, counted in :attr:`skipped`, when it has no robot-frame fields).
-        Thread-safe: the loops of several links may share one writer."""
-        with self._lock:
-            if self._closed:
-                raise SonicskinError(f"{self.path}: the MCAP writer is closed")
-            self._io(self._write, ev)
 
     def _io(self, fn, *args) -> None:
         """``fn(*args)``; an ``OSError`` (a full disk) closes the writer and is one line naming the file."""
         try:
             if self._w is None:
-                self._start()
+                self._begin()
             fn(*args)
         except OSError as e:
             self._closed = True
@@ -215,54 +407,37 @@ class McapEventWriter:
             raise SonicskinError(f"{self.path}: cannot write the MCAP file ({e.strerror or e}); the recording stops here "
                                  f"(free space on its disk, or record to another file)") from None
 
-    def _write(self, ev: TouchEvent) -> None:
-        if ev.frame_id is None or ev.point_m is None or ev.normal is None:
-            self.skipped += 1
-            if self.skipped == 1:
-                self._log(f"warning: {self.path}: an event without the robot-frame fields (no surface for link "
-                          f"{ev.link or '(single link)'}) is not written to the MCAP file; give the link a surface "
-                          "(frame, URDF) to record it")
-            return
-        ns = self._t0_ns + round(ev.t_s * 1e9)
-        frame = ev.frame_id
-        header = {"stamp": _time(ns), "frame_id": frame}
-        p, n = [float(a) for a in ev.point_m], [float(a) for a in ev.normal]
-        self._put(topic_for(frame, "contact_point"), "geometry_msgs/msg/PointStamped",
-                  {"header": header, "point": dict(zip("xyz", p))}, ns)
-        if ev.force_vec_n is not None:
-            f = [float(a) for a in ev.force_vec_n]
-            tau = [p[1] * f[2] - p[2] * f[1], p[2] * f[0] - p[0] * f[2], p[0] * f[1] - p[1] * f[0]]
-            self._put(topic_for(frame, "contact_wrench"), "geometry_msgs/msg/WrenchStamped",
-                      {"header": header, "wrench": {"force": dict(zip("xyz", f)), "torque": dict(zip("xyz", tau))}}, ns)
-        if ev.kind == "release":
-            self._touching.pop(frame, None)
-            markers = self._markers(frame, header, DELETE)
-        else:
-            self._touching[frame] = ns
-            markers = self._markers(frame, header, ADD, p, n, ev.force_n)
-        self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray", markers, ns)
-        self._file.flush()
-        self.written += 1
+    def _begin(self) -> None:
+        """Truncate the file (an overwritten one) and write the MCAP header."""
+        from mcap.writer import CompressionType, IndexType, Writer
 
-    # -- life cycle -------------------------------------------------------------------------------------------------
-    def close(self) -> None:
-        """Write the file's summary and close it (idempotent).  Links still touched get their markers deleted at their
-        last touch's stamp, so a viewer shows no stale contact after the recording ends."""
-        with self._lock:
-            if self._closed:
-                return
-            try:
-                self._io(self._finish)
-            finally:
-                self._closed = True
-                self._file.close()
+        self._abandon.detach()
+        if os.fstat(self._file.fileno()).st_size:
+            self._file.truncate(0)
+        # chunks indexed, messages not (16 bytes a message): every reader finds them by their chunk
+        self._w = Writer(self._file, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD,
+                         index_types=IndexType.ALL & ~IndexType.MESSAGE)
+        self._w.start(profile="ros2", library="sonicskin")
+        self._ids: dict[str, int] = {}
+        self._flushed = (self._t0_ns, time.monotonic())
+
+    def _send(self, topic: str, typ: str, msg: dict, ns: int, seq: int) -> None:
+        if typ not in self._ids:
+            self._ids[typ] = self._w.register_schema(typ, "ros2msg", definition(typ).encode())
+        if topic not in self._ids:
+            self._ids[topic] = self._w.register_channel(topic, "cdr", self._ids[typ])
+        self._w.add_message(self._ids[topic], log_time=ns, data=encode(typ, msg), publish_time=ns, sequence=seq)
+        if ns - self._flushed[0] >= FLUSH_S * 1e9 or time.monotonic() - self._flushed[1] >= FLUSH_S:
+            self._w.flush()  # the chunk closed, on disk: a kill loses at most what came after
+            self._flushed = (ns, time.monotonic())
 
     def _finish(self) -> None:
-        for frame, ns in sorted(self._touching.items()):
-            self._put(MARKER_TOPIC, "visualization_msgs/msg/MarkerArray",
-                      self._markers(frame, {"stamp": _time(ns), "frame_id": frame}, DELETE), ns)
+        super()._finish()
         self._w.finish()
         self._file.flush()
+
+    def _end(self) -> None:
+        self._file.close()
 
     def discard(self) -> None:
         """A run that never started: close the file, and remove it when this writer created it and wrote nothing."""
@@ -272,15 +447,39 @@ class McapEventWriter:
                 self._abandon()
         self.close()
 
-    def __enter__(self) -> McapEventWriter:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
 
 def _abandon(file, created: Path | None) -> None:
     """A writer dropped before its first message: close its file, remove it when the writer created it (still empty)."""
     file.close()
     if created is not None:
         created.unlink(missing_ok=True)
+
+
+def recover(src: str | Path, dst: str | Path) -> int:
+    """Copy the messages of ``src``, an MCAP file whose writer died before its summary, into the complete file ``dst``:
+    every message up to the first record cut off.  Returns their number."""
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap.writer import CompressionType, Writer
+
+    n, ids = 0, {}
+    with open(src, "rb") as f, open(dst, "wb") as out:
+        w = Writer(out, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        w.start(profile="ros2", library="sonicskin recover")
+        with contextlib.suppress(Exception):  # the cut-off end: a partial record or chunk, whatever the reader says of it
+            for r in StreamReader(f, skip_magic=False).records:
+                if isinstance(r, Schema) and ("s", r.id) not in ids:
+                    ids["s", r.id] = w.register_schema(r.name, r.encoding, r.data)
+                elif isinstance(r, Channel) and r.id not in ids:
+                    ids[r.id] = w.register_channel(r.topic, r.message_encoding, ids.get(("s", r.schema_id), 0), r.metadata)
+                elif isinstance(r, Message):
+                    w.add_message(ids[r.channel_id], r.log_time, r.data, r.publish_time, r.sequence)
+                    n += 1
+        w.finish()
+    return n
+
+
+if __name__ == "__main__":  # python -m sonicskin.rosbag IN OUT
+    if len(sys.argv) != 3 or not Path(sys.argv[1]).is_file():
+        sys.exit("usage: python -m sonicskin.rosbag IN.mcap OUT.mcap: recover what a killed writer left in IN into OUT")
+    print(f"{sys.argv[2]}: {recover(*sys.argv[1:])} messages recovered from {sys.argv[1]}")

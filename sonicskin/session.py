@@ -6,6 +6,7 @@ simulated device or an audio interface; :func:`open_source` is the one place a d
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import gc
 import sys
@@ -19,10 +20,11 @@ from .acquire import LOOP_PRIORITY, AudioSource, Link, check_blocksize, realtime
 from .dataset import wall_record
 from .errors import ConfigNotFoundError, UsageError, brief
 from .kinds import BASELINE
-from .links import ARM_FILE, load_arm
+from .links import ARM_FILE, arm_urdf, load_arm
 from .live import LiveLoop, run_loops
 from .rig import Rig
-from .rosbag import McapEventWriter
+from .ros2 import open_buses
+from .rosbag import McapEventWriter, Publisher
 from .runtime import SkinRuntime
 from .sim import Scenario, Simulator, Timeline, build_timeline
 from .view import ViewServer, parse_view_port, view_loops
@@ -91,6 +93,12 @@ class Run:
     mcap: McapEventWriter | None = None
     realtime: bool = False  # real-time scheduling of the audio and processing threads; what they got: granted
     granted: dict = dataclasses.field(default_factory=dict)
+    buses: list[Publisher] = dataclasses.field(default_factory=list)  # the live ROS 2 (DDS) and Foxglove publishers
+
+    @property
+    def publishers(self) -> list[Publisher]:
+        """Where the run's ROS 2 messages go: the MCAP file and the live buses."""
+        return [p for p in (self.mcap, *self.buses) if p is not None]
 
     @property
     def arm(self) -> bool:
@@ -100,21 +108,24 @@ class Run:
     def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
               on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
         """One :class:`~sonicskin.live.LiveLoop` per link (``emit``, ``status``, ``on_event`` as LiveLoop's; every event
-        also to the MCAP file), and with ``view`` (``True`` or a port) the live page :attr:`view`."""
+        and every link's contact state also to :attr:`publishers`), and with ``view`` (``True`` or a port) the live page."""
         def event(ev) -> None:
-            if self.mcap is not None:
-                self.mcap.write(ev)
+            for pub in self.publishers:
+                pub.write(ev)
             if on_event is not None:
                 on_event(ev)
 
         self.live = [LiveLoop(rt, self.source, link=lk if self.arm else None, channel=i, emit=emit, status=status,
                                on_event=event) for i, (lk, rt) in enumerate(zip(self.links, self.runtimes))]
+        for lp in self.live if self.publishers else ():
+            lp.on_chirp = lambda t_s, p, lp=lp: [pub.contact(lp, t_s, p) for pub in self.publishers]
         if view is not None and view is not False:
             try:
-                self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view))
+                self.view = view_loops(self.live, scenarios=self.scenarios, port=parse_view_port(view),
+                                       urdf=arm_urdf(self.spec) if self.arm else None)
             except BaseException:  # e.g. a taken port: the run never starts, so nothing of it is written
-                if self.mcap is not None:
-                    self.mcap.discard()
+                for pub in self.publishers:
+                    pub.discard()
                 raise
         return self.live
 
@@ -125,10 +136,15 @@ class Run:
         if duration_s is not None and length is not None and duration_s > length and self.live:
             self.live[0].warn(f"the simulated session is {length:.1f} s long (one scripted session of touches per link): "
                               f"the run ends with it, before the {duration_s:g} s asked for")
-        undo = None
-        try:
-            if self.mcap is not None:
-                self.mcap.t0_unix_s = time.time()  # t_s = 0: the stream starts now
+        with contextlib.ExitStack() as done:  # every publisher closed and the page stopped, whatever ends the run
+            for pub in self.publishers:
+                done.callback(pub.close)
+            if self.view is not None:
+                done.callback(self.view.stop)
+            t0 = time.time()  # t_s = 0: the stream starts now
+            for pub in self.publishers:
+                pub.t0_unix_s = t0
+                pub.start()
             with self.source:
                 if self.realtime:  # the source's thread asks for itself as it starts (rt_sched); this thread processes
                     for _ in range(100):  # the audio thread's first callback (a device) or start (simulated)
@@ -137,18 +153,12 @@ class Run:
                         time.sleep(0.01)
                     self.granted["audio"] = self.source.rt_granted or "its thread had not started after 1 s"
                     self.granted["processing"], undo = realtime_thread(LOOP_PRIORITY)
+                    done.callback(undo)
                     gc.freeze()  # what the run opened is never scanned again by the collector
                     print(f"sonicskin: real-time scheduling: audio thread {self.granted['audio']}; processing thread "
                           f"{self.granted['processing']}", file=sys.stderr, flush=True)
                 return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
                                               stop=stop))
-        finally:
-            if undo is not None:
-                undo()
-            if self.mcap is not None:
-                self.mcap.close()
-            if self.view is not None:
-                self.view.stop()
 
     def summary(self, sums: list[dict]) -> dict:
         """The loops' summaries as ``sonicskin live`` prints them: keyed by link on an arm, else the one loop's."""
@@ -158,7 +168,7 @@ class Run:
 def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario=None, rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
-             mcap=None, overwrite: bool = False, realtime: bool = False) -> Run:
+             mcap=None, overwrite: bool = False, realtime: bool = False, ros2=None, foxglove=None) -> Run:
     """Open a skin on a device.
 
     ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario`` (stationary),
@@ -167,7 +177,9 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
     ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
     jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
     ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
-    ``overwrite``), opened and locked here.  ``realtime``: real-time scheduling of the audio and processing threads
+    ``overwrite``), opened and locked here.  ``ros2``: the same messages live on this DDS domain (``True``:
+    ROS_DOMAIN_ID, else 0); ``foxglove``: on Foxglove's WebSocket at this port (``True``: 8765; :mod:`sonicskin.ros2`).
+    ``realtime``: real-time scheduling of the audio and processing threads
     (:func:`sonicskin.acquire.realtime_thread`; what they got: :attr:`Run.granted`, and one line on stderr).
     """
     check_blocksize(blocksize)
@@ -193,17 +205,24 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         the_rig = given if given is not None or artifact is not None else Rig.load("jaco")
         lks = [Link(tx=tx, rx=rx, name="skin", scenario=load_config(Scenario.load, scenario or "stationary") if sim else None,
                     artifact=artifact)]
-    writer = None
-    if mcap is not None:
-        _require_frames(lks, spec)
-        writer = McapEventWriter(mcap, t0_unix_s=time.time(), overwrite=overwrite)  # a bad or taken path: refused now
-    try:
-        run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer)
+    pubs: list[Publisher] = []
+    for what, v in (("--mcap/mcap=", mcap), ("--ros2/ros2=", ros2), ("--foxglove/foxglove=", foxglove)):
+        if v is not None:
+            _require_frames(lks, spec, what)
+    try:  # opened before the models load: a bad or taken path or port is refused now, a DDS reader has time to match
+        if mcap is not None:
+            pubs.append(McapEventWriter(mcap, t0_unix_s=time.time(), overwrite=overwrite))
+        pubs += open_buses(ros2, foxglove)
+        for pub in pubs:  # every link's topics, and the arm's URDF: /robot_description, /tf_static, set_joint_state
+            pub.announce([lk.surface.frame_id for lk in lks], arm_urdf(spec))
+        run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every,
+                    pubs[0] if mcap is not None else None)
+        run.buses = pubs[mcap is not None:]
         run.source.rt_sched = run.realtime = bool(realtime)
         return run
     except BaseException:
-        if writer is not None:
-            writer.discard()  # nothing recorded: no file left behind
+        for pub in pubs:
+            pub.discard()  # nothing recorded: no file left behind
         raise
 
 
@@ -251,14 +270,14 @@ def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> No
         raise UsageError(f"link {lk.name!r}: {rt.folder} was trained for {' and '.join(other)}, not this link; {fix}")
 
 
-def _require_frames(links: list[Link], spec) -> None:
-    """An MCAP file holds each touch in its link's frame: one line naming the links without a surface, and the fix."""
+def _require_frames(links: list[Link], spec, what: str) -> None:
+    """ROS 2 messages hold each touch in its link's frame: one line naming the links without a surface, and the fix."""
     if spec is None:
-        raise UsageError("--mcap/mcap= writes each touch in its link's frame, which an arm file gives its links: run an "
+        raise UsageError(f"{what} writes each touch in its link's frame, which an arm file gives its links: run an "
                          "arm (--links arm6, or the folder `sonicskin fit-svm --links` wrote, holding arm.yaml)")
     bare = [lk.name for lk in links if lk.surface is None]
     if bare:
-        raise UsageError(f"--mcap/mcap= writes each touch in its link's frame, and {spec} places no surface on links "
+        raise UsageError(f"{what} writes each touch in its link's frame, and {spec} places no surface on links "
                          f"{bare}; give them a frame (an arm file's `frame:` with `urdf:`, or `surface:`: "
                          f"docs/robot-frame.md)")
 

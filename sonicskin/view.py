@@ -1,11 +1,14 @@
-"""A live view of the skin in a web browser: each link's surface unrolled, the touch, the last events, the drift state.
+"""A live view of the skin in a web browser: the arm in 3D with each touch and its force, each link's surface
+unrolled (the bring-up panel), the last events, the drift state.
 
 :class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: no CDN, nothing from the internet) and
 two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
 
     GET /            the page
-    GET /links.json  the links, once per page load: name, kind, surface size, markers (cm), spacing
-    GET /state.json  what changes: the touch on each link, each link's status, the last events, a sequence number
+    GET /links.json  once per page load: each link's name, kind, surface size, markers (cm), and its frame and
+                     shape in metres (a :class:`~sonicskin.surface.LinkSurface`); the arm's URDF (which places them)
+    GET /state.json  what changes: the touch on each link (and its point and normal in the link's frame), each link's
+                     status and presses, the last events, a sequence number
 
 The page polls ``/state.json`` every 100 ms (a short stateless request: ``stop()`` never waits on an open
 connection, a page survives a restart of the server).  The live loop calls :meth:`ViewServer.push_event` and
@@ -29,6 +32,7 @@ import time
 import weakref
 from collections import deque
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -74,6 +78,7 @@ class LinkView:
     width_cm: float | None = None
     tx_cm: tuple[float, float] | None = None
     rx_cm: tuple[float, float] | None = None
+    surface: Any = None  # the link's LinkSurface: the page draws it in 3D, in its frame
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -104,43 +109,20 @@ class LinkView:
                 object.__setattr__(self, k, p)
 
     @classmethod
-    def from_scenario(cls, name: str, scenario) -> LinkView:
+    def from_scenario(cls, name: str, scenario, surface=None) -> LinkView:
         """The link of a simulated scenario (:class:`sonicskin.sim.Scenario`): its layout, geometry and transducers."""
         g = scenario.geometry
         return cls(name, scenario.make_layout(), kind=g["kind"], length_cm=g.get("length_cm"), width_cm=g.get("width_cm"),
-                   tx_cm=getattr(scenario, "tx_cm", None), rx_cm=getattr(scenario, "rx_cm", None))
-
-    @property
-    def spacing_cm(self) -> float:
-        """The median distance from a marker to its nearest neighbour on the surface (1 cm for a single marker)."""
-        xy = self.layout.xy_cm
-        if len(xy) < 2:
-            return 1.0
-        d = self.layout.distance_cm(xy[:, None, :], xy[None, :, :])
-        np.fill_diagonal(d, np.inf)
-        return float(np.median(d.min(axis=1)))
-
-    def extent_cm(self) -> tuple[float, float, float, float]:
-        """``(x0, x1, y0, y1)`` of the drawn surface, cm."""
-        xy, s = self.layout.xy_cm, self.spacing_cm
-        pts = [xy] + [np.asarray([p]) for p in (self.tx_cm, self.rx_cm) if p is not None]
-        allp = np.concatenate(pts)
-        y0 = min(0.0, float(allp[:, 1].min()) - s)
-        y1 = self.length_cm if self.length_cm is not None else float(allp[:, 1].max()) + s
-        if self.kind == "tube":
-            x0, x1 = 0.0, float(self.layout.circumference_cm)
-        else:
-            x0 = min(0.0, float(allp[:, 0].min()) - s)
-            x1 = self.width_cm if self.width_cm is not None else float(allp[:, 0].max()) + s
-        return x0, max(x1, float(allp[:, 0].max())), y0, max(y1, float(allp[:, 1].max()))
+                   tx_cm=getattr(scenario, "tx_cm", None), rx_cm=getattr(scenario, "rx_cm", None), surface=surface)
 
     def to_dict(self) -> dict[str, Any]:
-        x0, x1, y0, y1 = self.extent_cm()
+        """What ``/links.json`` says of the link (the page works out the markers' spacing and the extent it draws)."""
         return {"name": self.name, "kind": self.kind, "circumference_cm": self.layout.circumference_cm,
-                "length_cm": self.length_cm, "width_cm": self.width_cm, "extent_cm": [x0, x1, y0, y1],
-                "spacing_cm": round(self.spacing_cm, 4), "tx_cm": self.tx_cm, "rx_cm": self.rx_cm,
+                "length_cm": self.length_cm, "width_cm": self.width_cm, "tx_cm": self.tx_cm, "rx_cm": self.rx_cm,
                 "markers": [{"id": i, "x_cm": round(float(x), 4), "y_cm": round(float(y), 4)}
-                            for i, (x, y) in zip(self.layout.ids, self.layout.xy_cm)]}
+                            for i, (x, y) in zip(self.layout.ids, self.layout.xy_cm)],
+                "shape": None if self.surface is None else {"frame": self.surface.frame_id, "kind": self.surface.kind,
+                                                            "dims_m": self.surface.dims_m, "pose": self.surface.pose.tolist()}}
 
 
 def _page() -> bytes:
@@ -241,7 +223,8 @@ class ViewServer:
     """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free; :attr:`url`); :meth:`push_event`
     and :meth:`set_status` may be called from any thread.  A context manager, or :meth:`start` / :meth:`stop`."""
 
-    def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS):
+    def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS,
+                 urdf: str | None = None):
         links = list(links)
         if not links:
             raise SonicskinError("the view needs at least one link (LinkView(name, layout))")
@@ -257,7 +240,7 @@ class ViewServer:
         self.links = {lk.name: lk for lk in links}
         self.host, self.port = host, port
         self._run_id = f"{time.time_ns():x}"  # a page that sees another run id reloads the links
-        self._links_json = json.dumps({"run": self._run_id, "links": [lk.to_dict() for lk in links]}).encode()
+        self._links_json = json.dumps({"run": self._run_id, "links": [lk.to_dict() for lk in links], "urdf": urdf}).encode()
         self._page = _page()
         self._lock = threading.Lock()
         self._seq = 0
@@ -365,10 +348,10 @@ class ViewServer:
         d = {"link": link, "kind": ev.kind, "t_s": round(float(ev.t_s), 4), "location": int(ev.location),
              "x_cm": None if x is None else round(x, 3), "y_cm": None if y is None else round(y, 3),
              "force_n": None if _finite(ev.force_n) is None else round(float(ev.force_n), 3),
-             "confidence": _finite(ev.confidence), "model": ev.model}
+             "confidence": _finite(ev.confidence), "model": ev.model, "point_m": ev.point_m, "normal": ev.normal}
         with self._lock:
+            self._counts[link] += ev.kind == "touch" and self._touch[link] is None  # presses, not touched chirps
             self._touch[link] = d if ev.kind == "touch" else None
-            self._counts[link] += ev.kind == "touch"
             self._events.appendleft(d)
             self._seq += 1
 
@@ -442,15 +425,16 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
-               port: int = 0) -> ViewServer:
+               port: int = 0, urdf=None) -> ViewServer:
     """Serve a started view of the live loops (one per link), each attached: drawn as ``links``, or from
-    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link."""
+    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link; each on its
+    loop's surface, the arm placed by ``urdf`` (a path)."""
     loops = list(loops)
     if links is None and scenarios:
-        links = [LinkView.from_scenario(name, sc) for name, sc in scenarios]
+        links = [LinkView.from_scenario(name, sc, lp.surface) for (name, sc), lp in zip(scenarios, loops)]
     if links is None:
-        links = [LinkView(lp.link_name or "skin", lp.rt.layout) for lp in loops]
-    view = ViewServer(links, host=host, port=port)
+        links = [LinkView(lp.link_name or "skin", lp.rt.layout, surface=lp.surface) for lp in loops]
+    view = ViewServer(links, host=host, port=port, urdf=None if urdf is None else Path(urdf).read_text())
     for lp in loops:
         attach_view(view, lp)
     return view.start()

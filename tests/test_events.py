@@ -33,8 +33,13 @@ def test_event_round_trip_and_nulls():
     assert d["force_n"] is None and d["t_s"] == 4.2667  # no force model: null; 4 decimals
     back = parse_event(ev.to_json())
     assert back.kind == "touch" and back.location == 3 and math.isnan(back.force_n)
-    optional = {"link", "frame_id", "point_m", "normal", "force_vec_n"}  # link: --links only; the rest: a surface
-    assert set(EVENT_SCHEMA["required"]) == set(d) == set(EVENT_SCHEMA["properties"]) - optional
+    optional = {"link", "frame_id", "point_m", "normal", "force_vec_n", "force_reliable"}  # link: --links only; frame_id,
+    assert set(EVENT_SCHEMA["required"]) == set(d) == set(EVENT_SCHEMA["properties"]) - optional  # ...: a surface
+    for flag in (True, False):  # force_reliable: the artifact's verdict on its force, written when it has one
+        ev2 = dataclasses.replace(ev, force_reliable=flag)
+        assert json.loads(ev2.to_json())["force_reliable"] is flag and parse_event(ev2.to_json()).force_reliable is flag
+    with pytest.raises(EventError, match=r"force_reliable must be boolean, got 'yes'"):
+        validate_event({**GOOD, "force_reliable": "yes"})
 
 
 @pytest.mark.parametrize("change, msg", [

@@ -1,7 +1,7 @@
 """Touch events as ROS 2 messages in MCAP (sonicskin.rosbag), decoded back with mcap-ros2-support's own reader and
 checked one for one against the events."""
 
-import io
+import dataclasses
 import math
 from pathlib import Path
 
@@ -45,6 +45,22 @@ def read_ros2_messages(path):
         return [_Msg(*r) for r in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
 
 
+def _raw(path):
+    """(topic, log time, CDR bytes) of every message of the file."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(f).iter_messages()]
+
+
+def _rotation(q):
+    """The rotation matrix of a quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
 def _stamp_ns(msg):
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
@@ -55,34 +71,43 @@ def test_every_message_matches_its_event(tmp_path):
     with McapEventWriter(path, t0_unix_s=T0) as w:
         for ev in events:
             w.write(ev)
-    assert (w.written, w.skipped, w.messages) == (len(events), 0, 3 * len(events))
+    assert (w.written, w.skipped, w.messages) == (len(events), 0, 4 * len(events))
     msgs = read_ros2_messages(path)
-    assert len(msgs) == 3 * len(events)  # every press ended in a release: no DELETE added on close
+    assert len(msgs) == 4 * len(events)  # every press ended in a release: no DELETE added on close
     by_topic = {}
     for m in msgs:
         by_topic.setdefault(m.channel.topic, []).append(m)
     assert set(by_topic) == {"/sonicskin/forearm_link/contact_point", "/sonicskin/forearm_link/contact_wrench",
-                             "/sonicskin/hand_plate/contact_point", "/sonicskin/hand_plate/contact_wrench", MARKER_TOPIC}
+                             "/sonicskin/hand_plate/contact_point", "/sonicskin/hand_plate/contact_wrench", MARKER_TOPIC, "/tf"}
     assert {m.schema.name for m in msgs} == {"geometry_msgs/msg/PointStamped", "geometry_msgs/msg/WrenchStamped",
-                                            "visualization_msgs/msg/MarkerArray"}
+                                            "visualization_msgs/msg/MarkerArray", "tf2_msgs/msg/TFMessage"}
     seen = {t: 0 for t in by_topic}
     for ev in events:
         ns = round(T0 * 1e9) + round(ev.t_s * 1e9)
         pt = by_topic[topic_for(ev.frame_id, "contact_point")][seen[topic_for(ev.frame_id, "contact_point")]]
         wr = by_topic[topic_for(ev.frame_id, "contact_wrench")][seen[topic_for(ev.frame_id, "contact_wrench")]]
         mk = by_topic[MARKER_TOPIC][seen[MARKER_TOPIC]]
-        for t in (topic_for(ev.frame_id, "contact_point"), topic_for(ev.frame_id, "contact_wrench"), MARKER_TOPIC):
+        tf = by_topic["/tf"][seen["/tf"]].ros_msg.transforms
+        for t in (topic_for(ev.frame_id, "contact_point"), topic_for(ev.frame_id, "contact_wrench"), MARKER_TOPIC, "/tf"):
             seen[t] += 1
         for m in (pt, wr, mk):
             assert m.log_time_ns == ns
         p = np.array([pt.ros_msg.point.x, pt.ros_msg.point.y, pt.ros_msg.point.z])
         f = np.array([wr.ros_msg.wrench.force.x, wr.ros_msg.wrench.force.y, wr.ros_msg.wrench.force.z])
         tau = np.array([wr.ros_msg.wrench.torque.x, wr.ros_msg.wrench.torque.y, wr.ros_msg.wrench.torque.z])
-        for msg in (pt.ros_msg, wr.ros_msg):
-            assert msg.header.frame_id == ev.frame_id and _stamp_ns(msg) == ns
+        assert pt.ros_msg.header.frame_id == ev.frame_id and _stamp_ns(pt.ros_msg) == ns
         assert p.tolist() == list(ev.point_m)  # float64 on both sides: exact
-        np.testing.assert_allclose(f, -ev.force_n * np.array(ev.normal), atol=1e-12)
-        np.testing.assert_allclose(tau, np.cross(p, f), atol=1e-12)  # the wrench about the link frame's origin
+        # the wrench in the contact frame, which /tf puts at the point with its z the outward normal (at the same stamp)
+        assert wr.ros_msg.header.frame_id == f"{ev.frame_id}_contact" and _stamp_ns(wr.ros_msg) == ns
+        assert len(tf) == 1 and (tf[0].header.frame_id, tf[0].child_frame_id) == (ev.frame_id, f"{ev.frame_id}_contact")
+        assert _stamp_ns(tf[0]) == ns
+        tr, q = tf[0].transform.translation, tf[0].transform.rotation
+        np.testing.assert_allclose([tr.x, tr.y, tr.z], p)
+        R = _rotation([q.x, q.y, q.z, q.w])
+        np.testing.assert_allclose(R[:, 2], ev.normal, atol=1e-12)  # the contact frame's z: the outward normal
+        np.testing.assert_allclose(f, [0.0, 0.0, -ev.force_n])
+        np.testing.assert_allclose(tau, 0.0)
+        np.testing.assert_allclose(R @ f, -ev.force_n * np.array(ev.normal), atol=1e-12)  # in the link frame: force_vec_n
         markers = mk.ros_msg.markers
         assert len(markers) == 2 and [(k.ns, k.id) for k in markers] == [(f"sonicskin/{ev.frame_id}", 0), (f"sonicskin/{ev.frame_id}", 1)]
         assert all(k.header.frame_id == ev.frame_id and _stamp_ns(k) == ns for k in markers)
@@ -109,7 +134,7 @@ def test_events_without_a_surface_are_counted_with_one_warning(tmp_path):
     assert (w.written, w.skipped) == (2, 3)
     assert logged == [f"warning: {tmp_path / 'a.mcap'}: an event without the robot-frame fields (no surface for link "
                       "(single link)) is not written to the MCAP file; give the link a surface (frame, URDF) to record it"]
-    assert len(read_ros2_messages(tmp_path / "a.mcap")) == 6 + 1  # + the markers' DELETE on close (still pressed)
+    assert len(read_ros2_messages(tmp_path / "a.mcap")) == 8 + 1  # + the markers' DELETE on close (still pressed)
 
 
 def test_no_force_model_writes_no_wrench_and_a_short_arrow(tmp_path):
@@ -119,7 +144,7 @@ def test_no_force_model_writes_no_wrench_and_a_short_arrow(tmp_path):
     with McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0) as w:
         w.write(ev)
     topics = [m.channel.topic for m in read_ros2_messages(tmp_path / "a.mcap")]
-    assert topics == ["/sonicskin/forearm_link/contact_point", MARKER_TOPIC, MARKER_TOPIC]  # the second: DELETE on close
+    assert topics == ["/sonicskin/forearm_link/contact_point", "/tf", MARKER_TOPIC, MARKER_TOPIC]  # the last: DELETE on close
 
 
 def test_ctrl_c_finalises_the_file_and_clears_the_markers(tmp_path):
@@ -132,39 +157,35 @@ def test_ctrl_c_finalises_the_file_and_clears_the_markers(tmp_path):
             raise KeyboardInterrupt
     msgs = read_ros2_messages(path)  # a complete file: the summary written on the way out
     marker_arrays = [m for m in msgs if m.channel.topic == MARKER_TOPIC]
-    assert len(msgs) == 3 * 5 + 1 and len(marker_arrays) == 6
+    assert len(msgs) == 4 * 5 + 1 and len(marker_arrays) == 6
     last = marker_arrays[-1]
     assert [(k.ns, k.action) for k in last.ros_msg.markers] == [("sonicskin/hand_plate", 2)] * 2
     assert last.log_time_ns == round(T0 * 1e9) + round(events[-1].t_s * 1e9)
 
 
-def test_a_process_killed_hard_loses_no_written_event(tmp_path):
-    """Each event is flushed as whole chunks: the file of a process that never closed it still holds every message."""
-    from mcap.exceptions import EndOfFile
-    from mcap.records import Message, Schema
-    from mcap.stream_reader import StreamReader
-    from mcap_ros2.decoder import DecoderFactory
+def test_a_writer_killed_hard_loses_at_most_its_last_second(tmp_path):
+    """Chunks close and reach the disk at least once a second of stream: the bytes of a writer that never closed its
+    file (a kill -9) hold every message older than a second before its last one, and recover() makes them a file."""
+    from sonicskin.rosbag import CHUNK_BYTES, recover
 
-    events = _events()[:5]
+    fore = LinkSurface.from_urdf(ARM, "forearm_link")
+    events = [attach_surface(TouchEvent(k * 0.05, "touch", 0, 3.0, 5.0, 1.0, 0.9, "svm", 0.5, link="f"), fore) for k in range(90)]
     w = McapEventWriter(tmp_path / "a.mcap", t0_unix_s=T0)
     for ev in events:
         w.write(ev)
-    data = (tmp_path / "a.mcap").read_bytes()  # as a kill -9 leaves it: no summary, no footer
+    (tmp_path / "killed.mcap").write_bytes((tmp_path / "a.mcap").read_bytes())  # as a kill -9 leaves it: no summary
     w.close()
-    schemas, channels, got = {}, {}, []
-    with pytest.raises(EndOfFile):
-        for r in StreamReader(io.BytesIO(data), skip_magic=False).records:
-            if isinstance(r, Schema):
-                schemas[r.id] = r
-            elif hasattr(r, "topic") and hasattr(r, "schema_id"):
-                channels[r.id] = r
-            elif isinstance(r, Message):
-                got.append((channels[r.channel_id].topic, r))
-    assert len(got) == 3 * len(events)
-    topic, rec = got[-3]
-    sch = schemas[channels[rec.channel_id].schema_id]
-    msg = DecoderFactory().decoder_for("cdr", sch)(rec.data)
-    assert topic == "/sonicskin/hand_plate/contact_point" and [msg.point.x, msg.point.y, msg.point.z] == list(events[-1].point_m)
+    from mcap.exceptions import McapError
+
+    with pytest.raises(McapError):  # no reader opens it as it is
+        read_ros2_messages(tmp_path / "killed.mcap")
+    n = recover(tmp_path / "killed.mcap", tmp_path / "fixed.mcap")
+    whole, fixed = _raw(tmp_path / "a.mcap"), _raw(tmp_path / "fixed.mcap")
+    assert 0 < n == len(fixed) < len(whole) and fixed == whole[:n]  # the same messages, byte for byte
+    last_ns = round(T0 * 1e9) + round(events[-1].t_s * 1e9)
+    assert all(t > last_ns - 1e9 for _, t, _ in whole[n:])  # what is lost: the last second only
+    assert len(read_ros2_messages(tmp_path / "fixed.mcap")) == n  # a complete file
+    assert CHUNK_BYTES == 1 << 20 and (tmp_path / "a.mcap").stat().st_size < 20_000  # zstd chunks: 90 events in 19 kB
 
 
 def test_bad_arguments_are_one_line(tmp_path):
@@ -194,7 +215,7 @@ def test_the_bytes_are_what_ros2_itself_encodes(tmp_path, distro):
         for schema, _, message in make_reader(f).iter_messages():
             assert bytes(ts.serialize_cdr(ts.deserialize_cdr(message.data, schema.name), schema.name)) == message.data
             n += 1
-    assert n == 3 * len(_events())
+    assert n == 4 * len(_events())
 
 
 # -- the output file (issue 37) ----------------------------------------------------------------------------------------
@@ -209,7 +230,7 @@ def test_an_existing_file_is_refused_unless_overwrite(tmp_path):
     assert arm.read_text() == "name: trained\n"
     with McapEventWriter(arm, t0_unix_s=T0, overwrite=True) as w:
         w.write(_events()[0])
-    assert len(read_ros2_messages(arm)) == 4  # a touch, and its marker deleted on close
+    assert len(read_ros2_messages(arm)) == 5  # a touch, and its marker deleted on close
     for bad, shown in ((5, "5"), ("", "''")):  # mcap=5 opened file descriptor 5; '' wrote nothing
         with pytest.raises(SonicskinError, match=f"^the MCAP file must be a file path, got {shown}$"):
             McapEventWriter(bad, t0_unix_s=T0)
@@ -229,7 +250,7 @@ def test_a_second_writer_on_the_same_file_is_refused_while_the_first_is_open(tmp
                             f"each recording its own file")
     first.write(_events()[1])
     first.close()
-    assert len(read_ros2_messages(path)) == 7  # the first writer's file, whole
+    assert len(read_ros2_messages(path)) == 9  # the first writer's file, whole
     McapEventWriter(path, t0_unix_s=T0, overwrite=True).close()
     assert read_ros2_messages(path) == []  # replaced by an empty, complete recording
 
@@ -238,8 +259,9 @@ def test_a_full_disk_is_one_line_naming_the_file(tmp_path):
     from sonicskin.errors import SonicskinError
 
     w = McapEventWriter("/dev/full", t0_unix_s=T0, overwrite=True)
+    w.write(_events()[0])  # into the chunk, which reaches the disk a second (of stream) later
     with pytest.raises(SonicskinError) as e:
-        w.write(_events()[0])
+        w.write(dataclasses.replace(_events()[1], t_s=1.5))
     assert str(e.value) == ("/dev/full: cannot write the MCAP file (No space left on device); the recording stops here "
                             "(free space on its disk, or record to another file)")
     with pytest.raises(SonicskinError, match="^/dev/full: the MCAP writer is closed$"):

@@ -166,5 +166,7 @@ def test_built_wheel_holds_one_top_level_package(tmp_path):
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith((".dist-info", ".data"))}
     assert top == {"sonicskin"}, f"the wheel installs top-level {sorted(top)}"
     for mod in ("sonicskin/models/__init__.py", "sonicskin/training/module.py", "sonicskin/export/onnx.py",
-                "sonicskin/configs/rigs/jaco.yaml", "sonicskin/view.html"):
+                "sonicskin/configs/rigs/jaco.yaml", "sonicskin/view.html", "sonicskin/msg/ros2.msg",
+                "sonicskin/msg/sonicskin_msgs/package.xml", "sonicskin/msg/sonicskin_msgs/CMakeLists.txt",
+                "sonicskin/msg/sonicskin_msgs/msg/Contact.msg", "sonicskin/configs/arms/arm6.foxglove.json"):
         assert mod in names, f"the wheel lacks {mod}"

@@ -48,18 +48,22 @@ def _get(url: str, host: str | None = None):
 
 
 # -- state and server, no browser ----------------------------------------------------------------------------------
+def _spacing(link: LinkView) -> float:
+    """The median distance from a marker to its nearest neighbour on the surface (what the page works out)."""
+    xy = link.layout.xy_cm
+    d = link.layout.distance_cm(xy[:, None, :], xy[None, :, :])
+    np.fill_diagonal(d, np.inf)
+    return float(np.median(d.min(axis=1)))
+
+
 def test_linkview_geometry_from_scenarios():
     tube, plate = _links()
     assert (tube.kind, plate.kind) == ("tube", "plate")
-    assert tube.spacing_cm == pytest.approx(1.2) and plate.spacing_cm == pytest.approx(3.0)
-    assert tube.extent_cm() == pytest.approx((0.0, 2 * np.pi * 3.75, 0.0, 25.0))
-    assert plate.extent_cm() == pytest.approx((0.0, 30.0, 0.0, 34.0))
     assert (tube.tx_cm, tube.rx_cm) == ((0.0, 2.5), (5.9, 22.5))
     d = plate.to_dict()
     assert len(d["markers"]) == 36 and d["markers"][7] == {"id": 7, "x_cm": 10.5, "y_cm": 12.5}
-    # kind inferred from the layout; no size given: the markers' extent plus one spacing
-    grid = LinkView("g", Layout.grid(3, 1, 2.4, 6, 12))
-    assert grid.kind == "plate" and grid.extent_cm() == pytest.approx((0.0, 13.2, 0.0, 14.4))
+    assert (d["width_cm"], d["length_cm"], d["shape"]) == (30.0, 34.0, None)
+    assert LinkView("g", Layout.grid(3, 1, 2.4, 6, 12)).kind == "plate"  # kind inferred from the layout
 
 
 def test_touch_and_release_in_the_state():
@@ -73,9 +77,12 @@ def test_touch_and_release_in_the_state():
     assert t["location"] == 14 and t["x_cm"] == pytest.approx(13.8) and t["y_cm"] == pytest.approx(15.3)
     assert t["force_n"] == 3.25 and t["t_s"] == 1.5 and s["links"]["forearm"]["touch"] is None
     assert s["seq"] > s0["seq"] and s["links"]["hand-plate"]["touches"] == 1
+    view.push_event(_event(plate, 14, force=3.5, t=1.55))  # the same press, its next chirp
     view.push_event(_event(plate, 14, kind="release", t=1.6))
     s = view.state()
-    assert s["links"]["hand-plate"]["touch"] is None and [e["kind"] for e in s["events"]] == ["release", "touch"]
+    assert s["links"]["hand-plate"]["touch"] is None and [e["kind"] for e in s["events"]] == ["release", "touch", "touch"]
+    view.push_event(_event(plate, 3, t=2.5))
+    assert view.state()["links"]["hand-plate"]["touches"] == 2  # the counter counts presses, not touched chirps
     # a tube's x wraps at its circumference; the list keeps the last ten, newest first
     C = tube.layout.circumference_cm
     view.push_event(TouchEvent(2.0, "touch", 0, C + 1.0, 12.0, 1.0, 0.9, "svm", 0.5, link="forearm"))
@@ -286,7 +293,7 @@ def test_events_from_many_threads_while_pages_read():
         r.join()
         s = view.state()
     assert s["seq"] == 600 and len(s["events"]) == 600
-    assert s["links"]["forearm"]["touches"] == 400 and s["links"]["hand-plate"]["touches"] == 200
+    assert s["links"]["forearm"]["touches"] == s["links"]["hand-plate"]["touches"] == 1  # one press each, never released
     assert reads == sorted(reads)
 
 
@@ -312,6 +319,9 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
     with ViewServer([tube, plate]) as view, Browser() as b:
         b.open(view.url, ready="document.querySelectorAll('section.link').length === 2 && document.body.dataset.seq")
         assert b.js("[...document.querySelectorAll('section.link')].map(s => s.dataset.link)") == ["forearm", "hand-plate"]
+        geo = b.js("links.map(l => [l.spacing_cm, l.extent_cm])")  # the page's spacing and extent, as the view draws them
+        assert geo[0][0] == pytest.approx(_spacing(tube)) == pytest.approx(1.2) and geo[1][0] == pytest.approx(3.0)
+        assert geo[0][1] == pytest.approx([0.0, 2 * np.pi * 3.75, 0.0, 25.0]) and geo[1][1] == pytest.approx([0, 30, 0, 34])
         assert b.js("document.querySelectorAll('section[data-link=forearm] circle.marker').length") == 31
         assert _dots(b) == []
         for link, loc, other in ((plate, 14, tube), (tube, 20, plate)):
@@ -322,7 +332,7 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
             assert dot["panel"] == dot["link"] == link.name and int(dot["location"]) == loc
             assert float(dot["xCm"]) == pytest.approx(ev.x_cm, abs=1e-3) and float(dot["yCm"]) == pytest.approx(ev.y_cm, abs=1e-3)
             true_xy = link.layout.coords(np.asarray([loc]))[0]
-            assert link.layout.distance_cm(np.array([float(dot["xCm"]), float(dot["yCm"])]), true_xy) < link.spacing_cm
+            assert link.layout.distance_cm(np.array([float(dot["xCm"]), float(dot["yCm"])]), true_xy) < _spacing(link)
             assert float(dot["forceN"]) == 3.4 and float(dot["tS"]) == 12.25
             sel = f"section[data-link='{link.name}']"
             assert b.js(f"[...document.querySelectorAll(\"{sel} circle.marker.hit\")].map(m => m.dataset.location)") == [str(loc)]
@@ -342,6 +352,10 @@ def test_a_scripted_touch_appears_on_the_right_link_within_one_second():
         view.stop()
         b.advance(1000)
         assert b.js("document.getElementById('conn').textContent").startswith("disconnected")
+    # no size given: the plate drawn is the markers' extent plus one spacing
+    with ViewServer([LinkView("g", Layout.grid(3, 1, 2.4, 6, 12))]) as grid, Browser() as b:
+        b.open(grid.url, ready="document.querySelectorAll('section.link').length === 1")
+        assert b.js("links[0].extent_cm") == pytest.approx([0.0, 13.2, 0.0, 14.4])
 
 
 @needs_chromium
@@ -411,6 +425,64 @@ def _run_and_read(view, src, runner, held, go, seen, rt, tl, rig):
         assert _dots(b) == [] and seen[1].kind == "release"
         go.set()
         runner.join(timeout=300)
+
+
+@needs_chromium
+def test_the_arm_is_drawn_in_3d_with_every_link_and_the_touch_with_its_arrow():
+    """arm6 as docs/view.png shows it (tools/view_screenshot.py), read from the page at 1280 x 800: the six skins drawn in
+    3D in their URDF frames, each whole in the window and named; the touch at its point (metres, placed by the URDF's
+    joints) with an arrow along the link's outward normal, 5 cm + 2 cm per N; the counters count presses."""
+    import importlib.util
+
+    from sonicskin.rosbag import _joint_tf, urdf_joints
+
+    spec = importlib.util.spec_from_file_location("view_screenshot", REPO / "tools" / "view_screenshot.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    view, events = tool.view_of_arm6()
+    with view, Browser(window=(1280, 800)) as b:
+        b.open(view.url, ready="document.querySelectorAll('#mesh3d g.skin').length === 6 && document.body.dataset.seq")
+        b.advance(1000)
+        skins = b.js("[...document.querySelectorAll('#mesh3d g.skin')].map(g => { const r = g.getBoundingClientRect(); "
+                     "return {link: g.dataset.link, frame: g.dataset.frame, faces: g.querySelectorAll('polygon').length, "
+                     "box: [r.left, r.top, r.right, r.bottom]}; })")
+        assert sorted(s["link"] for s in skins) == sorted(["base", "shoulder", "upper-arm", "forearm", "wrist", "hand"])
+        assert {s["link"]: s["frame"] for s in skins}["upper-arm"] == "upper_arm_link"
+        for s in skins:  # drawn, and whole inside the window
+            x0, y0, x1, y1 = s["box"]
+            assert s["faces"] >= 3 and x1 - x0 > 5 and y1 - y0 > 5 and 0 <= x0 and x1 <= 1280 and 0 <= y0 and y1 <= 800, s
+        labels = b.js("[...document.querySelectorAll('#mesh3d text.label3d')].map(t => [t.dataset.link, t.textContent, "
+                      "t.getBoundingClientRect().right])")
+        assert len(labels) == 6 and all(right <= 1280 for _, _, right in labels)
+        said = {link: text for link, text, _ in labels}
+        assert said["forearm"] == "forearm · 1 pressforearm_link" and said["hand"] == "hand · 1 presshand_plate"
+        assert said["base"] == "base · 0 pressesbase_link"
+        (touch,) = b.js("[...document.querySelectorAll('#touch3d g.touch3d')].map(g => ({...g.dataset, "
+                        "arrow: g.querySelectorAll('line.arrow').length, head: g.querySelector('polygon.head')"
+                        ".getAttribute('points'), dot: [+g.querySelector('circle').getAttribute('cx'), "
+                        "+g.querySelector('circle').getAttribute('cy')]}))")
+        ev = events[-1]
+        assert touch["link"] == "forearm" and touch["frame"] == "forearm_link" and float(touch["forceN"]) == 4.2
+        joints = urdf_joints((REPO / "configs" / "arms" / "arm6.urdf").read_text())
+        T, frame = np.eye(4), "forearm_link"  # forearm_link in the world: the joints from the root, at zero
+        while (j := next((j for j in joints.values() if j["child"] == frame), None)) is not None:
+            tf = _joint_tf(j, 0.0, 0)["transform"]
+            A = np.eye(4)
+            A[:3, 3] = [tf["translation"][k] for k in "xyz"]
+            q = [tf["rotation"][k] for k in "xyzw"]
+            assert np.allclose(q, [0, 0, 0, 1])  # arm6's joints have no rotation at zero
+            T, frame = A @ T, j["parent"]
+        world = T[:3, :3] @ np.asarray(ev.point_m) + T[:3, 3]
+        np.testing.assert_allclose([float(v) for v in touch["world"].split(",")], world, atol=1e-9)
+        tail = np.array([float(v) for v in touch["tailWorld"].split(",")])
+        np.testing.assert_allclose(tail - world, (0.05 + 0.02 * 4.2) * (T[:3, :3] @ np.asarray(ev.normal)), atol=1e-9)
+        tip = b.js(f"arm3d.project([{','.join(map(str, world))}])")
+        assert touch["arrow"] == 1 and np.allclose(touch["dot"], tip) and np.allclose(
+            [float(v) for v in touch["head"].split()[0].split(",")], tip)  # the arrow's head on the point
+        assert 0 < tip[0] < 1280 and 0 < tip[1] < 800
+        assert "forearm: 4.20 N at (" in b.js("document.getElementById('readout3d').textContent")
+        assert b.js("document.querySelector(\"section[data-link='forearm'] .count\").textContent") == "1 press"
+        assert b.js("document.querySelector('#mesh3d g.skin[data-link=forearm]').classList.contains('touched')")
 
 
 def test_docs_screenshot_is_shipped_and_small():

@@ -345,6 +345,12 @@ def _device_verbs(sub) -> None:
     lv.add_argument("--mcap", metavar="FILE",
                     help="with --links on an arm: also write every touch as ROS 2 messages (contact point and wrench in the link's frame, "
                          "markers) into the MCAP file FILE, for `ros2 bag play` and Foxglove (docs/robot-frame.md) (default: off)")
+    lv.add_argument("--ros2", metavar="DOMAIN", nargs="?", const=True,
+                    help="with --links on an arm: publish the same messages live as ROS 2 topics over DDS on this domain (needs "
+                         "pip install 'sonicskin[ros]'; docs/robot-frame.md) (default: off; DOMAIN: ROS_DOMAIN_ID, else 0)")
+    lv.add_argument("--foxglove", metavar="PORT", nargs="?", const=True,
+                    help="with --links on an arm: serve the same messages live to Foxglove at ws://127.0.0.1:PORT (needs pip install "
+                         "'sonicskin[ros]'; layout: configs/arms/arm6.foxglove.json) (default: off; PORT: 8765, 0 any free)")
     lv.add_argument("--overwrite", action="store_true", help="replace an existing --mcap file (default: refuse it)")
     lv.add_argument("--link-artifact", action="append", metavar="DIR",
                     help="with --links: the artifact of each link, once per link in the config's order (default: none)")

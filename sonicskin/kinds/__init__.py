@@ -71,6 +71,11 @@ class ModelKind:
     def selection_lines(self, sel: dict) -> list[str]:
         return []
 
+    def force_rmse(self, sel: dict) -> float | None:
+        """The validated RMSE (N) of the force it deploys (``None``: not validated): here the SVM's force model's."""
+        f = sel.get("force") or {}
+        return f["estimate"]["rmse_n"] if f.get("status") == "validated" else None
+
 
 KINDS: dict[str, ModelKind] = {}
 #: the paper's model: what ``live`` and ``listen()`` run by default, the ablations of ``evaluate``, gamma's owner

@@ -129,6 +129,10 @@ class NetKind(ModelKind):
     def head(self, entry, layout):
         return NetHead(entry, layout)
 
+    def force_rmse(self, sel):
+        n = sel.get("net") or {}
+        return (n.get("force_rmse") or {}).get(n.get("force"))  # the chosen force's, on the validation presses
+
     def selection_lines(self, sel):
         n = sel.get("net") or {}
         out = []
