@@ -328,20 +328,20 @@ class LiveLoop:
             self.warn(f"boot calibration disturbed: {lost} in the first {ref.beta / ref.cps:.1f} s; reference from the "
                       f"{ref.boot_chirps} clean chirps of that window, re-taken from the next {ref.beta / ref.cps:.1f} s "
                       f"of rest")
-        if self.on_chirp is not None:
-            self.on_chirp(t_s, p)
         if p is None:  # boot calibration
+            if self.on_chirp is not None:
+                self.on_chirp(t_s, p)
             return None
         # A press opens at its first touched chirp with a force, else at its second touched chirp (a first chirp at 0 N
         # is held: alone, it is no press); each touched chirp is a touch event at its marker; the release names the
         # press's marker, the one most of its chirps named (its last chirp may have slid to a neighbour).
         touch, loc, ev = bool(p.touch[0]), int(p.location[0]), None
+        x, y = float(p.xy_cm[0, 0]), float(p.xy_cm[0, 1])
         self._held = touch and not self.touching and not self._held and not float(p.force_n[0]) > 0
         if touch and not self._held:
             self._press = {} if not self.touching else self._press
             n, _, _ = self._press.get(loc, (0, 0.0, 0.0))
-            self._press[loc] = (n + 1, float(p.xy_cm[0, 0]), float(p.xy_cm[0, 1]))
-            x, y = self._press[loc][1:]
+            self._press[loc] = (n + 1, x, y)
         elif self.touching:
             loc = max(self._press, key=lambda k: self._press[k][0])  # ties: the marker the press named first
             x, y = self._press[loc][1:]
@@ -352,6 +352,9 @@ class LiveLoop:
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
         self.touching = touch and not self._held
+        self.place = loc, x, y  # where this chirp says the touch is (a release: the press's marker)
+        if self.on_chirp is not None:  # after the press rule: a held chirp is untouched for them too
+            self.on_chirp(t_s, p)
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
         return ev
 

@@ -268,14 +268,14 @@ class Publisher:
     def contact(self, lp, t_s: float, p) -> None:
         """The Contact of live loop ``lp``'s link at one chirp (``p`` None while calibrating): at each touched chirp and
         each change of state, else when :data:`IDLE_S` of stream time have passed since its last one."""
-        state = CALIBRATING if p is None else TOUCHED if p.touch[0] else FREE
+        state = CALIBRATING if p is None else TOUCHED if lp.touching else FREE  # the loop's press rule
         surf, lay = lp.surface, lp.rt.layout
         last = self._last.get(surf.frame_id)
         if state != TOUCHED and last is not None and last[1] == state and t_s - last[0] < IDLE_S - 1e-9:
             return
         self._last[surf.frame_id] = (t_s, state)
         loc, xy, f, conf = (-1, (math.nan,) * 2, 0.0, 0.0) if p is None else (
-            int(p.location[0]), p.xy_cm[0], float(p.force_n[0]), float(p.confidence[0]))
+            lp.place[0], lp.place[1:], float(p.force_n[0]), float(p.confidence[0]))
         if not np.all(np.isfinite(xy)):  # no centroid: the marker's place (calibrating: the markers' centre)
             xy = lay.coords(np.asarray([loc]))[0] if loc in lay.ids else np.mean(lay.xy_cm, axis=0)
         point, normal = surf.point_normal_one(float(xy[0]), float(xy[1]))
