@@ -1,13 +1,8 @@
 """Audio acquisition: the only module that touches audio hardware (through sounddevice).
 
 A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks while the transmitter plays the chirp back
-to back: :class:`SoundDeviceSource` (a duplex PortAudio stream whose callback only copies into a queue),
-:class:`SimulatedSource` (the simulated device: one link, a whole arm, the rig check's interface) and
-:class:`RecordingSource` (a recorded session), the last two produced by a thread of their own, so every command
-runs without a sound card.  Every consumer reads one through :func:`blocks` (its watchdog, and the producer's error
-raised in the consumer's thread).  Overflows and dropped blocks are counted and flag the next block as a
-discontinuity, never fatal: the live loop re-locks its framing on them.
-"""
+to back: a sound card, the simulated device or a recorded session; every consumer reads one through :func:`blocks`.
+Overflows and dropped blocks flag the next block as a discontinuity, never fatal: the live loop re-locks on them."""
 
 from __future__ import annotations
 

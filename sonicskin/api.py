@@ -1,11 +1,7 @@
 """The Python API for robot programs: touch events from a deployed skin, without torch.
 
-Two forms over one implementation (:class:`Listener`, a background thread running :class:`sonicskin.live.LiveLoop`):
-an iterator for scripts (``for ev in sonicskin.listen("artifacts/moving", duration_s=5): ...``), and a callback or a
-non-blocking :meth:`Listener.poll` for a controller loop that owns its timing.  Events are
-:class:`sonicskin.events.TouchEvent`, the objects whose JSON ``sonicskin live`` prints; ``device=None`` or ``"sim"``
-is the simulated rig, an index or a name substring an audio interface.  Examples: docs/api.md.
-"""
+An iterator for scripts (``for ev in sonicskin.listen("artifacts/moving", duration_s=5): ...``), and a callback or a
+non-blocking :meth:`Listener.poll` for a controller loop, over one :class:`Listener`.  Examples: docs/api.md."""
 
 from __future__ import annotations
 

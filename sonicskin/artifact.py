@@ -1,11 +1,5 @@
 """Deployment artifacts (ONNX + ``skin.json``): writing the document, its seal and the atomic swap, and reading an
-artifact folder's files, bounded and confined (``skin.json`` parsed strictly and checked against
-:mod:`sonicskin.artifact_schema`; the ONNX files it names inside the folder, within a size, matching their checksums,
-carrying their own weights).
-
-Each model kind exports its own graph (:mod:`sonicskin.kinds`); everything about the metadata and checksums is here,
-torch-free, so a machine without torch can still build an artifact from a recording (``sonicskin fit-svm``).
-"""
+artifact folder's files, bounded and confined.  Torch-free, so ``sonicskin fit-svm`` builds an artifact without torch."""
 
 from __future__ import annotations
 

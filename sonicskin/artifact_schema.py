@@ -1,14 +1,8 @@
 """The one schema of a deployment artifact's ``skin.json``, checked completely before anything runs.
 
-Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
-:func:`sonicskin.artifact.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
-writes with :func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
-naming the field (``models.svm.threshold``), what is wrong and what to do.  The checks below are the schema: the
-top-level blocks (``format``, ``version``, ``rig``, ``layout``, ``features``, ``training``, ``drift``, ``selection``,
-``models``, ``digest``), each model kind's entry (:meth:`sonicskin.kinds.ModelKind.check_entry`) and its probe; the
-files themselves are described in docs/artifact.md.  Reading the files of an artifact folder is
-:mod:`sonicskin.artifact`; binding the model files to this document, :mod:`sonicskin.integrity`.
-"""
+Every reader goes through :func:`sonicskin.artifact.load_skin` and every writer checks what it writes with
+:func:`validate_skin`; a document that does not fit is refused with one :class:`ArtifactError` line naming the field,
+what is wrong and what to do.  The files: docs/artifact.md."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Online feature updating (paper Alg. 2) and touch detection by threshold.
-
-:class:`OnlineReference` is Alg. 2 as the system runs it, fed chirp by chirp: the live loop, the
-offline replays of ``compare``/``evaluate``/``reproduce`` and the training features all go
-through it (a labelled training session feeds it its known no-touch chirps instead of detections).
-"""
+"""Online feature updating (paper Alg. 2) and touch detection by threshold.  :class:`OnlineReference` is Alg. 2 as
+the live loop, the offline replays and the training features all run it."""
 
 from __future__ import annotations
 

@@ -1,12 +1,7 @@
 """``sonicskin check``: is this rig fit to learn touches from?  One table, each line pass/warn/fail with its fix.
 
-The check plays the rig's chirp for a few seconds of rest, then asks for a firm press (the simulated device scripts
-one), records every input channel, and measures: the sample rate, the chirp lock (and a lock on another input:
-"the wrong channel"), the output-to-input delay and its wander, the input level and clipping, the SNR per
-sub-band, PWM/motor lines against the rig's notches, rest-to-rest repeatability and the touch contrast
-(docs/bring-up.md).  :func:`capture` records, from an audio interface or the :class:`SimulatedDevice`;
-:func:`analyse` measures a capture and returns a :class:`CheckReport` (``table()``, ``to_json()``, ``plot()``).
-"""
+The check plays the rig's chirp for a few seconds of rest, then asks for a firm press, records every input channel,
+and measures what docs/bring-up.md lists.  :func:`capture` records; :func:`analyse` returns a :class:`CheckReport`."""
 
 from __future__ import annotations
 

@@ -1,15 +1,8 @@
-"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata::
+"""On-disk dataset format (version 1): ``dataset.json`` (rig, layout, source), and per session ``part-NNNNN.flac``
+(a piece of the continuous received stream) with ``part-NNNNN.csv`` (labels of the chirps starting in it, :data:`COLUMNS`).
 
-    dataset.json                  format, version, rig, layout, source (scenario or recorder)
-    <session>/part-00000.flac     a piece of the session's continuous received stream (24-bit FLAC)
-    <session>/part-00000.csv      labels of the chirps that start inside that piece (:data:`COLUMNS`)
-
-A *session* is one continuous recording starting at an arbitrary point of the chirp train (the reader finds the
-chirps by cross-correlation, as live); a label row's ``t_s`` is where its chirp starts in the stream.  Parts are
-written atomically (the CSV last): an interrupted run keeps every part written, a reader never sees half a part.
-A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``; what is
-hashed and checked where: docs/artifact.md (the data side in full).
-"""
+Parts are written atomically (the CSV last); a complete session's ``session.json`` binds its parts to each other and
+to ``dataset.json`` (docs/artifact.md)."""
 
 from __future__ import annotations
 

@@ -1,19 +1,9 @@
 """Drift tracking: estimate the channel's frequency stretch from hands-off chirps and undo it.
 
-A warming wall softens and every mode moves by one factor, so the untouched channel is stretched along frequency,
-``H_T(f) = H_0(f / (1 + s))`` with ``s = kappa dT`` (why it matters and how the stream uses it:
-docs/models.md#drift-tracking).  :func:`estimate_stretch` finds ``s`` (and the gain and tilt left after it) as the
-best normalised correlation of two *mode patterns* (each dB spectrum minus a Savitzky-Golay trend over
-``smooth_hz``, so smooth changes cannot pose as a stretch), on a grid refined by a bounded scalar search;
-:func:`warp_band` maps features back, ``X_back(f) = X(f (1 + s))``, by linear interpolation along the band's bins;
-:class:`DriftTracker` holds the training reference and the limits (a JSON-able dict in the artifact).
-
-Band edges and PWM bands: the rig's ``allowed_mask`` splits the band into segments (allowed runs and the masked
-PWM bands between them).  A warp reads each bin from its own segment only (a source outside it takes the
-segment's edge value), so no value crosses a PWM band edge or the band's ends.  The estimate uses allowed bins
-away from every segment edge by the largest searched shift; masked bins are bridged linearly before the trend
-is taken (a PWM line of a moving robot cannot pose as a mode).
-"""
+A warming wall stretches the untouched channel along frequency, ``H_T(f) = H_0(f / (1 + s))`` (docs/models.md#drift-tracking).
+:func:`estimate_stretch` finds ``s`` by correlating *mode patterns* (dB minus a Savitzky-Golay trend, so smooth changes
+cannot pose as a stretch); :func:`warp_band` maps features back.  A warp reads each bin from its own segment of the
+band (allowed runs and PWM bands between them) only, so no value crosses a PWM band edge or the band's ends."""
 
 from __future__ import annotations
 

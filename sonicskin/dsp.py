@@ -1,8 +1,4 @@
-"""Signal chain: chirp (Eq. 1), chirp-synchronous framing, batched spectra and features.
-
-Everything here is pure and batched: ``n`` frames go in as an ``(n, n_chirp)`` array and
-come out as ``(n, n_band)`` features with no Python loop per chirp.
-"""
+"""Signal chain: chirp (Eq. 1), chirp-synchronous framing, batched spectra and features (no Python loop per chirp)."""
 
 from __future__ import annotations
 

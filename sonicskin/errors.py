@@ -1,9 +1,5 @@
-"""The package's user-error types, and the checks of user values every reader makes.
-
-Every error a user can cause (a file that is not a dataset, an artifact for another rig, a value out of range)
-derives from :class:`SonicskinError`, printed by ``sonicskin <verb>`` as one line (exit code 2; anything else is a
-bug and keeps its traceback).  It is a ``ValueError``, and the subclasses keep the built-in type they replaced.
-"""
+"""The package's user-error types, and the checks of user values every reader makes.  Every error a user can cause
+derives from :class:`SonicskinError` (a ``ValueError``; subclasses keep the built-in type they replaced)."""
 
 from __future__ import annotations
 

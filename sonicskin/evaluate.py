@@ -1,8 +1,5 @@
-"""Evaluate the paper's reference system on a dataset, with the paper's ablations: trained on the first session(s),
-tested on the others (localization, detection, force as Table I), and the three findings the paper builds on on the
-same split: OSPA vs every band bin (Fig. 6b), online calibration (Alg. 2) vs the training reference only (Fig. 12),
-force from ``E^O`` vs the whole band's energy (Fig. 9).
-"""
+"""Evaluate the paper's reference system on a dataset (Table I), with the paper's ablations on the same split: OSPA vs
+every band bin (Fig. 6b), Alg. 2 vs the training reference only (Fig. 12), force from ``E^O`` vs the band (Fig. 9)."""
 
 from __future__ import annotations
 

@@ -1,15 +1,8 @@
 """The touch-event stream as a contract: one JSON object per line (stdout) or per datagram (UDP).
 
-Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, UDP, LSL) is a
-:class:`TouchEvent`; its JSON form is described by :data:`EVENT_SCHEMA` (a JSON Schema, draft
-2020-12) and checked by :func:`validate_event`.  The schema carries a version, ``v`` (now 2): a
-writer writes :data:`SCHEMA_VERSION`; this reader accepts versions 1 and 2 (:data:`READS`).  Fields
-are only ever *added* within a version, so a reader accepts an event with fields it does not know
-(a later writer's), ignores them and keeps them (:attr:`TouchEvent.extra`, written back by
-:meth:`TouchEvent.to_json`).  Version 2 adds the robot's frame (``frame_id``, ``point_m``, ``normal``,
-``force_vec_n``; :func:`attach_surface`) when the link's skin is placed on its surface.  Every field's unit,
-frame and meaning: docs/api.md (the event table) and docs/robot-frame.md.
-"""
+Every event a running skin emits is a :class:`TouchEvent`, its JSON form described by :data:`EVENT_SCHEMA` and
+checked by :func:`validate_event`.  Fields are only ever added within a version, so a reader keeps the fields it
+does not know (:attr:`TouchEvent.extra`).  Units, frames and meanings: docs/api.md and docs/robot-frame.md."""
 
 from __future__ import annotations
 

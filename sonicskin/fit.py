@@ -1,15 +1,10 @@
 """One fit: a dataset's feature table and a split -> every model kind fitted, chosen on the validation presses,
 refitted on every labelled press -> one artifact.
 
-Every verb that trains goes through here (``fit-svm``, ``record``, ``export``, ``compare``, ``seeds``, ``evaluate``,
-``reproduce``): :func:`prepare` -> :class:`TrainingData` (the split by sessions or people, OSPA's bins chosen on the
-training sessions, the model inputs of every chirp, the targets); each model kind (:mod:`sonicskin.kinds`) fits
-itself, choosing its options on the validation presses (:meth:`TrainingData.folds`); with a validation session the
-choices are **refitted on the training and validation sessions together** (:meth:`TrainingData.refit`; the
-estimates stay the held-out pass's); :func:`write_artifact` exports every model with its parity check and seals
-``skin.json``.  Only the rows of ``split.train`` and ``split.val`` are read for fitting and choosing
-(``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
-"""
+Every verb that trains goes through here: :func:`prepare` -> :class:`TrainingData`; each model kind
+(:mod:`sonicskin.kinds`) fits itself on :meth:`TrainingData.folds`, then is refitted on the training and validation
+sessions together (:meth:`TrainingData.refit`); :func:`write_artifact` seals ``skin.json``.  Only ``split.train`` and
+``split.val`` rows are read for fitting (``tests/test_selection.py`` checks it)."""
 
 from __future__ import annotations
 

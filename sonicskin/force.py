@@ -1,10 +1,7 @@
 """Touch-force estimation (paper Sec. III-D): energy over the OSPA bins -> curve model per location.
 
-``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins (relative to the no-touch reference, in dB: the
-rig's gain drops out).  The curve models (Fig. 13) are fitted by variable projection: linear in their coefficients
-given at most one nonlinear parameter, scanned on a grid, then refined with :func:`scipy.optimize.least_squares`
-(no start value of ``omega`` to depend on).
-"""
+``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins (the rig's gain drops out).  The curve models
+(Fig. 13) are fitted by variable projection: a grid over the nonlinear parameter, refined by least squares."""
 
 from __future__ import annotations
 

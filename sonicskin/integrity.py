@@ -1,11 +1,7 @@
 """An artifact's integrity, and whether it fits where it is asked to run.
 
-Every ONNX file carries in its ``metadata_props`` (``sonicskin.binding``) what it was trained with: name and kind,
-rig, layout, features, ``min_force_n``, split and the sha256 of its entry's parameters.  :func:`check_integrity`
-compares that binding with ``skin.json`` field by field, then the digest, then re-runs the probes, each step one
-line naming what differs; :func:`check_session` checks the graph's inputs and outputs; :func:`check_rig` and
-:func:`check_layout` refuse a rig or a marker layout the artifact was not trained for.
-"""
+Every ONNX file carries in its ``metadata_props`` (``sonicskin.binding``) what it was trained with;
+:func:`check_integrity` compares that with ``skin.json`` field by field, then the digest, then re-runs the probes."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """Links and arm files: several robot links, each with its own TX/RX pair, on one audio interface.
 
-A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``, link k
-chirps in period k of every N; ``frequency``, the band split into N sub-bands; ``none``, every link its own output
-and input channel and the full band).  An *arm file* (``configs/arms``) is a links file whose links also say where
-they are on the robot (a URDF frame, a surface) and, simulated, what they are made of (a scenario); a scenario
-without ``geometry`` takes the surface's.  :func:`write_arm` writes the arm file of a trained arm, each link with
-its artifact.  The keys: docs/arm.md.
-"""
+A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``,
+``frequency`` or ``none``).  An *arm file* (``configs/arms``) also places each link on the robot and, simulated, says
+what it is made of.  The keys: docs/arm.md."""
 
 from __future__ import annotations
 

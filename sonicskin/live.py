@@ -1,14 +1,9 @@
 """The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
 
-The consumer side of an audio source (:mod:`sonicskin.acquire`).  :class:`Framer` locks onto the chirp train by
-cross-correlation and cuts a frame every ``n_chirp`` samples (lost audio or a wandering peak: lock again); each frame
-gives its band features and one call of the stream (:class:`sonicskin.head.Stream`: Alg. 2's reference, drift
-tracking, model, detection, force), the same object every offline replay uses.  Faulty frames (NaN/inf, silence,
-clipping, a dropout, a constant level, no chirp) are counted and never reach the model; a disturbed boot
-calibration is re-taken from later rest.  The run stops with :class:`DeviceLost` when no audio arrives for
-``watchdog_s``, and with :class:`InputUnusable` when audio arrives but holds no usable chirp (at boot, or for a
-second of the run).  Events are :class:`~sonicskin.events.TouchEvent` JSON lines, optionally UDP datagrams.
-"""
+:class:`Framer` locks onto the chirp train by cross-correlation and cuts a frame every ``n_chirp`` samples; each frame
+goes through the same :class:`sonicskin.head.Stream` every offline replay uses.  Faulty frames are counted and never
+reach the model.  The run stops with :class:`DeviceLost` when no audio arrives for ``watchdog_s``, and with
+:class:`InputUnusable` when audio arrives but holds no usable chirp."""
 
 from __future__ import annotations
 

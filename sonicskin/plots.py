@@ -1,9 +1,5 @@
-"""Figure pieces shared by the reports (``compare``, ``evaluate``): the user's location names,
-labelled confusion matrices, error CDFs over the whole distribution, force predicted vs true.
-
-Every panel names its axes and colourbars; two models drawn in one panel differ in colour, line
-style and width, and a note says when their curves coincide (so one never hides the other).
-"""
+"""Figure pieces shared by the reports (``compare``, ``evaluate``).  Two models drawn in one panel differ in colour,
+line style and width, and a note says when their curves coincide (so one never hides the other)."""
 
 from __future__ import annotations
 

@@ -1,13 +1,8 @@
 """``sonicskin record``: the guided one-shot training session on a robot (paper Sec. III-A).
 
-The recorder prompts the user through hands off (Alg. 2's calibration), hands off while the robot moves (OSPA's
-moving variance), then each location in turn, and writes the received stream and per-chirp labels as it goes, one
-part per prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was
-received.  ``--resume`` records only the locations the dataset has no touch chirps for yet.  On the simulated
-device a simulated person follows the prompts (:func:`person_timeline`) and touch rows carry where the finger
-really was.  Force comes from a :class:`ForceSource`: a CSV log, a serial sensor, the simulated sensor, or none
-(NaN: location only).
-"""
+The recorder prompts hands off, hands off while the robot moves, then each location in turn, writing one part per
+prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was received.
+On the simulated device a simulated person follows the prompts (:func:`person_timeline`)."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""Rig description: sample rate, chirp, bands and the touch-location layout.
-
-A *rig* is everything about the hardware a model depends on: the sample rate, the transmitted chirp (Eq. 1) and the
-bands the matched filter of OSPA step 1 drops.  Loaded from YAML (:func:`resolve_config`) and stored in every
-dataset and artifact, so a model never runs on a rig it was not trained for.
-"""
+"""Rig description: sample rate, chirp (Eq. 1), the bands OSPA step 1 drops, and the touch-location layout.  Stored
+in every dataset and artifact, so a model never runs on a rig it was not trained for."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
 """Touch on the robot's own bus, live: :mod:`sonicskin.rosbag`'s messages as ROS 2 topics over DDS (``live --ros2``,
-with ``cyclonedds``) and as Foxglove WebSocket channels on 127.0.0.1 (``live --foxglove``, with ``foxglove-sdk``): the
-optional extra ``sonicskin[ros]``, imported only when asked for.  DDS as a ROS 2 node speaks it (topic ``/x`` is
-``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_``, ROS 2's QoS; Cyclone's configuration: ``CYCLONEDDS_URI``); a
-Foxglove client subscribing to a latched topic gets its message again.  How to subscribe: docs/robot-frame.md.
-"""
+``cyclonedds``) and as Foxglove WebSocket channels on 127.0.0.1 (``live --foxglove``), imported only when asked for.
+DDS as a ROS 2 node speaks it (topic ``/x`` is ``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_``); docs/robot-frame.md."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """Touch as ROS 2 messages, the same in the MCAP file and on the live buses (:mod:`sonicskin.ros2`), without ROS.
 
-A :class:`Publisher` makes a run's messages (topics, types and rates: docs/robot-frame.md); a subclass sends them.  The
-definitions are package data (``sonicskin/msg``: ROS 2's, and the ``sonicskin_msgs`` package a ROS 2 workspace builds).
-:class:`McapEventWriter` writes an MCAP file in 1 MiB zstd chunks, each closed and flushed after at most a second of
-stream or wall time, so a process killed hard loses at most its last second (:func:`recover` restores the rest); it
-refuses an existing file unless ``overwrite=True``, locks its file (``flock``) from the start and removes it again when
-dropped before its first message; an ``OSError`` (a full disk) is one line naming the file.
-"""
+A :class:`Publisher` makes a run's messages (docs/robot-frame.md); a subclass sends them.  :class:`McapEventWriter`
+writes 1 MiB zstd chunks, each closed and flushed after at most a second, so a process killed hard loses at most its
+last second (:func:`recover` restores the rest)."""
 
 from __future__ import annotations
 

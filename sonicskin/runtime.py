@@ -1,9 +1,5 @@
-"""Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches.
-
-:class:`SkinRuntime` checks an artifact (``skin.json`` and the ONNX models it names) against the rig it is asked to
-run on and against its integrity (checksums, bindings, digest, probes: :func:`sonicskin.integrity.check_integrity`)
-before anything runs.
-"""
+"""Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches, after checking it against
+the rig and its integrity (:func:`sonicskin.integrity.check_integrity`)."""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
 """Network vs SVM over several simulator seeds and training seeds, with a paired confidence interval.
 
-Every scenario is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
-training split (the network once per ``train_seeds``), exported to one artifact and evaluated by replaying each
-test session as the live loop runs it.  The paired difference is net minus SVM on the same data; the unit of the
-interval is the simulator seed (per seed the network's mean over its training seeds minus the SVM's), a Student t
-interval over those differences.
-"""
+The paired difference is net minus SVM on the same data; the unit of the interval is the simulator seed (the
+network's mean over its training seeds minus the SVM's), a Student t interval over those differences."""
 
 from __future__ import annotations
 

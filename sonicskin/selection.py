@@ -1,13 +1,8 @@
 """Model selection on the user's own presses: gamma, C, kernel width, force model and detection threshold.
 
-The paper's defaults (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location) are chosen here by
-validation on the *training* data only: on a validation session when there is one
-(:class:`~sklearn.model_selection.PredefinedSplit`), else by cross-validation over *passes* (the k-th press of every
-location forms pass k, so one press is never on both sides), else the paper's values with a warning.  A *press* is
-a run of consecutive touch chirps at one location within one session and segment (:func:`press_ids`); test sessions
-never reach this module.  The search is :class:`~sklearn.model_selection.GridSearchCV` over a
-``Pipeline([ospa, scale, width, svc])``; its choice and a compact ``cv_results_`` table are returned as JSON data.
-"""
+The paper's defaults are chosen here by validation on the *training* data only: on a validation session when there
+is one, else by cross-validation over *passes* (the k-th press of every location), else the paper's values with a
+warning.  A *press* is a run of touch chirps at one location within one session and segment (:func:`press_ids`)."""
 
 from __future__ import annotations
 

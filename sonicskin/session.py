@@ -1,8 +1,5 @@
-"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen`
-(``record`` and ``check`` open their device here too).  :func:`open_run` opens an artifact, or an arm whose links
-each have theirs (a single artifact is an arm of one link, so each check of a run is written once), on the
-simulated device or an audio interface; :func:`open_source` is the one place a device opens.
-"""
+"""One run: a skin (an artifact, or an arm whose links each have theirs) on an audio source, opened in one place for
+``live``, :func:`sonicskin.listen`, ``record`` and ``check``; :func:`open_source` is the one place a device opens."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """A link's skin placed on its real surface: layout coordinates (cm, unrolled) -> point and normal in the link's frame.
 
-A :class:`LinkSurface` names the robot frame (``frame_id``, the URDF link) and the shape the skin covers, a tube
-(URDF ``<cylinder>``: ``y_cm`` along its z axis from the transmitter end, ``axis_from``; ``x_cm`` the arc length
-from ``theta0``) or a plate (URDF ``<box>``: the touched ``face``), with the shape's pose (``xyz``, ``rpy``) in that
-frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Built from a short
-YAML mapping (:meth:`LinkSurface.from_dict`) or a URDF link's collision (else visual) geometry
-(:meth:`LinkSurface.from_urdf`, with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one line.
-"""
+A :class:`LinkSurface` names the robot frame and the shape the skin covers (a tube or a plate) with its pose in that
+frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Bad input raises
+:class:`SurfaceError`, one line."""
 
 from __future__ import annotations
 

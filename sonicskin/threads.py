@@ -1,8 +1,6 @@
-"""One setting for the threads sonicskin's numerical work uses (torch, scipy.fft workers, BLAS/OpenMP), so that on
-a shared robot computer training and the live loop do not fight over every core (``benchmarks/bench_threads.py``).
-The count: :func:`configure` (``sonicskin --threads N``), else ``SONICSKIN_THREADS``, else half the cores (1-4).  The
-live loop's onnxruntime session uses one thread whatever this says.
-"""
+"""One setting for the threads sonicskin's numerical work uses (torch, scipy.fft, BLAS/OpenMP), so training and the
+live loop do not fight over every core: :func:`configure` (``--threads N``), else ``SONICSKIN_THREADS``, else half
+the cores (1-4).  The live loop's onnxruntime session uses one thread whatever this says."""
 
 from __future__ import annotations
 

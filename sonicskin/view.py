@@ -1,22 +1,10 @@
 """A live view of the skin in a web browser: the arm in 3D with each touch and its force, each link's surface
-unrolled (the bring-up panel), the last events, the drift state.
+unrolled, the last events, the drift state.
 
-:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: no CDN, nothing from the internet) and
-two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
-
-    GET /            the page
-    GET /links.json  once per page load: each link's name, kind, surface size, markers (cm), and its frame and
-                     shape in metres (a :class:`~sonicskin.surface.LinkSurface`); the arm's URDF (which places them)
-    GET /state.json  what changes: the touch on each link (and its point and normal in the link's frame), each link's
-                     status and presses, the last events, a sequence number
-
-The page polls ``/state.json`` every 100 ms (a short stateless request: ``stop()`` never waits on an open
-connection, a page survives a restart of the server).  The live loop calls :meth:`ViewServer.push_event` and
-:meth:`ViewServer.set_status` from its own thread; both copy into the shared state under a lock the HTTP threads
-snapshot under, so the loop never waits on a browser (:func:`attach_view` wires a
-:class:`~sonicskin.live.LiveLoop`).  A dropped, unstopped view stops serving when it is garbage collected.  Frames:
-as in :mod:`sonicskin.events`; the page draws ``x`` to the right and ``y`` up, every link at one scale.
-"""
+:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``, nothing from the internet) on
+``127.0.0.1``: ``/`` the page, ``/links.json`` the links' geometry and the arm's URDF (once per load), ``/state.json``
+what changes (polled every 100 ms, so ``stop()`` never waits on an open connection).  The live loop's calls copy
+into the shared state under a lock, so it never waits on a browser.  Frames: as in :mod:`sonicskin.events`."""
 
 from __future__ import annotations
 

@@ -1,15 +1,8 @@
 """Augmentation along what varies between presses at one marker, measured from the user's own session.
 
-With one press per marker the network sees one cloud of chirps per marker.  :class:`Augmenter` draws new touch
-chirps along the nuisance directions a later press will move along, each measured from the training session
-itself or fixed by physics, never from a test session (sizes: :data:`AUGMENTATIONS`): ``press``, a chirp moved
-toward (or past) another chirp of the same press, ``x_i + lam (x_j - x_i)`` (a firmer or softer moment);
-``strength``, the relative spectrum scaled by ``exp(N(0, sigma))`` (a small touch's change is linear in the finger's
-impedance); ``aim``, moved toward a neighbouring marker's mean pattern (the fingertip landing off the marker);
-``stretch``, resampled at ``f (1 + s)`` (warm-up stretches the wall's modes); ``gain`` and ``tilt``, a constant and a
-frequency-linear dB offset; ``motion``, a hands-off chirp of the moving robot (minus their mean) added at a random
-level.  All work on relative dB over every usable bin; the model's inputs are selected afterwards.
-"""
+:class:`Augmenter` draws new touch chirps along the nuisance directions a later press will move along, each measured
+from the training session itself or fixed by physics, never from a test session (:data:`AUGMENTATIONS`).  All work
+on relative dB over every usable bin; the model's inputs are selected afterwards."""
 
 from __future__ import annotations
 

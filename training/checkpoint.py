@@ -1,9 +1,5 @@
-"""Load a training checkpoint without running code from it.
-
-A Lightning ``.ckpt`` is a pickle; :func:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (tensors
-and plain containers; numpy's scalar and dtype allow-listed for older checkpoints), then rebuilds the module from
-its hyper-parameters and state dict.  Anything else in the file is refused with one line.
-"""
+"""Load a training checkpoint without running code from it: ``torch.load(weights_only=True)`` (numpy's scalar and
+dtype allow-listed for older checkpoints), then the module rebuilt from its hyper-parameters; anything else refused."""
 
 from __future__ import annotations
 

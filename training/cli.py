@@ -1,10 +1,7 @@
 """``sonicskin train``: LightningCLI over SkinLitModule and SkinDataModule, configured by YAML.
 
-The console stays readable: third-party warnings and banners are silenced, and instead of
-Lightning's per-batch bars there is one bar over the epochs (on a terminal only) followed by the
-results.  ``--trainer.enable_progress_bar true`` / ``--trainer.enable_model_summary true`` bring
-Lightning's own back.
-"""
+Third-party warnings and banners are silenced; one bar over the epochs (on a terminal) replaces Lightning's per-batch
+bars (``--trainer.enable_progress_bar true`` / ``--trainer.enable_model_summary true`` bring Lightning's own back)."""
 
 from __future__ import annotations
 

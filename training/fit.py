@@ -1,10 +1,6 @@
 """The network as a model kind (:class:`NetTrainer`, the ``sonicskin.kinds`` entry point ``net``): trained in-process,
-its location layer, touch decision and force chosen on presses it did not train on, refitted with those choices on
-every labelled press, exported to ONNX (:mod:`sonicskin.export.onnx`).
-
-``sonicskin train`` (LightningCLI) trains the same module; ``sonicskin export`` hands the checkpoint's network to
-:meth:`NetTrainer.fit` (``model=``), so both paths end in the same choices and the same refit (:mod:`sonicskin.fit`).
-"""
+its choices made on presses it did not train on, refitted on every labelled press, exported to ONNX.
+``sonicskin export`` hands a checkpoint's network to :meth:`NetTrainer.fit` (``model=``), so both paths end alike."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """``sonicskin <verb>``: one command line for the simulated rig, datasets and models.
 
-:mod:`.parser` builds the grammar from light modules; each verb runs a function of :mod:`.data`, :mod:`.models`,
-:mod:`.live` or :mod:`.train` (torch), imported only when that verb runs.  A user error
-(:class:`sonicskin.errors.SonicskinError`, and the ``ValueError``/``OSError`` of bad files) is one line
-``sonicskin <verb>: error: <message>``, exit code 2 (``SONICSKIN_DEBUG=1``: its traceback); anything else is a bug.
-"""
+A user error (:class:`sonicskin.errors.SonicskinError`, and the ``ValueError``/``OSError`` of bad files) is one line
+``sonicskin <verb>: error: <message>``, exit code 2 (``SONICSKIN_DEBUG=1``: its traceback); anything else is a bug."""
 
 from __future__ import annotations
 

@@ -1,9 +1,5 @@
-"""The command line's grammar: every verb, its options and their value types.
-
-Building the parser imports nothing a verb runs: each verb names its implementation as ``"module:function"`` of
-this package (:mod:`.data`, :mod:`.models`, :mod:`.live`, and :mod:`.train` for the torch verbs), imported by
-:func:`sonicskin.cli.main` only when that verb runs.
-"""
+"""The command line's grammar: every verb, its options and their value types.  Each verb names its implementation as
+``"module:function"``, imported by :func:`sonicskin.cli.main` only when that verb runs."""
 
 from __future__ import annotations
 

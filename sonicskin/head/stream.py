@@ -1,9 +1,5 @@
-"""One stream through one model: band features -> bins -> Alg. 2 reference -> model -> head.
-
-The live loop calls :meth:`Stream.frame` (or :meth:`Stream.chirp`) once per chirp; every offline report
-replays a recorded stream with :meth:`Stream.replay`, which gives the same decisions vectorised between
-reference refreshes.
-"""
+"""One stream through one model: band features -> bins -> Alg. 2 reference -> model -> head, chirp by chirp
+(:meth:`Stream.frame`) or replayed vectorised between reference refreshes (:meth:`Stream.replay`), same decisions."""
 
 from __future__ import annotations
 

@@ -1,11 +1,6 @@
-"""Bring recordings from other rigs into the dataset format, so they train and compare like simulated data.
+"""Bring recordings from other rigs into the dataset format: :func:`import_wav` and :func:`import_spectra`.
 
-:func:`import_wav`: a folder of WAV recordings (one session each), the transmitted sweep (a WAV of one period, or a
-linear chirp's parameters) and a label CSV of touch intervals; :func:`import_spectra`: a ``.npz`` table of channel
-magnitudes with labels, each row one received chirp of a rig derived from the frequency axis.  Location labels may
-be ids, numbers (cm) or names (:mod:`.labels`).  Writing is all or nothing (:mod:`._common`).  The formats and
-options: docs/importers.md.
-"""
+Writing is all or nothing (:mod:`._common`).  The formats and options: docs/importers.md."""
 
 from __future__ import annotations
 

@@ -1,11 +1,7 @@
-"""Model kinds: what an artifact can deploy, one module each, one registry.
+"""Model kinds: what an artifact can deploy, one module each, one registry (:data:`KINDS`).
 
-A kind (:class:`ModelKind`) declares how it is fitted on a :class:`~sonicskin.fit.TrainingData` (its options chosen on
-the validation presses), exported to ONNX with its parity check, its ``skin.json`` entry, its head and the lines it
-prints; the writer, the schema, the integrity checks, ``compare``, ``--model``, ``seeds`` and ``reproduce`` iterate
-:data:`KINDS`.  Here: ``svm`` (:mod:`.svm`), ``lda`` (:mod:`.lda`) and the network's runtime half (:mod:`.net`); its
-fit and export need torch and come from the ``sonicskin.kinds`` entry point, loaded by :func:`get` only to fit one.
-"""
+``svm`` (:mod:`.svm`), ``lda`` (:mod:`.lda`) and the network's runtime half (:mod:`.net`); its fit and export need
+torch and come from the ``sonicskin.kinds`` entry point, loaded by :func:`get` only to fit one."""
 
 from __future__ import annotations
 

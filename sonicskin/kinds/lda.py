@@ -1,11 +1,7 @@
 """The closed-form model: shrinkage LDA on OSPA's best bins, each chirp's level removed or scaled to unit length.
 
-One within-marker covariance shared by every marker (Ledoit-Wolf shrunk, :class:`ShrinkageLDA`) learns what varies
-between two presses at one marker from all markers at once, which an RBF SVM with one press per marker cannot.
-Its bins (the first ``k`` in OSPA's order) and normalisation are chosen on the validation presses, else
-:data:`DEFAULTS`.  Its scores go through the SVM's head (:class:`~sonicskin.head.ScoreHead`), and the network's
-``lda`` location layer is this model, frozen.
-"""
+One within-marker covariance shared by every marker learns what varies between two presses at one marker from all
+markers at once, which an RBF SVM with one press per marker cannot.  The network's ``lda`` layer is this model, frozen."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""The network's runtime half: its head (decisions from its ONNX outputs) and its ``skin.json`` entry.
-
-Fitting and exporting it needs torch: :mod:`sonicskin.training.kind` subclasses :class:`NetKind` with them and is
-registered through the ``sonicskin.kinds`` entry point (:func:`sonicskin.kinds.get` loads it only to fit one).
-"""
+"""The network's runtime half: its head and its ``skin.json`` entry (its fit and export need torch:
+:mod:`sonicskin.training.kind`, through the ``sonicskin.kinds`` entry point)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """``sonicskin reproduce``: the paper's Sec. V on the simulated rig, SVM and network side by side.
 
-Every experiment (:mod:`.experiments`, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
-same split of a simulated dataset (made on first use under ``<out>/data``) through the one fit, exports them,
-replays the test streams through the artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's.
-Without torch the network's columns read n/a; ``--quick`` shrinks every dataset and the network's training.
-"""
+Every experiment (:mod:`.experiments`) trains both models on the same split through the one fit, replays the test
+streams through the exported artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's."""
 
 from __future__ import annotations
 

@@ -1,8 +1,5 @@
-"""What the experiments share: the simulated datasets of one simulator seed, and fitting and scoring a model the way
-it is deployed (the one fit, an exported artifact replayed through :class:`sonicskin.runtime.SkinRuntime`).  A model
-is fitted, exported and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by
-the experiments that use it.
-"""
+"""What the experiments share: the simulated datasets of one simulator seed, and each model fitted, exported and
+replayed as deployed once per (dataset, training chirps, bins, reference settings, seed)."""
 
 from __future__ import annotations
 

@@ -1,19 +1,9 @@
 """Acoustic channel of a thin-walled robot link: modal synthesis of bending (A0 Lamb) waves.
 
-The wall is a thin plate (a tube unrolled with periodic edges, or a flat plate), simply supported at its ends, with
-Mindlin dispersion.  The transfer function between two points is the modal sum
-
-    G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2),
-
-each point's mode shape averaged over its disc (``2 J1(k a) / (k a)``).  A finger is a contact patch of radius
-``a(F)`` with dynamic stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)``, split into P sub-contacts coupled exactly
-through the wall (a Woodbury update of the untouched response):
-
-    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s,
-
-computed at a few contact radii per press and interpolated in radius (each chirp then costs O(bins)).  The physics
-and its sources: docs/simulator.md.
-"""
+A thin plate (a tube unrolled with periodic edges, or a flat plate) with Mindlin dispersion; the transfer function is
+the modal sum ``G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2)``.  A finger is a contact patch
+coupled through the wall by a Woodbury update, ``H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s``, computed at a
+few contact radii per press and interpolated.  The physics and its sources: docs/simulator.md."""
 
 from __future__ import annotations
 

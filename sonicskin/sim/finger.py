@@ -1,11 +1,7 @@
 """Fingers and the people they belong to: contact patch, tissue impedance, press profiles.
 
-What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time: a gross contact patch
-of radius ``a = a_1N (F / 1 N)^n`` (Hertz-like, saturating); skin damping ``c = c_1N (F / 1 N)^q g(t)`` through
-the real contact of the ridges, which keeps growing while a press is held (``g(t) = 1 - (1 - r_0) exp(-t / tau)``);
-a pad stiffness ``k = k_1N (0.2 + 0.8 F / 1 N)``; and tissue mass growing with the patch.  The ranges and their
-sources (Serina et al., Dzidek et al., Pawluk & Howe): docs/simulator.md.
-"""
+What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time.  The ranges and their
+sources (Serina et al., Dzidek et al., Pawluk & Howe): docs/simulator.md."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""Additive noise of a moving robot, synthesised directly as rfft spectra of a frame (batch, n_chirp // 2 + 1):
-O(bins) per chirp.  Motor PWM: lines at ``m f_c +- n f_0`` (carrier harmonics with sidebands at the motor's
-electrical frequency, the carrier jittering, the amplitude following the current), each the exact DFT of a
-sinusoid that is not bin-centred; mechanical: ``1/f^alpha`` with its tail into the band, gear-mesh tones and rare
-impacts; sensor: white.
-"""
+"""Additive noise of a moving robot, synthesised directly as rfft spectra of a frame: O(bins) per chirp.  Motor PWM
+lines at ``m f_c +- n f_0`` (each the exact DFT of a sinusoid that is not bin-centred); mechanical ``1/f^alpha``,
+gear-mesh tones and rare impacts; sensor: white."""
 
 from __future__ import annotations
 

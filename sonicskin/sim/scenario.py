@@ -1,12 +1,9 @@
 """Scenario configs: what happens on the simulated rig, chirp by chirp.
 
-A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer positions), the touch
-layout, who touches, how hard, whether the robot moves, and how the temperature evolves; :func:`build_timeline`
-turns it into a per-chirp table of ground truth, which :class:`sonicskin.sim.simulator.Simulator` renders.  Each
-*session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta), ``moving_s`` of no-touch
-while the robot moves (when motion is on), then one press at each location (``repeats`` times, in random order)
-with ``gap_s`` between presses.  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed.
-"""
+A scenario (``configs/scenarios/<name>.yaml``) sets the link, the touch layout, who touches, how hard, whether the
+robot moves and the temperature; :func:`build_timeline` turns it into a per-chirp table of ground truth.  A session
+is ``calibration_s`` of no-touch, ``moving_s`` of no-touch while the robot moves, then one press at each location
+(``repeats`` times, in random order).  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed."""
 
 from __future__ import annotations
 

@@ -1,12 +1,9 @@
 """What moves with temperature on a warming robot link: the piezo's hot-melt bond and the wall.
 
-The disc (mass ``m``) sits on the bond layer (stiffness ``k = E* A / t``): a mounted resonance ``f_r = sqrt(k / m)
-/ 2 pi`` whose transmissibility ``(1 + i eta) / (1 + i eta - (f / f_r)^2)`` shapes both the drive and the pick-up;
-the EVA adhesive softens near its glass transition (``E'`` and ``tan delta`` move with ``T``), so ``f_r`` moves by
-``0.5 d ln E' / dT``.  The wall's modes move by ``kappa`` per kelvin (:data:`sonicskin.sim.channel.MATERIALS`).  The
-link warms from its motor end (:func:`warmup_field`: further, ``gradient``, and sooner, ``lag``, than the far end;
-both read qualitatively off the paper's Fig. 7).  The coefficients and their sources: docs/simulator.md.
-"""
+The disc sits on the bond layer: a mounted resonance ``f_r = sqrt(k / m) / 2 pi`` whose transmissibility shapes both
+the drive and the pick-up; the EVA adhesive softens near its glass transition, so ``f_r`` moves by
+``0.5 d ln E' / dT``.  The link warms from its motor end (:func:`warmup_field`, read qualitatively off the paper's
+Fig. 7).  The coefficients and their sources: docs/simulator.md."""
 
 from __future__ import annotations
 
