@@ -92,17 +92,9 @@ class KernelVotes(nn.Module):
 # -- A small network over the OSPA-selected bins: shared trunk, location head, force head, and optionally the SVM's
 # kernel machine as its location layer (:class:`KernelVotes`).
 class SkinNet(nn.Module):
-    """``n_in -> (N + 1 location logits, N forces)``.
-
-    The location head has one class per touch location plus a last *no-touch* class; the force head predicts the
-    force (N) as if the touch were at each location (the caller reads the entry of the location), mirroring the
-    paper's per-location force models.  Feature normalisation is part of the module, so the ONNX graph takes raw
-    features.  Without a kernel layer (``n_centres=0``) it is an MLP; with one, the trunk gives the touch
-    probability, the kernel layer's sharpened SVM votes (:class:`KernelVotes`, softness ``tau``) say
-    where, and the force head reads the trunk and the RBF activations (call :meth:`init_from_svm` before training).
-    ``hidden``: the trunk's widths; ``dropout`` after each trunk layer and ``input_dropout`` on the inputs
-    (training only: no single bin can be relied on).
-    """
+    """``n_in -> (N + 1 location logits, N forces)``: one class per location plus *no-touch*; the force as if the touch
+    were at each location (the paper's per-location force models).  Normalisation is part of the module, so the ONNX
+    graph takes raw features.  With a kernel layer (``n_centres``) call :meth:`init_from_svm` before training."""
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.1, input_dropout: float = 0.0, n_centres: int = 0, tau: float = 0.1):

@@ -483,12 +483,8 @@ class _ProducerSource(_QueueSource):
 
 
 class SimulatedSource(_ProducerSource):
-    """The simulated device: scripted touches rendered ahead in a producer thread and delivered block by block, in
-    real time (``realtime``) or as fast as read.  ``simulator``: a :class:`sonicskin.sim.Simulator`, or a list of them
-    (a whole arm, one input channel per link, all chirping at once); ``timeline``: one session to play, or one per
-    simulator (the stream ends with the shortest); ``drop_every``: drop one block in so many (fault injection);
-    ``offset``: the stream starts this many samples into the first chirp.
-    """
+    """The simulated device: scripted touches rendered ahead in a producer thread, delivered in real time or as fast as
+    read; a list of simulators is a whole arm (one input channel per link); ``drop_every``: fault injection."""
 
     what = "simulated device"
 

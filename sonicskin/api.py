@@ -47,24 +47,11 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
 class Listener:
     """Run a skin in a background thread; events go to ``on_event`` and to :meth:`poll` / iteration.
 
-    ``artifact``: an artifact folder, or a whole arm (its arm file, or the folder ``fit-svm --links`` wrote): then one
-    loop runs per link, each event names its link and carries the contact in the link's frame, and :attr:`summary`
-    is keyed by link.  ``device``: ``None``/``"sim"`` or an audio device index or name; ``model``: a model kind of the
-    artifact (default: the paper's SVM); ``duration_s``: wall-clock seconds (``None``: until :meth:`stop`);
-    ``scenario`` (default stationary; an arm's links have their own) and ``fast``: the simulated device's link and
-    touches, and faster than real time; ``realtime``: real-time scheduling of the audio and processing threads (one
-    line on stderr says what was granted); ``rig``: default
-    the artifact's own; ``tx``, ``rx``: channels of a real interface; ``on_event``: called in the listener's thread
-    with each event (keep it short); ``mcap``: with an arm, every touch also as ROS 2 messages into this MCAP file
-    (an existing one refused unless ``overwrite``), and live: ``ros2`` on this DDS domain (``True``: ROS_DOMAIN_ID),
-    ``foxglove`` on Foxglove's WebSocket at this port (``True``: 8765; :meth:`set_joint_state` moves the arm there);
-    ``view``: ``True`` or a port, the browser view at :attr:`view_url`; ``watchdog_s``: no audio (or no usable chirp)
-    for this long ends the run with :class:`sonicskin.live.DeviceLost`, re-raised by :meth:`poll`, iteration and
-    :meth:`stop`.
-
-    Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`, one line naming
-    the fix.
-    """
+    ``artifact``: an artifact folder, or a whole arm (one loop per link; :attr:`summary` keyed by link).  ``device``:
+    ``None``/``"sim"`` or an audio device index or name; ``scenario``, ``fast``: the simulated device's; ``on_event`` is
+    called in the listener's thread (keep it short); ``mcap``/``ros2``/``foxglove``/``view``: the outputs of
+    ``sonicskin live`` (docs/api.md).  A :class:`sonicskin.live.DeviceLost` is re-raised by :meth:`poll`, iteration and
+    :meth:`stop`; every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`."""
 
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
                  duration_s: float | None = None, scenario: str | Path | None = None, rig: str | Path | None = None,

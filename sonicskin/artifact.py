@@ -40,12 +40,8 @@ def _default_probe(n_in: int) -> np.ndarray:
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
               probe_inputs: np.ndarray | None = None, selection: dict | None = None, drift: dict | None = None) -> dict:
-    """Write ``out/skin.json`` (``models``: name -> entry; ``drift``: drift tracking's training reference), checked
-    against :mod:`sonicskin.artifact_schema` and every ONNX file against it first, then sealed: each ONNX file gets
-    its binding in its ``metadata_props``, each entry the file's sha256 and ``probe`` (``probe_inputs`` rows, real
-    model inputs: an RBF SVM is flat far from its data; else the earlier probe rows, else seeded random rows, and the
-    outputs on them), the document its ``digest``.
-    """
+    """Write ``out/skin.json`` checked against :mod:`sonicskin.artifact_schema`, then sealed: each ONNX file its binding,
+    each entry the file's sha256 and ``probe`` (real model inputs where given: an RBF SVM is flat far from its data)."""
     out = Path(out)
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,

@@ -19,29 +19,18 @@ REST_SPREADS = 4.0
 
 
 class OnlineReference:
-    """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
+    """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time (docs/models.md).
 
-    - **Boot**: the first ``beta`` chirp periods of stream time are hands-off (the protocol starts every stream so);
-      their mean is the first reference.  Chirps lost to faults inside the window leave the mean of its clean chirps
-      (at least ``beta // 4``, else the window starts again), never chirps after it, and mark
-      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it at once.  With
-      labelled ``touch`` flags (a training session) the boot waits for ``beta`` consecutive no-touch chirps.
-    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive chirps the detector
-      calls no-touch become the new one.
-    - **Re-boot**: a gap longer than ``alpha`` (the device off, a paused recording), or a clock that goes back by more
-      than a chirp (``last_gap_s`` < 0), starts a new boot as at power-on, whatever the detector says (after days off
-      the wall has changed and the old reference would call every chirp touched).  :attr:`reboots` counts them.
-    - **A hand during a re-boot**: the window's chirps at rest are those close to the one closest to the reference
-      before the pause (:meth:`_at_rest`: a pause moves every chirp alike, a hand its own chirps by a touch more); the
-      others are left out (:attr:`boot_touched`) and the re-boot is disturbed, as above.
+    - **Boot**: the first ``beta`` chirp periods are hands-off; their mean is the first reference.  Faulty chirps leave
+      the mean of its clean chirps (at least ``beta // 4``, else the window starts again) and mark
+      :attr:`boot_disturbed`: the next ``beta`` no-touch chirps then replace it at once.
+    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive no-touch chirps.
+    - **Re-boot**: a gap longer than ``alpha`` or a clock going back by more than a chirp starts a new boot, whatever
+      the detector says (:attr:`reboots`); a hand in its window is left out (:meth:`_at_rest`, :attr:`boot_touched`).
 
-    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and, with ``score_fn``
-    (``inputs (m, d) -> scores (m, k)``), the mean model *scores* of the same chirps (:attr:`scores`, the SVM's
-    ``S_c``).  ``beta_chirps`` are averaged into one reference (paper: 3 s), ``alpha_chirps`` pass between refreshes
-    (paper: 20 min; ``None``: never), ``chirps_per_s`` is the stream clock; ``labelled``: the ``touch`` flags are
-    labels, so a re-boot waits for ``beta`` labelled no-touch chirps too.  A ``t_s`` that is not a finite number of
-    seconds in ``0 .. MAX_T_S`` is a :class:`~sonicskin.errors.SonicskinError`, the reference unchanged.
-    """
+    With ``score_fn`` the reference also holds the mean model *scores* (:attr:`scores`, the SVM's ``S_c``).
+    ``labelled``: the ``touch`` flags are labels.  A ``t_s`` outside ``0 .. MAX_T_S`` is a
+    :class:`~sonicskin.errors.SonicskinError`, the reference unchanged."""
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
                  relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -205,12 +194,8 @@ class OnlineReference:
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:
-        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp, the model run on
-        whole blocks of chirps that share one reference.  ``predict(inputs)`` returns an object with a boolean
-        ``touch`` array (and a ``reference_touch`` one, where not ``None``, for what the reference skips instead).
-        Yields ``(lo, hi, out)``: chirps ``lo:hi`` are the first ``hi - lo`` rows of ``out``, ``None`` for the chirps
-        of a boot.  ``boot_touch``: known no-touch flags for the first boot (a labelled stream).
-        """
+        """Vectorised replay: the decisions of :meth:`step`, the model run on whole blocks of chirps sharing one reference.
+        Yields ``(lo, hi, out)`` (``out`` ``None`` for a boot's chirps); ``boot_touch``: known flags for the first boot."""
         X = np.asarray(X, np.float32)
         time_s = np.asarray(time_s, float)
         n = len(X)

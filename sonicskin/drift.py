@@ -242,15 +242,9 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
 
 
 class DriftTracker:
-    """The training reference of one artifact (``reference_db`` on the band ``freqs_hz``/``allowed``, as for
-    :func:`estimate_stretch`; :meth:`from_rig`), the current stretch, and its limits: ``trained_stretch``, the
-    largest |stretch| the artifact was trained for (beyond it :attr:`warning` says "record a new session"), and the
-    wall's ``kappa_per_k`` (or a simulated ``material``'s) for the temperature equivalent.
-
-    :meth:`update` on each reference refresh, then :meth:`warp` (whole band) or :meth:`warp_bins` (a model's bins)
-    on every chirp; before the first update both are the identity.  An estimate that is not ``reliable`` leaves the
-    stretch as it was and sets :attr:`warning`.
-    """
+    """The training reference of one artifact, the current stretch and its limits (``trained_stretch``: beyond it
+    :attr:`warning` says "record a new session").  :meth:`update` on each reference refresh, then :meth:`warp` or
+    :meth:`warp_bins` on every chirp; an estimate that is not ``reliable`` leaves the stretch and sets :attr:`warning`."""
 
     def __init__(self, reference_db, freqs_hz, *, allowed: np.ndarray | None = None, trained_stretch: float,
                  kappa_per_k: float | None = None, material: str | None = None,

@@ -57,16 +57,9 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
                  val_sessions=(), artifact: str | Path | None = None, alpha_s: float = FeatureSpec.alpha_s,
                  beta_s: float = FeatureSpec.beta_s, log=print) -> dict:
-    """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
-
-    The paper's SVM (OSPA's ``n_bins`` on absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
-    per-location Fourier-1 force, the detector ``max(S - S_c)`` above a threshold) is fitted by :mod:`sonicskin.fit`,
-    exported, and every test session replayed through the artifact as the live loop runs it.  ``mode="relative"``
-    calibrates the scores online (Alg. 2, ``alpha_s``/``beta_s``), ``"absolute"`` keeps the training reference.
-    Without hands-off chirps detection and Alg. 2 are reported as not measurable, without a force sensor force as
-    absent.  ``val_sessions`` (held out by the caller) are only named in the report; ``artifact``: keep the paper's
-    artifact there (default: a temporary folder).
-    """
+    """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed: fitted by
+    :mod:`sonicskin.fit`, exported, and every test session replayed through the artifact.  Without hands-off chirps
+    detection and Alg. 2 are reported as not measurable, without a force sensor force as absent."""
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()

@@ -113,16 +113,8 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
             bins=None, alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s, rig=None,
             min_force_n: float = 0.5, allow_no_test: bool = False, wide: bool = False, progress: bool = True, log=None) -> TrainingData:
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
-    inputs of every chirp.
-
-    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, ``selection["svm"]``) by validation on the
-    training and validation sessions; ``bins`` gives the band bins instead (every band bin: the no-OSPA ablation);
-    ``split``/``table``: given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (the
-    network's layer reads a validated prefix) and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``).
-    ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted length of its reference (shorter when some
-    session has less rest, down to :data:`~sonicskin.features.MIN_REST_CHIRPS`; a table of touches only falls back to
-    absolute inputs).  ``rig``: the rig the artifact declares (default: the dataset's).
-    """
+    inputs of every chirp.  ``n_bins=None`` chooses gamma by validation; ``bins`` gives the band bins instead (the
+    no-OSPA ablation); ``wide``: the inputs are every usable bin in OSPA's order, the SVM reads the first ``n_bins``."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = table if table is not None else load_features_cached(ds, progress=progress)
     if split is None:

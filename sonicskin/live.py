@@ -490,14 +490,9 @@ class LiveLoop:
 def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float | None = None,
               max_chirps: int | None = None, idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0,
               stop=None) -> list[dict]:
-    """Feed every block of one source to several loops (one per link of a multi-link rig).
-
-    Ends at ``duration_s`` of wall clock or of stream time, whichever comes first (a source with ``realtime = False``,
-    the ``--fast`` simulation: stream time only), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a
-    finite source ends.  Nothing for ``watchdog_s``: :class:`DeviceLost` (or the exception that ended the source's
-    producer, :func:`sonicskin.acquire.blocks`); audio without a usable chirp for ``watchdog_s``, or no chirp in it:
-    :class:`InputUnusable`.  A block is waited for at most ``min(0.1, idle_timeout_s)`` s.
-    """
+    """Feed every block of one source to several loops (one per link).  Ends at ``duration_s`` (wall clock or stream
+    time), ``max_chirps``, Ctrl-C, ``stop``, or a finite source's end; nothing for ``watchdog_s``: :class:`DeviceLost`;
+    audio without a usable chirp for ``watchdog_s``: :class:`InputUnusable`."""
     t_last_status = started = time.perf_counter()
     cpu0, lost_seen = time.process_time(), 0.0
     stream_s = 0.0

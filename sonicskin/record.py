@@ -140,16 +140,8 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
 
 
 class Recorder:
-    """Record a schedule from a source into a dataset session.
-
-    Prompt ``i`` covers ``n_i`` chirp periods of the stream, starting where prompt ``i - 1`` ended; each chirp is
-    labelled from the prompt whose span holds it (a chirp the framing skips never shifts the prompts after it), a
-    touch prompt's chirps with the location after ``settle_s`` (the user's reaction time); each prompt is written as
-    one part when it ends.  ``source``: a started :class:`sonicskin.acquire.AudioSource`; ``schedule``: from
-    :func:`make_schedule`; ``force``: a :class:`ForceSource` (with ``contact_cm(t_s)``, the simulated device, touch
-    rows get the true finger position); ``watchdog_s``: no audio for this long ends the recording
-    (:class:`sonicskin.acquire.DeviceLost`).
-    """
+    """Record a schedule from a source into a dataset session, one part per prompt.  Each chirp is labelled from the
+    prompt whose span holds it (a skipped chirp never shifts the prompts after it), a touch prompt's after ``settle_s``."""
 
     def __init__(self, writer: DatasetWriter, session: str, source: AudioSource, schedule, force: ForceSource, *,
                  moving_level: float = 1.0, prompt=None, settle_s: float = 0.3, watchdog_s: float = 3.0):
@@ -257,12 +249,8 @@ def _sigint_deferred():
 
 
 def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):
-    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order: a one-session
-    :class:`sonicskin.sim.Timeline`.  Each prompt is a segment of exactly its length; the robot moves only during the
-    ``moving`` prompt; each touch prompt is one press of the scenario's first subject at the prompted marker.
-    ``lead_chirps`` no-touch chirps go in front (the stream starts inside chirp 0), so the person is never ahead of
-    a prompt and at most one chirp behind it.
-    """
+    """What the simulated person does, chirp by chirp, given the prompts of ``schedule``: a one-session timeline.
+    ``lead_chirps`` no-touch chirps go in front, so the person is never ahead of a prompt and at most one chirp behind."""
     layout = scenario.make_layout()
     rng = np.random.default_rng([seed, 17])
     subject = int(scenario.subjects[0])
@@ -356,12 +344,9 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
                    report=None, link=None) -> dict:
-    """``sonicskin record``: one guided session into the dataset ``out`` (``link``: an arm's, its artifact records it).
-    With ``resume`` only the requested locations without touch chirps yet are prompted.  ``artifact``: once every marker
-    has been pressed, the SVM artifact trained on everything recorded so far is written there (what ``fit-svm``
-    writes), so ``record`` then ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
-    (``{"locations": []}`` when nothing is missing).
-    """
+    """``sonicskin record``: one guided session into the dataset ``out``; with ``artifact``, the SVM artifact trained on
+    everything recorded so far once every marker is pressed.  Returns :meth:`Recorder.run`'s figures plus ``session``
+    and ``locations`` (``{"locations": []}`` when nothing is missing)."""
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out)
     layout = scenario.make_layout()

@@ -139,14 +139,9 @@ RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp")
 
 @dataclasses.dataclass(frozen=True)
 class Rig:
-    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).
-
-    ``fs_hz``: the interface's sample rate; ``f_lo_hz``, ``f_hi_hz``: the chirp's band; ``n_chirp``: samples per
-    chirp, one FFT frame (20480 = 106.7 ms); ``pwm_hz``: centres of the motor-PWM bands the matched filter drops,
-    ``pwm_halfwidth_hz`` wide each side (3.25 kHz leaves the paper's 5014 bins in 20-80 kHz); ``amplitude``: the
-    transmitted peak, full scale 1; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp (imported
-    recordings), one period of float32 samples in base64 (``None``: Eq. 1).
-    """
+    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).  ``n_chirp``: samples per
+    chirp, one FFT frame; ``pwm_hz``: centres of the motor-PWM bands the matched filter drops, ``pwm_halfwidth_hz``
+    each side; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp, one period of float32 in base64."""
 
     fs_hz: float = 192_000.0
     f_lo_hz: float = 20_000.0

@@ -166,19 +166,9 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
              mcap=None, overwrite: bool = False, realtime: bool = False, ros2=None, foxglove=None) -> Run:
-    """Open a skin on a device.
-
-    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario`` (stationary),
-    whose layout must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
-    links file (``live --links``), its links' artifacts the file's or ``link_artifacts``.  ``device``: ``"sim"``/
-    ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
-    jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
-    ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
-    ``overwrite``), opened and locked here.  ``ros2``: the same messages live on this DDS domain (``True``:
-    ROS_DOMAIN_ID, else 0); ``foxglove``: on Foxglove's WebSocket at this port (``True``: 8765; :mod:`sonicskin.ros2`).
-    ``realtime``: real-time scheduling of the audio and processing threads
-    (:func:`sonicskin.acquire.realtime_thread`; what they got: :attr:`Run.granted`, and one line on stderr).
-    """
+    """Open a skin (an artifact, an arm, or a links file with ``link_artifacts``) on a device (``"sim"``/``None`` or an
+    interface), with its outputs (``mcap``, ``ros2``, ``foxglove``) opened here.  ``train(scenario, rig)``: the artifact
+    of a simulated link without one.  ``realtime``: what the threads got is :attr:`Run.granted`."""
     check_blocksize(blocksize)
     sim = simulated(device)
     if realtime and fast and sim:

@@ -131,12 +131,9 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
                     reference: np.ndarray, how: str) -> dict:
-    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks),
-    each candidate run by the head the runtime runs (:meth:`sonicskin.kinds.net.NetHead.touch`): the SVM's input-RMS
-    detector (``threshold``, ``reference``: the network then detects exactly as the SVM does), or either of it and the
-    network's own touch logit (never a miss more than the SVM).  The lower balanced error wins, ties the SVM's.  The
-    head's logit alone, even recalibrated on the validation session, missed up to 18 % of a held-out rig's touches
-    where the SVM missed none (random seed 7015, issue 26), so it is reported, not chosen."""
+    """The network's touch decision chosen on validation chirps, each candidate run by the runtime's head: the SVM's
+    input-RMS detector, or either of it and the network's logit.  The lower balanced error wins, ties the SVM's.  The
+    logit alone missed up to 18 % of a held-out rig's touches (seed 7015, issue 26), so it is not a candidate."""
     reference = np.asarray(reference, np.float64).ravel()
     bins = min(DETECTOR_BINS, reference.size)
 

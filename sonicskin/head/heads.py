@@ -61,12 +61,9 @@ class Predictions:
 
 def touch_statistic(V_cal: np.ndarray, n_locations: int, n_bins: int | None = None, *, detector: str = "input-rms"
                     ) -> np.ndarray:
-    """The touch statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`):
-    ``input-rms`` (default), the RMS change (dB) of the first ``n_bins`` model inputs from the no-touch reference
-    (how far the bins moved is what a touch does physically; an RBF SVM gives the same scores to every input far
-    from its training touches, so a firm press at the location that wins at rest went unseen); ``paper``, the
-    calibrated per-location score ``max(S - S_c)``.
-    """
+    """The touch statistic of calibrated score vectors: ``input-rms`` (default), the RMS change (dB) of the first
+    ``n_bins`` inputs from the reference (an RBF SVM gives the same scores to every input far from its training
+    touches), or ``paper``, ``max(S - S_c)``."""
     V_cal = np.asarray(V_cal, np.float64)
     if detector == "paper":
         return np.max(V_cal[:, :n_locations], axis=1)

@@ -32,16 +32,9 @@ def band_rows(X, n_band: int) -> np.ndarray:
 
 
 class Stream:
-    """Alg. 2's online reference and the per-chirp path of one model.
-
-    :meth:`chirp` and :meth:`replay` decide the reference with the same
-    :class:`~sonicskin.calibration.OnlineReference` (boot, then refreshes on chirps this model's own detector calls
-    no-touch); no label reaches it.  ``run``: ``inputs (n, len(spec.bins)) -> outputs`` (the ONNX graph); ``head``:
-    the kind's head (a ``calibrated`` head's scores are what Alg. 2 averages, any other reads the no-touch inputs);
-    ``spec``, ``rig``: the artifact's.  ``drift``: a :class:`~sonicskin.drift.DriftTracker` (or ``None``): every new
-    reference then also estimates the channel's frequency stretch, and every chirp and the reference are mapped back
-    onto the training frequency axis before the model.
-    """
+    """Alg. 2's online reference and the per-chirp path of one model: :meth:`chirp` and :meth:`replay` share one
+    :class:`~sonicskin.calibration.OnlineReference` fed by this model's own detector, no label.  ``run``: the ONNX graph;
+    ``drift``: a :class:`~sonicskin.drift.DriftTracker` mapping every chirp back onto the training frequency axis."""
 
     def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head, spec, rig, *, drift=None):
         self.run, self.head, self.spec, self.rig, self.drift = run, head, spec, rig, drift

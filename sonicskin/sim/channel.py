@@ -105,11 +105,8 @@ class Geometry:
 
 class ChannelModel:
     """Green's functions of one link between transducers and contact points, on the rig's frequency grid (plus
-    ``margin_hz`` for the temperature stretch).  ``tx_m``, ``rx_m``: transducer centres on the unrolled surface (x
-    around, y along), m; ``transducer_fr_hz``, ``transducer_q``: the piezo's resonance (paper Sec. III-B);
-    ``irregularity``: relative random spread of the modal frequencies (manufacturing, fittings; it also splits a
-    perfect tube's mode pairs); ``seed`` fixes it: one seed is one physical link.
-    """
+    ``margin_hz`` for the temperature stretch).  Positions in m on the unrolled surface; ``irregularity``: relative
+    spread of the modal frequencies; ``seed`` fixes it: one seed is one physical link."""
 
     def __init__(self, rig: Rig, material: Material, geometry: Geometry, *, tx_m=(0.0, 0.025),
                  rx_m=(0.059, 0.225), transducer_radius_m: float = 5e-3, transducer_fr_hz: float = 28e3,

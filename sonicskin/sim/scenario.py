@@ -445,14 +445,9 @@ def _pair(v, what: str) -> tuple[float, float]:
 
 @dataclasses.dataclass(frozen=True)
 class RandomFamily:
-    """Rigs we did not design on: every seed draws another link, people, motion and warm-up, as an ordinary
-    :class:`Scenario`: a material of :data:`sonicskin.sim.channel.MATERIALS`, a tube or a plate of random size,
-    transducers near either end, the material's loss factor times a log-uniform factor, a random modal irregularity,
-    a grid of markers between the transducers, one person per session, motion on or off, a random ambient
-    temperature, warm-up and start time.  Every session presses each marker once: s000 trains, s001 validates, the
-    rest test.  ``design_seeds`` may be developed on; ``heldout_seeds`` are only ever evaluated
-    (``benchmarks/bench_random_rigs.py``).
-    """
+    """Rigs we did not design on: every seed draws another link, people, motion and warm-up as an ordinary
+    :class:`Scenario`.  s000 trains, s001 validates, the rest test; ``design_seeds`` may be developed on,
+    ``heldout_seeds`` are only ever evaluated (``benchmarks/bench_random_rigs.py``)."""
 
     family: str = "random"
     sessions: int = 4
