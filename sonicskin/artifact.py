@@ -143,8 +143,7 @@ MAX_SKIN_JSON_BYTES = 64 * 2**20
 
 
 def load_skin(folder: str | Path) -> dict:
-    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
-    that holds it)."""
+    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field that holds it)."""
     folder = Path(folder)
     path = folder / "skin.json"
     if not path.is_file():

@@ -169,8 +169,7 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
     """The right to write the dataset folder ``root``, exclusive between processes (``fcntl.flock`` on the folder,
-    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock.
-    """
+    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     key = os.path.realpath(root)
@@ -293,8 +292,7 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
 
 class DatasetWriter:
     """Create (``mode``: ``"create"``, ``"overwrite"``, ``"resume"``) the dataset folder ``root`` with ``rig``,
-    ``layout`` and free ``source`` metadata, and append checked session parts to it.
-    """
+    ``layout`` and free ``source`` metadata, and append checked session parts to it."""
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,
                  mode: str = "create"):
@@ -550,8 +548,7 @@ class Split:
 
 
 def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
-    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its
-    rig and layout."""
+    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its rig and layout."""
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object with format, version, rig and layout, got a JSON "
                            f"{type(meta).__name__}; the file is corrupt (re-create the dataset)")

@@ -50,8 +50,7 @@ def material_kappa(material: str) -> float:
 
 
 def stretch_to_kelvin(stretch: float, kappa_per_k: float) -> float:
-    """Temperature change (K) of a wall with ``kappa_per_k`` whose channel is stretched by ``stretch``
-    (``1 + s = 1 + kappa dT``)."""
+    """Temperature change (K) of a wall with ``kappa_per_k`` whose channel is stretched by ``stretch`` (``1 + s = 1 + kappa dT``)."""
     if not (isinstance(kappa_per_k, (int, float)) and math.isfinite(kappa_per_k) and kappa_per_k != 0):
         raise DriftError(f"kappa_per_k must be a finite non-zero number (relative frequency shift per K), got {kappa_per_k!r}")
     return float(stretch) / float(kappa_per_k)
@@ -108,8 +107,7 @@ def _band_features(X_band, n: int) -> np.ndarray:
 
 
 def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = None) -> np.ndarray:
-    """Band features (n, n_band) or (n_band,) in dB, mapped back onto the training axis by ``stretch``
-    (:func:`warp_index`)."""
+    """Band features (n, n_band) or (n_band,) in dB, mapped back onto the training axis by ``stretch`` (:func:`warp_index`)."""
     X = _band_features(X_band, np.asarray(freqs_hz).size)
     i0, w = warp_index(freqs_hz, stretch, allowed)
     return X[..., i0] * (1 - w) + X[..., i0 + 1] * w

@@ -26,8 +26,7 @@ class FrameError(ValueError):
 def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
           phase_rad: float = 0.0) -> np.ndarray:
     """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64,
-    sweeping ``f_lo_hz -> f_hi_hz``: ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper defines ``a`` on the frequency).
-    """
+    sweeping ``f_lo_hz -> f_hi_hz``: ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper defines ``a`` on the frequency)."""
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
     # scipy's chirp is a cosine; sin(x + phi) = cos(x + phi - pi/2).
@@ -37,8 +36,7 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
 
 @functools.lru_cache(maxsize=8)
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep (once per rig,
-    read-only)."""
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep (once per rig, read-only)."""
     stored = rig.sweep()
     if stored is not None:
         x = stored.astype(np.float64)

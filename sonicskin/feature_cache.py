@@ -1,5 +1,4 @@
-"""A dataset's feature table, cached as plain arrays in ``<dataset>/.cache`` and keyed by content
-(:func:`load_features_cached`)."""
+"""A dataset's feature table, cached as plain arrays in ``<dataset>/.cache`` and keyed by content (:func:`load_features_cached`)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,6 @@
 """What both models see: the OSPA-selected bins, absolute (dB, the paper's input) or relative: minus the
 stream's running no-touch reference (Alg. 2's online updating applied to the *features*), so a slow drift of the
-channel is removed before either model sees it.
-"""
+channel is removed before either model sees it."""
 
 from __future__ import annotations
 
@@ -75,8 +74,7 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     (:class:`~sonicskin.calibration.OnlineReference`, fed labels instead of a detector: boot on the first ``beta``
     consecutive ``quiet`` chirps, refreshes every ``alpha``).  For *training* sessions only; test streams are
     replayed with the model's own detection.  ``calibrator`` gives beta, alpha and the clock; ``online=False`` keeps
-    the boot reference throughout.
-    """
+    the boot reference throughout."""
     beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
     X = np.asarray(X, np.float32)
     out = np.empty(X.shape, np.float32)

@@ -106,8 +106,7 @@ class FittedCurve:
 
 
 def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
-    """Least-squares fit of one curve model ``F ~ f(E)`` (``model``: a key of :data:`MODELS`; paper Eq. 5 for
-    ``fourier1``)."""
+    """Least-squares fit of one curve model ``F ~ f(E)`` (``model``: a key of :data:`MODELS`; paper Eq. 5 for ``fourier1``)."""
     if model not in MODELS:
         raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
     E = np.asarray(E, float)
@@ -184,8 +183,7 @@ class PerLocationForce:
 
 class PooledForce:
     """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge over the
-    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches.
-    """
+    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches."""
 
     NAME = "pooled-ridge"
 

@@ -1,5 +1,4 @@
-"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval
-every report quotes."""
+"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval every report quotes."""
 
 from __future__ import annotations
 
@@ -20,8 +19,7 @@ def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) -> dict:
-    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm
-    and < 3 cm)."""
+    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm and < 3 cm)."""
     y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
     if y_true.shape != y_pred.shape:
         raise ValueError(f"{y_true.size} true labels but {y_pred.size} predictions")

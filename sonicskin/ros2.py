@@ -26,8 +26,7 @@ def _need(module: str, option: str, package: str):
 
 @functools.cache
 def dds_type(name: str):
-    """The cyclonedds type of ROS 2 message ``pkg/msg/Type`` (or ``pkg/Type``), named ``pkg::msg::dds_::Type_`` as rosidl
-    names it."""
+    """The cyclonedds type of ROS 2 message ``pkg/msg/Type`` (or ``pkg/Type``), named ``pkg::msg::dds_::Type_`` as rosidl names it."""
     from cyclonedds.idl import make_idl_struct
     from cyclonedds.idl import types as t
 

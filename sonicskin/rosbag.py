@@ -224,8 +224,7 @@ class Publisher:
     _open = _end = staticmethod(lambda *args: None)  # a bus opens a topic's writer or channel; ends
 
     def start(self) -> None:
-        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state
-        given before it."""
+        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state given before it."""
         t = self._t0_ns
         if self._urdf is not None:
             self.static = [("/robot_description", STRING, {"data": self._urdf}, t),

@@ -25,8 +25,7 @@ __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FO
 
 class SkinRuntime:
     """Load ``folder`` and serve its ``model``; ``rig`` and ``layout`` (``None``: not checked) must be the artifact's,
-    else :class:`ArtifactError`; ``threads``: onnxruntime intra-op threads.
-    """
+    else :class:`ArtifactError`; ``threads``: onnxruntime intra-op threads."""
 
     def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,
                  threads: int = 1):

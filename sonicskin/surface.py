@@ -188,8 +188,7 @@ class LinkSurface:
     @classmethod
     def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
         """A surface from a short YAML mapping (keys: docs/robot-frame.md), checked strictly (``where`` prefixes the
-        error line); a URDF link ``{urdf: PATH, frame: LINK}`` is read relative to ``base_dir``.
-        """
+        error line); a URDF link ``{urdf: PATH, frame: LINK}`` is read relative to ``base_dir``."""
         if not isinstance(d, dict):
             raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "
                                f"length_m: 0.25}}, got {type(d).__name__}")

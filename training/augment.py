@@ -39,8 +39,7 @@ class Augmenter:
     """Draws one augmented copy of every training touch chirp per call: ``X`` (n, D) relative dB over every usable
     bin, ``y`` marker labels and ``press`` ids per chirp; draws returned over ``cols``.  ``freqs_hz`` (D,) for
     ``stretch`` and ``tilt``; ``X_rest`` (m, D) hands-off chirps for ``motion``; ``positions_cm`` (K, 2) in the order
-    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off).
-    """
+    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off)."""
 
     def __init__(self, X, y, press, *, cols=None, freqs_hz=None, X_rest=None, positions_cm=None,
                  circumference_cm: float | None = None, sizes: dict | None = None):

@@ -1,6 +1,5 @@
 """Train SkinNet on arrays in-process (no CLI, no checkpoints): model selection, refits, ``reproduce`` and ``seeds``;
-a plain torch loop (a Lightning ``Trainer`` costs more than the training itself on one session's chirps).
-"""
+a plain torch loop (a Lightning ``Trainer`` costs more than the training itself on one session's chirps)."""
 
 from __future__ import annotations
 
@@ -38,8 +37,7 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
             batch_size: int = 128, fitted: dict | None = None, augmenter=None, **hparams):
     """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the
     :class:`models.SkinNet`).  A ``layer`` ``"lda"`` or ``"kernel"`` starts as the artifact's model in ``fitted``;
-    ``augmenter``: ``(Augmenter, row -> augmenter row)``, used when ``augment`` is set.
-    """
+    ``augmenter``: ``(Augmenter, row -> augmenter row)``, used when ``augment`` is set."""
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)
     np.random.seed(seed)

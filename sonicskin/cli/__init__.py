@@ -22,8 +22,7 @@ __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
 class _CtrlCInCallbacks:
     """Ctrl-C landing inside a C library's Python callback (soundfile's cffi ones cannot unwind it) is remembered
     (:attr:`swallowed`) and delivered again a moment later; :func:`main` reports an error that follows it as the
-    interruption it is.
-    """
+    interruption it is."""
 
     def __init__(self) -> None:
         self.swallowed = False

@@ -49,8 +49,7 @@ def alg2_options(a: argparse.Namespace) -> dict:
 
 
 def resolve_n_bins(a: argparse.Namespace, data: str | Path | None, *, warn=None) -> int:
-    """The user's ``--n-bins`` (more than the dataset's usable bins: a usage error), or the default clamped to them
-    with a warning."""
+    """The user's ``--n-bins`` (more than the dataset's usable bins: a usage error), or the default clamped to them with a warning."""
     if data is None:
         return a.n_bins if a.n_bins is not None else DEFAULT_N_BINS
     n_allowed = int(Dataset(data).rig.allowed_mask.sum())

@@ -107,8 +107,7 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 class ScoreHead:
     """The decisions of a closed-form model from its per-location scores ``S``: the argmax of the raw ``S``, the
-    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights.
-    """
+    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights."""
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)
 

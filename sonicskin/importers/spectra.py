@@ -27,8 +27,7 @@ MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table 
 def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
                   log=print) -> Rig:
     """The rig whose FFT bins are a table's frequency axis (spacing ``fs / frame``; without ``fs_hz``/``frame``
-    the lowest standard rate that fits), each column at its nearest bin; its band is the table's columns.
-    """
+    the lowest standard rate that fits), each column at its nearest bin; its band is the table's columns."""
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size < 2:
         raise ValueError(f"freqs_hz must list at least two frequencies, got shape {f.shape}")

@@ -61,8 +61,7 @@ class ShrinkageLDA(LinearClassifierMixin, BaseEstimator):
     training samples, so 5,000 bins and a few hundred chirps take milliseconds instead of seconds and hundreds of MB.
     ``shrinkage``: "auto" (Ledoit-Wolf per class on standardised features) or a fixed value in [0, 1]; ``priors``:
     default the class proportions.  Fitted: ``classes_``, ``means_``, ``priors_``, ``shrinkage_`` (per class),
-    ``coef_``, ``intercept_``, ``n_features_in_``.
-    """
+    ``coef_``, ``intercept_``, ``n_features_in_``."""
 
     def __init__(self, shrinkage="auto", priors=None):
         self.shrinkage = shrinkage

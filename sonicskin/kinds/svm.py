@@ -25,8 +25,7 @@ __all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decisio
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
     """Per-class scores (n, K) from the pairwise SVM decision values ``ovo`` (libsvm pair order): scikit-learn's
-    ``decision_function_shape="ovr"`` transform, outside the model so the ONNX graph stays tiny.
-    """
+    ``decision_function_shape="ovr"`` transform, outside the model so the ONNX graph stays tiny."""
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
         ovo = ovo[:, 0]  # skl2onnx's binary SVM output is [d, -d] with scikit-learn's d

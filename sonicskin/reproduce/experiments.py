@@ -1,6 +1,5 @@
 """The paper's Sec. V experiments, one function each (:data:`sonicskin.reproduce.EXPERIMENTS`): a
-:class:`~.context.Context` of one simulator seed in, its numbers out, its figure written.
-"""
+:class:`~.context.Context` of one simulator seed in, its numbers out, its figure written."""
 
 from __future__ import annotations
 

@@ -104,8 +104,7 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
 
 class NoiseDraws:
     """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra a few rows at
-    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches.
-    """
+    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches."""
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,
                  floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None, work: dict | None = None):

@@ -401,8 +401,7 @@ def layout_count(sc: Scenario) -> int:
 
 
 def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
-    """Chirps of the first session and of each other one, from the settings alone (what
-    :func:`build_timeline` will make)."""
+    """Chirps of the first session and of each other one, from the settings alone (what :func:`build_timeline` will make)."""
     n_loc = layout_count(sc)
     per = rig.seconds_to_chirps(sc.touch_s) + (rig.seconds_to_chirps(sc.gap_s) if sc.gap_s > 0 else 0)
     head = rig.seconds_to_chirps(sc.calibration_s) + (

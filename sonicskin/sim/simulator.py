@@ -1,7 +1,6 @@
 """Render a scenario's timeline into received audio, chirp by chirp, in batches: the untouched channel at the
 link's temperature, the finger's update when touched, the robot's motion, both transducers, the chirp spectrum, the
-noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation.
-"""
+noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation."""
 
 from __future__ import annotations
 
@@ -294,8 +293,7 @@ _WB_DTYPE = np.complex64
 
 def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
     """Change of H by a contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s`` (R, O, n_f), every P x P
-    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128).
-    """
+    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128)."""
     R, _, F = Gp.shape
     n_o = K.shape[1]
     iu, ju = np.triu_indices(P)
