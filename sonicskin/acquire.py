@@ -163,8 +163,7 @@ def resolve_device(spec: str | int | None) -> int:
     else:
         hits = [d for d in devs if str(spec).lower() in d["name"].lower()]
         if not hits:
-            raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: "
-                             + ", ".join(d["name"] for d in devs))
+            raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: " + ", ".join(d["name"] for d in devs))
         idx = hits[0]["index"]
     return idx
 

@@ -19,8 +19,7 @@ from .features import MODES, FeatureSpec
 from .force import MODELS, PooledForce
 from .rig import Layout, Rig
 
-__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin",
-           "nonfinite_field"]
+__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin", "nonfinite_field"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
 ARTIFACT_VERSION = 3
@@ -249,8 +248,7 @@ def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int], n_in:
 
 def _check_file_name(doc: _Doc, name: Any, field: str) -> str:
     name = doc.str(name, field)
-    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name or ":" in name
-            or Path(name).name != name):
+    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name or ":" in name or Path(name).name != name):
         doc.fail(field, f"must be a plain file name inside the artifact folder, got {_short(name)}",
                  "keep the ONNX files next to skin.json and name them without a directory")
     return name

@@ -98,8 +98,7 @@ class OnlineReference:
     @staticmethod
     def _time(t_s) -> float:
         """``t_s`` as seconds, checked before it touches any state (a NaN in the boot window stopped every later chirp)."""
-        if isinstance(t_s, (bool, np.bool_)) or not isinstance(t_s, (int, float, np.integer, np.floating)) \
-                or not 0 <= t_s <= MAX_T_S:
+        if isinstance(t_s, (bool, np.bool_)) or not isinstance(t_s, (int, float, np.integer, np.floating)) or not 0 <= t_s <= MAX_T_S:
             raise SonicskinError(f"stream time t_s must be a number of seconds in 0..{MAX_T_S:g}, got {brief(t_s)}: pass "
                                  "the chirp's time on the stream's clock, or skip a chirp whose time is unknown")
         return float(t_s)

@@ -208,8 +208,7 @@ class SimulatedDevice:
                            rig.seconds_to_chirps(tail_s))
         sim = copy.copy(self.sim)  # the fault's gain on this capture's copy (the simulator's arrays are shared)
         sim.gain = np.float32(sim.gain * self.GAIN.get(self.fault, 1.0))
-        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
-                           blocksize=blocksize)
+        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d, blocksize=blocksize)
 
     def open(self, rig: Rig, *, rx: int, n: int, blocksize: int, settle_s: float, rest_s: float, press_s: float,
              tail_s: float, **_) -> tuple[np.ndarray, list[int], AudioSource]:
@@ -218,8 +217,7 @@ class SimulatedDevice:
         rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
         noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
         column = min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)
-        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s,
-                                            blocksize=blocksize)
+        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s, blocksize=blocksize)
 
 
 class _Interface:
@@ -271,8 +269,7 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
             raise SonicskinError(f"{opt} {channel}: the device has {n} {what} (0-{n - 1})")
     refused = device.refused(rig, tx)
     if refused is not None:
-        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
-                       rate_detail=refused)
+        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False, rate_detail=refused)
     audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, blocksize=blocksize, playback=playback,
                                       settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s)
     asked = released = False

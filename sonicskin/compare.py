@@ -171,8 +171,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     for k, rt in rts.items():
         drift: dict = {}
         p = replay_sessions(rt, te, test, drift=drift)
-        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
-                           detection=detection)
+        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5), detection=detection)
         sel = touch_mask(te, meta.get("min_force_n", 0.5)) & p.touch  # the chirps force is scored on (plotted)
         r["force_points"] = {"true_n": te["force_n"][sel].tolist(), "predicted_n": p.force_n[sel].tolist()}
         if latency:  # on the first test stream, as it was scored (booted, or without a boot: replay_sessions)

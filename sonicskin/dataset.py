@@ -298,8 +298,7 @@ class DatasetWriter:
                  mode: str = "create"):
         self.root, self.rig, self.layout = Path(root), rig, layout
         meta_path = self.root / "dataset.json"
-        meta = {"format": FORMAT, "version": VERSION, "rig": rig.to_dict(), "layout": layout.to_dict(),
-                "source": source or {}}
+        meta = {"format": FORMAT, "version": VERSION, "rig": rig.to_dict(), "layout": layout.to_dict(), "source": source or {}}
         if mode not in ("create", "overwrite", "resume"):
             raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
         refuse_inside_dataset(self.root, "a dataset")
@@ -577,8 +576,7 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
             raise DatasetError(f"{path}: rig.{k} must be a text, got {r[k]!r}")
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
-    if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS
-            and all(is_number(i, integer=True) and i >= 0 for i in ids)):
+    if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS and all(is_number(i, integer=True) and i >= 0 for i in ids)):
         raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
     if not (isinstance(xy, list) and len(xy) == len(ids)
             and all(isinstance(p, list) and len(p) == 2 and all(map(is_number, p)) for p in xy)):
@@ -610,8 +608,7 @@ class Dataset:
     def sessions(self) -> list[str]:
         """Session folders (those holding a labels CSV, or a session.json: a complete session whose parts are gone is
         refused when read, not skipped); one with an unsafe name is refused, not skipped."""
-        out = sorted(p.name for p in self.root.iterdir()
-                     if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
+        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
         for name in out:
             check_name(name, "session folder", str(self.root))
         return out

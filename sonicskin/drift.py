@@ -235,8 +235,7 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
     pat = _Pattern(freqs_hz, allowed, smooth_hz, max_search)
     cur = _mean_spectrum(spectrum_db, pat.n, "spectrum_db")
     ref = _mean_spectrum(reference_db, pat.n, "reference_db")
-    return _estimate(pat, cur, ref, pat.detrend(ref), max_search=max_search, min_correlation=min_correlation,
-                     grid_step=grid_step)
+    return _estimate(pat, cur, ref, pat.detrend(ref), max_search=max_search, min_correlation=min_correlation, grid_step=grid_step)
 
 
 class DriftTracker:

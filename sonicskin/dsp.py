@@ -30,8 +30,7 @@ def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitud
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
     # scipy's chirp is a cosine; sin(x + phi) = cos(x + phi - pi/2).
-    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear",
-                                          phi=np.degrees(phase_rad) - 90.0)
+    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear", phi=np.degrees(phase_rad) - 90.0)
 
 
 @functools.lru_cache(maxsize=8)
@@ -41,8 +40,7 @@ def rig_chirp(rig: Rig) -> np.ndarray:
     if stored is not None:
         x = stored.astype(np.float64)
     else:
-        x = chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
-                  amplitude=rig.amplitude)
+        x = chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp, amplitude=rig.amplitude)
     x.setflags(write=False)
     return x
 

@@ -85,8 +85,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     quiet = lambda m: None  # noqa: E731
 
     def paper_data(**kw):
-        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s,
-                    beta_s=beta_s, log=quiet, **kw)
+        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s, beta_s=beta_s, log=quiet, **kw)
         if rest and beta < cal.beta:  # Alg. 2's reference averages the rest every stream has
             d.spec = dataclasses.replace(d.spec, beta_s=beta / ds.rig.chirps_per_s)
         if not rest:  # no hands-off chirps in some stream: no detector, no Alg. 2 reference
@@ -99,8 +98,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         skin = fit_artifact(data, paper, options=PAPER_SVM, log=quiet)
         rt = SkinRuntime(paper, BASELINE)
         # Alg. 2 from the model's own detection (boot: each stream's first beta chirps); no test labels.
-        p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative"
-             else rt.predict_inputs(rt.inputs(te.X)))
+        p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative" else rt.predict_inputs(rt.inputs(te.X)))
         if p.calibrating is None:
             p.calibrating = np.zeros(len(te), bool)
         offline = rt.predict_inputs(rt.inputs(te.X))  # the training session's reference throughout

@@ -190,8 +190,7 @@ def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[st
         return out
     p, normal = surface.point_normal_one(float(x_cm), float(y_cm))
     f = float(force_n) if force_n is not None else math.nan
-    out |= {"point_m": p, "normal": normal,
-            "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
+    out |= {"point_m": p, "normal": normal, "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
     return out
 
 

@@ -81,8 +81,7 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
         for c in COLUMNS:
             want = np.concatenate([q[c] for q in parts])[:n]
             got = t[c][rows]
-            same = (np.array_equal(got, want, equal_nan=True) if want.dtype.kind == "f" else
-                    np.array_equal(got.astype(want.dtype), want))
+            same = (np.array_equal(got, want, equal_nan=True) if want.dtype.kind == "f" else np.array_equal(got.astype(want.dtype), want))
             if not same:
                 return f"its column {c!r} of session {s} differs from the session's label CSVs"
     return None
@@ -103,8 +102,7 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
             if why is None:
                 return t
             if why:
-                warnings.warn(f"{cache}: {why}; the cache was edited (its key kept): rebuilt from the recordings",
-                              stacklevel=2)
+                warnings.warn(f"{cache}: {why}; the cache was edited (its key kept): rebuilt from the recordings", stacklevel=2)
     t = ds.features(progress=progress)
     # Several processes may build the cache at once (DDP ranks, parallel `compare` runs): each writes its
     # own temporary file and renames it atomically; stale caches of other signatures are removed after.

@@ -57,8 +57,7 @@ class FeatureSpec:
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
-        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s),
-                                 online=online)
+        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s), online=online)
 
     def to_dict(self) -> dict:
         return {"bins": [int(b) for b in self.bins], "mode": self.mode, "beta_s": self.beta_s, "alpha_s": self.alpha_s}

@@ -99,10 +99,8 @@ class TrainingData:
         if not self.split.val:
             return self
         split = Split(self.split.train + self.split.val, (), self.split.test)
-        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s,
-             "beta_s": self.spec.beta_s}
-        d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False,
-                    **o)
+        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s, "beta_s": self.spec.beta_s}
+        d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False, **o)
         d.selection = dict(self.selection)
         d.options["refit_of"] = self.split.to_dict()
         return d

@@ -155,8 +155,7 @@ class PerLocationForce:
         E, F, location = np.asarray(E, float), np.asarray(F, float), np.asarray(location)
         if not (E.shape == F.shape == location.shape):
             raise ValueError(f"E, F and location must have equal length, got {E.size}, {F.size}, {location.size}")
-        self.curves_ = {int(k): fit_curve(E[location == k], F[location == k], self.model)
-                        for k in np.unique(location)}
+        self.curves_ = {int(k): fit_curve(E[location == k], F[location == k], self.model) for k in np.unique(location)}
         return self
 
     def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:

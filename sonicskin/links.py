@@ -160,8 +160,7 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
             out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, **extra))
         else:
             step = (rig.f_hi_hz - rig.f_lo_hz) / n
-            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step,
-                                      name=f"{rig.name}/{name}")
+            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step, name=f"{rig.name}/{name}")
             out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, sub, **extra))
     rx = [lk.rx for lk in out]
     if len(set(rx)) != len(rx):

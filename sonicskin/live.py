@@ -24,8 +24,7 @@ from .errors import SonicskinError
 from .events import SCHEMA_VERSION, TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable",
-           "dropout_frames"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
 
 
 # Chirp-to-chirp spread (std, dB, median over the usable bins) of the hands-off boot window: a repeating chirp gives

@@ -101,8 +101,7 @@ def require_parity(parity: dict, what: str, original: str, n_checked: int, how: 
     if not parity.pop("ok"):
         import onnxruntime
 
-        raise ParityError(parity_failure(what, original, parity, n_checked,
-                                         f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
+        raise ParityError(parity_failure(what, original, parity, n_checked, f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
     return parity
 
 

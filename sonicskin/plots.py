@@ -110,8 +110,7 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
         drawn = True
     if not drawn:
         why = reason.removeprefix("absent: ") if reason else "no force sensor (the data has no measured force)"
-        ax.text(0.5, 0.5, "n/a: " + why.replace(" (", "\n("), ha="center", va="center",
-                transform=ax.transAxes, fontsize=10, wrap=True)
+        ax.text(0.5, 0.5, "n/a: " + why.replace(" (", "\n("), ha="center", va="center", transform=ax.transAxes, fontsize=10, wrap=True)
         ax.set_xticks([]); ax.set_yticks([])
         return
     hi = 1.05 * hi or 1.0

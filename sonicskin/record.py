@@ -127,8 +127,7 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
     (two or more let model selection validate on presses not trained on, see :mod:`sonicskin.selection`)."""
     out = [("calibration", -1, rig.seconds_to_chirps(calibration_s), f"hands off the robot for {calibration_s:g} s")]
     if moving_s > 0:
-        out.append(("moving", -1, rig.seconds_to_chirps(moving_s),
-                    f"start the robot moving; hands off for {moving_s:g} s"))
+        out.append(("moving", -1, rig.seconds_to_chirps(moving_s), f"start the robot moving; hands off for {moving_s:g} s"))
     for k in range(int(passes)):
         for loc in locations:
             x, y = layout.coords(np.array([loc]))[0]  # where the marker is: x around / across, y along the link
@@ -225,8 +224,7 @@ class Recorder:
         complete = seg_i >= len(self.schedule)
         if complete:
             self.w.finish_session(self.session, {"n_chirps": self.chirps_written, "prompts": len(self.schedule)})
-        return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete,
-                "wall_s": time.perf_counter() - t_wall}
+        return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete, "wall_s": time.perf_counter() - t_wall}
 
 
 @contextlib.contextmanager
@@ -284,8 +282,7 @@ def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realti
     """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``; the
     scenario's link, the person's presses drawn anew per session, the robot moving only when prompted to."""
     moving = any(seg == "moving" for seg, *_ in schedule)
-    psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
-                           motion={**scenario.motion, "enabled": moving})
+    psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index, motion={**scenario.motion, "enabled": moving})
     offset %= rig.n_chirp
     tl = person_timeline(psc, rig, schedule, seed=psc.seed, lead_chirps=1 if offset else 0)
     src = open_source(rig, SIM, [Link()], play=lambda _: (Simulator(psc, rig), tl), realtime=realtime, offset=offset)
@@ -392,8 +389,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
         log(f"{out}: resuming: recording {len(todo)} missing location(s): " + ", ".join(f"{v} ({why(v)})" for v in todo))
     session = next_session(out)
-    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s,
-                             passes=passes)
+    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s, passes=passes)
     if simulated(device):
         src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
     log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "

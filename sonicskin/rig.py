@@ -357,10 +357,8 @@ class Layout:
         return cls(ids=tuple(range(len(xy))), xy_cm=xy, circumference_cm=circumference_cm)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"ids": list(self.ids), "xy_cm": self.xy_cm.round(6).tolist(),
-                "circumference_cm": self.circumference_cm}
+        return {"ids": list(self.ids), "xy_cm": self.xy_cm.round(6).tolist(), "circumference_cm": self.circumference_cm}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Layout:
-        return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float),
-                   circumference_cm=d.get("circumference_cm"))
+        return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float), circumference_cm=d.get("circumference_cm"))

@@ -114,8 +114,7 @@ class FoxglovePublisher(Publisher):
                         pub._channels[m[0]].log(encode(m[1], m[2]), log_time=m[3])
 
         try:
-            self.server = fg.start_server(name="sonicskin", host="127.0.0.1", port=port, context=self._ctx,
-                                          server_listener=Relatch())
+            self.server = fg.start_server(name="sonicskin", host="127.0.0.1", port=port, context=self._ctx, server_listener=Relatch())
         except RuntimeError as e:  # FoxgloveError: Failed to bind port: Address already in use
             raise SonicskinError(f"--foxglove {port}: cannot serve on 127.0.0.1:{port} ({str(e).split(': ', 1)[-1]}); pick "
                                  f"another port, or 0 for any free one") from None

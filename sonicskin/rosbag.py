@@ -32,8 +32,7 @@ try:
 except ImportError:  # not POSIX: a second writer on one file is not refused
     fcntl = None
 
-__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover",
-           "urdf_joints"]
+__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover", "urdf_joints"]
 
 _SEP = "=" * 80
 _PRIMITIVES = set("bool byte char int8 uint8 int16 uint16 int32 uint32 int64 uint64 float32 float64 string".split())

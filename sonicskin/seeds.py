@@ -130,8 +130,7 @@ def _floors(ds: Dataset, t, split) -> dict:
     """The plain floors on the same split (:func:`plain_floors`): ``accuracy`` (SVC), ``lda_accuracy``,
     ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR), ``force_rmse_constant_n`` (the training mean)."""
     f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
-    out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
-           "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
+    out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"], "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
     if "svr_force_rmse_n" in f:
         out.update(force_rmse_n=f["svr_force_rmse_n"], force_rmse_constant_n=f["mean_force_rmse_n"])
     return out

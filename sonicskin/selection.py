@@ -292,8 +292,7 @@ def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
         verdict = "one point only: record one more pass over the markers to see the trend"
     how = ("trained on the first k passes, scored on the validation session" if val is not None and np.any(val) else
            f"{n_pass} passes recorded: each point trains on k of them and scores on one held out, so k stops at {n_pass - 1}")
-    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict,
-            "passes_recorded": n_pass, "how": how}
+    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict, "passes_recorded": n_pass, "how": how}
 
 
 # -- force ------------------------------------------------------------------------------------------------
@@ -320,8 +319,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     pipe = Pipeline([("model", FourierPerLocation())])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        search = GridSearchCV(pipe, grid, cv=cv, scoring="neg_root_mean_squared_error", refit=False,
-                              error_score=np.nan).fit(Z, F)
+        search = GridSearchCV(pipe, grid, cv=cv, scoring="neg_root_mean_squared_error", refit=False, error_score=np.nan).fit(Z, F)
     bp = search.best_params_
     best = clone(pipe).set_params(**bp)
     pred, tested = _oof(best, Z, F, cv)
@@ -352,8 +350,7 @@ def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str
     fpr = (sq[None, :] >= cand[:, None]).mean(axis=1)
     j = tpr - fpr
     thr = float(cand[np.flatnonzero(j >= j.max() - 1e-12)[0]])  # candidates ascend: the lowest of the best
-    return {"how": how, "threshold": thr, "missed_touch_rate": float(np.mean(st < thr)),
-            "false_touch_rate": float(np.mean(sq >= thr))}
+    return {"how": how, "threshold": thr, "missed_touch_rate": float(np.mean(st < thr)), "false_touch_rate": float(np.mean(sq >= thr))}
 
 
 def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.ndarray, n_locations: int,

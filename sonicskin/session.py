@@ -154,8 +154,7 @@ class Run:
                     gc.freeze()  # what the run opened is never scanned again by the collector
                     print(f"sonicskin: real-time scheduling: audio thread {self.granted['audio']}; processing thread "
                           f"{self.granted['processing']}", file=sys.stderr, flush=True)
-                return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
-                                              stop=stop))
+                return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s, stop=stop))
 
     def summary(self, sums: list[dict]) -> dict:
         """The loops' summaries as ``sonicskin live`` prints them: keyed by link on an arm, else the one loop's."""

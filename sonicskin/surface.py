@@ -72,8 +72,7 @@ class LinkSurface:
             if not (math.isfinite(d) and (d > 0 or (k == "thickness_m" and d == 0))):
                 raise SurfaceError(f"{self.kind} {k} must be a positive number of metres, got {brief(d)}")
         pose = np.array(self.pose, dtype=float)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
-                                                                                     atol=1e-6):
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-6):
             raise SurfaceError("pose must be a finite 4x4 rigid transform (a rotation and a translation)")
         pose.setflags(write=False)
         if self.axis_from not in ("-z", "+z"):

@@ -29,8 +29,7 @@ from .errors import SonicskinError, brief, is_number
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
-__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port",
-           "STATUS_KEYS"]
+__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port", "STATUS_KEYS"]
 
 #: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
 STATUS_KEYS = {
@@ -271,8 +270,7 @@ class ViewServer:
         self._server.timeout = 0.2  # how soon the serving thread sees stop()
         self._stopped = threading.Event()
         weakref.finalize(self, self._stopped.set)  # dropped without stop(): stop serving all the same
-        self._thread = threading.Thread(target=_serve, args=(self._server, self._stopped), name="sonicskin-view",
-                                        daemon=True)
+        self._thread = threading.Thread(target=_serve, args=(self._server, self._stopped), name="sonicskin-view", daemon=True)
         self._thread.start()
         return self
 

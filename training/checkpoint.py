@@ -74,8 +74,7 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
         raise CheckpointError(f"{path} is not a training checkpoint (it holds a {type(ckpt).__name__}); {HINT}")
     for key, kind in (("state_dict", dict), ("hyper_parameters", dict), ("sonicskin", dict)):
         if not isinstance(ckpt.get(key), kind):
-            what = "has no sonicskin metadata; train it with `sonicskin train`" if key == "sonicskin" else \
-                f"has no {key}; {HINT}"
+            what = "has no sonicskin metadata; train it with `sonicskin train`" if key == "sonicskin" else f"has no {key}; {HINT}"
             raise CheckpointError(f"{path} {what}")
     missing = sorted(set(META_KEYS) - set(ckpt["sonicskin"]))
     if missing:

@@ -89,8 +89,7 @@ class EpochBar(L.Callback):
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        self.results = {"epochs": trainer.current_epoch, "train_time_s": time.perf_counter() - self._t0,
-                        **self._metrics(trainer)}
+        self.results = {"epochs": trainer.current_epoch, "train_time_s": time.perf_counter() - self._t0, **self._metrics(trainer)}
 
 
 # -- what a training YAML or option may name, and the ranges of its numbers --------------------------------------

@@ -32,8 +32,7 @@ SVM_FORCE = "the SVM's"
 #: (benchmarks/bench_default.py, stored result ``default``)
 UNVALIDATED_FORCE = SVM_FORCE
 
-__all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force",
-           "artifact_from_checkpoint"]
+__all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force", "artifact_from_checkpoint"]
 
 
 class NetTrainer(NetKind):
@@ -50,8 +49,7 @@ class NetTrainer(NetKind):
         if selection is not None:
             return train_network(data, fitted=fitted, chosen=selection[NETWORK])
         if model is not None:
-            return finish_network(model, data, fitted=fitted, selection=layer, hparams=hparams, train_time_s=train_time_s,
-                                  seed=seed)
+            return finish_network(model, data, fitted=fitted, selection=layer, hparams=hparams, train_time_s=train_time_s, seed=seed)
         return train_network(data, fitted=fitted, select=select, seed=seed, epochs=epochs, layer=layer, **options)
 
     def export(self, fit, path, X_check):
@@ -86,13 +84,11 @@ def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epo
     t0 = time.perf_counter()
     if model is None:
         aug = make_augmenter(data, train) if hp.get("augment") else None
-        model = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug, fitted=fitted,
-                        **kw, **hp).model
+        model = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug, fitted=fitted, **kw, **hp).model
     train_s = time.perf_counter() - t0
     hparams_out = _plain_hparams({"n_in": int(X.shape[1]), "n_locations": n, **hp, "epochs": int(epochs or 40),
                                   "n_centres": int(model.kernel.centres.shape[0]) if model.kernel is not None else 0})
-    return finish_network(model, data, fitted=fitted, selection=layer, train_time_s=train_s, hparams=hparams_out,
-                          seed=seed, chosen=chosen)
+    return finish_network(model, data, fitted=fitted, selection=layer, train_time_s=train_s, hparams=hparams_out, seed=seed, chosen=chosen)
 
 
 def layer_folds(data):

@@ -114,8 +114,7 @@ class SkinLitModule(L.LightningModule):
         h = self.hparams
         n = self.n_model_in
         if h.layer == "lda":
-            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm,
-                              n_lda=h.n_lda)
+            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm, n_lda=h.n_lda)
         centres = h.n_centres if h.layer == "kernel" else 0
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 

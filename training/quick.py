@@ -113,8 +113,7 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
             if np.unique(cls[fit_rows & (cls < n)]).size < n:  # a location missing from the fold's training rows
                 accs = []
                 break
-            pred = fit_net(X[fit_rows], cls[fit_rows], force[fit_rows], n_locations=n, seed=seed, augmenter=aug,
-                           **{**kw, **hp})
+            pred = fit_net(X[fit_rows], cls[fit_rows], force[fit_rows], n_locations=n, seed=seed, augmenter=aug, **{**kw, **hp})
             accs.append(float(np.mean(pred(X[touch])[0][:, :n].argmax(1) == cls[touch])))
             if k == 0:
                 models[name] = pred.model

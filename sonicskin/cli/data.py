@@ -67,8 +67,7 @@ def cmd_import_wav(a: argparse.Namespace) -> int:
 
 
 def cmd_import_spectra(a: argparse.Namespace) -> int:
-    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear,
-                   mode=writer_mode(a))
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear, mode=writer_mode(a))
     return 0
 
 

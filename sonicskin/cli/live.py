@@ -70,8 +70,7 @@ def cmd_live(a: argparse.Namespace) -> int:
                    foxglove=a.foxglove)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
-        print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
-              file=sys.stderr, flush=True)
+        print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)", file=sys.stderr, flush=True)
     for bus in run.buses:
         print(f"sonicskin live: {bus.kind} is on {bus.name}", file=sys.stderr, flush=True)
     lost = None

@@ -76,8 +76,7 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
         return _fit_svm_arm(a)
     n_bins = resolve_n_bins(a, a.data) if a.n_bins is not None else None  # None: chosen by validation
     with removed_on_failure(a.out):
-        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train,
-                           **alg2_options(a))
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train, **alg2_options(a))
     return 0
 
 
@@ -186,8 +185,7 @@ def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
     if not (artifact / "skin.json").is_file():
         raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-    if (extra or any(getattr(a, k) is not None for k in TRAINING_OPTIONS) or a.val is not None or not a.refit
-            or a.config != "moving"):
+    if (extra or any(getattr(a, k) is not None for k in TRAINING_OPTIONS) or a.val is not None or not a.refit or a.config != "moving"):
         raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
                          "compare on (drop the training options or --artifact)")
     return _score_artifact(a, artifact, expected=True)

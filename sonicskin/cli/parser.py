@@ -160,8 +160,7 @@ def _data_verbs(sub) -> None:
     rc.add_argument("--out", required=True, help="dataset folder")
     rc.add_argument("--device", default="sim",
                     help="'sim' (a simulated person follows the prompts) or an audio device name/index (default: sim)")
-    rc.add_argument("--scenario", default="stationary",
-                    help="layout of the markers (and the simulated link/person) (default: stationary)")
+    rc.add_argument("--scenario", default="stationary", help="layout of the markers (and the simulated link/person) (default: stationary)")
     rc.add_argument("--rig", help="rig name or YAML path (default: the --links arm file's rig, else jaco)")
     rc.add_argument("--links", metavar="ARM", help="record every link of an arm file in turn, each on its TX/RX pair with its markers, "
                                                    "into OUT/<link> (default: one link)")
@@ -223,8 +222,7 @@ def _model_verbs(sub) -> None:
                           "absolute keeps the training session's reference throughout.")
     e.add_argument("--data", required=True, help="dataset folder")
     e.add_argument("--out", help="report folder (default: reports/<dataset name>)")
-    e.add_argument("--no-ablations", action="store_true",
-                   help="skip the no-OSPA / no-calibration / total-energy runs (default: run them)")
+    e.add_argument("--no-ablations", action="store_true", help="skip the no-OSPA / no-calibration / total-energy runs (default: run them)")
     add_model_options(e)
 
     f = _verb(sub, "fit-svm", "models:cmd_fit_svm", help="SVM-only artifact from a recording, no torch needed",
@@ -282,8 +280,7 @@ def _model_verbs(sub) -> None:
                description="Simulate every dataset the paper's experiments need (cached under OUT/data), train both models, write PNG "
                            "figures and report.md with the paper's numbers beside ours.")
     rp.add_argument("--out", default="reports/reproduce", help="report folder (default: reports/reproduce)")
-    rp.add_argument("--quick", action="store_true",
-                    help="small datasets and short training: a few minutes on 2 cores (default: full size)")
+    rp.add_argument("--quick", action="store_true", help="small datasets and short training: a few minutes on 2 cores (default: full size)")
     rp.add_argument("--seeds", type=nonneg_int, nargs="+", metavar="K",
                     help="simulator seeds, each another simulated link and presses (default: 0 1 quick, 0 1 2 full)")
     rp.add_argument("--rig", default="jaco", help="the simulated rig, a name (jaco, fast) or a YAML path (default: jaco)")

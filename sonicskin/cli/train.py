@@ -105,8 +105,7 @@ def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None, refi
 def compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
     """``compare --data``: train and export both models on the same split, then score the artifact."""
     run = Path(a.runs) / f"compare-{Path(a.data).name}"
-    args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
-                                   "--trainer.logger.init_args.save_dir", str(run)] + extra)
+    args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run), "--trainer.logger.init_args.save_dir", str(run)] + extra)
     cli = train_main(args)
     if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
         return 0

@@ -147,5 +147,4 @@ class ScoreHead:
         E = energy_db(inputs, np.arange(inputs.shape[1])) - self.energy_ref_db
         f = self.force_model.predict(E, self.ids[idx], inputs=inputs)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
-        return Predictions(touch, self.ids[idx], centroid(self.weights(S), self.layout), f, self.confidence(S),
-                           V_cal[:, :self.K])
+        return Predictions(touch, self.ids[idx], centroid(self.weights(S), self.layout), f, self.confidence(S), V_cal[:, :self.K])

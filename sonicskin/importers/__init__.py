@@ -9,5 +9,4 @@ from .labels import label_layout
 from .spectra import STANDARD_RATES_HZ, import_spectra, rig_from_axis
 from .wav import import_wav, sweep_rig
 
-__all__ = ["import_wav", "import_spectra", "sweep_rig", "rig_from_axis", "label_layout", "STANDARD_RATES_HZ",
-           "ImportDataError"]
+__all__ = ["import_wav", "import_spectra", "sweep_rig", "rig_from_axis", "label_layout", "STANDARD_RATES_HZ", "ImportDataError"]

@@ -42,8 +42,7 @@ def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=Non
         first(~((m >= 0) & (m <= 1)), "moving", moving, "the motion level is a number in [0, 1]")
     if subject is not None:
         v = np.asarray(subject, float)
-        first(~(np.isfinite(v) & (v >= 0) & (v < 2**31) & (v == np.round(v))), "subject", subject,
-              "a subject is a whole number >= 0")
+        first(~(np.isfinite(v) & (v >= 0) & (v < 2**31) & (v == np.round(v))), "subject", subject, "a subject is a whole number >= 0")
     for col, c in (("x_cm", x_cm), ("y_cm", y_cm)):
         if c is not None:
             v = np.asarray(c, float)

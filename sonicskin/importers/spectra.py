@@ -19,8 +19,7 @@ from ._common import PEAK_LEVEL, ImportDataError, _first_touch, _staged, _write_
 from .labels import _check_values, label_layout
 
 # Sample rates of common audio interfaces, preferred in this order when the axis fits several equally.
-STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000,
-                     11_025, 22_050, 24_000)
+STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000, 11_025, 22_050, 24_000)
 MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table of measured spectra
 
 

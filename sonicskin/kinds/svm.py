@@ -216,8 +216,7 @@ class SVMKind(ModelKind):
             p, e = loc["params"], loc["estimate"]
             lo, hi = e["ci95"]
             ci = f", 95 % interval over presses {lo:.0%}-{hi:.0%}" if _finite(lo, hi) else ""
-            paper = (f"; the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%}" if loc.get("paper_accuracy") is not None
-                     else "")
+            paper = (f"; the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%}" if loc.get("paper_accuracy") is not None else "")
             out.append(f"chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} x 'scale' "
                        f"(validation accuracy {e['accuracy']:.0%} on {e['n_presses']} presses, {loc['how']}{ci}{paper})")
             lc = loc.get("learning_curve")

@@ -122,8 +122,7 @@ class Context:
         (``link_seed + k``: its irregularities) and other presses, noise and aims (``seed + 1000 k``)."""
         path = self.out / "data" / ("" if self.rig.name == "jaco-link" else self.rig.name) / (
             name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
-        if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists()
-                                                             for s in Dataset(path).sessions):
+        if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists() for s in Dataset(path).sessions):
             scenario, over = datasets(self.quick)[name]
             d = {**Scenario.load(scenario).to_dict(), **(QUICK_SIZE if self.quick else {}), **over, "name": name}
             d["seed"] = int(d["seed"]) + 1000 * self.sim_seed

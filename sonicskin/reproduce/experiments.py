@@ -17,8 +17,7 @@ def fig6b(ctx: Context) -> dict:
     ds, t, train, test, bins = first_session_split(ctx, "moving")
     every = ctx.data(ds, train=train, bins=np.arange(ds.rig.n_band), notches=False)
     ospa = ctx.data(ds, train=train, bins=bins)
-    res = {k: {"all_bins": ctx.evaluate(k, every, test)["accuracy"], "ospa": ctx.evaluate(k, ospa, test)["accuracy"]}
-           for k in ctx.kinds}
+    res = {k: {"all_bins": ctx.evaluate(k, every, test)["accuracy"], "ospa": ctx.evaluate(k, ospa, test)["accuracy"]} for k in ctx.kinds}
     fig, ax = plt().subplots(figsize=(6, 3.5))
     x = np.arange(2)
     for i, k in enumerate(res):
@@ -139,8 +138,7 @@ def _label(members) -> str:
     by: dict[str, list[str]] = {}
     for k, a in members:
         by.setdefault("no updating" if a == "never" else "every " + a, []).append(MODEL[k])
-    return "; ".join(f"{a} ({'both models' if len(set(ms)) == len(MODEL) else ', '.join(sorted(set(ms)))})"
-                     for a, ms in by.items())
+    return "; ".join(f"{a} ({'both models' if len(set(ms)) == len(MODEL) else ', '.join(sorted(set(ms)))})" for a, ms in by.items())
 
 
 def two_months(ctx: Context) -> dict:

@@ -180,8 +180,7 @@ class ChannelModel:
         """Mass-normalised mode shapes at points (P, 2) in metres, shape (P, n_modes)."""
         x, y = np.asarray(pts_m, float)[:, :1], np.asarray(pts_m, float)[:, 1:2]
         along = np.sin(self.ky * y)
-        around = np.where(self.variant == 0, np.cos(self.kx * x),
-                          np.where(self.variant == 1, np.sin(self.kx * x), np.sin(self.kx * x)))
+        around = np.where(self.variant == 0, np.cos(self.kx * x), np.where(self.variant == 1, np.sin(self.kx * x), np.sin(self.kx * x)))
         return self.norm * around * along
 
     def modal_density_per_hz(self) -> float:

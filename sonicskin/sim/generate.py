@@ -26,8 +26,7 @@ def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str
     sim = Simulator(scenario, rig)
     setup_s = time.perf_counter() - t0
     tl = build_timeline(scenario, rig)
-    writer = DatasetWriter(out, rig, sim.layout, source={"kind": "simulator", "scenario": scenario.to_dict()},
-                           mode=mode)
+    writer = DatasetWriter(out, rig, sim.layout, source={"kind": "simulator", "scenario": scenario.to_dict()}, mode=mode)
     L = rig.n_chirp
     per_part = max(1, rig.seconds_to_chirps(scenario.part_s))
     sensor_rng = np.random.default_rng([scenario.seed, 11])

@@ -224,8 +224,7 @@ class _ToneKernel:
             pad[...] = 0
         # windows[r, s] is pad[r, s:s + 2W]: a tone whose kernel starts at bin k0 + 1 - W (padded: k0 + 1)
         # is one contiguous row slice, so a scatter of a tone over frames copies whole rows.
-        windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W),
-                                                  strides=(pad.strides[0], pad.itemsize, pad.itemsize))
+        windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W), strides=(pad.strides[0], pad.itemsize, pad.itemsize))
         rows = slice(start, start + n)
         k0, q, c = self.k0[rows], self.q[rows], self.c[rows]
         ar = np.arange(n)

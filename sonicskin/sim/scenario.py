@@ -124,8 +124,7 @@ class Scenario:
             return Layout.rings(tuple(lay.get("counts", (16, 15))), lay.get("spacing_cm", 1.2),
                                 circumference_cm=circ, x0_cm=lay.get("x0_cm", 0.0), y0_cm=lay.get("y0_cm", 0.0))
         if kind == "grid":
-            return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0),
-                               circumference_cm=circ)
+            return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0), circumference_cm=circ)
         raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(kind)}")
 
     @property

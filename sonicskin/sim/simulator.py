@@ -171,8 +171,7 @@ class Simulator:
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
             presses.append((idx, who, a, g, occl, radii, [self._patch_points(centre, r, theta0) for r in radii]))
         if presses:
-            W = np.concatenate([self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses
-                                for r, pts in zip(radii, pl)])
+            W = np.concatenate([self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)])
             rows = W.shape[0] // sum(len(p[5]) for p in presses)
             nf2 = 2 * self.channel.f_hz.size
             if self._G is None or self._G.size < W.shape[0] * nf2:
