@@ -126,8 +126,7 @@ class SkinNet(nn.Module):
         self.std.copy_(torch.as_tensor(np.asarray(std)[:k], dtype=torch.float32).clamp_min(1e-6))
 
     def init_from_svm(self, pipe) -> None:
-        """Start the kernel layer as a fitted scaler + RBF SVC pipeline (the SVM kind's, :mod:`sonicskin.kinds.svm`)
-        trained on this network's inputs; the network's normalisation becomes the pipeline's scaler."""
+        """Start the kernel layer as a fitted scaler + RBF SVC pipeline on this network's inputs (its scaler: the normalisation)."""
         scaler, svc = pipe[0], pipe[-1]
         if self.kernel is None or svc.support_vectors_.shape != tuple(self.kernel.centres.shape):
             raise ValueError(f"the network has {0 if self.kernel is None else self.kernel.centres.shape[0]} RBF units, the "

@@ -32,8 +32,7 @@ __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksiz
 
 
 class AudioError(SonicskinError, RuntimeError):
-    """No usable audio device, rate or library, or a device that stopped; the message says what to do (a
-    :class:`~sonicskin.errors.SonicskinError` that is still a ``RuntimeError``)."""
+    """No usable audio device, rate or library, or a device that stopped (a :class:`SonicskinError` that is a ``RuntimeError``)."""
 
 
 class DeviceLost(AudioError):
@@ -44,8 +43,7 @@ MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds t
 
 
 def check_blocksize(value, name: str = "blocksize") -> int:
-    """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`; otherwise one :class:`SonicskinError` line
-    (the same for the API's ``blocksize=`` and the CLI's ``--blocksize``)."""
+    """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`, for ``blocksize=`` and ``--blocksize`` alike."""
     if not is_number(value, integer=True) or not 1 <= value <= MAX_BLOCKSIZE:
         raise SonicskinError(f"{name} must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {value!r}")
     return value
@@ -184,8 +182,7 @@ def check_device_rate(idx: int, rig: Rig, n_in: int, n_out: int) -> None:
 
 
 def thread_cpu_s(thread: threading.Thread | None) -> float | None:
-    """CPU seconds a running thread has used (Linux: ``/proc/self/task/<tid>/stat``), ``None`` where that cannot be read
-    (another OS, or the thread has ended)."""
+    """CPU seconds a running thread has used (Linux ``/proc``), ``None`` where that cannot be read."""
     tid = getattr(thread, "native_id", None)
     if tid is None or not thread.is_alive():
         return None
@@ -202,8 +199,7 @@ AUDIO_PRIORITY, LOOP_PRIORITY = 70, 60
 
 
 def realtime_thread(priority: int) -> tuple[str, Callable[[], None]]:
-    """Real-time scheduling of the calling thread (Linux): SCHED_FIFO at ``priority`` where permitted, else the lowest
-    nice value permitted; returns what was granted, in words, and the function that undoes it."""
+    """Real-time scheduling of the calling thread (Linux): SCHED_FIFO, else the lowest nice value; (what was granted, undo)."""
     tid = threading.get_native_id()
     try:
         old = os.sched_getscheduler(tid), os.sched_getparam(tid), os.getpriority(os.PRIO_PROCESS, tid)
@@ -230,8 +226,7 @@ def realtime_thread(priority: int) -> tuple[str, Callable[[], None]]:
 
 
 class AudioSource(Protocol):
-    """The contract between a source and its consumers (:func:`blocks`): blocks of the receiver channel(s) from
-    :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several; a finite source sets :attr:`finished`."""
+    """The contract of a source: blocks from :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several."""
 
     rig: Rig
     #: blocks come at the sample rate (a device, the real-time simulation); ``False``: as fast as they are read
@@ -426,8 +421,7 @@ class SoundDeviceSource(_QueueSource):
 
 
 class _ProducerSource(_QueueSource):
-    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate (``realtime``)
-    or as fast as read; ``drop_every``: drop one block in that many (fault injection)."""
+    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate or as fast as read."""
 
     what = "source"  # for the watchdog's message
 
@@ -446,8 +440,7 @@ class _ProducerSource(_QueueSource):
         raise NotImplementedError
 
     def _run_producer(self) -> None:
-        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
-        instead of a stream that just stops."""
+        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it."""
         try:
             self._rt_start()
             chunks, pending, t_next = self._chunks(), None, time.perf_counter()
@@ -520,8 +513,7 @@ class SimulatedSource(_ProducerSource):
 
 
 class RecordingSource(_ProducerSource):
-    """A recorded ``session`` of a :class:`sonicskin.dataset.Dataset` played as an audio source, its parts in order,
-    so a recording runs through the live loop exactly as it was received (``realtime``: at the sample rate)."""
+    """A recorded ``session`` of a dataset played as an audio source, so it runs through the live loop as it was received."""
 
     what = "recording"
 

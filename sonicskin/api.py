@@ -20,8 +20,7 @@ _END = object()
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
                      realtime=False, on_event=None) -> None:
-    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them
-    (``blocksize`` is :func:`sonicskin.session.open_run`'s to check)."""
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
     if not (device is None or isinstance(device, str) or (is_number(device, integer=True) and device >= 0)):

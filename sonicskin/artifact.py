@@ -95,8 +95,7 @@ ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.
 
 @contextlib.contextmanager
 def atomic_artifact(out: str | Path) -> Iterator[Path]:
-    """Write an artifact into a new sibling folder, then swap it in (an interrupted run leaves ``out`` as it was);
-    ``out`` may be absent, empty or an artifact folder, anything else in it is refused."""
+    """Write an artifact into a new sibling folder, then swap it in; ``out`` may be absent, empty or an artifact folder."""
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
     if out.exists() or out.is_symlink():

@@ -303,8 +303,7 @@ def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int 
 
 
 def _check_selection(doc: _Doc, sel: Any) -> None:
-    """Model selection's report (reported only, never run): an object of the kinds' report objects that each kind's
-    :meth:`~sonicskin.kinds.ModelKind.selection_lines` (what ``compare --artifact`` prints) can read."""
+    """Model selection's report (never run): what each kind's :meth:`~sonicskin.kinds.ModelKind.selection_lines` can read."""
     sel = doc.obj(sel, "selection")
     doc.keys(sel, {k for kind in kinds.KINDS.values() for k in kind.selection_keys}, "selection")
     for k, v in sel.items():
@@ -348,8 +347,7 @@ def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
 
 
 def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
-    """Check a parsed ``skin.json`` against the schema and return it (an :class:`ArtifactError` names the first field
-    that does not fit); ``sealed=False``, the writer's: no checksums, probes or digest yet."""
+    """Check a parsed ``skin.json`` and return it; ``sealed=False``, the writer's: no checksums, probes or digest yet."""
     doc = _Doc(source)
     if not isinstance(meta, dict):
         doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")

@@ -77,15 +77,13 @@ class OnlineReference:
 
     @property
     def boot_cause(self) -> str:
-        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went
-        back 3600 s"``, with ``", 9 touched chirps left out"`` when a hand was in its window."""
+        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went back 3600 s"``."""
         gap = self.last_gap_s
         why = "power-on" if gap is None else f"a {gap / 60:.0f} min pause" if gap > 0 else f"the clock went back {-gap:.0f} s"
         return why + (f", {self.boot_touched} touched chirps left out" if self.boot_touched else "")
 
     def _paused(self, dt_s):
-        """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``, or the clock
-        going back by more than one chirp period: a re-boot follows (never with ``alpha=None``)."""
+        """A step of ``dt_s`` (scalar or array) is a pause longer than ``alpha`` or the clock going back: a re-boot follows."""
         if self.alpha is None:
             return np.zeros(np.shape(dt_s), bool)
         chirps = np.asarray(dt_s) * self.cps
@@ -104,8 +102,7 @@ class OnlineReference:
         return float(t_s)
 
     def booting_at(self, t_s: float) -> bool:
-        """The chirp at stream time ``t_s`` belongs to a boot calibration (the first one, or a re-boot after a
-        gap): hands off by protocol, fed to :meth:`step` with no prediction."""
+        """The chirp at stream time ``t_s`` belongs to a boot calibration (hands off by protocol; no prediction)."""
         t_s = self._time(t_s)
         return self.calibrating or self._gap(t_s)
 
@@ -131,8 +128,7 @@ class OnlineReference:
         self.boot_disturbed = self._early = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
-        """Feed one chirp's features ``x`` at stream time ``t_s`` with its touch detection (``None`` in the boot), after the
-        model saw it; True when it completed a new reference (in effect from the next chirp)."""
+        """Feed one chirp's features at ``t_s`` with its touch detection (``None`` in a boot); True when a new reference completed."""
         t_s = self._time(t_s)
         if self._gap(t_s) and self.features is not None:
             self._reboot()
@@ -184,8 +180,7 @@ class OnlineReference:
         return False
 
     def _at_rest(self, block: np.ndarray) -> np.ndarray:
-        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's
-        distance to the old reference (a hand moves its chirps further); all of the first boot's."""
+        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's distance."""
         if self.features is None or self._spread is None or not len(block):
             return np.ones(len(block), bool)
         e = np.median(np.abs(block - self.features), axis=1)

@@ -37,8 +37,7 @@ MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on ev
 
 
 def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
-    """The rest and press windows the check records, before anything is played: long enough for its measurements
-    (else a too-short window reads as a rig fault), short enough to hold in memory."""
+    """The rest and press windows: long enough for the measurements, short enough to hold in memory."""
     for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
                              ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
@@ -200,8 +199,7 @@ class SimulatedDevice:
         return None if rig.fs_hz in self.rates else f"the device runs {', '.join(f'{r:g}' for r in self.rates)} Hz"
 
     def source(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float, blocksize: int = 1024) -> AudioSource:
-        """What the receiver disc puts out, read as fast as it goes: the chirp train at rest, the press, a tail, through
-        the interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
+        """The receiver's output: the chirp train at rest, the press, a tail, through the interface's delay and fault."""
         rig = self.rig
         d = int(round(self.delay_ms * 1e-3 * rig.fs_hz)) % rig.n_chirp
         tl = self.timeline(rig.seconds_to_chirps(settle_s + rest_s) + (d > 0), rig.seconds_to_chirps(press_s),

@@ -25,8 +25,7 @@ __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_laten
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
                   boot: bool = True) -> dict:
-    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole path from band
-    features (:meth:`SkinStream.chirp`), on a recorded stream (``boot=False``, touches only: no reference)."""
+    """Per-chirp cost, one chirp per call on one thread: the ONNX call alone, and the whole path from band features."""
     st = rt.stream()
     k = 0
     while boot and st.calibrating and k < len(X_band):
@@ -113,8 +112,7 @@ def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
 
 
 def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
-    """Localization, continuous position, force and detection of replayed predictions ``p`` of the chirps of ``t``;
-    the boot's chirps count as missed touches, nothing else.  ``detection=False``: detection is not measurable."""
+    """Localization, position, force and detection of replayed predictions ``p`` of ``t`` (boot chirps: missed touches)."""
     touch = touch_mask(t, min_force_n)
     run = ~p.calibrating
     no_touch = (t["location"] < 0) & run

@@ -57,8 +57,7 @@ def stretch_to_kelvin(stretch: float, kappa_per_k: float) -> float:
 
 
 def band_segments(allowed: np.ndarray) -> np.ndarray:
-    """Runs of equal ``allowed`` values over the band, (k, 2) int ``[start, stop)``: the allowed
-    runs and the masked (PWM) bands between them, in order."""
+    """Runs of equal ``allowed`` values over the band, (k, 2) int ``[start, stop)``, in order."""
     a = np.asarray(allowed, bool)
     if a.ndim != 1 or a.size == 0:
         raise DriftError(f"allowed must be a non-empty mask over the band bins, got shape {a.shape}")
@@ -80,8 +79,7 @@ def _check_freqs(freqs_hz) -> tuple[float, float, int]:
 
 
 def warp_index(freqs_hz, stretch: float, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Gather indices ``i0`` and weights ``w`` of the warp ``X_back(f) = X(f (1 + s))``, each bin within its segment
-    of ``allowed``: ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w`` (``stretch = 0``: exactly the identity)."""
+    """Gather indices ``i0`` and weights ``w`` of ``X_back(f) = X(f (1 + s))``, each bin within its segment of ``allowed``."""
     f0, df, n = _check_freqs(freqs_hz)
     s = float(stretch)
     if not math.isfinite(s) or abs(s) >= 0.5:
@@ -115,8 +113,7 @@ def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = Non
 
 @dataclasses.dataclass(frozen=True)
 class DriftEstimate:
-    """One estimate of the channel's drift: ``stretch``, the peak ``correlation`` of the mode patterns, the
-    ``gain_db``/``tilt_db_per_khz`` left, ``n_bins`` used, ``at_limit`` (the peak at the search's end), ``reliable``."""
+    """One estimate of the channel's drift: the stretch, the peak correlation, the gain and tilt left, whether reliable."""
 
     stretch: float
     correlation: float
@@ -230,8 +227,7 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
                      max_search: float = DEFAULT_MAX_SEARCH, smooth_hz: float = DEFAULT_SMOOTH_HZ,
                      min_correlation: float = DEFAULT_MIN_CORRELATION,
                      grid_step: float = DEFAULT_GRID_STEP) -> DriftEstimate:
-    """Stretch (and gain, tilt) of hands-off band spectra (dB, averaged) against ``reference_db`` on the band bins
-    ``freqs_hz`` where ``allowed``: searched up to ``max_search`` on a ``grid_step`` grid, then refined."""
+    """Stretch (and gain, tilt) of hands-off band spectra against ``reference_db``: searched on a grid, then refined."""
     pat = _Pattern(freqs_hz, allowed, smooth_hz, max_search)
     cur = _mean_spectrum(spectrum_db, pat.n, "spectrum_db")
     ref = _mean_spectrum(reference_db, pat.n, "reference_db")

@@ -128,8 +128,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
 def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
                force: bool = True, alg2: dict) -> dict:
-    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin, online
-    calibration vs the training reference, E^O vs the total band energy for force, Alg. 2 on the features."""
+    """The paper's findings on the same split, each an artifact replayed as deployed."""
     out = {}
     quiet = lambda m: None  # noqa: E731
     loc = te["location"]

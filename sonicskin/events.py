@@ -139,8 +139,7 @@ def _type_ok(value, types) -> bool:
 
 
 def validate_event(d: Any) -> None:
-    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema), a unit ``normal``, and
-    ``point_m``/``normal`` with ``frame_id``; an :class:`EventError` names the first problem."""
+    """Check one decoded event against :data:`EVENT_SCHEMA`; an :class:`EventError` names the first problem."""
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]
@@ -183,8 +182,7 @@ def parse_event(line: str | bytes) -> TouchEvent:
 
 
 def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[str, Any]:
-    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface`` (only ``frame_id``
-    where the position is not finite, ``force_vec_n`` None where the force is not)."""
+    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface``."""
     out: dict[str, Any] = {"frame_id": surface.frame_id}
     if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
         return out

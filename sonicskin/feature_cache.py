@@ -19,8 +19,7 @@ __all__ = ["load_features_cached"]
 
 
 def _code_version() -> bytes:
-    """What the cached values depend on in the code: the package version and the bytes of the modules
-    that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
+    """What the cached values depend on in the code: the package version and the modules that compute them."""
     h = hashlib.sha256(f"sonicskin {__version__}".encode())
     for mod in (dataset, dsp):
         try:
@@ -31,8 +30,7 @@ def _code_version() -> bytes:
 
 
 def _signature(ds: Dataset) -> str:
-    """Cache key of a dataset's features: the sha256 of the code (:func:`_code_version`), ``dataset.json`` and
-    every part's FLAC and CSV bytes and ``session.json`` per session."""
+    """Cache key of a dataset's features: sha256 of the code, ``dataset.json`` and every session's files."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
     ds.check_distinct()  # a copied session: refused before a cache could hide it
@@ -88,8 +86,7 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content (:func:`_signature`); a damaged or
-    inconsistent cache is rebuilt, an edited one rebuilt with a warning."""
+    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content; a damaged or edited cache is rebuilt."""
     key = _signature(ds)
     cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
     if cache.is_file():

@@ -30,9 +30,7 @@ __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artif
 
 @dataclasses.dataclass
 class TrainingData:
-    """What every fit step reads: one dataset's chirps, its split and the model inputs of *every* chirp (each
-    session relative to its own labelled rest in ``relative`` mode); only the training and validation rows are ever
-    used for fitting."""
+    """What every fit step reads: one dataset's chirps, its split and the model inputs of every chirp."""
 
     dataset: Dataset
     table: FeatureTable
@@ -79,8 +77,7 @@ class TrainingData:
         return quiet_mask(self.table)
 
     def folds(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
-        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``: the training and validation sessions,
-        each way round; without a validation session the last pass held out; ``[]`` when nothing can validate."""
+        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``; ``[]`` when nothing can validate."""
         train, val = self.rows("train"), self.rows("val")
         if val.any():
             return ([(train, val), (val, train)], f"validation on {', '.join(self.split.val)} (and fitted there, scored "
@@ -94,8 +91,7 @@ class TrainingData:
         return [], "one press per location and no validation session"
 
     def refit(self) -> TrainingData:
-        """The same chirps with the validation sessions joined to the training ones: OSPA's bins, the inputs and
-        every model fitted again on every labelled press, with the choices already made (``selection``)."""
+        """The same chirps with the validation sessions joined to the training ones, fitted again with ``selection``'s choices."""
         if not self.split.val:
             return self
         split = Split(self.split.train + self.split.val, (), self.split.test)
@@ -163,8 +159,7 @@ TRAINED_STRETCH = 1.5e-3
 
 
 def drift_reference(data: TrainingData, log=None) -> dict | None:
-    """Drift tracking's training reference: the mean dB spectrum of the training sessions' hands-off chirps at rest
-    (with the wall's material when named); ``None`` without rest or without a mode pattern to track."""
+    """Drift tracking's training reference: the mean dB spectrum of the training sessions' rest (``None`` without)."""
     rest = data.quiet & data.split.mask(data.table, "train")
     if rest.sum() < 2:
         return None
@@ -181,8 +176,7 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
 
 def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None, log=print
                ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
-    """Fit the model kinds ``wanted`` (and those they require) on ``data`` (``options``: per kind), then with a
-    validation session and ``refit`` again on both; returns the deployed models' data and the fitted models."""
+    """Fit the model kinds ``wanted`` (and those they require), then with a validation session and ``refit`` again."""
     options = options or {}
     order = kinds.fit_order(wanted)
     fits: dict[str, kinds.Fitted] = {}
@@ -201,8 +195,7 @@ def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = Tr
 
 def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fitted], *, training: dict | None = None,
                    learning_curve: bool = False, drift: bool = True, log=print) -> dict:
-    """Export every fitted model (each with its parity check) into ``out`` with a sealed ``skin.json`` (and, with
-    ``drift``, drift tracking's reference); ``out`` is replaced as a whole at the end.  Returns the document."""
+    """Export every fitted model into ``out`` with a sealed ``skin.json``, ``out`` replaced as a whole; returns the document."""
     if not fits:
         raise ValueError("write_artifact needs at least one fitted model")
     out = Path(out)
@@ -238,15 +231,13 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
 
 def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None,
                  training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
-    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`); ``options[net]`` may pass a trained
-    module as ``model=`` (a checkpoint's), whose touch decision and force are chosen before the refit."""
+    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`)."""
     final, fits = fit_models(data, wanted, refit=refit, options=options, log=log)
     return write_artifact(final, out, fits, training=training, learning_curve=learning_curve, log=log)
 
 
 def selection_lines(sel: dict | None) -> list[str]:
-    """What every training verb prints about its choices: each kind's lines (:mod:`sonicskin.artifact_schema` refuses
-    an artifact whose report they cannot read), then whether each one's force beats a constant."""
+    """What every training verb prints about its choices: each kind's lines, then whether each force beats a constant."""
     return [line for name in kinds.names() for line in kinds.get(name).selection_lines(sel or {})] + [
         f"{name} force {'reliable' if r < c else 'UNRELIABLE'}: validated RMSE {r:.2f} N, a constant's {c:.2f} N" +
         ("" if r < c else " (its events say force_reliable false; no wrench is published)")
@@ -262,8 +253,7 @@ def force_checks(sel: dict | None) -> dict[str, tuple[float, float]]:
 
 
 def summary_lines(out: str | Path, skin: dict) -> list[str]:
-    """What every training verb prints about the artifact it wrote: the model selection, whether the deployed models
-    were refitted, then its files with their size and export parity."""
+    """What every training verb prints about its artifact: selection, refit, and its files with size and parity."""
     out = Path(out)
     lines = selection_lines(skin.get("selection"))
     tr = skin["training"]

@@ -16,8 +16,7 @@ __all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce",
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
-    """``E^O`` in dB over ``bins`` of dB-magnitude features ``X_db`` (n, n_features), relative to the no-touch
-    reference ``ref_db`` ((n_features,) or (m, n_features)) if given."""
+    """``E^O`` in dB over ``bins`` of ``X_db``, relative to the no-touch reference ``ref_db`` if given."""
     X = np.asarray(X_db, dtype=np.float64)[:, bins]
     e = 10 * np.log10(np.mean(10 ** (X / 10), axis=1))
     if ref_db is not None:
@@ -106,7 +105,7 @@ class FittedCurve:
 
 
 def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
-    """Least-squares fit of one curve model ``F ~ f(E)`` (``model``: a key of :data:`MODELS`; paper Eq. 5 for ``fourier1``)."""
+    """Least-squares fit of one curve model ``F ~ f(E)`` (a key of :data:`MODELS`; paper Eq. 5 for ``fourier1``)."""
     if model not in MODELS:
         raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
     E = np.asarray(E, float)
@@ -181,8 +180,7 @@ class PerLocationForce:
 
 
 class PooledForce:
-    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge over the
-    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches."""
+    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge)."""
 
     NAME = "pooled-ridge"
 

@@ -75,8 +75,7 @@ def writer_mode(a: argparse.Namespace) -> str:
 
 @contextlib.contextmanager
 def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
-    """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone
-    ``dataset.json``); what a previous run made is kept unless ``--overwrite`` replaced it, written parts are kept."""
+    """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone dataset.json)."""
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
     # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up

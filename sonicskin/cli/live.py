@@ -32,8 +32,7 @@ def _stdout_sink(line: str) -> None:
 
 
 def cmd_live(a: argparse.Namespace) -> int:
-    """One link (``--artifact``) or several on one interface (``--links``), simulated or an interface
-    (:func:`sonicskin.session.open_run`); without an artifact a simulated link is trained on the spot, once."""
+    """One link (``--artifact``) or several (``--links``); without an artifact a simulated link is trained on the spot, once."""
 
     check_blocksize(a.blocksize, "--blocksize")
     if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet

@@ -29,8 +29,7 @@ TRAINING_OPTIONS = ("n_bins", "mode", "train", "test_subjects", "alpha_s", "beta
 
 
 def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
-    """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on
-    (the split code tests on every session not trained or validated on)."""
+    """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on."""
     if not a.test:
         return a.train, a.val
     sessions = Dataset(data).sessions
@@ -81,8 +80,7 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
 
 
 def _fit_svm_arm(a: argparse.Namespace) -> int:
-    """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml,
-    the arm file that lists them (``live --links ART/arm.yaml``)."""
+    """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml."""
     rig, links = load_arm(a.links)
     data, out = Path(a.data), Path(a.out)
     absent = missing_datasets(links, data)
@@ -119,8 +117,7 @@ def _compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
-    """``--links ARM --data DIR``: ``compare`` on every link (``DIR/<link>``; with ``--artifact ART``, the trained arm
-    folder or its arm.yaml, each link's artifact), one report per link under ``OUT/<link>``."""
+    """``--links ARM --data DIR``: ``compare`` on every link, one report per link under ``OUT/<link>``."""
     if not a.data:
         raise UsageError(f"compare --links {a.links} needs --data DIR, the folder of the links' datasets (DIR/<link>: "
                          f"`sonicskin simulate --links {a.links} --out DIR`)")
@@ -192,8 +189,7 @@ def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) -> int:
-    """Replay the test sessions (exactly ``--test`` when given) through ``artifact``, print and write the comparison;
-    ``expected``: print what model selection expected at training beside it."""
+    """Replay the test sessions through ``artifact``, print and write the comparison (``expected``: selection's estimate)."""
     res = compare_artifact(artifact, a.data, sessions=a.test)
     title = f"{Path(a.data).name}: " + " vs ".join(res["labels"][k] for k in res["models"])
     print(format_comparison(res, title))

@@ -95,8 +95,7 @@ def _verb(sub, name: str, func: str, *, help: str, description: str, add_help: b
 
 
 def add_model_options(p: argparse.ArgumentParser, *, train_default: str = "the first") -> None:
-    """The options every model verb shares (evaluate, fit-svm, train, export, compare): OSPA bins,
-    model inputs and the split of sessions / people."""
+    """The options every model verb shares: OSPA bins, model inputs and the split of sessions / people."""
     g = p.add_argument_group("model and split options (the same on evaluate, fit-svm, train, export, compare)")
     g.add_argument("--n-bins", type=positive_int, metavar="GAMMA",
                    help=f"OSPA gamma, the bins the SVM reads (default: chosen by validation in fit-svm, train, export and "

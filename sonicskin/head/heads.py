@@ -106,8 +106,7 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 
 class ScoreHead:
-    """The decisions of a closed-form model from its per-location scores ``S``: the argmax of the raw ``S``, the
-    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights."""
+    """The decisions of a closed-form model from its per-location scores ``S``; a subclass gives ``S`` and confidence."""
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)
 

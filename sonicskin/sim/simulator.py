@@ -108,11 +108,8 @@ class Simulator:
 
     def transducers(self, tx_c: np.ndarray, rx_c: np.ndarray) -> np.ndarray:
         """Product of the TX and RX bond responses per chirp, (n, n_f) complex64."""
-        key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
-        u, inv = np.unique(key, axis=0, return_inverse=True)
-        f = self.channel.f_hz
-        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
-        return T2[inv.ravel()]
+        T2, inv = self._bond_rows(tx_c, rx_c)
+        return T2[inv]
 
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
@@ -248,7 +245,8 @@ class Simulator:
         noise = NoiseDraws(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
                            floor_rms=self.noise.sensor_rms, buffers=self._buffers, work=self._work)
         # Transducers x chirp x gain, per distinct pair of bond temperatures.
-        T2, inv = self._transducer_rows(temps["tx_c"], temps["rx_c"])
+        T2, inv = self._bond_rows(temps["tx_c"], temps["rx_c"])
+        T2 = T2 * (self.gain * self._S)
         out = np.empty((n, rig.n_chirp), np.float32) if out is None else out
         assert out.shape == (n, rig.n_chirp) and out.dtype in (np.float32, np.int32)
         pcm = out.dtype == np.int32
@@ -278,13 +276,12 @@ class Simulator:
 
     _CHUNK = 64  # frames per inverse FFT: keeps the spectra in cache
 
-    def _transducer_rows(self, tx_c: np.ndarray, rx_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Distinct rows of ``gain * T_tx * T_rx * S`` (u, n_f) complex64 and each chirp's row (n,)."""
+    def _bond_rows(self, tx_c: np.ndarray, rx_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distinct rows of ``T_tx * T_rx`` (u, n_f) complex64 and each chirp's row (n,)."""
         key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
         u, inv = np.unique(key, axis=0, return_inverse=True)
         f = self.channel.f_hz
-        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
-        return T2 * (self.gain * self._S), inv.ravel()
+        return self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K), inv.ravel()
 
 
 _WB_DTYPE = np.complex64
