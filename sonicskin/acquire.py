@@ -347,8 +347,7 @@ class _QueueSource:
                 "lost_s": round(sum(b - a for a, b in spans), 4), "lost_spans_s": spans[-10:]}
 
     def producer_cpu_s(self) -> float | None:
-        """CPU seconds the producer thread has used (a simulated or recorded source's; ``None`` for a device, whose
-        producer is the audio driver): a producer that still computes (a slow first render) is alive."""
+        """CPU seconds of the producer thread (``None`` for a device): a producer that still computes is alive."""
         return thread_cpu_s(getattr(self, "_thread", None))
 
     def __enter__(self):

@@ -210,8 +210,7 @@ class SimulatedDevice:
 
     def open(self, rig: Rig, *, rx: int, n: int, blocksize: int, settle_s: float, rest_s: float, press_s: float,
              tail_s: float, **_) -> tuple[np.ndarray, list[int], AudioSource]:
-        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
-        ``rx``; input 1 when cabled wrongly) and its :meth:`source`."""
+        """``n`` samples of every input to record into, the column the receiver fills and its :meth:`source`."""
         rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
         noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
         column = min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)

@@ -86,8 +86,7 @@ class FittedCurve:
     e_hi: float = np.inf
 
     def predict(self, E: np.ndarray) -> np.ndarray:
-        """Force at energy ``E``; outside the training range of ``E`` the curve is held at its edge
-        value (a Fourier or polynomial curve extrapolated from one press swings wildly)."""
+        """Force at energy ``E``, held at its edge value outside the training range (a curve from one press swings wildly)."""
         u = (np.clip(np.asarray(E, float), self.e_lo, self.e_hi) - self.center) / self.scale
         return MODELS[self.model].design(u, self.theta) @ self.coef
 

@@ -30,8 +30,7 @@ def canonical(obj: Any) -> bytes:
 
 
 def artifact_digest(meta: dict) -> str:
-    """sha256 of the canonical document without ``digest`` and of every model file's sha256: one value covers
-    ``skin.json`` and the model files together."""
+    """sha256 of the canonical document without ``digest`` and of every model file's sha256."""
     body = {k: v for k, v in meta.items() if k != "digest"}
     models = body.get("models") if isinstance(body.get("models"), dict) else {}
     files = b"".join(f"{k}={m.get('sha256') if isinstance(m, dict) else None}\n".encode() for k, m in sorted(models.items()))
@@ -149,8 +148,7 @@ def run_probe(session, inputs) -> list:
 
 
 def check_integrity(session, meta: dict, model: str, data: bytes, *, folder: str | Path) -> None:
-    """The model file belongs to this ``skin.json`` (its binding), the document is the one exported (its digest,
-    every model file's sha256 included), and the probe inputs give the export-time outputs (finite, within 1e-3)."""
+    """The model file's binding, the document's digest, and the probes' export-time outputs (within 1e-3), checked."""
     import numpy as np
 
     folder = Path(folder)
@@ -186,8 +184,7 @@ def _last_dim(shape) -> int | None:
 
 
 def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
-    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths (declared shapes
-    where fixed, and one probe batch of zeros for the shapes the graph really produces)."""
+    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths (declared and probed)."""
     import numpy as np
 
     n_in = int(meta["models"][model]["n_in"])  # the first n_in of features.bins
@@ -227,8 +224,7 @@ def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") ->
 
 
 def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = "the surface here") -> None:
-    """Refuse to run an artifact on a marker ``layout`` (e.g. a scenario's ``make_layout()``) it was not trained for:
-    other ids or count, or the same ids at other positions."""
+    """Refuse to run an artifact on a marker ``layout`` it was not trained for (other ids, count or positions)."""
     import numpy as np
 
     mine = Layout.from_dict(meta["layout"])

@@ -31,8 +31,7 @@ _LINK_KEYS = {"name", "tx", "rx", "frame", "surface", "scenario", "artifact"}
 
 
 def _text(v, what: str, where) -> str | None:
-    """``v`` when it is ``None`` or a text (a name, a path); else one line naming it (never ``str()`` of a whole
-    nested value: a YAML alias bomb)."""
+    """``v`` when it is ``None`` or a text, else one line naming it (never ``str()`` of a nested value)."""
     if v is None or isinstance(v, str):
         return v
     raise ConfigError(f"{where}: {what} must be a text, got {brief(v)}")
@@ -60,8 +59,7 @@ def file_rig(name_or_path) -> Rig | None:
 
 
 def load_arm(spec, rig=None) -> tuple[Rig, list[Link]]:
-    """The rig and the links of a links or arm file: ``rig`` (a :class:`Rig`, a name or a path), else the rig the file
-    names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.session.open_run` read an arm through here."""
+    """The rig and the links of a links or arm file; every ``--links`` verb reads an arm through here."""
     the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
     return the_rig, load_links(spec, the_rig)
 
@@ -78,8 +76,7 @@ def missing_datasets(links: list[Link], data: Path) -> list[str]:
 
 
 def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
-    """The simulated link of a link: a scenario name, or a mapping ``{base: NAME, key: value, ...}`` (keys of
-    :class:`sonicskin.sim.Scenario`).  Without ``geometry`` the surface's shape is simulated."""
+    """The simulated link of a link: a scenario name or ``{base: NAME, key: value}``; without ``geometry``, the surface's."""
     if isinstance(spec, str):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
@@ -100,8 +97,7 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
 
 
 def scenario_geometry(surface) -> dict:
-    """The simulator's geometry (``Scenario.geometry``, cm) of a surface: a URDF cylinder is the simulated tube, a box
-    the simulated plate."""
+    """The simulator's geometry (cm) of a surface: a URDF cylinder is the simulated tube, a box the plate."""
     if surface.kind == "tube":
         return {"kind": "tube", "radius_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
     return {"kind": "plate", "width_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
@@ -215,8 +211,7 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
 
 
 def write_arm(source, out: Path, artifacts: dict[str, Path], rig: Rig) -> Path:
-    """``out/arm.yaml``: the links of ``source`` (a links or arm file) with each link's trained artifact (paths relative to
-    ``out``), its rig written out, the URDF copied beside it: the one file ``live --links`` needs."""
+    """``out/arm.yaml``: the links of ``source`` with each link's artifact, its rig and the URDF beside it."""
     where = _resolve(source)
     cfg = load_yaml(where)
     out = Path(out)

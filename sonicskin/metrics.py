@@ -36,8 +36,7 @@ def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) 
 
 
 def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
-    """Table I: RMSE, standard deviation of the error, and the zero-lag normalised cross-correlation
-    ``sum(p g) / sqrt(sum(p^2) sum(g^2))`` (1: identical traces)."""
+    """Table I: RMSE, std of the error and the zero-lag normalised cross-correlation (1: identical traces)."""
     g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
     if g.shape != p.shape:
         raise ValueError(f"{g.size} true forces but {p.size} predictions")
@@ -53,8 +52,7 @@ def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
 
 
 def speed_ratio(t_s: float, t_ref_s: float) -> str:
-    """How a time ``t_s`` compares with ``t_ref_s`` in words: ``"2.5x faster"``, ``"1.4x slower"``
-    (never a ratio below 1 called faster), or ``"as fast"`` within 5 %."""
+    """``"2.5x faster"``, ``"1.4x slower"`` or ``"as fast"`` (within 5 %) for ``t_s`` against ``t_ref_s``."""
     r = float(t_ref_s) / float(t_s)
     if abs(r - 1) < 0.05:
         return "as fast"
@@ -62,8 +60,7 @@ def speed_ratio(t_s: float, t_ref_s: float) -> str:
 
 
 def t_interval(x, bounds: tuple[float, float] = (-math.inf, math.inf), *, level: float = 0.95) -> list[float]:
-    """The Student-t interval of the mean of ``x`` at ``level`` (``[lo, hi]``), cut to the ``bounds`` the quantity
-    cannot leave (an accuracy stays in [0, 1]); ``[nan, nan]`` below two values."""
+    """Student-t interval of the mean of ``x`` at ``level``, cut to ``bounds``; ``[nan, nan]`` below two values."""
     from scipy import stats
 
     x = np.asarray(x, float).ravel()

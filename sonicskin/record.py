@@ -95,8 +95,7 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated device's sensors: the person's force plus 0.02 N of noise and where the finger really is, for the
-    simulated person's ``timeline`` whose chirp 0 starts at stream sample ``chirp0_sample``."""
+    """The simulated device's sensors: the person's force (plus 0.02 N of noise) and where the finger really is."""
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
@@ -123,8 +122,7 @@ class TimelineForce(ForceSource):
 
 def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration_s: float = 3.0, moving_s: float = 10.0,
                   touch_s: float = 3.0, gap_s: float = 1.0, passes: int = 1) -> list[tuple[str, int, int, str]]:
-    """Prompts as ``(segment, location, n_chirps, text)``, in recording order; ``passes`` times over the locations
-    (two or more let model selection validate on presses not trained on, see :mod:`sonicskin.selection`)."""
+    """Prompts as ``(segment, location, n_chirps, text)`` in recording order, ``passes`` times over the locations."""
     out = [("calibration", -1, rig.seconds_to_chirps(calibration_s), f"hands off the robot for {calibration_s:g} s")]
     if moving_s > 0:
         out.append(("moving", -1, rig.seconds_to_chirps(moving_s), f"start the robot moving; hands off for {moving_s:g} s"))
@@ -164,8 +162,7 @@ class Recorder:
         return row
 
     def run(self) -> dict:
-        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.  On Ctrl-C the prompt in
-        progress is dropped (``interrupted_at``) and every finished one stays on disk."""
+        """Record every prompt (``chirps``, ``parts``, ``complete``, ``wall_s``); on Ctrl-C finished prompts stay on disk."""
         rig, L = self.rig, self.rig.n_chirp
         framer = Framer(rig_chirp(rig))
         stream: list[np.ndarray] = []       # samples not yet written
@@ -229,8 +226,7 @@ class Recorder:
 
 @contextlib.contextmanager
 def _sigint_deferred():
-    """Hold Ctrl-C until the block is done, then raise :class:`KeyboardInterrupt` (cffi would swallow it inside
-    libsndfile's callbacks, cutting a part short); outside the main thread, nothing."""
+    """Hold Ctrl-C until the block is done (cffi would swallow it inside libsndfile's callbacks); main thread only."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -279,8 +275,7 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
 
 
 def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realtime: bool = False, offset: int = 4321):
-    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``; the
-    scenario's link, the person's presses drawn anew per session, the robot moving only when prompted to."""
+    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``."""
     moving = any(seg == "moving" for seg, *_ in schedule)
     psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index, motion={**scenario.motion, "enabled": moving})
     offset %= rig.n_chirp
@@ -299,8 +294,7 @@ MIN_TOUCH_CHIRPS = 3  # a location with fewer touch chirps than this is recorded
 
 
 def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, tuple[int, int]]:
-    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset; ``touch`` are those
-    that train as a touch there (force >= ``min_force_n``, or no force sensor), as ``fit-svm`` counts them."""
+    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset, as ``fit-svm`` counts them."""
     ds = Dataset(root)
     out: dict[int, tuple[int, int]] = {}
     for s in ds.sessions:
@@ -315,15 +309,13 @@ def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, 
 
 
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
-    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset (an interrupted
-    prompt has no finished part; a press under ``min_force_n`` throughout has no touch chirp)."""
+    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset."""
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
 def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
                       gap_s: float) -> None:
-    """Refuse prompt lengths whose audio (one prompt's, float32, and its copy) or simulated timeline would not fit
-    in memory, before anything is opened or written."""
+    """Refuse prompt lengths whose audio or simulated timeline would not fit in memory, before anything is opened."""
     for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
         if not np.isfinite(v):
             raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
@@ -427,8 +419,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
 
 def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``), as ``record`` + ``fit-svm`` on a real rig, for
-    a run without an artifact; says first what it does, where and about how long (a later run reuses it)."""
+    """One-shot training on the simulated link (cached under ``root``) for a run without an artifact."""
     log = log or (lambda m: print(m, file=sys.stderr))
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():

@@ -180,8 +180,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
 
 
 def summarize(runs: dict[int, list[dict]]) -> dict:
-    """Mean and std per model (std over every run), and the paired net - SVM difference with its 95 % t
-    interval over simulator seeds (the network averaged over its training seeds within a seed)."""
+    """Mean and std per model, and the paired net - SVM difference with its 95 % t interval over simulator seeds."""
     out = {}
     for m in METRICS:
         net = np.array([r[NETWORK][m] for rows in runs.values() for r in rows], float)
@@ -199,8 +198,7 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
 def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
                   out: str | Path = "reports/compare-seeds", epochs: int | None = None, select: bool = True,
                   rig: Rig | None = None, val: bool = False, log=print) -> dict:
-    """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries.  ``val``: the
-    second session validates and every model is refitted on both (the protocol of a user who recorded two passes)."""
+    """Run every scenario over ``sim_seeds`` x ``train_seeds`` (``val``: the second session validates, then a refit on both)."""
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise ValueError(f"unknown scenario(s) {unknown}; the comparison knows {sorted(SCENARIOS)}")

@@ -37,8 +37,7 @@ def simulated(device) -> bool:
 
 
 def arm_file_of(path) -> Path | None:
-    """The arm file a path names: a ``.yaml`` file with ``links:``, or a folder holding ``arm.yaml`` (what ``fit-svm
-    --links`` writes); ``None`` for anything else (a single-link artifact folder)."""
+    """The arm file a path names (a ``.yaml`` with ``links:``, or a folder holding ``arm.yaml``), else ``None``."""
     p = Path(path)
     if p.is_dir() and (p / ARM_FILE).is_file():
         return p / ARM_FILE
@@ -48,8 +47,7 @@ def arm_file_of(path) -> Path | None:
 
 
 def load_config(load: Callable, what):
-    """A rig or scenario config (``load``: ``Rig.load``, ``Scenario.load``); a name that is no config is
-    :class:`ConfigNotFoundError` (still a FileNotFoundError)."""
+    """A rig or scenario config; a name that is no config is :class:`ConfigNotFoundError` (a FileNotFoundError)."""
     try:
         return load(what)
     except FileNotFoundError as e:
@@ -59,9 +57,7 @@ def load_config(load: Callable, what):
 def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], tuple[Simulator, Timeline]] | None = None,
                 blocksize: int = 1024, realtime: bool = True, drop_every: int | None = None, offset: int = 4321,
                 **interface) -> AudioSource:
-    """The audio source carrying ``links``: simulated, each link's wall plays ``play(link)``, a ``(simulator,
-    timeline)`` pair (:class:`~sonicskin.acquire.SimulatedSource`); else the audio interface ``device``
-    (:class:`~sonicskin.acquire.SoundDeviceSource`)."""
+    """The audio source carrying ``links``: simulated (each link's wall plays ``play(link)``), else the interface ``device``."""
     if simulated(device):
         sims, timelines = zip(*(play(lk) for lk in links))
         return acquire.SimulatedSource(list(sims), list(timelines), blocksize=blocksize, realtime=realtime,
@@ -76,8 +72,7 @@ def live_scenario(scenario: Scenario) -> Scenario:
 
 @dataclasses.dataclass(eq=False)
 class Run:
-    """An opened run: its links (one for a single artifact), a runtime per link, the one source carrying them;
-    :meth:`loops` gives it a live loop per link (and the live page), :meth:`run` runs them, once."""
+    """An opened run: its links, a runtime per link and the one source carrying them; :meth:`loops`, then :meth:`run`, once."""
 
     links: list[Link]
     runtimes: list[SkinRuntime]
@@ -104,8 +99,7 @@ class Run:
 
     def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
               on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
-        """One :class:`~sonicskin.live.LiveLoop` per link (``emit``, ``status``, ``on_event`` as LiveLoop's; every event
-        and every link's contact state also to :attr:`publishers`), and with ``view`` (``True`` or a port) the live page."""
+        """One :class:`~sonicskin.live.LiveLoop` per link, every event also to :attr:`publishers`, and with ``view`` the live page."""
         def event(ev) -> None:
             for pub in self.publishers:
                 pub.write(ev)
@@ -127,8 +121,7 @@ class Run:
         return self.live
 
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
-        """Run the loops until ``duration_s``, ``stop``, Ctrl-C or a finite source's end (:func:`sonicskin.live.run_loops`);
-        returns :meth:`summary`, the MCAP file complete and the live page stopped however it ends."""
+        """Run the loops (:func:`sonicskin.live.run_loops`); the MCAP file is complete and the page stopped however it ends."""
         length = getattr(self.source, "length_s", None)  # a simulated session ends by itself
         if duration_s is not None and length is not None and duration_s > length and self.live:
             self.live[0].warn(f"the simulated session is {length:.1f} s long (one scripted session of touches per link): "
@@ -237,8 +230,7 @@ def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksi
 
 
 def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> None:
-    """An arm's link runs an artifact trained for it: one trained for another link or wall (what its ``training`` block
-    records, :func:`sonicskin.dataset.wall_record`) is refused; one that records neither (older) is warned about."""
+    """An arm's link runs an artifact trained for it: one for another link or wall is refused, one that records neither warned."""
     tr = rt.meta["training"]
     rec, wall = tr.get("link") if isinstance(tr.get("link"), dict) else {}, tr.get("wall")
     fix = (f"give each link its own artifact (--link-artifact DIR once per link, in the order "

@@ -47,8 +47,7 @@ def fft_workers() -> int:
 
 
 def configure(n: int | str | None = None) -> int:
-    """Fix the thread count for this process and the ones it starts (BLAS/OpenMP pools of the loaded libraries,
-    torch's intra-op threads, the ``*_NUM_THREADS`` variables); returns it."""
+    """Fix the thread count for this process and the ones it starts (BLAS/OpenMP, torch, ``*_NUM_THREADS``); returns it."""
     global _configured
     n = get() if n is None else _parse(str(n), "--threads")
     _configured = n

@@ -116,8 +116,7 @@ def _page() -> bytes:
 
 
 class _Server(http.server.HTTPServer):
-    """An HTTP server whose requests a fixed pool of daemon threads answers (``ThreadingHTTPServer`` started one
-    thread per connection, an idle one kept forever); a backlog beyond four per thread is closed unanswered."""
+    """An HTTP server answered by a fixed pool of daemon threads; a backlog beyond four per thread is closed unanswered."""
 
     def __init__(self, address, handler, family, threads: int = POOL_THREADS):
         self.address_family = family
@@ -206,8 +205,7 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 class ViewServer:
-    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free; :attr:`url`); :meth:`push_event`
-    and :meth:`set_status` may be called from any thread.  A context manager, or :meth:`start` / :meth:`stop`."""
+    """Serve the live view of ``links`` on ``http://host:port/`` (:attr:`url`); its setters may be called from any thread."""
 
     def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS,
                  urdf: str | None = None):
@@ -289,8 +287,7 @@ class ViewServer:
         self.stop()
 
     def _host_ok(self, host_header: str) -> bool:
-        """On a loopback address only requests naming it or localhost (a page from elsewhere that renamed a host to
-        127.0.0.1, DNS rebinding, cannot read the events)."""
+        """On a loopback address only requests naming it or localhost (DNS rebinding cannot read the events)."""
         if not self._loopback:
             return True
         host = host_header.rsplit(":", 1)[0] if not host_header.endswith("]") else host_header
@@ -315,8 +312,7 @@ class ViewServer:
         return name
 
     def push_event(self, ev: TouchEvent | dict | str) -> None:
-        """Show one event (a :class:`~sonicskin.events.TouchEvent`, its dict or its JSON line): a ``touch`` sets the
-        link's touch, a ``release`` clears it; both join the list of the last events."""
+        """Show one event (a TouchEvent, its dict or JSON line): a ``touch`` sets the link's touch, a ``release`` clears it."""
         if isinstance(ev, (str, bytes)):
             ev = parse_event(ev)
         elif isinstance(ev, dict):
@@ -371,8 +367,7 @@ class ViewServer:
 
 # -- wiring to the live loop ------------------------------------------------------------------------------------------
 def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
-    """The status :meth:`ViewServer.set_status` shows for a :class:`~sonicskin.live.LiveLoop` at stream time ``t_s``
-    (``None``: the last event's)."""
+    """The status :meth:`ViewServer.set_status` shows for a live loop at stream time ``t_s`` (``None``: the last event's)."""
     stream = loop.stream
     ref = stream.reference
     drift = stream.drift
@@ -386,8 +381,7 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
 
 
 def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
-    """Show ``loop``'s events and status in ``view`` (every ``every_s`` of stream time, and at each new reference),
-    chaining the loop's ``on_event`` and ``on_chirp``; the loop's link must be one of the view's, or the view shows one."""
+    """Show ``loop``'s events and status in ``view``, chaining the loop's ``on_event`` and ``on_chirp``."""
     name = loop.link_name
     view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
@@ -411,9 +405,7 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
                port: int = 0, urdf=None) -> ViewServer:
-    """Serve a started view of the live loops (one per link), each attached: drawn as ``links``, or from
-    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link; each on its
-    loop's surface, the arm placed by ``urdf`` (a path)."""
+    """Serve a started view of the live loops (one per link), each attached, the arm placed by ``urdf``."""
     loops = list(loops)
     if links is None and scenarios:
         links = [LinkView.from_scenario(name, sc, lp.surface) for (name, sc), lp in zip(scenarios, loops)]

@@ -17,8 +17,7 @@ AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "
 
 
 def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances
-    in cm; around a tube of ``circumference_cm`` the distance along the circumference is the shorter way round."""
+    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances (cm)."""
     P = np.asarray(positions_cm, np.float64)
     if P.shape != (K, 2):
         raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
@@ -115,9 +114,7 @@ class Augmenter:
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):
-    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``), every
-    nuisance measured there, over the data's inputs, drawn over the first ``n_cols``; and for each of the ``rows``
-    its row in the augmenter (-1: not a touch chirp)."""
+    """The augmenter of one training session's touch chirps, and each of ``rows``' row in it (-1: not a touch chirp)."""
     t = data.table
     rows = np.asarray(rows, bool)
     n_loc = data.n_locations

@@ -51,8 +51,7 @@ def _first_line(e: BaseException) -> str:
 
 
 def load_checkpoint(path: str | Path) -> SkinLitModule:
-    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint; a one-line
-    :class:`CheckpointError` for anything else (nothing in the file is executed)."""
+    """A :class:`SkinLitModule` (CPU, eval, ``.meta`` set) from a checkpoint; else one-line :class:`CheckpointError`."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")
@@ -97,8 +96,7 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
 
 
 def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
-    """The sonicskin metadata with the artifact schema's own checks (rig, layout, features), and against the
-    network it describes (input width = bins, outputs = locations): one line naming the field."""
+    """The sonicskin metadata with the artifact schema's checks, and against the network it describes."""
     class Doc(_Doc):
         def fail(self, field, problem, fix=None):
             raise CheckpointError(f"{self.source}: its sonicskin metadata {field} {problem}; {HINT}")

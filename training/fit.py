@@ -43,9 +43,7 @@ class NetTrainer(NetKind):
     def fit(self, data, *, fitted, selection=None, log=print, model=None, seed: int = 0, epochs: int | None = None,
             select: bool = True, layer: dict | None = None, hparams: dict | None = None, train_time_s: float | None = None,
             **options) -> Fitted:
-        """Train on ``data``'s training rows (``options``: the module's hyperparameters), or finish ``model``, a trained
-        module (its ``hparams``, the ``layer`` it chose).  ``selection``: the choices of an earlier pass (a refit):
-        the same layer, hyperparameters, epochs, seed, touch decision and force, trained anew here."""
+        """Train on ``data``'s training rows, or finish ``model``, a trained module; ``selection``: an earlier pass's choices."""
         if selection is not None:
             return train_network(data, fitted=fitted, chosen=selection[NETWORK])
         if model is not None:
@@ -62,10 +60,7 @@ def _plain_hparams(h) -> dict:
 
 def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epochs: int | None = None,
                   layer: dict | None = None, chosen: dict | None = None, **hparams) -> Fitted:
-    """Train the network on the training chirps of ``data`` in-process: its location layer chosen first
-    (:func:`choose_network_layer`; without validation the closed form), or ``layer`` given; ``chosen``: every choice of
-    an earlier pass, trained anew (a refit).  It reads the first inputs its layer asks for and trains on augmented
-    presses of its own training sessions; then :func:`finish_network`."""
+    """Train the network in-process: its location layer chosen first (or ``layer``), on augmented presses; then :func:`finish_network`."""
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     if chosen is not None:
@@ -92,15 +87,13 @@ def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epo
 
 
 def layer_folds(data):
-    """Where the network's location layer is validated (:meth:`sonicskin.fit.TrainingData.folds`, each with the
-    augmenter of its fit rows): ``([(fit rows, held-out rows, augmenter)], how)``."""
+    """Where the network's location layer is validated: ``([(fit rows, held-out rows, augmenter)], how)``."""
     folds, how = data.folds()
     return [(f, h, make_augmenter(data, f)) for f, h in folds], how
 
 
 def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
-    """The network's location layer chosen on presses it did not train on (:func:`training.quick.choose_layer`); the
-    closed form when nothing can validate."""
+    """The network's location layer chosen on presses it did not train on; the closed form when nothing can validate."""
     folds, how = layer_folds(data)
     if not folds:
         return {"location_layer": UNVALIDATED, "layer_how": f"{how}: not validated, the closed form"}
@@ -109,8 +102,7 @@ def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | Non
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
-    """``sonicskin train`` with ``model.layer: auto``: the module's location layer chosen as for an in-process network
-    (:func:`choose_network_layer`), set on it and recorded in its checkpoint's selection."""
+    """``model.layer: auto``: the layer chosen as for an in-process network, set on the module and in its selection."""
     datamodule.setup("fit")
     h = module.hparams
     data = datamodule.prepared
@@ -187,10 +179,7 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
 
 
 def choose_force(model, X, cls, force, *, val_rows, location_ids, svm=None, how: str = "validation") -> dict:
-    """The network's force chosen on presses neither was trained on (``val_rows``): ``svm``'s validated force model
-    (per-location Fourier-1 or a pooled ridge over the SVM's bins, fitted on the same training rows; the network's head
-    then applies it, :meth:`sonicskin.kinds.net.NetHead.force`) or the network's own force head, whichever has the lower
-    RMSE at the true marker (ties: the SVM's)."""
+    """The network's force head or the SVM's validated force model, whichever has the lower validation RMSE (ties: the SVM's)."""
     ids = np.asarray(location_ids)
     f = np.asarray(force, np.float64)
     vr = val_rows & (cls < len(ids)) & np.isfinite(f)
@@ -217,8 +206,7 @@ def svm_force(svm, X: np.ndarray, location) -> np.ndarray:
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
-    """The dataset holds the sessions of the checkpoint's split and (where the checkpoint records them) the very
-    recordings, so the SVM trained here and the checkpoint's network see the same data."""
+    """The dataset holds the checkpoint's sessions and (where recorded) the very recordings it was trained on."""
     split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
     missing = [s for s in split if s not in set(ds.sessions)]
     if missing:

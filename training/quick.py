@@ -35,9 +35,7 @@ UNVALIDATED = "LDA (closed form)"
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
             batch_size: int = 128, fitted: dict | None = None, augmenter=None, **hparams):
-    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the
-    :class:`models.SkinNet`).  A ``layer`` ``"lda"`` or ``"kernel"`` starts as the artifact's model in ``fitted``;
-    ``augmenter``: ``(Augmenter, row -> augmenter row)``, used when ``augment`` is set."""
+    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the net)."""
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)
     np.random.seed(seed)
@@ -76,8 +74,7 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
 
 @contextlib.contextmanager
 def deterministic_torch():
-    """torch's deterministic algorithms for the block (the caller's setting restored after): the same seed, threads and
-    machine give bit-identical weights (see :mod:`training`)."""
+    """torch's deterministic algorithms for the block (restored after): same seed, threads and machine, same weights."""
     before, warn = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
     torch.use_deterministic_algorithms(True, warn_only=True)
     try:
@@ -94,10 +91,7 @@ def layer_hparams(name: str, *, n_in: int) -> dict:
 
 
 def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) -> dict:
-    """Each location layer of :data:`LAYERS` scored on the folds' held-out touch chirps (``folds``: ``[(fit rows,
-    held-out rows, augmenter)]``): the closed form by its own validation, each MLP trained on the fold's fit rows.
-    The best mean wins, compared at the printed whole percent (ties: the first in :data:`LAYERS`' order).  Returns the
-    choice with the winner's first-fold network (``"fold_model"``, trained on the training rows) when it trained one."""
+    """Each layer of :data:`LAYERS` scored on the folds' held-out touch chirps; the best mean at whole percent wins."""
     X, cls, force, n = data.X, data.cls, data.force, data.n_locations
     scores, models, widths = {}, {}, set()
     lda = (fitted[CLOSED_FORM].selection.get(CLOSED_FORM) or {}) if CLOSED_FORM in fitted else {}

@@ -48,16 +48,14 @@ class Stream:
             self.reference = spec.reference(rig.chirps_per_s, relative=False, score_fn=self._on_reference)
 
     def _inputs(self, x: np.ndarray) -> np.ndarray:
-        """Model inputs of rows the reference holds: the bins as they are, or (drift tracking) band rows mapped back
-        onto the training axis, minus the reference in relative mode."""
+        """Model inputs of rows the reference holds (drift tracking: band rows mapped back), minus it in relative mode."""
         if self.drift is None:
             return self.reference.inputs(x)
         z = self.drift.warp_bins(x, self._bins)
         return z - self._ref_inputs if self.spec.mode == "relative" else z
 
     def _on_reference(self, block: np.ndarray) -> np.ndarray:
-        """A new reference took effect (its band rows ``block``): estimate the stretch from them, then the score
-        material Alg. 2 averages (the SVM's ``S_c``) on the warped axis."""
+        """A new reference took effect: estimate the stretch from its band rows, then the scores Alg. 2 averages (``S_c``)."""
         self.drift.update(block)
         self._ref_inputs = self.drift.warp_bins(self.reference.features, self._bins)
         inputs = self._inputs(block)
@@ -107,8 +105,7 @@ class Stream:
         return p
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
-        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes, as :meth:`chirp`
-        gives them one at a time (boot chirps: ``calibrating``, no touch, location -1, NaN position)."""
+        """Every chirp of a recorded stream (n, n_band), vectorised between reference refreshes, as :meth:`chirp` gives them."""
         X = band_rows(X_band, self.rig.n_band)
         if self.drift is None:
             X = X[:, self.bins]

@@ -16,8 +16,7 @@ __all__ = ["ModelKind", "Fitted", "KINDS", "BASELINE", "NETWORK", "CLOSED_FORM",
 
 @dataclasses.dataclass
 class Fitted:
-    """One fitted model: its estimator, ``skin.json`` entry fields, the first ``n_in`` inputs it reads, what it chose
-    (``selection``) and its fit time."""
+    """One fitted model: its estimator, ``skin.json`` entry fields, inputs read, its choices and its fit time."""
 
     model: Any
     entry: dict
@@ -56,8 +55,7 @@ class ModelKind:
         raise NotImplementedError
 
     def fit(self, data, *, fitted: dict, selection: dict | None = None, log=print, **options) -> Fitted:
-        """Fit on the training rows of ``data``; ``selection``: its choices already made (a refit), else chosen here on
-        the validation rows (or the measured default when there are none)."""
+        """Fit on the training rows of ``data``; ``selection``: choices already made (a refit), else chosen here."""
         raise NotImplementedError
 
     def export(self, fit: Fitted, path, X_check) -> dict:

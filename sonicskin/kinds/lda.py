@@ -36,8 +36,7 @@ DEFAULTS = {"relative": (1000, "unit"), "absolute": (None, "unit")}
 
 
 def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
-    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d) from the n x n Gram matrix:
-    :func:`sklearn.covariance.ledoit_wolf_shrinkage`'s value in O(n^2 d) instead of O(n d^2)."""
+    """Ledoit-Wolf shrinkage of the centred rows ``Z`` (n, d) from the Gram matrix: sklearn's value in O(n^2 d)."""
     n, d = Z.shape
     if d == 1 or n == 0:
         return 0.0
@@ -181,8 +180,7 @@ def lda_candidates(n_in: int) -> list[tuple[int, str]]:
 
 
 def choose(data, log=None) -> dict:
-    """The bins and normalisation chosen on presses not trained on (:meth:`sonicskin.fit.TrainingData.folds`): the
-    best mean accuracy compared at whole percent, ties to the measured default; the default without folds."""
+    """The bins and normalisation chosen on presses not trained on (whole percent, ties to the default)."""
     n_in, n = data.X.shape[1], data.n_locations
     dk, dnorm = DEFAULTS[data.spec.mode]
     default = (n_in if dk is None else min(dk, n_in), dnorm)
@@ -210,8 +208,7 @@ def choose(data, log=None) -> dict:
 
 
 class LDAHead(ScoreHead):
-    """The LDA's decisions from its ONNX output (its per-location scores): location the best score, confidence its
-    probability (softmax), touch and force as the SVM's (:class:`~sonicskin.head.ScoreHead`)."""
+    """The LDA's decisions: location the best score, confidence its softmax, touch and force as the SVM's."""
 
     def location_scores(self, outputs):
         return np.asarray(outputs[0], np.float64)
@@ -256,8 +253,7 @@ class LDAKind(ModelKind):
         return Fitted(lda, {**entry, "norm": norm}, k, {"lda": sel}, time.perf_counter() - t0)
 
     def export(self, fit, path, X_check):
-        """The LDA as an ONNX graph (the normalisation, the centre, then one Gemm), then parity of its scores and location on
-        ``X_check`` against numpy's."""
+        """The LDA as an ONNX graph (normalisation, centre, one Gemm), then parity of its scores and location."""
         import onnx
         from onnx import TensorProto, helper, numpy_helper
 

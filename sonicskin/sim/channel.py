@@ -19,8 +19,7 @@ __all__ = ["Material", "MATERIALS", "Geometry", "ChannelModel", "mindlin_omega",
 
 @dataclasses.dataclass(frozen=True)
 class Material:
-    """Wall material and thickness; ``kappa_per_k``: relative shift of every modal frequency per kelvin,
-    ``H_T(f) = H_0(f / (1 + kappa dT))`` (negative: a warmer wall rings lower); ``deta_per_k``: the loss factor's."""
+    """Wall material and thickness; ``kappa_per_k``: relative shift of every modal frequency per kelvin (negative: lower)."""
 
     name: str
     youngs_pa: float
@@ -199,8 +198,7 @@ class ChannelModel:
         return np.matmul(w, M, out=out).view(np.complex64)
 
     def contact_greens(self, pts_m: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
-        """Green's functions (P, R, 3, n_f) complex64 ``[G_rc, G_cs, G_cc]`` of disc contacts at ``pts_m`` (P, 2) for
-        each radius in ``radii_m`` (R,)."""
+        """Green's functions (P, R, 3, n_f) complex64 ``[G_rc, G_cs, G_cc]`` of disc contacts at ``pts_m`` per radius."""
         phi_c = self.mode_shapes(pts_m)  # (P, n)
         A = disc_average(self.k, np.asarray(radii_m, float))  # (R, n)
         pa = phi_c[:, None, :] * A[None, :, :]  # (P, R, n)

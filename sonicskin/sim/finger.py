@@ -79,8 +79,7 @@ def make_subjects(n: int = 12, seed: int = 1234) -> list[Subject]:
 
 def press_profile(n_chirps: int, *, peak_n: float, rng: np.random.Generator, ramp_frac: float = 0.2,
                   wobble: float = 0.35) -> np.ndarray:
-    """Press-hold-release force trace in N over ``n_chirps`` chirps: a smooth ramp up, a hold
-    that wanders ("touch with varying force"), a ramp down to zero."""
+    """Press-hold-release force trace in N over ``n_chirps`` chirps: ramp up, a wandering hold, ramp down to zero."""
     t = np.linspace(0, 1, n_chirps)
     r = max(ramp_frac, 1.0 / n_chirps)
     env = np.clip(np.minimum(t / r, (1 - t) / r), 0, 1)

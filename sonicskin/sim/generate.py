@@ -18,8 +18,7 @@ __all__ = ["simulate_dataset"]
 
 def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str = "create",
                      progress: bool = True, log=print) -> dict:
-    """Render every session of ``scenario`` into the dataset ``out``, one stream each (starting at a random point of the
-    chirp train, parts of ``part_s`` seconds; ``mode="resume"`` keeps finished ones); returns timing figures."""
+    """Render every session of ``scenario`` into the dataset ``out``, one stream each; returns timing figures."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()

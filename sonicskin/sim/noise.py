@@ -92,8 +92,7 @@ def _kernel_table(half_width_bins: int, n_fft: int) -> np.ndarray:
 
 def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int,
                           fs_hz: float, floor_rms: float = 0.0) -> np.ndarray:
-    """Noise of a moving robot for frames with motion ``level`` in [0, 1], (n, nb); ``floor_rms`` adds white
-    (sensor) noise in the same Gaussian draw as the mechanical noise."""
+    """Noise of a moving robot for frames with motion ``level`` in [0, 1], (n, nb), plus white ``floor_rms`` in one draw."""
     level = np.asarray(level, float)
     out = np.empty((level.size, n_fft // 2 + 1), np.complex64)
     draws = NoiseDraws(rng, level, cfg, n_fft=n_fft, fs_hz=fs_hz, floor_rms=floor_rms)
@@ -103,8 +102,7 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
 
 
 class NoiseDraws:
-    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra a few rows at
-    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches."""
+    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra by :meth:`fill`."""
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,
                  floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None, work: dict | None = None):

@@ -75,8 +75,7 @@ class Scenario:
 
     @classmethod
     def load(cls, name_or_path: str | Path, *, seed: int | None = None) -> Scenario:
-        """A scenario YAML, ``seed`` (presses, noise) replaced when given; a *family* (``family:``, e.g. ``random``)
-        draws a whole rig from ``seed`` (default: its first design seed, :class:`RandomFamily`)."""
+        """A scenario YAML, ``seed`` replaced when given; a *family* (``family:``) draws a whole rig from ``seed``."""
         d = load_yaml(resolve_config(name_or_path, "scenarios"))
         if "family" in d:
             fam = RandomFamily.from_dict(d)
@@ -295,8 +294,7 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
 
 
 def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
-    """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
-    its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
+    """Values overriding dataclass ``cls``: whole numbers >= 0 for int fields, finite numbers (> 0, >= 0 where asked) else."""
     kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
     for k, v in d.items():
         if kinds.get(k) is int:
@@ -411,8 +409,7 @@ def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
 
 
 def check_size(sc: Scenario, rig: Rig) -> int:
-    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything (~256
-    bytes per chirp of ground truth, one rendering block of spectra and frames); returns the total number of chirps."""
+    """Refuse a scenario that would not fit in memory, before allocating anything; returns the total number of chirps."""
     first, other = session_chirps(sc, rig)
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
@@ -428,8 +425,7 @@ def is_family(name_or_path: str | Path) -> bool:
 
 
 def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
-    """The family's ``design`` seeds (free to develop on), ``heldout`` seeds (never tuned on) and ``previous``
-    (an earlier held-out set, seen by earlier rounds: evaluated, no longer unseen)."""
+    """The family's ``design`` seeds, ``heldout`` seeds (never tuned on) and ``previous`` (an earlier held-out set)."""
     fam = RandomFamily.from_dict(load_yaml(resolve_config(name_or_path, "scenarios")))
     return {"design": fam.design_seeds, "heldout": fam.heldout_seeds, "previous": fam.previous_seeds}
 

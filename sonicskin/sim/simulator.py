@@ -25,8 +25,7 @@ _BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce s
 
 
 class Simulator:
-    """The simulated rig of one scenario on ``rig``: the untouched received signal at ``target_rms`` of full scale,
-    quantised to ``quantize_bits`` (the paper's interface: 24; ``None``: float)."""
+    """The simulated rig of one scenario: untouched signal at ``target_rms`` of full scale, quantised to ``quantize_bits``."""
 
     def __init__(self, scenario: Scenario, rig: Rig, *, target_rms: float = 0.05, quantize_bits: int | None = 24):
         if scenario.material not in MATERIALS:
@@ -93,8 +92,7 @@ class Simulator:
     _Y_GRID = np.linspace(0.0, 1.0, 41)
 
     def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
-        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer), and the TX
-        and RX bond temperatures (C), the scenario's warm-up field around the label ``tl.temperature_c`` (the middle)."""
+        """Per chirp: the wall's mean rise ``dT``, its gradient ``dT_grad`` (K) and the TX and RX bond temperatures (C)."""
         T = self.scenario.temperature
         L = self.geometry.length_m
         ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
@@ -114,8 +112,7 @@ class Simulator:
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
     def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
-        """Untouched channel H_rs (n, n_f) at mean temperature offsets ``dT`` (n,) and the non-uniform parts ``dT_grad``
-        (n, 2) along the link (Legendre orders 1 and 2, :func:`~sonicskin.sim.thermal.project_field`)."""
+        """Untouched channel H_rs (n, n_f) at mean offsets ``dT`` and Legendre parts ``dT_grad`` (n, 2) along the link."""
         G, inv = self._untouched_rows(dT, dT_grad)
         return G[inv]
 
@@ -144,8 +141,7 @@ class Simulator:
         return G.astype(np.complex64, copy=False), inv.ravel()
 
     def channel_response(self, tl: Timeline, temps: dict | None = None, *, out: np.ndarray | None = None) -> np.ndarray:
-        """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64
-        (written into ``out`` when given: the renderer reuses one buffer batch after batch)."""
+        """Noise-free channel H(f) for each chirp of ``tl``, (n, n_f) complex64, into ``out`` when given."""
         temps = self.temperatures(tl) if temps is None else temps
         dT = temps["dT"]
         Gu, inv = self._untouched_rows(dT, temps["dT_grad"])
@@ -229,8 +225,7 @@ class Simulator:
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session), into ``out`` when given; an int32
-        ``out`` gets them as a 24-bit file holds them (libsndfile's float -> PCM_24), which generate writes as is."""
+        """Received frames (n, n_chirp) for ``tl``; an int32 ``out`` gets them as 24-bit codes (libsndfile's float -> PCM_24)."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
