@@ -60,8 +60,7 @@ class Block:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time
-    duplexing (link k transmits in periods where ``period % n_slots == slot``) or frequency duplexing (own rigs)."""
+    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time or frequency."""
 
     tx: int = 0
     rx: int = 0
@@ -303,8 +302,7 @@ class _QueueSource:
         self._stop = threading.Event()
 
     def _deliver(self, samples: np.ndarray, lost_before: bool = False, *, wait: bool = False) -> None:
-        """Called by the producer (audio callback or producer thread): queue the next block.  A full queue drops it
-        (flagging the next) unless ``wait``: a source paced by its reader waits until the block is taken or it stops."""
+        """Queue the producer's next block; a full queue drops it (flagging the next) unless ``wait``."""
         # t: the arrival, for a source at the sample rate (one paced by its reader has none: latency is processing)
         block = Block(samples, self._index, self._pos, lost_before or self._lost, 0.0 if wait else time.perf_counter())
         self._index += 1
@@ -359,8 +357,7 @@ class _QueueSource:
 
 
 class SoundDeviceSource(_QueueSource):
-    """Duplex stream: the chirp train out on ``link.tx`` (or ``playback``), the receiver in on ``link.rx`` (``links``:
-    several pairs, blocks (n, links); ``rx_channels``: the inputs to deliver instead); ``device``: name or index."""
+    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx`` (``links``: blocks (n, links))."""
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
                  blocksize: int = 1024, playback: np.ndarray | None = None, rx_channels: list[int] | None = None):

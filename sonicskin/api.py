@@ -126,8 +126,7 @@ class Listener:
             self._raise()
 
     def set_joint_state(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
-        """The arm's joint positions (URDF joint name -> rad or m) at ``t_unix_s`` (default now): ``/joint_states`` and
-        ``/tf`` into the MCAP file and onto the live buses, so a viewer moves the links (an arm file with ``urdf:``)."""
+        """The arm's joint positions (rad or m) at ``t_unix_s`` (default now): ``/joint_states`` and ``/tf``, so a viewer moves it."""
         for pub in self.opened.publishers:
             pub.joints(positions, t_unix_s)
 
@@ -159,8 +158,7 @@ class Listener:
 
 
 def listen(artifact: str | Path, *, device: str | int | None = None, duration_s: float | None = None, **kw) -> Iterator[TouchEvent]:
-    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as
-    :class:`Listener`); the run stops when the loop ends or the caller leaves it, device errors are raised here."""
+    """Touch events as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as :class:`Listener`)."""
     lst = Listener(artifact, device=device, duration_s=duration_s, **kw)
     try:
         yield from lst

@@ -222,8 +222,7 @@ class OnlineReference:
 
 
 class TouchDetector:
-    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` picks the
-    ``threshold_`` of Youden's J on training chirps (``false_touch_rate_``, ``missed_touch_rate_`` on its wrong side)."""
+    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` by Youden's J."""
 
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold

@@ -139,8 +139,7 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as the
-    live loop runs it; the result names the sessions and ``trained_on_test`` (test sessions it trained on)."""
+    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), replayed as live."""
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]

@@ -167,8 +167,7 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
-    """The right to write the dataset folder ``root``, exclusive between processes (``fcntl.flock`` on the folder,
-    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock."""
+    """The right to write ``root``, exclusive between processes (``flock``), reentrant within one; no ``fcntl``: no lock."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     key = os.path.realpath(root)

@@ -61,8 +61,7 @@ def _content_digest(t: FeatureTable) -> str:
 
 
 def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
-    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``: its
-    label rows against the CSVs (the last one or two may be missing), its content against its stored digest."""
+    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``."""
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""

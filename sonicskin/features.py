@@ -126,7 +126,7 @@ def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
 
 
 def rest_beta(t: FeatureTable, beta_chirps: int, *, log=None) -> int | None:
-    """Alg. 2's beta for these streams: ``beta_chirps``, or the shortest session's rest, down to :data:`MIN_REST_CHIRPS`."""
+    """Alg. 2's beta: ``beta_chirps``, or the rest every session has, down to :data:`MIN_REST_CHIRPS`; ``None`` below it."""
     runs = rest_runs(quiet_mask(t), t["session"])
     shortest = min(runs.values()) if runs else 0
     if shortest >= beta_chirps:

@@ -97,8 +97,7 @@ def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
 
 
 class Framer:
-    """Chirp-synchronous framing on the chirp ``reference``, re-locked after lost audio and when the correlation peak
-    (checked every ``check_every`` frames) wanders more than ``tolerance`` samples (a firm touch moves it ~80)."""
+    """Chirp-synchronous framing, re-locked after lost audio and when the peak wanders more than ``tolerance`` samples."""
 
     def __init__(self, reference: np.ndarray, *, check_every: int = 16, tolerance: int = 256):
         self.ref = np.asarray(reference, np.float64)
@@ -402,8 +401,7 @@ class LiveLoop:
         return fault
 
     def _no_chirp(self, X: np.ndarray) -> bool:
-        """After the boot a frame that does not repeat the last usable one (:func:`chirp_coherence` below
-        :data:`MIN_COHERENCE`) is skipped (True); most of a :data:`CHIRP_CHECK_S` window so: :class:`InputUnusable`."""
+        """After the boot, skip a frame that does not repeat the last usable one; most of a window so: :class:`InputUnusable`."""
         prev, self._prev_spectrum = self._prev_spectrum, X
         if prev is None:
             return False

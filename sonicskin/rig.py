@@ -32,8 +32,7 @@ CONFIG_KINDS = ("rigs", "scenarios", "links", "arms", "train")
 
 
 def config_dir() -> Path:
-    """The folder bare config names resolve in: the wheel's package data ``sonicskin/configs``, else (a source
-    checkout) the repository's ``configs/`` next to the package."""
+    """The folder bare config names resolve in: the wheel's ``sonicskin/configs``, else the checkout's ``configs/``."""
     shipped = importlib.resources.files(__package__) / "configs"
     if shipped.is_dir():
         return Path(str(shipped))  # pip installs wheels unpacked, so this is a real folder
@@ -48,8 +47,7 @@ def config_names(kind: str) -> list[str]:
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """The YAML file a config argument refers to: a bare name is a shipped config (:func:`config_names`), a file name
-    or path is read as it stands; :class:`FileNotFoundError` (listing the known names) otherwise."""
+    """The YAML file a config argument refers to (a bare name is a shipped config); else :class:`FileNotFoundError`."""
     text = str(name_or_path)
     p = Path(name_or_path)
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
@@ -69,8 +67,7 @@ MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a conf
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping of plain values; a one-line :class:`ConfigError` naming the file for anything else (too
-    large, not UTF-8, a syntax error with its line, an object-building tag, a key given twice)."""
+    """Read a YAML mapping of plain values; else one :class:`ConfigError` line naming the file."""
     import yaml
 
     path = Path(path)
@@ -288,8 +285,7 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Predefined touch locations: ids and coordinates in cm on the unrolled surface (``x_cm`` around the
-    circumference, ``y_cm`` along the axis); with ``circumference_cm`` distances wrap around it."""
+    """Touch locations: ids and coordinates in cm on the unrolled surface (with ``circumference_cm`` distances wrap)."""
 
     ids: tuple[int, ...]
     xy_cm: np.ndarray  # (n, 2)
@@ -340,8 +336,7 @@ class Layout:
     @classmethod
     def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
               circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> Layout:
-        """Rows of markers (``counts`` per row) ``spacing_cm`` apart, every other row shifted by half a spacing; the
-        default, 16 + 15 = 31 markers 1.2 cm apart, is the paper's touch area (Fig. 10) around a link."""
+        """Rows of markers ``spacing_cm`` apart, every other shifted by half; the default 16 + 15 is the paper's (Fig. 10)."""
         xy = []
         for row, n in enumerate(counts):
             shift = 0.5 * spacing_cm * (row % 2)

@@ -134,8 +134,7 @@ class FoxglovePublisher(Publisher):
 
 
 def open_buses(ros2=None, foxglove=None) -> list[Publisher]:
-    """The live publishers asked for: ``ros2`` a domain id (``True``: ROS_DOMAIN_ID, else 0), ``foxglove`` a port
-    (``True``: 8765; 0: any free)."""
+    """The live publishers asked for: ``ros2`` a domain id (``True``: ROS_DOMAIN_ID), ``foxglove`` a port (``True``: 8765)."""
     port = FOXGLOVE_PORT if foxglove is True else int(foxglove) if isinstance(foxglove, str) and foxglove.isdigit() else foxglove
     if foxglove is not None and not (is_number(port, integer=True) and 0 <= port <= 65535):
         raise SonicskinError(f"--foxglove {brief(foxglove)}: give a TCP port 1-65535 (or 0 for any free one, or --foxglove "

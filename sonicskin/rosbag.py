@@ -59,8 +59,7 @@ def _texts() -> dict[str, str]:
 
 
 def fields(name: str) -> list[tuple[str, str, str | None]]:
-    """The fields of ``pkg/Type`` (or ``pkg/msg/Type``) as ``(type, name, array)``: the type a primitive or ``pkg/Type``,
-    the array None, ``""`` (a sequence) or its length."""
+    """The fields of ``pkg/Type`` as ``(type, name, array)``: array None, ``""`` (a sequence) or its length."""
     name = name.replace("/msg/", "/")
     out = []
     for line in _texts()[name].splitlines():
@@ -82,8 +81,7 @@ def _uses(name: str, seen: dict) -> dict:
 
 @functools.cache
 def definition(name: str) -> str:
-    """``name``'s definition as MCAP's ``ros2msg`` schemas hold it: its text, then each type it uses after a line of 80
-    ``=`` and ``MSG: pkg/Type`` (``name``: ``"geometry_msgs/msg/PointStamped"`` or ``"geometry_msgs/PointStamped"``)."""
+    """``name``'s definition as MCAP's ``ros2msg`` schemas hold it: its text, then each type it uses."""
     key = name.replace("/msg/", "/")
     return _texts()[key] + "".join(f"{_SEP}\nMSG: {t}\n{_texts()[t]}" for t in _uses(key, {}))
 
@@ -166,8 +164,7 @@ def topics(frames: list[str]) -> dict[str, str]:
 
 
 class Publisher:
-    """The messages of a run (module docstring), sent by a subclass's ``_send(topic, type, msg, ns, seq)``;
-    ``t0_unix_s``: the wall-clock time of the stream's ``t_s = 0``.  Thread-safe: the loops of all links share one."""
+    """The messages of a run, sent by a subclass's ``_send``; thread-safe: the loops of all links share one."""
 
     name, kind = "sonicskin", "the publisher"  # as errors name it
 
@@ -212,8 +209,7 @@ class Publisher:
 
     # -- the robot ----------------------------------------------------------------------------------------------------
     def announce(self, frames: list[str], urdf: str | Path | None = None) -> None:
-        """Before the run: open every topic of the links in ``frames`` (a live bus's subscribers match them before the
-        first message), and read the arm's ``urdf`` (``/robot_description``, ``/tf_static``, :meth:`joints`)."""
+        """Before the run: open every topic of the links in ``frames`` and read the arm's ``urdf``."""
         if urdf is not None:
             self._urdf = Path(urdf).read_text()
             self._joints = urdf_joints(self._urdf)
@@ -238,8 +234,7 @@ class Publisher:
         self._call(send)
 
     def joints(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
-        """``/joint_states`` and the ``/tf`` of those joints at ``positions`` (joint name -> rad or m), stamped
-        ``t_unix_s`` (default: now; before the stream starts: at its start), so a viewer moves the arm."""
+        """``/joint_states`` and ``/tf`` of joints at ``positions`` (rad or m) at ``t_unix_s`` (default: now)."""
         moving = sorted(n for n, j in self._joints.items() if j["type"] in ("revolute", "continuous", "prismatic"))
         if not moving:
             raise SonicskinError("joint states move the joints of the arm's URDF, and this run has none (an arm file with "
@@ -260,8 +255,7 @@ class Publisher:
 
     # -- the skin -----------------------------------------------------------------------------------------------------
     def contact(self, lp, t_s: float, p) -> None:
-        """The Contact of live loop ``lp``'s link at one chirp (``p`` None while calibrating): at each touched chirp and
-        each change of state, else when :data:`IDLE_S` of stream time have passed since its last one."""
+        """The Contact of ``lp``'s link at one chirp: at each touch and change of state, else every :data:`IDLE_S`."""
         state = CALIBRATING if p is None else TOUCHED if lp.touching else FREE  # the loop's press rule
         surf, lay = lp.surface, lp.rt.layout
         last = self._last.get(surf.frame_id)
@@ -330,8 +324,7 @@ class Publisher:
 
     # -- life cycle -------------------------------------------------------------------------------------------------
     def close(self) -> None:
-        """Delete the markers of links still touched (at their last touch's stamp, so a viewer shows no stale contact),
-        then end (idempotent)."""
+        """Delete the markers of links still touched (no stale contact in a viewer), then end (idempotent)."""
         with self._lock:
             if self._closed:
                 return
@@ -357,8 +350,7 @@ class Publisher:
 
 
 class McapEventWriter(Publisher):
-    """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the wall-clock time
-    of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
+    """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager; an existing file only with ``overwrite``)."""
 
     kind = "the MCAP writer"
 
@@ -450,8 +442,7 @@ def _abandon(file, created: Path | None) -> None:
 
 
 def recover(src: str | Path, dst: str | Path) -> int:
-    """Copy the messages of ``src``, an MCAP file whose writer died before its summary, into the complete file ``dst``:
-    every message up to the first record cut off.  Returns their number."""
+    """Copy the messages of an MCAP file whose writer died into the complete file ``dst``; returns their number."""
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer

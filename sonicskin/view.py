@@ -54,8 +54,7 @@ def _finite(x) -> float | None:
 
 @dataclasses.dataclass(frozen=True)
 class LinkView:
-    """One link as the page draws it: ``name``, ``layout``, ``kind`` (tube or plate; ``None``: a tube when the layout
-    has a circumference), the surface's ``length_cm``/``width_cm`` (``None``: around the markers), ``tx_cm``, ``rx_cm``."""
+    """One link as the page draws it: name, layout, kind, surface size and transducers (cm)."""
 
     name: str
     layout: Layout

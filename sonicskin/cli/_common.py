@@ -17,8 +17,7 @@ from ..features import DEFAULT_N_BINS, FeatureSpec
 
 
 def check_split_options(a: argparse.Namespace) -> None:
-    """Split and Alg. 2 options that contradict each other, refused before any work.  ``--val none`` becomes an empty list
-    (no validation session), which every verb passes on as such (never the default split's)."""
+    """Split and Alg. 2 options that contradict each other, refused before any work (``--val none``: an empty list)."""
     val_opt = getattr(a, "val", None)
     if val_opt and any(v.lower() == "none" for v in val_opt):
         if len(val_opt) > 1:

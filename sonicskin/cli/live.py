@@ -118,8 +118,7 @@ def cmd_record(a: argparse.Namespace) -> int:
 
 
 def _record_arm(a: argparse.Namespace) -> int:
-    """``record --links ARM --out DIR``: every link's guided session in turn (its TX/RX pair, its scenario's
-    markers) into ``DIR/<link>``, each with its artifact ``DIR/<link>-artifact`` unless --no-artifact."""
+    """``record --links ARM --out DIR``: every link's guided session in turn into ``DIR/<link>``, each with its artifact."""
     if a.tx or a.rx or a.scenario != "stationary" or a.locations or a.artifact:
         raise UsageError("record --links takes each link's channels and markers from the arm file and writes each link's "
                          "artifact next to its recording (OUT/<link>-artifact); drop --tx, --rx, --scenario, --locations "

@@ -102,8 +102,7 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
-    """``compare``: one verb, three entry points: ``--scenario`` (simulated datasets over seeds), ``--data`` with
-    ``--artifact`` (score a trained artifact) and ``--data`` alone (train both models, export, score)."""
+    """``compare``: ``--scenario`` (simulated), ``--data --artifact`` (score an artifact) or ``--data`` (train and score)."""
     if a.scenario:
         return _compare_scenarios(a)
     if a.links:

@@ -401,8 +401,7 @@ def need_train_extra(verb: str) -> None:
 
 
 def verb_function(spec: str, verb: str = "train"):
-    """The function ``"module:function"`` of this package's CLI, its module imported now.  The torch verbs' module
-    (:mod:`.train`) needs the training extra: without it, ``verb`` is refused in one line."""
+    """The function ``"module:function"`` of this package's CLI, imported now (the torch verbs need the training extra)."""
     module, _, name = spec.partition(":")
     if module == "train":
         need_train_extra(verb)

@@ -150,8 +150,7 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
 
 
 def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` about the training centre ``c``,
-    scaled so that at the class means the best leads the second by ``margin`` (a confident, unsaturated softmax)."""
+    """``(W, b, c)``: the LDA's scores ``(x - c) W' + b``, scaled so the best leads the second by ``margin`` at the means."""
     W, b = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
     if W.shape[0] == 1:  # scikit-learn's binary convention: one row, positive for classes_[1]
         W, b = np.vstack([-W / 2, W / 2]), np.r_[-b / 2, b / 2]

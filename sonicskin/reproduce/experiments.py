@@ -82,8 +82,7 @@ def _per_session(ctx: Context, k: str, d, train: np.ndarray, sessions: list[str]
 
 
 def _drift_run(ctx: Context, name: str, axis: str, unit_s: float, rows):
-    """A drift dataset trained on its first session: the dataset, its later sessions, the training mask, OSPA's bins
-    and each later session's mean time (``axis``, ``unit_s`` seconds) and temperature over its ``rows(table)``."""
+    """A drift dataset trained on its first session, with each later session's mean time and temperature."""
     ds, t, train, _, bins = first_session_split(ctx, name)
     later = sorted(set(t["session"]))[1:]
     res: dict = {axis: [], "temperature_c": []}
@@ -111,8 +110,7 @@ def fig12(ctx: Context) -> dict:
 
 
 def draw_fig12(res: dict):
-    """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves are identical
-    share one line and one legend entry, so no entry names a hidden line."""
+    """Accuracy over time, one line per distinct curve (identical curves share one line and legend entry)."""
     groups: dict = {}
     for key, v in res.items():
         if " alpha=" in key:

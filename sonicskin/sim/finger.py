@@ -14,8 +14,7 @@ __all__ = ["Subject", "make_subjects", "press_profile"]
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One simulated person's finger: at 1 N its contact radius, tissue damping, mass and stiffness (growing as
-    ``F ** radius_exp``, ``F ** damping_exp``), the aim, the peak force and the real contact's growth while held."""
+    """One simulated person's finger: its contact and tissue at 1 N and how they grow with force, its aim and peak force."""
 
     name: str
     radius_1n_m: float

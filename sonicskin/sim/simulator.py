@@ -70,8 +70,7 @@ class Simulator:
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f): every
-        modal frequency moves to ``f_n (1 + kappa dT)`` (kappa < 0: a warmer wall rings lower)."""
+        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f)."""
         f = self.channel.f_hz
         pos = (f[None, :] / (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
         pos = np.clip(pos, 0, f.size - 1.000001)

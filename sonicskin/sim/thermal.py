@@ -55,8 +55,7 @@ def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s:
 
 
 def project_field(field: np.ndarray, y_frac: np.ndarray, order: int = 2) -> np.ndarray:
-    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac`` in [0, 1]: ``c_0`` the mean, ``c_1`` the
-    linear part (+: motor end warmer), ``c_2`` ends vs middle."""
+    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac``: mean, linear part, ends vs middle."""
     x = 1 - 2 * np.asarray(y_frac, float)
     V = np.polynomial.legendre.legvander(x, order)  # (m, order + 1)
     coef, *_ = np.linalg.lstsq(V, np.asarray(field, float).T, rcond=None)
