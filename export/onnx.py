@@ -21,13 +21,8 @@ __all__ = ["export_net"]
 
 
 def export_net(model: torch.nn.Module, path: Path, X_check: np.ndarray) -> dict:
-    """torch -> ONNX with a dynamic batch axis (TorchScript exporter: 0.1 s per export against 3-7 s for the dynamo
-    exporter, which dominated ``reproduce``'s time; the graph runs the same in onnxruntime), then parity on
-    ``X_check`` (:func:`sonicskin.parity.decisions_parity`):
-    the location (argmax of the location logits), the touch decision (p(touch) >= 0.5, as the runtime reads it),
-    the logits and the force within :data:`~sonicskin.parity.PARITY_TOL` of their scale.  The raw figures
-    (``max_abs_logits``, ``max_abs_force_n``) are returned for ``skin.json``; a mismatch raises
-    :class:`~sonicskin.parity.ParityError` (one line)."""
+    """torch -> ONNX with a dynamic batch axis (the TorchScript exporter: 0.1 s against 3-7 s for dynamo), then
+    :func:`sonicskin.parity.decisions_parity` on ``X_check``; a mismatch raises :class:`~sonicskin.parity.ParityError`."""
     model = model.eval()
     example = torch.from_numpy(X_check[:2].astype(np.float32))
     onnx_log = logging.getLogger("torch.onnx")

@@ -92,17 +92,9 @@ class KernelVotes(nn.Module):
 # -- A small network over the OSPA-selected bins: shared trunk, location head, force head, and optionally the SVM's
 # kernel machine as its location layer (:class:`KernelVotes`).
 class SkinNet(nn.Module):
-    """``n_in -> (N + 1 location logits, N forces)``.
-
-    The location head has one class per touch location plus a last *no-touch* class; the force head predicts the
-    force (N) as if the touch were at each location (the caller reads the entry of the location), mirroring the
-    paper's per-location force models.  Feature normalisation is part of the module, so the ONNX graph takes raw
-    features.  Without a kernel layer (``n_centres=0``) it is an MLP; with one, the trunk gives the touch
-    probability, the kernel layer's sharpened SVM votes (:class:`KernelVotes`, softness ``tau``) say
-    where, and the force head reads the trunk and the RBF activations (call :meth:`init_from_svm` before training).
-    ``hidden``: the trunk's widths; ``dropout`` after each trunk layer and ``input_dropout`` on the inputs
-    (training only: no single bin can be relied on).
-    """
+    """``n_in -> (N + 1 location logits, N forces)``: one class per location plus *no-touch*; the force as if the touch
+    were at each location (the paper's per-location force models).  Normalisation is part of the module, so the ONNX
+    graph takes raw features.  With a kernel layer (``n_centres``) call :meth:`init_from_svm` before training."""
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
                  dropout: float = 0.1, input_dropout: float = 0.0, n_centres: int = 0, tau: float = 0.1):
@@ -134,8 +126,7 @@ class SkinNet(nn.Module):
         self.std.copy_(torch.as_tensor(np.asarray(std)[:k], dtype=torch.float32).clamp_min(1e-6))
 
     def init_from_svm(self, pipe) -> None:
-        """Start the kernel layer as a fitted scaler + RBF SVC pipeline (the SVM kind's, :mod:`sonicskin.kinds.svm`)
-        trained on this network's inputs; the network's normalisation becomes the pipeline's scaler."""
+        """Start the kernel layer as a fitted scaler + RBF SVC pipeline on this network's inputs (its scaler: the normalisation)."""
         scaler, svc = pipe[0], pipe[-1]
         if self.kernel is None or svc.support_vectors_.shape != tuple(self.kernel.centres.shape):
             raise ValueError(f"the network has {0 if self.kernel is None else self.kernel.centres.shape[0]} RBF units, the "

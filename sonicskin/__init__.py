@@ -1,9 +1,7 @@
 """sonicskin: a robot link as a touch sensor with one pair of piezo discs (SonicSkin, Fan et al.).
 
-The runtime is torch-free: DSP, OSPA, the SVM baseline, calibration, force models, the
-simulated rig, the dataset format and the command line.  Training and export live in the
-top-level ``training``, ``models`` and ``export`` packages (``pip install sonicskin[train]``).
-"""
+The runtime is torch-free; training and export live in the top-level ``training``, ``models`` and ``export``
+packages (``pip install sonicskin[train]``)."""
 
 __version__ = "0.1.0"
 

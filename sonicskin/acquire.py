@@ -1,13 +1,8 @@
 """Audio acquisition: the only module that touches audio hardware (through sounddevice).
 
 A *source* (:class:`AudioSource`) delivers the receiver's audio as blocks while the transmitter plays the chirp back
-to back: :class:`SoundDeviceSource` (a duplex PortAudio stream whose callback only copies into a queue),
-:class:`SimulatedSource` (the simulated device: one link, a whole arm, the rig check's interface) and
-:class:`RecordingSource` (a recorded session), the last two produced by a thread of their own, so every command
-runs without a sound card.  Every consumer reads one through :func:`blocks` (its watchdog, and the producer's error
-raised in the consumer's thread).  Overflows and dropped blocks are counted and flag the next block as a
-discontinuity, never fatal: the live loop re-locks its framing on them.
-"""
+to back: a sound card, the simulated device or a recorded session; every consumer reads one through :func:`blocks`.
+Overflows and dropped blocks flag the next block as a discontinuity, never fatal: the live loop re-locks on them."""
 
 from __future__ import annotations
 
@@ -37,8 +32,7 @@ __all__ = ["Block", "AudioError", "DeviceLost", "MAX_BLOCKSIZE", "check_blocksiz
 
 
 class AudioError(SonicskinError, RuntimeError):
-    """No usable audio device, rate or library, or a device that stopped; the message says what to do (a
-    :class:`~sonicskin.errors.SonicskinError` that is still a ``RuntimeError``)."""
+    """No usable audio device, rate or library, or a device that stopped (a :class:`SonicskinError` that is a ``RuntimeError``)."""
 
 
 class DeviceLost(AudioError):
@@ -49,8 +43,7 @@ MAX_BLOCKSIZE = 2**20  # frames per audio block (5.5 s at 192 kHz): more holds t
 
 
 def check_blocksize(value, name: str = "blocksize") -> int:
-    """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`; otherwise one :class:`SonicskinError` line
-    (the same for the API's ``blocksize=`` and the CLI's ``--blocksize``)."""
+    """``value`` as frames per audio block, 1 to :data:`MAX_BLOCKSIZE`, for ``blocksize=`` and ``--blocksize`` alike."""
     if not is_number(value, integer=True) or not 1 <= value <= MAX_BLOCKSIZE:
         raise SonicskinError(f"{name} must be an integer from 1 to {MAX_BLOCKSIZE} (audio frames per block), got {value!r}")
     return value
@@ -67,8 +60,7 @@ class Block:
 
 @dataclasses.dataclass(frozen=True)
 class Link:
-    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time
-    duplexing (link k transmits in periods where ``period % n_slots == slot``) or frequency duplexing (own rigs)."""
+    """One transmitter/receiver pair (0-based channels); several on one interface share the chirp by time or frequency."""
 
     tx: int = 0
     rx: int = 0
@@ -168,8 +160,7 @@ def resolve_device(spec: str | int | None) -> int:
     else:
         hits = [d for d in devs if str(spec).lower() in d["name"].lower()]
         if not hits:
-            raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: "
-                             + ", ".join(d["name"] for d in devs))
+            raise AudioError(f"no audio device matches {spec!r}; `sonicskin devices` lists: " + ", ".join(d["name"] for d in devs))
         idx = hits[0]["index"]
     return idx
 
@@ -190,8 +181,7 @@ def check_device_rate(idx: int, rig: Rig, n_in: int, n_out: int) -> None:
 
 
 def thread_cpu_s(thread: threading.Thread | None) -> float | None:
-    """CPU seconds a running thread has used (Linux: ``/proc/self/task/<tid>/stat``), ``None`` where that cannot be read
-    (another OS, or the thread has ended)."""
+    """CPU seconds a running thread has used (Linux ``/proc``), ``None`` where that cannot be read."""
     tid = getattr(thread, "native_id", None)
     if tid is None or not thread.is_alive():
         return None
@@ -208,8 +198,7 @@ AUDIO_PRIORITY, LOOP_PRIORITY = 70, 60
 
 
 def realtime_thread(priority: int) -> tuple[str, Callable[[], None]]:
-    """Real-time scheduling of the calling thread (Linux): SCHED_FIFO at ``priority`` where permitted, else the lowest
-    nice value permitted; returns what was granted, in words, and the function that undoes it."""
+    """Real-time scheduling of the calling thread (Linux): SCHED_FIFO, else the lowest nice value; (what was granted, undo)."""
     tid = threading.get_native_id()
     try:
         old = os.sched_getscheduler(tid), os.sched_getparam(tid), os.getpriority(os.PRIO_PROCESS, tid)
@@ -236,8 +225,7 @@ def realtime_thread(priority: int) -> tuple[str, Callable[[], None]]:
 
 
 class AudioSource(Protocol):
-    """The contract between a source and its consumers (:func:`blocks`): blocks of the receiver channel(s) from
-    :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several; a finite source sets :attr:`finished`."""
+    """The contract of a source: blocks from :meth:`read`, ``(n,)`` for one link, ``(n, links)`` for several."""
 
     rig: Rig
     #: blocks come at the sample rate (a device, the real-time simulation); ``False``: as fast as they are read
@@ -314,8 +302,7 @@ class _QueueSource:
         self._stop = threading.Event()
 
     def _deliver(self, samples: np.ndarray, lost_before: bool = False, *, wait: bool = False) -> None:
-        """Called by the producer (audio callback or producer thread): queue the next block.  A full queue drops it
-        (flagging the next) unless ``wait``: a source paced by its reader waits until the block is taken or it stops."""
+        """Queue the producer's next block; a full queue drops it (flagging the next) unless ``wait``."""
         # t: the arrival, for a source at the sample rate (one paced by its reader has none: latency is processing)
         block = Block(samples, self._index, self._pos, lost_before or self._lost, 0.0 if wait else time.perf_counter())
         self._index += 1
@@ -358,8 +345,7 @@ class _QueueSource:
                 "lost_s": round(sum(b - a for a, b in spans), 4), "lost_spans_s": spans[-10:]}
 
     def producer_cpu_s(self) -> float | None:
-        """CPU seconds the producer thread has used (a simulated or recorded source's; ``None`` for a device, whose
-        producer is the audio driver): a producer that still computes (a slow first render) is alive."""
+        """CPU seconds of the producer thread (``None`` for a device): a producer that still computes is alive."""
         return thread_cpu_s(getattr(self, "_thread", None))
 
     def __enter__(self):
@@ -371,8 +357,7 @@ class _QueueSource:
 
 
 class SoundDeviceSource(_QueueSource):
-    """Duplex stream: the chirp train out on ``link.tx`` (or ``playback``), the receiver in on ``link.rx`` (``links``:
-    several pairs, blocks (n, links); ``rx_channels``: the inputs to deliver instead); ``device``: name or index."""
+    """Duplex stream: the chirp train out on ``link.tx``, the receiver in on ``link.rx`` (``links``: blocks (n, links))."""
 
     def __init__(self, rig: Rig, device: str | int | None = None, *, link: Link = Link(), links: list[Link] | None = None,
                  blocksize: int = 1024, playback: np.ndarray | None = None, rx_channels: list[int] | None = None):
@@ -432,8 +417,7 @@ class SoundDeviceSource(_QueueSource):
 
 
 class _ProducerSource(_QueueSource):
-    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate (``realtime``)
-    or as fast as read; ``drop_every``: drop one block in that many (fault injection)."""
+    """A source whose audio a thread of its own produces (:meth:`_chunks`), paced at the sample rate or as fast as read."""
 
     what = "source"  # for the watchdog's message
 
@@ -452,8 +436,7 @@ class _ProducerSource(_QueueSource):
         raise NotImplementedError
 
     def _run_producer(self) -> None:
-        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it,
-        instead of a stream that just stops."""
+        """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it."""
         try:
             self._rt_start()
             chunks, pending, t_next = self._chunks(), None, time.perf_counter()
@@ -488,12 +471,8 @@ class _ProducerSource(_QueueSource):
 
 
 class SimulatedSource(_ProducerSource):
-    """The simulated device: scripted touches rendered ahead in a producer thread and delivered block by block, in
-    real time (``realtime``) or as fast as read.  ``simulator``: a :class:`sonicskin.sim.Simulator`, or a list of them
-    (a whole arm, one input channel per link, all chirping at once); ``timeline``: one session to play, or one per
-    simulator (the stream ends with the shortest); ``drop_every``: drop one block in so many (fault injection);
-    ``offset``: the stream starts this many samples into the first chirp.
-    """
+    """The simulated device: scripted touches rendered ahead in a producer thread, delivered in real time or as fast as
+    read; a list of simulators is a whole arm (one input channel per link); ``drop_every``: fault injection."""
 
     what = "simulated device"
 
@@ -530,8 +509,7 @@ class SimulatedSource(_ProducerSource):
 
 
 class RecordingSource(_ProducerSource):
-    """A recorded ``session`` of a :class:`sonicskin.dataset.Dataset` played as an audio source, its parts in order,
-    so a recording runs through the live loop exactly as it was received (``realtime``: at the sample rate)."""
+    """A recorded ``session`` of a dataset played as an audio source, so it runs through the live loop as it was received."""
 
     what = "recording"
 

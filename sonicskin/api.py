@@ -1,11 +1,7 @@
 """The Python API for robot programs: touch events from a deployed skin, without torch.
 
-Two forms over one implementation (:class:`Listener`, a background thread running :class:`sonicskin.live.LiveLoop`):
-an iterator for scripts (``for ev in sonicskin.listen("artifacts/moving", duration_s=5): ...``), and a callback or a
-non-blocking :meth:`Listener.poll` for a controller loop that owns its timing.  Events are
-:class:`sonicskin.events.TouchEvent`, the objects whose JSON ``sonicskin live`` prints; ``device=None`` or ``"sim"``
-is the simulated rig, an index or a name substring an audio interface.  Examples: docs/api.md.
-"""
+An iterator for scripts (``for ev in sonicskin.listen("artifacts/moving", duration_s=5): ...``), and a callback or a
+non-blocking :meth:`Listener.poll` for a controller loop, over one :class:`Listener`.  Examples: docs/api.md."""
 
 from __future__ import annotations
 
@@ -24,8 +20,7 @@ _END = object()
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
                      realtime=False, on_event=None) -> None:
-    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them
-    (``blocksize`` is :func:`sonicskin.session.open_run`'s to check)."""
+    """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
     if not (device is None or isinstance(device, str) or (is_number(device, integer=True) and device >= 0)):
@@ -51,24 +46,11 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
 class Listener:
     """Run a skin in a background thread; events go to ``on_event`` and to :meth:`poll` / iteration.
 
-    ``artifact``: an artifact folder, or a whole arm (its arm file, or the folder ``fit-svm --links`` wrote): then one
-    loop runs per link, each event names its link and carries the contact in the link's frame, and :attr:`summary`
-    is keyed by link.  ``device``: ``None``/``"sim"`` or an audio device index or name; ``model``: a model kind of the
-    artifact (default: the paper's SVM); ``duration_s``: wall-clock seconds (``None``: until :meth:`stop`);
-    ``scenario`` (default stationary; an arm's links have their own) and ``fast``: the simulated device's link and
-    touches, and faster than real time; ``realtime``: real-time scheduling of the audio and processing threads (one
-    line on stderr says what was granted); ``rig``: default
-    the artifact's own; ``tx``, ``rx``: channels of a real interface; ``on_event``: called in the listener's thread
-    with each event (keep it short); ``mcap``: with an arm, every touch also as ROS 2 messages into this MCAP file
-    (an existing one refused unless ``overwrite``), and live: ``ros2`` on this DDS domain (``True``: ROS_DOMAIN_ID),
-    ``foxglove`` on Foxglove's WebSocket at this port (``True``: 8765; :meth:`set_joint_state` moves the arm there);
-    ``view``: ``True`` or a port, the browser view at :attr:`view_url`; ``watchdog_s``: no audio (or no usable chirp)
-    for this long ends the run with :class:`sonicskin.live.DeviceLost`, re-raised by :meth:`poll`, iteration and
-    :meth:`stop`.
-
-    Every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`, one line naming
-    the fix.
-    """
+    ``artifact``: an artifact folder, or a whole arm (one loop per link; :attr:`summary` keyed by link).  ``device``:
+    ``None``/``"sim"`` or an audio device index or name; ``scenario``, ``fast``: the simulated device's; ``on_event`` is
+    called in the listener's thread (keep it short); ``mcap``/``ros2``/``foxglove``/``view``: the outputs of
+    ``sonicskin live`` (docs/api.md).  A :class:`sonicskin.live.DeviceLost` is re-raised by :meth:`poll`, iteration and
+    :meth:`stop`; every error of the arguments and of the device is a :class:`sonicskin.errors.SonicskinError`."""
 
     def __init__(self, artifact: str | Path, *, device: str | int | None = None, model: str | None = None,
                  duration_s: float | None = None, scenario: str | Path | None = None, rig: str | Path | None = None,
@@ -144,8 +126,7 @@ class Listener:
             self._raise()
 
     def set_joint_state(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
-        """The arm's joint positions (URDF joint name -> rad or m) at ``t_unix_s`` (default now): ``/joint_states`` and
-        ``/tf`` into the MCAP file and onto the live buses, so a viewer moves the links (an arm file with ``urdf:``)."""
+        """The arm's joint positions (rad or m) at ``t_unix_s`` (default now): ``/joint_states`` and ``/tf``, so a viewer moves it."""
         for pub in self.opened.publishers:
             pub.joints(positions, t_unix_s)
 
@@ -177,8 +158,7 @@ class Listener:
 
 
 def listen(artifact: str | Path, *, device: str | int | None = None, duration_s: float | None = None, **kw) -> Iterator[TouchEvent]:
-    """Touch events of a skin as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as
-    :class:`Listener`); the run stops when the loop ends or the caller leaves it, device errors are raised here."""
+    """Touch events as they happen: ``for ev in listen("artifacts/x", duration_s=5): ...`` (keywords as :class:`Listener`)."""
     lst = Listener(artifact, device=device, duration_s=duration_s, **kw)
     try:
         yield from lst

@@ -1,11 +1,5 @@
 """Deployment artifacts (ONNX + ``skin.json``): writing the document, its seal and the atomic swap, and reading an
-artifact folder's files, bounded and confined (``skin.json`` parsed strictly and checked against
-:mod:`sonicskin.artifact_schema`; the ONNX files it names inside the folder, within a size, matching their checksums,
-carrying their own weights).
-
-Each model kind exports its own graph (:mod:`sonicskin.kinds`); everything about the metadata and checksums is here,
-torch-free, so a machine without torch can still build an artifact from a recording (``sonicskin fit-svm``).
-"""
+artifact folder's files, bounded and confined.  Torch-free, so ``sonicskin fit-svm`` builds an artifact without torch."""
 
 from __future__ import annotations
 
@@ -46,12 +40,8 @@ def _default_probe(n_in: int) -> np.ndarray:
 
 def skin_json(out: Path, *, rig: dict, layout: dict, spec, min_force_n: float, training: dict, models: dict,
               probe_inputs: np.ndarray | None = None, selection: dict | None = None, drift: dict | None = None) -> dict:
-    """Write ``out/skin.json`` (``models``: name -> entry; ``drift``: drift tracking's training reference), checked
-    against :mod:`sonicskin.artifact_schema` and every ONNX file against it first, then sealed: each ONNX file gets
-    its binding in its ``metadata_props``, each entry the file's sha256 and ``probe`` (``probe_inputs`` rows, real
-    model inputs: an RBF SVM is flat far from its data; else the earlier probe rows, else seeded random rows, and the
-    outputs on them), the document its ``digest``.
-    """
+    """Write ``out/skin.json`` checked against :mod:`sonicskin.artifact_schema`, then sealed: each ONNX file its binding,
+    each entry the file's sha256 and ``probe`` (real model inputs where given: an RBF SVM is flat far from its data)."""
     out = Path(out)
     skin = {"format": ARTIFACT_FORMAT, "version": ARTIFACT_VERSION, "sonicskin_version": __version__, "rig": rig,
             "layout": layout, "features": spec.to_dict(), "min_force_n": min_force_n,
@@ -105,8 +95,7 @@ ARTIFACT_FILES = re.compile(r"(skin\.json(\.tmp)?|[\w.-]+\.onnx|learning_curve\.
 
 @contextlib.contextmanager
 def atomic_artifact(out: str | Path) -> Iterator[Path]:
-    """Write an artifact into a new sibling folder, then swap it in (an interrupted run leaves ``out`` as it was);
-    ``out`` may be absent, empty or an artifact folder, anything else in it is refused."""
+    """Write an artifact into a new sibling folder, then swap it in; ``out`` may be absent, empty or an artifact folder."""
     out = Path(out)
     refuse_inside_dataset(out, "an artifact")
     if out.exists() or out.is_symlink():
@@ -153,8 +142,7 @@ MAX_SKIN_JSON_BYTES = 64 * 2**20
 
 
 def load_skin(folder: str | Path) -> dict:
-    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field
-    that holds it)."""
+    """Read and validate ``folder/skin.json`` (no duplicate keys; a NaN or Infinity is refused by the field that holds it)."""
     folder = Path(folder)
     path = folder / "skin.json"
     if not path.is_file():

@@ -1,14 +1,8 @@
 """The one schema of a deployment artifact's ``skin.json``, checked completely before anything runs.
 
-Every reader (:class:`sonicskin.runtime.SkinRuntime`, :mod:`sonicskin.compare`) goes through
-:func:`sonicskin.artifact.load_skin`, and every writer (:func:`sonicskin.artifact.skin_json`) checks what it
-writes with :func:`validate_skin`.  A document that does not fit is refused with one :class:`ArtifactError` line
-naming the field (``models.svm.threshold``), what is wrong and what to do.  The checks below are the schema: the
-top-level blocks (``format``, ``version``, ``rig``, ``layout``, ``features``, ``training``, ``drift``, ``selection``,
-``models``, ``digest``), each model kind's entry (:meth:`sonicskin.kinds.ModelKind.check_entry`) and its probe; the
-files themselves are described in docs/artifact.md.  Reading the files of an artifact folder is
-:mod:`sonicskin.artifact`; binding the model files to this document, :mod:`sonicskin.integrity`.
-"""
+Every reader goes through :func:`sonicskin.artifact.load_skin` and every writer checks what it writes with
+:func:`validate_skin`; a document that does not fit is refused with one :class:`ArtifactError` line naming the field,
+what is wrong and what to do.  The files: docs/artifact.md."""
 
 from __future__ import annotations
 
@@ -25,8 +19,7 @@ from .features import MODES, FeatureSpec
 from .force import MODELS, PooledForce
 from .rig import Layout, Rig
 
-__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin",
-           "nonfinite_field"]
+__all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin", "nonfinite_field"]
 
 ARTIFACT_FORMAT = "sonicskin-artifact"
 ARTIFACT_VERSION = 3
@@ -255,8 +248,7 @@ def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int], n_in:
 
 def _check_file_name(doc: _Doc, name: Any, field: str) -> str:
     name = doc.str(name, field)
-    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name or ":" in name
-            or Path(name).name != name):
+    if (not name or name in (".", "..") or "/" in name or "\\" in name or "\0" in name or ":" in name or Path(name).name != name):
         doc.fail(field, f"must be a plain file name inside the artifact folder, got {_short(name)}",
                  "keep the ONNX files next to skin.json and name them without a directory")
     return name
@@ -311,8 +303,7 @@ def _check_probe(doc: _Doc, probe: Any, field: str, n_in: int, widths: list[int 
 
 
 def _check_selection(doc: _Doc, sel: Any) -> None:
-    """Model selection's report (reported only, never run): an object of the kinds' report objects that each kind's
-    :meth:`~sonicskin.kinds.ModelKind.selection_lines` (what ``compare --artifact`` prints) can read."""
+    """Model selection's report (never run): what each kind's :meth:`~sonicskin.kinds.ModelKind.selection_lines` can read."""
     sel = doc.obj(sel, "selection")
     doc.keys(sel, {k for kind in kinds.KINDS.values() for k in kind.selection_keys}, "selection")
     for k, v in sel.items():
@@ -356,8 +347,7 @@ def nonfinite_field(obj: Any, path: str = "") -> tuple[str, float] | None:
 
 
 def validate_skin(meta: Any, *, source: str = "skin.json", sealed: bool = True) -> dict:
-    """Check a parsed ``skin.json`` against the schema and return it (an :class:`ArtifactError` names the first field
-    that does not fit); ``sealed=False``, the writer's: no checksums, probes or digest yet."""
+    """Check a parsed ``skin.json`` and return it; ``sealed=False``, the writer's: no checksums, probes or digest yet."""
     doc = _Doc(source)
     if not isinstance(meta, dict):
         doc.fail("the top level", f"must be a JSON object, got {type(meta).__name__}")

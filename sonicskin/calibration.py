@@ -1,9 +1,5 @@
-"""Online feature updating (paper Alg. 2) and touch detection by threshold.
-
-:class:`OnlineReference` is Alg. 2 as the system runs it, fed chirp by chirp: the live loop, the
-offline replays of ``compare``/``evaluate``/``reproduce`` and the training features all go
-through it (a labelled training session feeds it its known no-touch chirps instead of detections).
-"""
+"""Online feature updating (paper Alg. 2) and touch detection by threshold.  :class:`OnlineReference` is Alg. 2 as
+the live loop, the offline replays and the training features all run it."""
 
 from __future__ import annotations
 
@@ -23,29 +19,18 @@ REST_SPREADS = 4.0
 
 
 class OnlineReference:
-    """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time.
+    """Alg. 2 on a stream: the running no-touch reference, fed one chirp at a time (docs/models.md).
 
-    - **Boot**: the first ``beta`` chirp periods of stream time are hands-off (the protocol starts every stream so);
-      their mean is the first reference.  Chirps lost to faults inside the window leave the mean of its clean chirps
-      (at least ``beta // 4``, else the window starts again), never chirps after it, and mark
-      :attr:`boot_disturbed`: the next ``beta`` chirps the detector calls no-touch then replace it at once.  With
-      labelled ``touch`` flags (a training session) the boot waits for ``beta`` consecutive no-touch chirps.
-    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive chirps the detector
-      calls no-touch become the new one.
-    - **Re-boot**: a gap longer than ``alpha`` (the device off, a paused recording), or a clock that goes back by more
-      than a chirp (``last_gap_s`` < 0), starts a new boot as at power-on, whatever the detector says (after days off
-      the wall has changed and the old reference would call every chirp touched).  :attr:`reboots` counts them.
-    - **A hand during a re-boot**: the window's chirps at rest are those close to the one closest to the reference
-      before the pause (:meth:`_at_rest`: a pause moves every chirp alike, a hand its own chirps by a touch more); the
-      others are left out (:attr:`boot_touched`) and the re-boot is disturbed, as above.
+    - **Boot**: the first ``beta`` chirp periods are hands-off; their mean is the first reference.  Faulty chirps leave
+      the mean of its clean chirps (at least ``beta // 4``, else the window starts again) and mark
+      :attr:`boot_disturbed`: the next ``beta`` no-touch chirps then replace it at once.
+    - **Refresh**: ``alpha`` chirps after a reference took effect, the next ``beta`` consecutive no-touch chirps.
+    - **Re-boot**: a gap longer than ``alpha`` or a clock going back by more than a chirp starts a new boot, whatever
+      the detector says (:attr:`reboots`); a hand in its window is left out (:meth:`_at_rest`, :attr:`boot_touched`).
 
-    The reference holds the mean *features* (what :meth:`inputs` subtracts in relative mode) and, with ``score_fn``
-    (``inputs (m, d) -> scores (m, k)``), the mean model *scores* of the same chirps (:attr:`scores`, the SVM's
-    ``S_c``).  ``beta_chirps`` are averaged into one reference (paper: 3 s), ``alpha_chirps`` pass between refreshes
-    (paper: 20 min; ``None``: never), ``chirps_per_s`` is the stream clock; ``labelled``: the ``touch`` flags are
-    labels, so a re-boot waits for ``beta`` labelled no-touch chirps too.  A ``t_s`` that is not a finite number of
-    seconds in ``0 .. MAX_T_S`` is a :class:`~sonicskin.errors.SonicskinError`, the reference unchanged.
-    """
+    With ``score_fn`` the reference also holds the mean model *scores* (:attr:`scores`, the SVM's ``S_c``).
+    ``labelled``: the ``touch`` flags are labels.  A ``t_s`` outside ``0 .. MAX_T_S`` is a
+    :class:`~sonicskin.errors.SonicskinError`, the reference unchanged."""
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
                  relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -92,15 +77,13 @@ class OnlineReference:
 
     @property
     def boot_cause(self) -> str:
-        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went
-        back 3600 s"``, with ``", 9 touched chirps left out"`` when a hand was in its window."""
+        """Why the last boot was taken, for a status line: ``"power-on"``, ``"a 25 min pause"``, ``"the clock went back 3600 s"``."""
         gap = self.last_gap_s
         why = "power-on" if gap is None else f"a {gap / 60:.0f} min pause" if gap > 0 else f"the clock went back {-gap:.0f} s"
         return why + (f", {self.boot_touched} touched chirps left out" if self.boot_touched else "")
 
     def _paused(self, dt_s):
-        """A step of ``dt_s`` seconds in stream time (scalar or array) is a pause longer than ``alpha``, or the clock
-        going back by more than one chirp period: a re-boot follows (never with ``alpha=None``)."""
+        """A step of ``dt_s`` (scalar or array) is a pause longer than ``alpha`` or the clock going back: a re-boot follows."""
         if self.alpha is None:
             return np.zeros(np.shape(dt_s), bool)
         chirps = np.asarray(dt_s) * self.cps
@@ -113,15 +96,13 @@ class OnlineReference:
     @staticmethod
     def _time(t_s) -> float:
         """``t_s`` as seconds, checked before it touches any state (a NaN in the boot window stopped every later chirp)."""
-        if isinstance(t_s, (bool, np.bool_)) or not isinstance(t_s, (int, float, np.integer, np.floating)) \
-                or not 0 <= t_s <= MAX_T_S:
+        if isinstance(t_s, (bool, np.bool_)) or not isinstance(t_s, (int, float, np.integer, np.floating)) or not 0 <= t_s <= MAX_T_S:
             raise SonicskinError(f"stream time t_s must be a number of seconds in 0..{MAX_T_S:g}, got {brief(t_s)}: pass "
                                  "the chirp's time on the stream's clock, or skip a chirp whose time is unknown")
         return float(t_s)
 
     def booting_at(self, t_s: float) -> bool:
-        """The chirp at stream time ``t_s`` belongs to a boot calibration (the first one, or a re-boot after a
-        gap): hands off by protocol, fed to :meth:`step` with no prediction."""
+        """The chirp at stream time ``t_s`` belongs to a boot calibration (hands off by protocol; no prediction)."""
         t_s = self._time(t_s)
         return self.calibrating or self._gap(t_s)
 
@@ -147,8 +128,7 @@ class OnlineReference:
         self.boot_disturbed = self._early = False
 
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
-        """Feed one chirp's features ``x`` at stream time ``t_s`` with its touch detection (``None`` in the boot), after the
-        model saw it; True when it completed a new reference (in effect from the next chirp)."""
+        """Feed one chirp's features at ``t_s`` with its touch detection (``None`` in a boot); True when a new reference completed."""
         t_s = self._time(t_s)
         if self._gap(t_s) and self.features is not None:
             self._reboot()
@@ -200,8 +180,7 @@ class OnlineReference:
         return False
 
     def _at_rest(self, block: np.ndarray) -> np.ndarray:
-        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's
-        distance to the old reference (a hand moves its chirps further); all of the first boot's."""
+        """The chirps of a re-boot window at rest: within ``REST_SPREADS`` first-boot spreads of the closest one's distance."""
         if self.features is None or self._spread is None or not len(block):
             return np.ones(len(block), bool)
         e = np.median(np.abs(block - self.features), axis=1)
@@ -209,12 +188,8 @@ class OnlineReference:
 
     def replay(self, X: np.ndarray, time_s: np.ndarray, predict: Callable[[np.ndarray], object], *,
                boot_touch: np.ndarray | None = None) -> Iterator[tuple[int, int, object]]:
-        """Vectorised replay of a recorded stream: the decisions of :meth:`step` chirp by chirp, the model run on
-        whole blocks of chirps that share one reference.  ``predict(inputs)`` returns an object with a boolean
-        ``touch`` array (and a ``reference_touch`` one, where not ``None``, for what the reference skips instead).
-        Yields ``(lo, hi, out)``: chirps ``lo:hi`` are the first ``hi - lo`` rows of ``out``, ``None`` for the chirps
-        of a boot.  ``boot_touch``: known no-touch flags for the first boot (a labelled stream).
-        """
+        """Vectorised replay: the decisions of :meth:`step`, the model run on whole blocks of chirps sharing one reference.
+        Yields ``(lo, hi, out)`` (``out`` ``None`` for a boot's chirps); ``boot_touch``: known flags for the first boot."""
         X = np.asarray(X, np.float32)
         time_s = np.asarray(time_s, float)
         n = len(X)
@@ -247,8 +222,7 @@ class OnlineReference:
 
 
 class TouchDetector:
-    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` picks the
-    ``threshold_`` of Youden's J on training chirps (``false_touch_rate_``, ``missed_touch_rate_`` on its wrong side)."""
+    """Touch / no-touch by thresholding the largest calibrated score (paper Sec. III-C); ``fit`` by Youden's J."""
 
     def __init__(self, threshold: float | None = None):
         self.threshold = threshold

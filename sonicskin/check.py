@@ -1,12 +1,7 @@
 """``sonicskin check``: is this rig fit to learn touches from?  One table, each line pass/warn/fail with its fix.
 
-The check plays the rig's chirp for a few seconds of rest, then asks for a firm press (the simulated device scripts
-one), records every input channel, and measures: the sample rate, the chirp lock (and a lock on another input:
-"the wrong channel"), the output-to-input delay and its wander, the input level and clipping, the SNR per
-sub-band, PWM/motor lines against the rig's notches, rest-to-rest repeatability and the touch contrast
-(docs/bring-up.md).  :func:`capture` records, from an audio interface or the :class:`SimulatedDevice`;
-:func:`analyse` measures a capture and returns a :class:`CheckReport` (``table()``, ``to_json()``, ``plot()``).
-"""
+The check plays the rig's chirp for a few seconds of rest, then asks for a firm press, records every input channel,
+and measures what docs/bring-up.md lists.  :func:`capture` records; :func:`analyse` returns a :class:`CheckReport`."""
 
 from __future__ import annotations
 
@@ -42,8 +37,7 @@ MAX_WINDOW_S = 600.0  # a window of the check is held in memory as float32 on ev
 
 
 def check_windows(rig: Rig, rest_s: float, press_s: float) -> None:
-    """The rest and press windows the check records, before anything is played: long enough for its measurements
-    (else a too-short window reads as a rig fault), short enough to hold in memory."""
+    """The rest and press windows: long enough for the measurements, short enough to hold in memory."""
     for name, v, n, what in (("--rest", rest_s, MIN_REST_CHIRPS, "at rest"),
                              ("--press", press_s, MIN_PRESS_CHIRPS, "to measure the touch contrast")):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0 and v <= MAX_WINDOW_S):
@@ -205,26 +199,22 @@ class SimulatedDevice:
         return None if rig.fs_hz in self.rates else f"the device runs {', '.join(f'{r:g}' for r in self.rates)} Hz"
 
     def source(self, *, settle_s: float, rest_s: float, press_s: float, tail_s: float, blocksize: int = 1024) -> AudioSource:
-        """What the receiver disc puts out, read as fast as it goes: the chirp train at rest, the press, a tail, through
-        the interface's delay (in steady state the stream starts inside the rest chirp before) and fault."""
+        """The receiver's output: the chirp train at rest, the press, a tail, through the interface's delay and fault."""
         rig = self.rig
         d = int(round(self.delay_ms * 1e-3 * rig.fs_hz)) % rig.n_chirp
         tl = self.timeline(rig.seconds_to_chirps(settle_s + rest_s) + (d > 0), rig.seconds_to_chirps(press_s),
                            rig.seconds_to_chirps(tail_s))
         sim = copy.copy(self.sim)  # the fault's gain on this capture's copy (the simulator's arrays are shared)
         sim.gain = np.float32(sim.gain * self.GAIN.get(self.fault, 1.0))
-        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d,
-                           blocksize=blocksize)
+        return open_source(rig, SIM, [Link()], play=lambda _: (sim, tl), realtime=False, offset=rig.n_chirp - d, blocksize=blocksize)
 
     def open(self, rig: Rig, *, rx: int, n: int, blocksize: int, settle_s: float, rest_s: float, press_s: float,
              tail_s: float, **_) -> tuple[np.ndarray, list[int], AudioSource]:
-        """``n`` samples of every input to record into (the unwired inputs' noise), the column the receiver fills (input
-        ``rx``; input 1 when cabled wrongly) and its :meth:`source`."""
+        """``n`` samples of every input to record into, the column the receiver fills and its :meth:`source`."""
         rng, q = np.random.default_rng([self.scenario.seed, 17]), float(2 ** 23 - 1)
         noise = (np.round(rng.normal(0, self.sim.noise.sensor_rms, (n, self.n_inputs)) * q) / q).astype(np.float32)
         column = min(1 if self.fault == "wrong-channel" else rx, self.n_inputs - 1)
-        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s,
-                                            blocksize=blocksize)
+        return noise, [column], self.source(settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s, blocksize=blocksize)
 
 
 class _Interface:
@@ -276,8 +266,7 @@ def capture(rig: Rig, device=SIM, *, tx: int = 0, rx: int = 0, settle_s: float =
             raise SonicskinError(f"{opt} {channel}: the device has {n} {what} (0-{n - 1})")
     refused = device.refused(rig, tx)
     if refused is not None:
-        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False,
-                       rate_detail=refused)
+        return Capture(np.zeros((0, device.n_inputs), np.float32), fs, rx, tx, rest, press, device.name, rate_ok=False, rate_detail=refused)
     audio, columns, src = device.open(rig, tx=tx, rx=rx, n=n_total, blocksize=blocksize, playback=playback,
                                       settle_s=settle_s, rest_s=rest_s, press_s=press_s, tail_s=tail_s)
     asked = released = False

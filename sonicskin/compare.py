@@ -25,8 +25,7 @@ __all__ = ["compare_artifact", "replay_sessions", "stream_metrics", "chirp_laten
 
 def chirp_latency(rt: SkinRuntime, X_band: np.ndarray, time_s: np.ndarray, *, n: int = 300, warmup: int = 20,
                   boot: bool = True) -> dict:
-    """Per-chirp cost in this run, one chirp per call on one thread: the ONNX call alone, and the whole path from band
-    features (:meth:`SkinStream.chirp`), on a recorded stream (``boot=False``, touches only: no reference)."""
+    """Per-chirp cost, one chirp per call on one thread: the ONNX call alone, and the whole path from band features."""
     st = rt.stream()
     k = 0
     while boot and st.calibrating and k < len(X_band):
@@ -113,8 +112,7 @@ def _force(f_true: np.ndarray, f_pred: np.ndarray, sel: np.ndarray) -> dict:
 
 
 def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: float = 0.5, detection: bool = True) -> dict:
-    """Localization, continuous position, force and detection of replayed predictions ``p`` of the chirps of ``t``;
-    the boot's chirps count as missed touches, nothing else.  ``detection=False``: detection is not measurable."""
+    """Localization, position, force and detection of replayed predictions ``p`` of ``t`` (boot chirps: missed touches)."""
     touch = touch_mask(t, min_force_n)
     run = ~p.calibrating
     no_touch = (t["location"] < 0) & run
@@ -141,9 +139,7 @@ def stream_metrics(p: Predictions, t: FeatureTable, layout, *, min_force_n: floa
 
 def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, sessions: list[str] | None = None,
                      progress: bool = False, latency: bool = True) -> dict:
-    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), each replayed as the
-    live loop runs it; the result names the sessions and ``trained_on_test`` (test sessions it trained on).
-    """
+    """Evaluate every model of ``artifact`` on the test sessions of its split (or ``sessions``), replayed as live."""
     art = Path(artifact)
     meta = load_skin(art)  # the whole skin.json against the schema: one clear error line, no KeyError
     data = data or meta["training"]["data"]
@@ -172,8 +168,7 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     for k, rt in rts.items():
         drift: dict = {}
         p = replay_sessions(rt, te, test, drift=drift)
-        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5),
-                           detection=detection)
+        r = stream_metrics(p, te, ds.layout, min_force_n=meta.get("min_force_n", 0.5), detection=detection)
         sel = touch_mask(te, meta.get("min_force_n", 0.5)) & p.touch  # the chirps force is scored on (plotted)
         r["force_points"] = {"true_n": te["force_n"][sel].tolist(), "predicted_n": p.force_n[sel].tolist()}
         if latency:  # on the first test stream, as it was scored (booted, or without a boot: replay_sessions)

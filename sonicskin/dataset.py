@@ -1,15 +1,8 @@
-"""On-disk dataset format (version 1): received audio + per-chirp labels + rig metadata::
+"""On-disk dataset format (version 1): ``dataset.json`` (rig, layout, source), and per session ``part-NNNNN.flac``
+(a piece of the continuous received stream) with ``part-NNNNN.csv`` (labels of the chirps starting in it, :data:`COLUMNS`).
 
-    dataset.json                  format, version, rig, layout, source (scenario or recorder)
-    <session>/part-00000.flac     a piece of the session's continuous received stream (24-bit FLAC)
-    <session>/part-00000.csv      labels of the chirps that start inside that piece (:data:`COLUMNS`)
-
-A *session* is one continuous recording starting at an arbitrary point of the chirp train (the reader finds the
-chirps by cross-correlation, as live); a label row's ``t_s`` is where its chirp starts in the stream.  Parts are
-written atomically (the CSV last): an interrupted run keeps every part written, a reader never sees half a part.
-A complete session's ``session.json`` is a manifest binding its parts to each other and to ``dataset.json``; what is
-hashed and checked where: docs/artifact.md (the data side in full).
-"""
+Parts are written atomically (the CSV last); a complete session's ``session.json`` binds its parts to each other and
+to ``dataset.json`` (docs/artifact.md)."""
 
 from __future__ import annotations
 
@@ -81,8 +74,7 @@ WALL_KEYS = ("material", "geometry", "tx_cm", "rx_cm", "loss_factor", "channel",
 
 
 def wall_record(source, rig: Rig, layout: Layout) -> dict:
-    """The wall a dataset was recorded on (an artifact's ``training.wall``): its simulated scenario's wall
-    (:data:`WALL_KEYS`) from the dataset's ``source``, else the rig and layout of the recording; ``sha256`` compares."""
+    """The wall a dataset was recorded on (``training.wall``): its scenario's :data:`WALL_KEYS`, else its rig and layout."""
     sc = source.get("scenario") if isinstance(source, dict) and source.get("kind") == "simulator" else None
     if isinstance(sc, dict):
         g = sc.get("geometry") if isinstance(sc.get("geometry"), dict) else {}
@@ -175,9 +167,7 @@ _LOCKS: dict[str, list] = {}  # resolved folder -> [fd, depth]: the writer locks
 
 @contextlib.contextmanager
 def writer_lock(root: str | Path) -> Iterator[Path]:
-    """The right to write the dataset folder ``root``, exclusive between processes (``fcntl.flock`` on the folder,
-    reentrant within a process): a second writer is refused before it touches anything.  No ``fcntl``: no lock.
-    """
+    """The right to write ``root``, exclusive between processes (``flock``), reentrant within one; no ``fcntl``: no lock."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     key = os.path.realpath(root)
@@ -216,8 +206,7 @@ def enclosing_dataset(path: str | Path) -> Path | None:
 
 
 def refuse_inside_dataset(out: str | Path, what: str) -> None:
-    """One line when the output folder ``out`` lies inside a dataset: what is written there becomes part of that
-    dataset's folder (a session folder, a file beside its sessions) and changes what it reads as."""
+    """One line when the output folder ``out`` lies inside a dataset (what is written there would become part of it)."""
     ds = enclosing_dataset(out)
     if ds is not None:
         raise DatasetError(f"--out {out} is inside the dataset {ds}: {what} written there would become part of that "
@@ -236,8 +225,7 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 def swap_folders(new: Path, old: Path) -> None:
-    """Put the folder ``new`` in place of ``old``: one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it, else two
-    renames (a crash between them keeps the old folder as ``.<name>.old-<pid>`` beside it)."""
+    """Put the folder ``new`` in place of ``old``: one ``renameat2(RENAME_EXCHANGE)`` where Linux offers it, else two renames."""
     if not old.exists():
         os.rename(new, old)
     elif _exchange(new, old):  # new now holds the old folder
@@ -260,8 +248,7 @@ def _empty_folder(root: Path) -> None:
 
 
 def named_os_error(e: OSError, path: str | Path) -> OSError:
-    """``e`` with the path it happened on: a full disk said ``[Errno 28] No space left on device`` and no more (the
-    error of a write to an open file names no file)."""
+    """``e`` with the path it happened on (a write to an open file names no file: a full disk said no more than ENOSPC)."""
     if e.filename is not None:
         return e
     if e.errno == 28:  # ENOSPC
@@ -299,16 +286,13 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
 
 
 class DatasetWriter:
-    """Create (``mode``: ``"create"``, ``"overwrite"``, ``"resume"``) the dataset folder ``root`` with ``rig``,
-    ``layout`` and free ``source`` metadata, and append checked session parts to it.
-    """
+    """Create (``mode``: create, overwrite, resume) the dataset folder ``root`` and append checked session parts to it."""
 
     def __init__(self, root: str | Path, rig: Rig, layout: Layout, *, source: dict | None = None,
                  mode: str = "create"):
         self.root, self.rig, self.layout = Path(root), rig, layout
         meta_path = self.root / "dataset.json"
-        meta = {"format": FORMAT, "version": VERSION, "rig": rig.to_dict(), "layout": layout.to_dict(),
-                "source": source or {}}
+        meta = {"format": FORMAT, "version": VERSION, "rig": rig.to_dict(), "layout": layout.to_dict(), "source": source or {}}
         if mode not in ("create", "overwrite", "resume"):
             raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
         refuse_inside_dataset(self.root, "a dataset")
@@ -339,8 +323,7 @@ class DatasetWriter:
         return (self.root / check_name(session) / "session.json").exists()
 
     def write_part(self, session: str, part: int, audio: np.ndarray, labels: dict[str, np.ndarray]) -> Path:
-        """Write part ``part`` of ``session``: ``audio`` (n_samples,) in [-1, 1], or int32 24-bit codes in the upper 24
-        bits (as :meth:`Simulator.render <sonicskin.sim.Simulator.render>` gives them), and its chirps' labels."""
+        """Write part ``part`` of ``session``: ``audio`` in [-1, 1] or int32 24-bit codes in the upper 24 bits, and its labels."""
         import soundfile as sf
 
         d = self.root / check_name(session)
@@ -377,8 +360,7 @@ class DatasetWriter:
         return d / f"part-{part:05d}.csv"
 
     def finish_session(self, session: str, info: dict | None = None) -> None:
-        """Mark ``session`` complete: its ``session.json`` lists every part (0..k, no gap) with its chirp
-        count and content hashes, and the digest of ``dataset.json``."""
+        """Mark ``session`` complete: its ``session.json`` lists every part with its chirp count and hashes."""
         d = self.root / check_name(session)
         nums = sorted(int(m.group(1)) for p in d.iterdir() if (m := _PART.match(p.name)))
         if nums != list(range(len(nums))) or not nums:
@@ -411,8 +393,7 @@ def _npy_header(fh) -> tuple[tuple[int, ...], np.dtype]:
 
 def read_npz(path: str | Path, names: dict[str, tuple[str, int | None]], *, optional: tuple[str, ...] = (),
              max_bytes: int | None = None, what: str = "table") -> dict[str, np.ndarray]:
-    """Read only the arrays ``names`` (name -> (dtype kinds, ndim or ``None``)) of an ``.npz``, each checked from
-    its header first (size within ``max_bytes`` and memory, no object arrays); a :class:`DatasetError` otherwise."""
+    """Read only the arrays ``names`` (name -> (dtype kinds, ndim)) of an ``.npz``, each checked from its header first."""
     path = Path(path)
     out: dict[str, np.ndarray] = {}
     try:
@@ -471,8 +452,7 @@ class FeatureTable:
         return self.labels["location"] >= 0
 
     def save_npz(self, path: str | Path, *, key: str = "", content: str = "") -> None:
-        """Plain arrays, readable with ``np.load(..., allow_pickle=False)``; ``key`` is stored as ``key``, ``content``
-        (a digest of the arrays, :mod:`sonicskin.features`) as ``content``."""
+        """Plain arrays (``np.load(..., allow_pickle=False)``), with ``key`` and the arrays' ``content`` digest."""
         arrays = {f"label_{k}": v for k, v in self.labels.items()}
         np.savez(path, X=self.X, key=np.array(key), content=np.array(content), **arrays)
 
@@ -487,8 +467,7 @@ class FeatureTable:
 
     @classmethod
     def load_npz(cls, path: str | Path, *, key: str | None = None, n_features: int | None = None) -> FeatureTable:
-        """Load a table saved by :meth:`save_npz`, checked (every label column, one value per row, finite features
-        ``n_features`` wide, the stored ``key`` when given); anything else is a :class:`DatasetError`."""
+        """Load a table saved by :meth:`save_npz`, every column checked (and ``key`` when given); else a :class:`DatasetError`."""
         names = {"X": ("f", 2), "key": ("U", 0)}
         names.update({f"label_{c}": ("iuf" if t in (int, float) else "U", 1) for c, t in COLUMNS.items()})
         names["label_session"] = ("U", 1)
@@ -509,8 +488,7 @@ class FeatureTable:
 
 @dataclasses.dataclass(frozen=True)
 class Split:
-    """Which sessions train, validate and test.  Never a random split of chirps: sessions (or
-    people, for leave-subjects-out) are the unit, so nothing of a test press leaks into training."""
+    """Which sessions train, validate and test: sessions (or people) are the unit, never a random split of chirps."""
 
     train: tuple[str, ...]
     val: tuple[str, ...]
@@ -557,8 +535,7 @@ class Split:
 
 
 def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
-    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its
-    rig and layout."""
+    """Validate a parsed ``dataset.json`` completely (one :class:`DatasetError` line naming the field); returns its rig and layout."""
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: expected a JSON object with format, version, rig and layout, got a JSON "
                            f"{type(meta).__name__}; the file is corrupt (re-create the dataset)")
@@ -587,8 +564,7 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
             raise DatasetError(f"{path}: rig.{k} must be a text, got {r[k]!r}")
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
-    if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS
-            and all(is_number(i, integer=True) and i >= 0 for i in ids)):
+    if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS and all(is_number(i, integer=True) and i >= 0 for i in ids)):
         raise DatasetError(f"{path}: layout.ids must be a non-empty list of location ids (whole numbers >= 0)")
     if not (isinstance(xy, list) and len(xy) == len(ids)
             and all(isinstance(p, list) and len(p) == 2 and all(map(is_number, p)) for p in xy)):
@@ -618,10 +594,8 @@ class Dataset:
 
     @property
     def sessions(self) -> list[str]:
-        """Session folders (those holding a labels CSV, or a session.json: a complete session whose parts are gone is
-        refused when read, not skipped); one with an unsafe name is refused, not skipped."""
-        out = sorted(p.name for p in self.root.iterdir()
-                     if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
+        """Session folders (a labels CSV or a session.json); one with an unsafe name is refused, not skipped."""
+        out = sorted(p.name for p in self.root.iterdir() if p.is_dir() and (any(p.glob("part-*.csv")) or (p / "session.json").is_file()))
         for name in out:
             check_name(name, "session folder", str(self.root))
         return out
@@ -820,8 +794,7 @@ class Dataset:
         check_label_values(lab, self.layout, str(d))
 
     def check_distinct(self, sessions: list[str] | None = None) -> None:
-        """Refuse two sessions holding the same recording (a copied session folder counts twice, in training and
-        testing): their first parts' FLAC bytes (the manifest's hash when there is one) compared."""
+        """Refuse two sessions holding the same recording (a copied session counts twice): their first parts' FLAC compared."""
         seen: dict[str, str] = {}
         for s in sessions or self.sessions:
             d = self._session_dir(s)

@@ -1,19 +1,9 @@
 """Drift tracking: estimate the channel's frequency stretch from hands-off chirps and undo it.
 
-A warming wall softens and every mode moves by one factor, so the untouched channel is stretched along frequency,
-``H_T(f) = H_0(f / (1 + s))`` with ``s = kappa dT`` (why it matters and how the stream uses it:
-docs/models.md#drift-tracking).  :func:`estimate_stretch` finds ``s`` (and the gain and tilt left after it) as the
-best normalised correlation of two *mode patterns* (each dB spectrum minus a Savitzky-Golay trend over
-``smooth_hz``, so smooth changes cannot pose as a stretch), on a grid refined by a bounded scalar search;
-:func:`warp_band` maps features back, ``X_back(f) = X(f (1 + s))``, by linear interpolation along the band's bins;
-:class:`DriftTracker` holds the training reference and the limits (a JSON-able dict in the artifact).
-
-Band edges and PWM bands: the rig's ``allowed_mask`` splits the band into segments (allowed runs and the masked
-PWM bands between them).  A warp reads each bin from its own segment only (a source outside it takes the
-segment's edge value), so no value crosses a PWM band edge or the band's ends.  The estimate uses allowed bins
-away from every segment edge by the largest searched shift; masked bins are bridged linearly before the trend
-is taken (a PWM line of a moving robot cannot pose as a mode).
-"""
+A warming wall stretches the untouched channel along frequency, ``H_T(f) = H_0(f / (1 + s))`` (docs/models.md#drift-tracking).
+:func:`estimate_stretch` finds ``s`` by correlating *mode patterns* (dB minus a Savitzky-Golay trend, so smooth changes
+cannot pose as a stretch); :func:`warp_band` maps features back.  A warp reads each bin from its own segment of the
+band (allowed runs and PWM bands between them) only, so no value crosses a PWM band edge or the band's ends."""
 
 from __future__ import annotations
 
@@ -60,16 +50,14 @@ def material_kappa(material: str) -> float:
 
 
 def stretch_to_kelvin(stretch: float, kappa_per_k: float) -> float:
-    """Temperature change (K) of a wall with ``kappa_per_k`` whose channel is stretched by ``stretch``
-    (``1 + s = 1 + kappa dT``)."""
+    """Temperature change (K) of a wall with ``kappa_per_k`` whose channel is stretched by ``stretch`` (``1 + s = 1 + kappa dT``)."""
     if not (isinstance(kappa_per_k, (int, float)) and math.isfinite(kappa_per_k) and kappa_per_k != 0):
         raise DriftError(f"kappa_per_k must be a finite non-zero number (relative frequency shift per K), got {kappa_per_k!r}")
     return float(stretch) / float(kappa_per_k)
 
 
 def band_segments(allowed: np.ndarray) -> np.ndarray:
-    """Runs of equal ``allowed`` values over the band, (k, 2) int ``[start, stop)``: the allowed
-    runs and the masked (PWM) bands between them, in order."""
+    """Runs of equal ``allowed`` values over the band, (k, 2) int ``[start, stop)``, in order."""
     a = np.asarray(allowed, bool)
     if a.ndim != 1 or a.size == 0:
         raise DriftError(f"allowed must be a non-empty mask over the band bins, got shape {a.shape}")
@@ -91,8 +79,7 @@ def _check_freqs(freqs_hz) -> tuple[float, float, int]:
 
 
 def warp_index(freqs_hz, stretch: float, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Gather indices ``i0`` and weights ``w`` of the warp ``X_back(f) = X(f (1 + s))``, each bin within its segment
-    of ``allowed``: ``X_back[:, j] = X[:, i0] (1 - w) + X[:, i0 + 1] w`` (``stretch = 0``: exactly the identity)."""
+    """Gather indices ``i0`` and weights ``w`` of ``X_back(f) = X(f (1 + s))``, each bin within its segment of ``allowed``."""
     f0, df, n = _check_freqs(freqs_hz)
     s = float(stretch)
     if not math.isfinite(s) or abs(s) >= 0.5:
@@ -118,8 +105,7 @@ def _band_features(X_band, n: int) -> np.ndarray:
 
 
 def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = None) -> np.ndarray:
-    """Band features (n, n_band) or (n_band,) in dB, mapped back onto the training axis by ``stretch``
-    (:func:`warp_index`)."""
+    """Band features (n, n_band) or (n_band,) in dB, mapped back onto the training axis by ``stretch`` (:func:`warp_index`)."""
     X = _band_features(X_band, np.asarray(freqs_hz).size)
     i0, w = warp_index(freqs_hz, stretch, allowed)
     return X[..., i0] * (1 - w) + X[..., i0 + 1] * w
@@ -127,8 +113,7 @@ def warp_band(X_band, stretch: float, freqs_hz, allowed: np.ndarray | None = Non
 
 @dataclasses.dataclass(frozen=True)
 class DriftEstimate:
-    """One estimate of the channel's drift: ``stretch``, the peak ``correlation`` of the mode patterns, the
-    ``gain_db``/``tilt_db_per_khz`` left, ``n_bins`` used, ``at_limit`` (the peak at the search's end), ``reliable``."""
+    """One estimate of the channel's drift: the stretch, the peak correlation, the gain and tilt left, whether reliable."""
 
     stretch: float
     correlation: float
@@ -242,25 +227,17 @@ def estimate_stretch(spectrum_db, reference_db, freqs_hz, *, allowed: np.ndarray
                      max_search: float = DEFAULT_MAX_SEARCH, smooth_hz: float = DEFAULT_SMOOTH_HZ,
                      min_correlation: float = DEFAULT_MIN_CORRELATION,
                      grid_step: float = DEFAULT_GRID_STEP) -> DriftEstimate:
-    """Stretch (and gain, tilt) of hands-off band spectra (dB, averaged) against ``reference_db`` on the band bins
-    ``freqs_hz`` where ``allowed``: searched up to ``max_search`` on a ``grid_step`` grid, then refined."""
+    """Stretch (and gain, tilt) of hands-off band spectra against ``reference_db``: searched on a grid, then refined."""
     pat = _Pattern(freqs_hz, allowed, smooth_hz, max_search)
     cur = _mean_spectrum(spectrum_db, pat.n, "spectrum_db")
     ref = _mean_spectrum(reference_db, pat.n, "reference_db")
-    return _estimate(pat, cur, ref, pat.detrend(ref), max_search=max_search, min_correlation=min_correlation,
-                     grid_step=grid_step)
+    return _estimate(pat, cur, ref, pat.detrend(ref), max_search=max_search, min_correlation=min_correlation, grid_step=grid_step)
 
 
 class DriftTracker:
-    """The training reference of one artifact (``reference_db`` on the band ``freqs_hz``/``allowed``, as for
-    :func:`estimate_stretch`; :meth:`from_rig`), the current stretch, and its limits: ``trained_stretch``, the
-    largest |stretch| the artifact was trained for (beyond it :attr:`warning` says "record a new session"), and the
-    wall's ``kappa_per_k`` (or a simulated ``material``'s) for the temperature equivalent.
-
-    :meth:`update` on each reference refresh, then :meth:`warp` (whole band) or :meth:`warp_bins` (a model's bins)
-    on every chirp; before the first update both are the identity.  An estimate that is not ``reliable`` leaves the
-    stretch as it was and sets :attr:`warning`.
-    """
+    """The training reference of one artifact, the current stretch and its limits (``trained_stretch``: beyond it
+    :attr:`warning` says "record a new session").  :meth:`update` on each reference refresh, then :meth:`warp` or
+    :meth:`warp_bins` on every chirp; an estimate that is not ``reliable`` leaves the stretch and sets :attr:`warning`."""
 
     def __init__(self, reference_db, freqs_hz, *, allowed: np.ndarray | None = None, trained_stretch: float,
                  kappa_per_k: float | None = None, material: str | None = None,

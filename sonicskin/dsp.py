@@ -1,8 +1,4 @@
-"""Signal chain: chirp (Eq. 1), chirp-synchronous framing, batched spectra and features.
-
-Everything here is pure and batched: ``n`` frames go in as an ``(n, n_chirp)`` array and
-come out as ``(n, n_band)`` features with no Python loop per chirp.
-"""
+"""Signal chain: chirp (Eq. 1), chirp-synchronous framing, batched spectra and features (no Python loop per chirp)."""
 
 from __future__ import annotations
 
@@ -29,26 +25,21 @@ class FrameError(ValueError):
 
 def chirp(*, sr: float, f_lo_hz: float, f_hi_hz: float, n_samples: int, amplitude: float = 1.0,
           phase_rad: float = 0.0) -> np.ndarray:
-    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``0 <= t < T = n_samples / sr``, float64,
-    sweeping ``f_lo_hz -> f_hi_hz``: ``a = (Omega_2 - Omega_1) / (2 T)`` (the paper defines ``a`` on the frequency).
-    """
+    """Linear chirp of Eq. 1, ``s(t) = sin(a t^2 + Omega_1 t + phi)``, ``a = (Omega_2 - Omega_1) / (2 T)``, float64."""
     t = np.arange(int(n_samples)) / sr
     duration_s = n_samples / sr
     # scipy's chirp is a cosine; sin(x + phi) = cos(x + phi - pi/2).
-    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear",
-                                          phi=np.degrees(phase_rad) - 90.0)
+    return amplitude * scipy.signal.chirp(t, f0=f_lo_hz, t1=duration_s, f1=f_hi_hz, method="linear", phi=np.degrees(phase_rad) - 90.0)
 
 
 @functools.lru_cache(maxsize=8)
 def rig_chirp(rig: Rig) -> np.ndarray:
-    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp, or the rig's stored sweep (once per rig,
-    read-only)."""
+    """The sweep a rig transmits, shape (rig.n_chirp,): Eq. 1's chirp or the rig's stored sweep (once per rig, read-only)."""
     stored = rig.sweep()
     if stored is not None:
         x = stored.astype(np.float64)
     else:
-        x = chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp,
-                  amplitude=rig.amplitude)
+        x = chirp(sr=rig.fs_hz, f_lo_hz=rig.f_lo_hz, f_hi_hz=rig.f_hi_hz, n_samples=rig.n_chirp, amplitude=rig.amplitude)
     x.setflags(write=False)
     return x
 
@@ -62,8 +53,7 @@ def chirp_spectrum(rig: Rig) -> np.ndarray:
 
 
 def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods: int = 8) -> int:
-    """Sample index in ``[0, L)`` where the first whole chirp of a chirp train ``stream`` starts: the peak of the
-    matched-filter envelopes of up to ``max_periods`` periods, averaged (robust to noise bursts)."""
+    """Where the first whole chirp of ``stream`` starts, in ``[0, L)``: the matched-filter peak over ``max_periods`` periods."""
     L = reference.shape[-1]
     x = np.asarray(stream, dtype=np.float64)
     if x.ndim != 1:
@@ -85,8 +75,7 @@ def find_chirp_offset(stream: np.ndarray, reference: np.ndarray, *, max_periods:
 
 
 def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | None = None) -> tuple[np.ndarray, int]:
-    """Cut a received chirp train into whole, chirp-aligned frames: ``(frames (n_frames, L) float32, offset)``,
-    ``offset`` (the first whole chirp's start) found by cross-correlation unless given."""
+    """Cut a chirp train into chirp-aligned frames: ``(frames (n_frames, L) float32, offset)``."""
     L = reference.shape[-1]
     if offset is None:
         offset = find_chirp_offset(stream, reference)
@@ -98,8 +87,7 @@ def frame_stream(stream: np.ndarray, reference: np.ndarray, *, offset: int | Non
 
 
 def frame_faults(frames: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> np.ndarray:
-    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent (all zero / below ``min_rms``), 3 clipped (more than
-    0.1 % of the samples at ``clip_level`` of full scale)."""
+    """Per-frame fault code: 0 ok, 1 non-finite, 2 silent, 3 clipped (more than 0.1 % of samples at ``clip_level``)."""
     x = np.asarray(frames)
     faults = np.zeros(x.shape[0], dtype=np.int8)
     finite = np.isfinite(x).all(axis=-1)
@@ -120,8 +108,7 @@ _FAULT_TEXT = {
 
 
 def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
-    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp); a :class:`FrameError` names
-    the problem and the fix (shape, frame length, non-finite samples, silence, clipping)."""
+    """Validate a batch of frames for ``rig`` and return it as float32 (n, n_chirp); else a :class:`FrameError`."""
     x = np.asarray(frames)
     if x.ndim == 1:
         x = x[None, :]
@@ -146,8 +133,7 @@ def check_frames(frames: np.ndarray, rig: Rig) -> np.ndarray:
 
 
 def _plainly_ok(x: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7) -> bool:
-    """True when no frame can have a fault of :func:`frame_faults` (finite energy above the silence level, no sample
-    at the clip level: three passes, no temporaries); else :func:`frame_faults` decides."""
+    """True when no frame can have a fault of :func:`frame_faults` (three passes, no temporaries); else it decides."""
     if x.size == 0:
         return False
     energy = np.einsum("ij,ij->i", x, x)
@@ -165,8 +151,7 @@ def _inv_power_s(rig: Rig) -> np.ndarray:
 
 
 def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.ndarray:
-    """Features of a batch of chirp-aligned frames (n, rig.n_chirp): ``20 log10 |H(f)|`` on the band bins,
-    (n, rig.n_band) float32, column ``j`` the rfft bin ``rig.band_bins[j]`` (``check``: :func:`check_frames` first)."""
+    """Features of chirp-aligned frames: ``20 log10 |H(f)|`` on the band bins, (n, rig.n_band) float32."""
     if check:
         frames = check_frames(frames, rig)
     x = np.asarray(frames, dtype=np.float32)
@@ -183,8 +168,7 @@ def log_magnitude_db(frames: np.ndarray, rig: Rig, *, check: bool = True) -> np.
 
 
 def band_db(R: np.ndarray, rig: Rig, *, out: np.ndarray | None = None) -> np.ndarray:
-    """:func:`log_magnitude_db` of received spectra ``R`` (n, n_band) already on the band bins (the rfft's bins
-    ``rig.band_bins``): for a caller that has the rfft anyway (the live loop's chirp check), the same float32 numbers."""
+    """:func:`log_magnitude_db` of spectra ``R`` (n, n_band) already on the band bins: the same float32 numbers."""
     R = np.asarray(R)
     p = np.empty(R.shape, np.float32) if out is None else out
     np.multiply(R.real, R.real, out=p)

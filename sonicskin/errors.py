@@ -1,9 +1,5 @@
-"""The package's user-error types, and the checks of user values every reader makes.
-
-Every error a user can cause (a file that is not a dataset, an artifact for another rig, a value out of range)
-derives from :class:`SonicskinError`, printed by ``sonicskin <verb>`` as one line (exit code 2; anything else is a
-bug and keeps its traceback).  It is a ``ValueError``, and the subclasses keep the built-in type they replaced.
-"""
+"""The package's user-error types, and the checks of user values every reader makes.  Every error a user can cause
+derives from :class:`SonicskinError` (a ``ValueError``; subclasses keep the built-in type they replaced)."""
 
 from __future__ import annotations
 
@@ -21,16 +17,14 @@ _REPR.maxstring = _REPR.maxother = _REPR.maxlong = 60
 
 
 def is_number(v, *, integer: bool = False, finite: bool = True) -> bool:
-    """A number given as one, never a bool: an ``int`` with ``integer``, else an int or a float, finite unless
-    ``finite=False``.  The test every reader of user values (configs, artifacts, datasets, options) makes."""
+    """A number given as one, never a bool: an ``int`` with ``integer``, else an int or a float, finite unless ``finite=False``."""
     if isinstance(v, bool) or not isinstance(v, int if integer else (int, float)):
         return False
     return not finite or isinstance(v, int) or math.isfinite(v)
 
 
 def brief(value, limit: int = 100) -> str:
-    """``repr(value)`` for an error message, bounded: a user's value (a YAML alias bomb whose full repr has 9**9
-    elements, a 4 MB string) is shown by its first few elements and characters, never materialised whole."""
+    """``repr(value)`` for an error message, bounded: never materialised whole (a YAML alias bomb, a 4 MB string)."""
     s = _REPR.repr(value)
     return s if len(s) <= limit else s[:limit - 3] + "..."
 

@@ -1,8 +1,5 @@
-"""Evaluate the paper's reference system on a dataset, with the paper's ablations: trained on the first session(s),
-tested on the others (localization, detection, force as Table I), and the three findings the paper builds on on the
-same split: OSPA vs every band bin (Fig. 6b), online calibration (Alg. 2) vs the training reference only (Fig. 12),
-force from ``E^O`` vs the whole band's energy (Fig. 9).
-"""
+"""Evaluate the paper's reference system on a dataset (Table I), with the paper's ablations on the same split: OSPA vs
+every band bin (Fig. 6b), Alg. 2 vs the training reference only (Fig. 12), force from ``E^O`` vs the band (Fig. 9)."""
 
 from __future__ import annotations
 
@@ -60,16 +57,9 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
                  ablations: bool = True, min_force_n: float = 0.5, n_bins: int | None = None, mode: str = "relative",
                  val_sessions=(), artifact: str | Path | None = None, alpha_s: float = FeatureSpec.alpha_s,
                  beta_s: float = FeatureSpec.beta_s, log=print) -> dict:
-    """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed.
-
-    The paper's SVM (OSPA's ``n_bins`` on absolute dB features, scaler + RBF SVM with C 10 and ``gamma="scale"``,
-    per-location Fourier-1 force, the detector ``max(S - S_c)`` above a threshold) is fitted by :mod:`sonicskin.fit`,
-    exported, and every test session replayed through the artifact as the live loop runs it.  ``mode="relative"``
-    calibrates the scores online (Alg. 2, ``alpha_s``/``beta_s``), ``"absolute"`` keeps the training reference.
-    Without hands-off chirps detection and Alg. 2 are reported as not measurable, without a force sensor force as
-    absent.  ``val_sessions`` (held out by the caller) are only named in the report; ``artifact``: keep the paper's
-    artifact there (default: a temporary folder).
-    """
+    """The paper's system trained on ``train_sessions`` (default: the first), tested on the rest, as deployed: fitted by
+    :mod:`sonicskin.fit`, exported, and every test session replayed through the artifact.  Without hands-off chirps
+    detection and Alg. 2 are reported as not measurable, without a force sensor force as absent."""
     if mode not in ("relative", "absolute"):
         raise ValueError(f"mode must be relative or absolute, got {mode!r}")
     table = table if table is not None else ds.features()
@@ -95,8 +85,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
     quiet = lambda m: None  # noqa: E731
 
     def paper_data(**kw):
-        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s,
-                    beta_s=beta_s, log=quiet, **kw)
+        d = prepare(ds, table=table, split=split, mode="absolute", min_force_n=min_force_n, alpha_s=alpha_s, beta_s=beta_s, log=quiet, **kw)
         if rest and beta < cal.beta:  # Alg. 2's reference averages the rest every stream has
             d.spec = dataclasses.replace(d.spec, beta_s=beta / ds.rig.chirps_per_s)
         if not rest:  # no hands-off chirps in some stream: no detector, no Alg. 2 reference
@@ -109,8 +98,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         skin = fit_artifact(data, paper, options=PAPER_SVM, log=quiet)
         rt = SkinRuntime(paper, BASELINE)
         # Alg. 2 from the model's own detection (boot: each stream's first beta chirps); no test labels.
-        p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative"
-             else rt.predict_inputs(rt.inputs(te.X)))
+        p = (replay_sessions(rt, te, test_sessions) if rest and mode == "relative" else rt.predict_inputs(rt.inputs(te.X)))
         if p.calibrating is None:
             p.calibrating = np.zeros(len(te), bool)
         offline = rt.predict_inputs(rt.inputs(te.X))  # the training session's reference throughout
@@ -140,8 +128,7 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
 
 def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: Path, beta, *, rest: bool = True,
                force: bool = True, alg2: dict) -> dict:
-    """The paper's findings on the same split, each an artifact replayed as deployed: OSPA vs every band bin, online
-    calibration vs the training reference, E^O vs the total band energy for force, Alg. 2 on the features."""
+    """The paper's findings on the same split, each an artifact replayed as deployed."""
     out = {}
     quiet = lambda m: None  # noqa: E731
     loc = te["location"]

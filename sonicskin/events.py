@@ -1,15 +1,8 @@
 """The touch-event stream as a contract: one JSON object per line (stdout) or per datagram (UDP).
 
-Every event a running skin emits (``sonicskin live``, :func:`sonicskin.listen`, UDP, LSL) is a
-:class:`TouchEvent`; its JSON form is described by :data:`EVENT_SCHEMA` (a JSON Schema, draft
-2020-12) and checked by :func:`validate_event`.  The schema carries a version, ``v`` (now 2): a
-writer writes :data:`SCHEMA_VERSION`; this reader accepts versions 1 and 2 (:data:`READS`).  Fields
-are only ever *added* within a version, so a reader accepts an event with fields it does not know
-(a later writer's), ignores them and keeps them (:attr:`TouchEvent.extra`, written back by
-:meth:`TouchEvent.to_json`).  Version 2 adds the robot's frame (``frame_id``, ``point_m``, ``normal``,
-``force_vec_n``; :func:`attach_surface`) when the link's skin is placed on its surface.  Every field's unit,
-frame and meaning: docs/api.md (the event table) and docs/robot-frame.md.
-"""
+Every event a running skin emits is a :class:`TouchEvent`, its JSON form described by :data:`EVENT_SCHEMA` and
+checked by :func:`validate_event`.  Fields are only ever added within a version, so a reader keeps the fields it
+does not know (:attr:`TouchEvent.extra`).  Units, frames and meanings: docs/api.md and docs/robot-frame.md."""
 
 from __future__ import annotations
 
@@ -146,8 +139,7 @@ def _type_ok(value, types) -> bool:
 
 
 def validate_event(d: Any) -> None:
-    """Check one decoded event against :data:`EVENT_SCHEMA` (its subset of JSON Schema), a unit ``normal``, and
-    ``point_m``/``normal`` with ``frame_id``; an :class:`EventError` names the first problem."""
+    """Check one decoded event against :data:`EVENT_SCHEMA`; an :class:`EventError` names the first problem."""
     if not isinstance(d, dict):
         raise EventError(f"an event is a JSON object, got {type(d).__name__}")
     missing = [k for k in EVENT_SCHEMA["required"] if k not in d]
@@ -190,15 +182,13 @@ def parse_event(line: str | bytes) -> TouchEvent:
 
 
 def surface_fields(surface, x_cm: float, y_cm: float, force_n: float) -> dict[str, Any]:
-    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface`` (only ``frame_id``
-    where the position is not finite, ``force_vec_n`` None where the force is not)."""
+    """The version-2 fields of a contact at ``(x_cm, y_cm)`` with ``force_n`` on ``surface``."""
     out: dict[str, Any] = {"frame_id": surface.frame_id}
     if not (math.isfinite(x_cm) and math.isfinite(y_cm)):
         return out
     p, normal = surface.point_normal_one(float(x_cm), float(y_cm))
     f = float(force_n) if force_n is not None else math.nan
-    out |= {"point_m": p, "normal": normal,
-            "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
+    out |= {"point_m": p, "normal": normal, "force_vec_n": tuple(-f * a + 0.0 for a in normal) if math.isfinite(f) else None}
     return out
 
 

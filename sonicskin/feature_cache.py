@@ -1,5 +1,4 @@
-"""A dataset's feature table, cached as plain arrays in ``<dataset>/.cache`` and keyed by content
-(:func:`load_features_cached`)."""
+"""A dataset's feature table, cached as plain arrays in ``<dataset>/.cache`` and keyed by content (:func:`load_features_cached`)."""
 
 from __future__ import annotations
 
@@ -20,8 +19,7 @@ __all__ = ["load_features_cached"]
 
 
 def _code_version() -> bytes:
-    """What the cached values depend on in the code: the package version and the bytes of the modules
-    that compute them (reading and framing in dataset.py, the spectra in dsp.py)."""
+    """What the cached values depend on in the code: the package version and the modules that compute them."""
     h = hashlib.sha256(f"sonicskin {__version__}".encode())
     for mod in (dataset, dsp):
         try:
@@ -32,8 +30,7 @@ def _code_version() -> bytes:
 
 
 def _signature(ds: Dataset) -> str:
-    """Cache key of a dataset's features: the sha256 of the code (:func:`_code_version`), ``dataset.json`` and
-    every part's FLAC and CSV bytes and ``session.json`` per session."""
+    """Cache key of a dataset's features: sha256 of the code, ``dataset.json`` and every session's files."""
     h = hashlib.sha256(_code_version())
     h.update(ds.meta_sha256.encode())
     ds.check_distinct()  # a copied session: refused before a cache could hide it
@@ -64,8 +61,7 @@ def _content_digest(t: FeatureTable) -> str:
 
 
 def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
-    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``: its
-    label rows against the CSVs (the last one or two may be missing), its content against its stored digest."""
+    """Why a loaded cache is not what the dataset holds (``""``: an older cache without a digest), or ``None``."""
     stored = FeatureTable.stored_content(cache)
     if stored is None:  # written by an older sonicskin (no digest): rebuilt once, nothing to warn about
         return ""
@@ -82,16 +78,14 @@ def _cache_differs(ds: Dataset, t: FeatureTable, cache: Path) -> str | None:
         for c in COLUMNS:
             want = np.concatenate([q[c] for q in parts])[:n]
             got = t[c][rows]
-            same = (np.array_equal(got, want, equal_nan=True) if want.dtype.kind == "f" else
-                    np.array_equal(got.astype(want.dtype), want))
+            same = (np.array_equal(got, want, equal_nan=True) if want.dtype.kind == "f" else np.array_equal(got.astype(want.dtype), want))
             if not same:
                 return f"its column {c!r} of session {s} differs from the session's label CSVs"
     return None
 
 
 def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
-    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content (:func:`_signature`); a damaged or
-    inconsistent cache is rebuilt, an edited one rebuilt with a warning."""
+    """:meth:`Dataset.features`, cached in ``<dataset>/.cache`` by content; a damaged or edited cache is rebuilt."""
     key = _signature(ds)
     cache = ds.root / ".cache" / f"features-{key[:16]}.npz"
     if cache.is_file():
@@ -104,8 +98,7 @@ def load_features_cached(ds: Dataset, *, progress: bool = True) -> FeatureTable:
             if why is None:
                 return t
             if why:
-                warnings.warn(f"{cache}: {why}; the cache was edited (its key kept): rebuilt from the recordings",
-                              stacklevel=2)
+                warnings.warn(f"{cache}: {why}; the cache was edited (its key kept): rebuilt from the recordings", stacklevel=2)
     t = ds.features(progress=progress)
     # Several processes may build the cache at once (DDP ranks, parallel `compare` runs): each writes its
     # own temporary file and renames it atomically; stale caches of other signatures are removed after.

@@ -1,7 +1,6 @@
 """What both models see: the OSPA-selected bins, absolute (dB, the paper's input) or relative: minus the
 stream's running no-touch reference (Alg. 2's online updating applied to the *features*), so a slow drift of the
-channel is removed before either model sees it.
-"""
+channel is removed before either model sees it."""
 
 from __future__ import annotations
 
@@ -53,13 +52,11 @@ class FeatureSpec:
         return OnlineReference.from_seconds(beta_s=self.beta_s, alpha_s=self.alpha_s, chirps_per_s=chirps_per_s, **kw)
 
     def transform(self, t: FeatureTable, chirps_per_s: float, *, online: bool = True) -> np.ndarray:
-        """Model inputs (n, len(bins)) float32 of every chirp of ``t`` (sessions separate streams, the reference from
-        the labelled no-touch chirps): for *training* sessions; test streams are replayed by the runtime."""
+        """Model inputs (n, len(bins)) float32 of every chirp of ``t``, each session relative to its labelled rest."""
         X = t.X[:, list(self.bins)]
         if self.mode == "absolute":
             return X.astype(np.float32)
-        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s),
-                                 online=online)
+        return relative_features(X, quiet_mask(t), t["session"], t["time_s"], self.reference(chirps_per_s), online=online)
 
     def to_dict(self) -> dict:
         return {"bins": [int(b) for b in self.bins], "mode": self.mode, "beta_s": self.beta_s, "alpha_s": self.alpha_s}
@@ -75,8 +72,7 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
     (:class:`~sonicskin.calibration.OnlineReference`, fed labels instead of a detector: boot on the first ``beta``
     consecutive ``quiet`` chirps, refreshes every ``alpha``).  For *training* sessions only; test streams are
     replayed with the model's own detection.  ``calibrator`` gives beta, alpha and the clock; ``online=False`` keeps
-    the boot reference throughout.
-    """
+    the boot reference throughout."""
     beta, alpha, cps = calibrator.beta, calibrator.alpha, calibrator.cps
     X = np.asarray(X, np.float32)
     out = np.empty(X.shape, np.float32)
@@ -98,16 +94,14 @@ def relative_features(X: np.ndarray, quiet: np.ndarray, session: np.ndarray, tim
 
 
 def training_targets(t: FeatureTable, layout, min_force_n: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Class per chirp (layout row of the touched location, ``len(layout)`` = no touch) and which chirps
-    may train: light presses (0 < F < ``min_force_n``) are neither a clear touch nor no touch."""
+    """Class per chirp (``len(layout)`` = no touch) and which may train: presses lighter than ``min_force_n`` do not."""
     loc = t["location"]
     cls = np.where(loc >= 0, layout.index_of(np.where(loc >= 0, loc, layout.ids[0])), len(layout))
     return cls.astype(np.int64), (loc < 0) | touch_mask(t, min_force_n)
 
 
 def usable_bins(rig, n_bins: int | None, *, log=None) -> int:
-    """OSPA's gamma for this rig: ``n_bins`` (``None``: the paper's 300), clamped with a warning to the bins the
-    matched filter leaves, so a default never turns into an error."""
+    """OSPA's gamma for this rig: ``n_bins`` (``None``: 300), clamped with a warning to the bins the matched filter leaves."""
     n_allowed = int(rig.allowed_mask.sum())
     want = DEFAULT_N_BINS if n_bins is None else int(n_bins)
     if want > n_allowed:
@@ -132,8 +126,7 @@ def rest_runs(quiet: np.ndarray, session: np.ndarray) -> dict[str, int]:
 
 
 def rest_beta(t: FeatureTable, beta_chirps: int, *, log=None) -> int | None:
-    """Alg. 2's beta for these streams: ``beta_chirps``, or the longest rest every session has, down to
-    :data:`MIN_REST_CHIRPS` (with a warning); ``None`` below it (use absolute features)."""
+    """Alg. 2's beta: ``beta_chirps``, or the rest every session has, down to :data:`MIN_REST_CHIRPS`; ``None`` below it."""
     runs = rest_runs(quiet_mask(t), t["session"])
     shortest = min(runs.values()) if runs else 0
     if shortest >= beta_chirps:

@@ -1,15 +1,10 @@
 """One fit: a dataset's feature table and a split -> every model kind fitted, chosen on the validation presses,
 refitted on every labelled press -> one artifact.
 
-Every verb that trains goes through here (``fit-svm``, ``record``, ``export``, ``compare``, ``seeds``, ``evaluate``,
-``reproduce``): :func:`prepare` -> :class:`TrainingData` (the split by sessions or people, OSPA's bins chosen on the
-training sessions, the model inputs of every chirp, the targets); each model kind (:mod:`sonicskin.kinds`) fits
-itself, choosing its options on the validation presses (:meth:`TrainingData.folds`); with a validation session the
-choices are **refitted on the training and validation sessions together** (:meth:`TrainingData.refit`; the
-estimates stay the held-out pass's); :func:`write_artifact` exports every model with its parity check and seals
-``skin.json``.  Only the rows of ``split.train`` and ``split.val`` are read for fitting and choosing
-(``tests/test_selection.py`` changes a test session and checks the fit is bit-identical).
-"""
+Every verb that trains goes through here: :func:`prepare` -> :class:`TrainingData`; each model kind
+(:mod:`sonicskin.kinds`) fits itself on :meth:`TrainingData.folds`, then is refitted on the training and validation
+sessions together (:meth:`TrainingData.refit`); :func:`write_artifact` seals ``skin.json``.  Only ``split.train`` and
+``split.val`` rows are read for fitting (``tests/test_selection.py`` checks it)."""
 
 from __future__ import annotations
 
@@ -35,9 +30,7 @@ __all__ = ["TrainingData", "prepare", "fit_models", "write_artifact", "fit_artif
 
 @dataclasses.dataclass
 class TrainingData:
-    """What every fit step reads: one dataset's chirps, its split and the model inputs of *every* chirp (each
-    session relative to its own labelled rest in ``relative`` mode); only the training and validation rows are ever
-    used for fitting."""
+    """What every fit step reads: one dataset's chirps, its split and the model inputs of every chirp."""
 
     dataset: Dataset
     table: FeatureTable
@@ -84,8 +77,7 @@ class TrainingData:
         return quiet_mask(self.table)
 
     def folds(self) -> tuple[list[tuple[np.ndarray, np.ndarray]], str]:
-        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``: the training and validation sessions,
-        each way round; without a validation session the last pass held out; ``[]`` when nothing can validate."""
+        """Where a choice is validated: ``([(fit rows, held-out rows)], how)``; ``[]`` when nothing can validate."""
         train, val = self.rows("train"), self.rows("val")
         if val.any():
             return ([(train, val), (val, train)], f"validation on {', '.join(self.split.val)} (and fitted there, scored "
@@ -99,15 +91,12 @@ class TrainingData:
         return [], "one press per location and no validation session"
 
     def refit(self) -> TrainingData:
-        """The same chirps with the validation sessions joined to the training ones: OSPA's bins, the inputs and
-        every model fitted again on every labelled press, with the choices already made (``selection``)."""
+        """The same chirps with the validation sessions joined to the training ones, fitted again with ``selection``'s choices."""
         if not self.split.val:
             return self
         split = Split(self.split.train + self.split.val, (), self.split.test)
-        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s,
-             "beta_s": self.spec.beta_s}
-        d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False,
-                    **o)
+        o = {**self.options, "n_bins": self.n_svm, "mode": self.spec.mode, "alpha_s": self.spec.alpha_s, "beta_s": self.spec.beta_s}
+        d = prepare(self.dataset, split=split, table=self.table, rig=self.rig, min_force_n=self.min_force_n, progress=False, **o)
         d.selection = dict(self.selection)
         d.options["refit_of"] = self.split.to_dict()
         return d
@@ -118,16 +107,8 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
             bins=None, alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s, rig=None,
             min_force_n: float = 0.5, allow_no_test: bool = False, wide: bool = False, progress: bool = True, log=None) -> TrainingData:
     """Load a dataset, split it by session or subject, choose OSPA's bins on the training split and build the model
-    inputs of every chirp.
-
-    ``n_bins=None`` chooses gamma (with the SVM's C and kernel width, ``selection["svm"]``) by validation on the
-    training and validation sessions; ``bins`` gives the band bins instead (every band bin: the no-OSPA ablation);
-    ``split``/``table``: given instead of made here.  ``wide``: the inputs are every usable bin in OSPA's order (the
-    network's layer reads a validated prefix) and the SVM reads the first ``n_bins`` (``TrainingData.n_svm``).
-    ``alpha_s``, ``beta_s``: Alg. 2's refresh interval and the wanted length of its reference (shorter when some
-    session has less rest, down to :data:`~sonicskin.features.MIN_REST_CHIRPS`; a table of touches only falls back to
-    absolute inputs).  ``rig``: the rig the artifact declares (default: the dataset's).
-    """
+    inputs of every chirp.  ``n_bins=None`` chooses gamma by validation; ``bins`` gives the band bins instead (the
+    no-OSPA ablation); ``wide``: the inputs are every usable bin in OSPA's order, the SVM reads the first ``n_bins``."""
     ds = data if isinstance(data, Dataset) else Dataset(data)
     t = table if table is not None else load_features_cached(ds, progress=progress)
     if split is None:
@@ -178,8 +159,7 @@ TRAINED_STRETCH = 1.5e-3
 
 
 def drift_reference(data: TrainingData, log=None) -> dict | None:
-    """Drift tracking's training reference: the mean dB spectrum of the training sessions' hands-off chirps at rest
-    (with the wall's material when named); ``None`` without rest or without a mode pattern to track."""
+    """Drift tracking's training reference: the mean dB spectrum of the training sessions' rest (``None`` without)."""
     rest = data.quiet & data.split.mask(data.table, "train")
     if rest.sum() < 2:
         return None
@@ -196,8 +176,7 @@ def drift_reference(data: TrainingData, log=None) -> dict | None:
 
 def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None, log=print
                ) -> tuple[TrainingData, dict[str, kinds.Fitted]]:
-    """Fit the model kinds ``wanted`` (and those they require) on ``data`` (``options``: per kind), then with a
-    validation session and ``refit`` again on both; returns the deployed models' data and the fitted models."""
+    """Fit the model kinds ``wanted`` (and those they require), then with a validation session and ``refit`` again."""
     options = options or {}
     order = kinds.fit_order(wanted)
     fits: dict[str, kinds.Fitted] = {}
@@ -216,8 +195,7 @@ def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = Tr
 
 def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fitted], *, training: dict | None = None,
                    learning_curve: bool = False, drift: bool = True, log=print) -> dict:
-    """Export every fitted model (each with its parity check) into ``out`` with a sealed ``skin.json`` (and, with
-    ``drift``, drift tracking's reference); ``out`` is replaced as a whole at the end.  Returns the document."""
+    """Export every fitted model into ``out`` with a sealed ``skin.json``, ``out`` replaced as a whole; returns the document."""
     if not fits:
         raise ValueError("write_artifact needs at least one fitted model")
     out = Path(out)
@@ -253,15 +231,13 @@ def write_artifact(data: TrainingData, out: str | Path, fits: dict[str, kinds.Fi
 
 def fit_artifact(data: TrainingData, out: str | Path, wanted=(kinds.BASELINE,), *, refit: bool = True, options: dict | None = None,
                  training: dict | None = None, learning_curve: bool = False, log=print) -> dict:
-    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`); ``options[net]`` may pass a trained
-    module as ``model=`` (a checkpoint's), whose touch decision and force are chosen before the refit."""
+    """The whole fit (:func:`fit_models`) and its artifact (:func:`write_artifact`)."""
     final, fits = fit_models(data, wanted, refit=refit, options=options, log=log)
     return write_artifact(final, out, fits, training=training, learning_curve=learning_curve, log=log)
 
 
 def selection_lines(sel: dict | None) -> list[str]:
-    """What every training verb prints about its choices: each kind's lines (:mod:`sonicskin.artifact_schema` refuses
-    an artifact whose report they cannot read), then whether each one's force beats a constant."""
+    """What every training verb prints about its choices: each kind's lines, then whether each force beats a constant."""
     return [line for name in kinds.names() for line in kinds.get(name).selection_lines(sel or {})] + [
         f"{name} force {'reliable' if r < c else 'UNRELIABLE'}: validated RMSE {r:.2f} N, a constant's {c:.2f} N" +
         ("" if r < c else " (its events say force_reliable false; no wrench is published)")
@@ -277,8 +253,7 @@ def force_checks(sel: dict | None) -> dict[str, tuple[float, float]]:
 
 
 def summary_lines(out: str | Path, skin: dict) -> list[str]:
-    """What every training verb prints about the artifact it wrote: the model selection, whether the deployed models
-    were refitted, then its files with their size and export parity."""
+    """What every training verb prints about its artifact: selection, refit, and its files with size and parity."""
     out = Path(out)
     lines = selection_lines(skin.get("selection"))
     tr = skin["training"]

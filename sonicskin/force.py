@@ -1,10 +1,7 @@
 """Touch-force estimation (paper Sec. III-D): energy over the OSPA bins -> curve model per location.
 
-``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins (relative to the no-touch reference, in dB: the
-rig's gain drops out).  The curve models (Fig. 13) are fitted by variable projection: linear in their coefficients
-given at most one nonlinear parameter, scanned on a grid, then refined with :func:`scipy.optimize.least_squares`
-(no start value of ``omega`` to depend on).
-"""
+``E = 10 log10(sum |H|^2 / sum |H_0|^2)`` over the selected bins (the rig's gain drops out).  The curve models
+(Fig. 13) are fitted by variable projection: a grid over the nonlinear parameter, refined by least squares."""
 
 from __future__ import annotations
 
@@ -19,8 +16,7 @@ __all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce",
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
-    """``E^O`` in dB over ``bins`` of dB-magnitude features ``X_db`` (n, n_features), relative to the no-touch
-    reference ``ref_db`` ((n_features,) or (m, n_features)) if given."""
+    """``E^O`` in dB over ``bins`` of ``X_db``, relative to the no-touch reference ``ref_db`` if given."""
     X = np.asarray(X_db, dtype=np.float64)[:, bins]
     e = 10 * np.log10(np.mean(10 ** (X / 10), axis=1))
     if ref_db is not None:
@@ -90,8 +86,7 @@ class FittedCurve:
     e_hi: float = np.inf
 
     def predict(self, E: np.ndarray) -> np.ndarray:
-        """Force at energy ``E``; outside the training range of ``E`` the curve is held at its edge
-        value (a Fourier or polynomial curve extrapolated from one press swings wildly)."""
+        """Force at energy ``E``, held at its edge value outside the training range (a curve from one press swings wildly)."""
         u = (np.clip(np.asarray(E, float), self.e_lo, self.e_hi) - self.center) / self.scale
         return MODELS[self.model].design(u, self.theta) @ self.coef
 
@@ -109,8 +104,7 @@ class FittedCurve:
 
 
 def fit_curve(E: np.ndarray, F: np.ndarray, model: str = "fourier1") -> FittedCurve:
-    """Least-squares fit of one curve model ``F ~ f(E)`` (``model``: a key of :data:`MODELS`; paper Eq. 5 for
-    ``fourier1``)."""
+    """Least-squares fit of one curve model ``F ~ f(E)`` (a key of :data:`MODELS`; paper Eq. 5 for ``fourier1``)."""
     if model not in MODELS:
         raise ValueError(f"unknown force model {model!r}; choose one of {sorted(MODELS)}")
     E = np.asarray(E, float)
@@ -159,8 +153,7 @@ class PerLocationForce:
         E, F, location = np.asarray(E, float), np.asarray(F, float), np.asarray(location)
         if not (E.shape == F.shape == location.shape):
             raise ValueError(f"E, F and location must have equal length, got {E.size}, {F.size}, {location.size}")
-        self.curves_ = {int(k): fit_curve(E[location == k], F[location == k], self.model)
-                        for k in np.unique(location)}
+        self.curves_ = {int(k): fit_curve(E[location == k], F[location == k], self.model) for k in np.unique(location)}
         return self
 
     def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:
@@ -186,9 +179,7 @@ class PerLocationForce:
 
 
 class PooledForce:
-    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge over the
-    standardised inputs and the location one-hot, folded into plain coefficients): it shares what one press teaches.
-    """
+    """One linear model for every location, ``F = inputs . coef + loc_coef[location] + intercept`` (a ridge)."""
 
     NAME = "pooled-ridge"
 

@@ -1,11 +1,7 @@
 """An artifact's integrity, and whether it fits where it is asked to run.
 
-Every ONNX file carries in its ``metadata_props`` (``sonicskin.binding``) what it was trained with: name and kind,
-rig, layout, features, ``min_force_n``, split and the sha256 of its entry's parameters.  :func:`check_integrity`
-compares that binding with ``skin.json`` field by field, then the digest, then re-runs the probes, each step one
-line naming what differs; :func:`check_session` checks the graph's inputs and outputs; :func:`check_rig` and
-:func:`check_layout` refuse a rig or a marker layout the artifact was not trained for.
-"""
+Every ONNX file carries in its ``metadata_props`` (``sonicskin.binding``) what it was trained with;
+:func:`check_integrity` compares that with ``skin.json`` field by field, then the digest, then re-runs the probes."""
 
 from __future__ import annotations
 
@@ -34,8 +30,7 @@ def canonical(obj: Any) -> bytes:
 
 
 def artifact_digest(meta: dict) -> str:
-    """sha256 of the canonical document without ``digest`` and of every model file's sha256: one value covers
-    ``skin.json`` and the model files together."""
+    """sha256 of the canonical document without ``digest`` and of every model file's sha256."""
     body = {k: v for k, v in meta.items() if k != "digest"}
     models = body.get("models") if isinstance(body.get("models"), dict) else {}
     files = b"".join(f"{k}={m.get('sha256') if isinstance(m, dict) else None}\n".encode() for k, m in sorted(models.items()))
@@ -153,8 +148,7 @@ def run_probe(session, inputs) -> list:
 
 
 def check_integrity(session, meta: dict, model: str, data: bytes, *, folder: str | Path) -> None:
-    """The model file belongs to this ``skin.json`` (its binding), the document is the one exported (its digest,
-    every model file's sha256 included), and the probe inputs give the export-time outputs (finite, within 1e-3)."""
+    """The model file's binding, the document's digest, and the probes' export-time outputs (within 1e-3), checked."""
     import numpy as np
 
     folder = Path(folder)
@@ -190,8 +184,7 @@ def _last_dim(shape) -> int | None:
 
 
 def check_session(session, meta: dict, model: str, *, source: str = "") -> None:
-    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths (declared shapes
-    where fixed, and one probe batch of zeros for the shapes the graph really produces)."""
+    """The ONNX graph of ``model`` against ``skin.json``: input width, output count and widths (declared and probed)."""
     import numpy as np
 
     n_in = int(meta["models"][model]["n_in"])  # the first n_in of features.bins
@@ -231,8 +224,7 @@ def check_rig(meta: dict, rig, *, what: str = "the artifact", here: str = "") ->
 
 
 def check_layout(meta: dict, layout, *, what: str = "the artifact", here: str = "the surface here") -> None:
-    """Refuse to run an artifact on a marker ``layout`` (e.g. a scenario's ``make_layout()``) it was not trained for:
-    other ids or count, or the same ids at other positions."""
+    """Refuse to run an artifact on a marker ``layout`` it was not trained for (other ids, count or positions)."""
     import numpy as np
 
     mine = Layout.from_dict(meta["layout"])

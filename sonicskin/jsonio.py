@@ -15,9 +15,7 @@ OMIT = object()
 
 
 def json_safe(obj: Any, *, keep_nonfinite: bool = False, convert: Callable[[Any], Any] | None = None) -> Any:
-    """``obj`` as plain, strict JSON data (NaN and infinity as ``None`` unless ``keep_nonfinite``); ``convert`` is
-    called on every value first, its different result converted instead, :data:`OMIT` left out.
-    """
+    """``obj`` as plain, strict JSON data (NaN and inf as ``None`` unless ``keep_nonfinite``; ``convert`` first)."""
     if convert is not None:
         new = convert(obj)
         if new is not obj:

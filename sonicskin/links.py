@@ -1,12 +1,8 @@
 """Links and arm files: several robot links, each with its own TX/RX pair, on one audio interface.
 
-A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``, link k
-chirps in period k of every N; ``frequency``, the band split into N sub-bands; ``none``, every link its own output
-and input channel and the full band).  An *arm file* (``configs/arms``) is a links file whose links also say where
-they are on the robot (a URDF frame, a surface) and, simulated, what they are made of (a scenario); a scenario
-without ``geometry`` takes the surface's.  :func:`write_arm` writes the arm file of a trained arm, each link with
-its artifact.  The keys: docs/arm.md.
-"""
+A *links file* (``configs/links``) lists the TX/RX pairs and how they share the chirp (``duplex``: ``time``,
+``frequency`` or ``none``).  An *arm file* (``configs/arms``) also places each link on the robot and, simulated, says
+what it is made of.  The keys: docs/arm.md."""
 
 from __future__ import annotations
 
@@ -35,8 +31,7 @@ _LINK_KEYS = {"name", "tx", "rx", "frame", "surface", "scenario", "artifact"}
 
 
 def _text(v, what: str, where) -> str | None:
-    """``v`` when it is ``None`` or a text (a name, a path); else one line naming it (never ``str()`` of a whole
-    nested value: a YAML alias bomb)."""
+    """``v`` when it is ``None`` or a text, else one line naming it (never ``str()`` of a nested value)."""
     if v is None or isinstance(v, str):
         return v
     raise ConfigError(f"{where}: {what} must be a text, got {brief(v)}")
@@ -64,8 +59,7 @@ def file_rig(name_or_path) -> Rig | None:
 
 
 def load_arm(spec, rig=None) -> tuple[Rig, list[Link]]:
-    """The rig and the links of a links or arm file: ``rig`` (a :class:`Rig`, a name or a path), else the rig the file
-    names (``rig:``), else jaco; every ``--links`` verb and :func:`sonicskin.session.open_run` read an arm through here."""
+    """The rig and the links of a links or arm file; every ``--links`` verb reads an arm through here."""
     the_rig = (Rig.load(rig) if isinstance(rig, (str, Path)) else rig) or file_rig(spec) or Rig.load("jaco")
     return the_rig, load_links(spec, the_rig)
 
@@ -82,8 +76,7 @@ def missing_datasets(links: list[Link], data: Path) -> list[str]:
 
 
 def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
-    """The simulated link of a link: a scenario name, or a mapping ``{base: NAME, key: value, ...}`` (keys of
-    :class:`sonicskin.sim.Scenario`).  Without ``geometry`` the surface's shape is simulated."""
+    """The simulated link of a link: a scenario name or ``{base: NAME, key: value}``; without ``geometry``, the surface's."""
     if isinstance(spec, str):
         sc = Scenario.load(spec)
         return sc.replace(name=name) if sc.name != name else sc
@@ -104,8 +97,7 @@ def link_scenario(spec, *, name: str, surface=None, where: str = "link"):
 
 
 def scenario_geometry(surface) -> dict:
-    """The simulator's geometry (``Scenario.geometry``, cm) of a surface: a URDF cylinder is the simulated tube, a box
-    the simulated plate."""
+    """The simulator's geometry (cm) of a surface: a URDF cylinder is the simulated tube, a box the plate."""
     if surface.kind == "tube":
         return {"kind": "tube", "radius_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
     return {"kind": "plate", "width_cm": round(100 * surface.dims_m[0], 6), "length_cm": round(100 * surface.dims_m[1], 6)}
@@ -164,8 +156,7 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
             out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, **extra))
         else:
             step = (rig.f_hi_hz - rig.f_lo_hz) / n
-            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step,
-                                      name=f"{rig.name}/{name}")
+            sub = dataclasses.replace(rig, f_lo_hz=rig.f_lo_hz + i * step, f_hi_hz=rig.f_lo_hz + (i + 1) * step, name=f"{rig.name}/{name}")
             out.append(Link(int(d["tx"]), int(d["rx"]), 0, 1, name, sub, **extra))
     rx = [lk.rx for lk in out]
     if len(set(rx)) != len(rx):
@@ -220,8 +211,7 @@ def _placement(d: dict, *, where: str, urdf: Path | None, arm_name: str, base: P
 
 
 def write_arm(source, out: Path, artifacts: dict[str, Path], rig: Rig) -> Path:
-    """``out/arm.yaml``: the links of ``source`` (a links or arm file) with each link's trained artifact (paths relative to
-    ``out``), its rig written out, the URDF copied beside it: the one file ``live --links`` needs."""
+    """``out/arm.yaml``: the links of ``source`` with each link's artifact, its rig and the URDF beside it."""
     where = _resolve(source)
     cfg = load_yaml(where)
     out = Path(out)

@@ -1,14 +1,9 @@
 """The real-time loop: blocks -> chirp frames -> features -> model -> Alg. 2 -> touch events.
 
-The consumer side of an audio source (:mod:`sonicskin.acquire`).  :class:`Framer` locks onto the chirp train by
-cross-correlation and cuts a frame every ``n_chirp`` samples (lost audio or a wandering peak: lock again); each frame
-gives its band features and one call of the stream (:class:`sonicskin.head.Stream`: Alg. 2's reference, drift
-tracking, model, detection, force), the same object every offline replay uses.  Faulty frames (NaN/inf, silence,
-clipping, a dropout, a constant level, no chirp) are counted and never reach the model; a disturbed boot
-calibration is re-taken from later rest.  The run stops with :class:`DeviceLost` when no audio arrives for
-``watchdog_s``, and with :class:`InputUnusable` when audio arrives but holds no usable chirp (at boot, or for a
-second of the run).  Events are :class:`~sonicskin.events.TouchEvent` JSON lines, optionally UDP datagrams.
-"""
+:class:`Framer` locks onto the chirp train by cross-correlation and cuts a frame every ``n_chirp`` samples; each frame
+goes through the same :class:`sonicskin.head.Stream` every offline replay uses.  Faulty frames are counted and never
+reach the model.  The run stops with :class:`DeviceLost` when no audio arrives for ``watchdog_s``, and with
+:class:`InputUnusable` when audio arrives but holds no usable chirp."""
 
 from __future__ import annotations
 
@@ -29,8 +24,7 @@ from .errors import SonicskinError
 from .events import SCHEMA_VERSION, TouchEvent, attach_surface
 from .runtime import Predictions, SkinRuntime
 
-__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable",
-           "dropout_frames"]
+__all__ = ["TouchEvent", "Framer", "LiveLoop", "UdpSink", "LslSink", "run_loops", "DeviceLost", "InputUnusable", "dropout_frames"]
 
 
 # Chirp-to-chirp spread (std, dB, median over the usable bins) of the hands-off boot window: a repeating chirp gives
@@ -44,8 +38,7 @@ MIN_AC_RMS = 1e-7  # a frame whose samples vary (std) by less is a constant leve
 
 
 class InputUnusable(DeviceLost):
-    """Audio arrives but for the watchdog's time not one chirp of it could be used, or it holds no chirp (noise
-    alone): the model would be blind, or see noise, while the loop looked healthy."""
+    """Audio arrives but no chirp of it is usable (or it holds none): the model would be blind while the loop looked healthy."""
 
 
 def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
@@ -54,8 +47,7 @@ def band_spectrum(frame: np.ndarray, rig) -> np.ndarray:
 
 
 def band_rfft(frame: np.ndarray, rig) -> np.ndarray:
-    """The frame's rfft on the rig's band bins (``rig.band_bins``, contiguous), complex64: one FFT per chirp serves
-    both the chirp check (:func:`band_spectrum`) and the features (:func:`sonicskin.dsp.band_db`)."""
+    """The frame's rfft on the rig's band bins, complex64: one FFT per chirp for the chirp check and the features."""
     lo, hi = rig.band_bins[0], rig.band_bins[-1] + 1
     return scipy.fft.rfft(np.asarray(frame, np.float32), workers=1)[lo:hi]
 
@@ -69,8 +61,7 @@ def _allowed_bins(rig) -> np.ndarray:
 
 
 def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
-    """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation of
-    their band spectra over every lag (noise gives about ``sqrt(ln(n_chirp) / bins)``)."""
+    """How much one chirp frame repeats an earlier one, 0..1: the largest normalised circular cross-correlation."""
     L = rig.n_chirp
     Y = np.zeros(L, np.complex64)
     Y[_allowed_bins(rig)] = X * np.conj(X_prev)
@@ -80,8 +71,7 @@ def chirp_coherence(X: np.ndarray, X_prev: np.ndarray, rig) -> float:
 
 
 def clearly_clean(frame: np.ndarray, *, clip_level: float = 0.999, min_rms: float = 1e-7, min_run: int = 64) -> bool:
-    """True when one frame can have none of the live loop's faults (:meth:`LiveLoop._fault`), from four cheap
-    reductions with margins that float32 sums cannot cross; ``False`` means "look closer", not "faulty"."""
+    """True when a frame can have none of the live loop's faults (four cheap reductions); ``False`` means "look closer"."""
     e = float(np.dot(frame, frame))  # non-finite samples make it non-finite
     n = frame.size
     if not (math.isfinite(e) and e >= 4 * n * min_rms ** 2):
@@ -97,8 +87,7 @@ def clearly_clean(frame: np.ndarray, *, clip_level: float = 0.999, min_rms: floa
 
 
 def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
-    """(n,) bool: frames holding a run of at least ``min_run`` exact zeros (a dropout; a live 24-bit
-    ADC with its noise floor never gives 64 zeros in a row, a driver filling a gap does)."""
+    """(n,) bool: frames holding a run of at least ``min_run`` exact zeros (a driver filling a gap; no live ADC does)."""
     z = np.asarray(frames) == 0
     out = np.zeros(z.shape[0], bool)
     for i in np.flatnonzero(z.sum(axis=-1) >= min_run):
@@ -108,8 +97,7 @@ def dropout_frames(frames: np.ndarray, *, min_run: int = 64) -> np.ndarray:
 
 
 class Framer:
-    """Chirp-synchronous framing on the chirp ``reference``, re-locked after lost audio and when the correlation peak
-    (checked every ``check_every`` frames) wanders more than ``tolerance`` samples (a firm touch moves it ~80)."""
+    """Chirp-synchronous framing, re-locked after lost audio and when the peak wanders more than ``tolerance`` samples."""
 
     def __init__(self, reference: np.ndarray, *, check_every: int = 16, tolerance: int = 256):
         self.ref = np.asarray(reference, np.float64)
@@ -174,8 +162,7 @@ class Framer:
 
 
 class UdpSink:
-    """Send event JSON as UDP datagrams (localhost by default), the host resolved and checked once, here; a datagram
-    that cannot be sent later is counted in :attr:`errors` and reported once."""
+    """Send event JSON as UDP datagrams; a datagram that cannot be sent is counted in :attr:`errors`, reported once."""
 
     def __init__(self, target: str):
         host, _, port = target.rpartition(":")
@@ -233,8 +220,7 @@ class UdpSink:
 
 
 class LiveLoop:
-    """Consume ``source``, run ``runtime`` on it, emit touch events (``emit``: each JSON line, default stdout;
-    ``status``: a status line on stderr; ``on_chirp(t_s, predictions)`` for every processed chirp)."""
+    """Consume ``source``, run ``runtime`` on it, emit touch events (``emit``, ``status``, ``on_chirp`` callbacks)."""
 
     startup_dropped: int | None = None  # audio blocks dropped before the first chirp was framed
 
@@ -378,8 +364,7 @@ class LiveLoop:
 
     def run(self, *, duration_s: float | None = None, max_chirps: int | None = None, idle_timeout_s: float = 2.0,
             watchdog_s: float | None = 3.0, stop=None) -> dict:
-        """Run until ``duration_s`` (wall clock, or stream time if that runs ahead), ``max_chirps``,
-        Ctrl-C, ``stop`` (a :class:`threading.Event`) is set, or the source ends; see :func:`run_loops`."""
+        """Run until ``duration_s``, ``max_chirps``, Ctrl-C, ``stop`` is set, or the source ends (:func:`run_loops`)."""
         return run_loops([self], self.source, duration_s=duration_s, max_chirps=max_chirps,
                          idle_timeout_s=idle_timeout_s, watchdog_s=watchdog_s, stop=stop)[0]
 
@@ -392,8 +377,7 @@ class LiveLoop:
         self._boot_n += 1
 
     def _boot_check(self) -> None:
-        """The hands-off boot window must hold a repeating chirp: noise alone (the transmitter off or not reaching the
-        receiver) would be taken as the reference and give touch events at random."""
+        """The boot window must hold a repeating chirp: noise alone would be taken as the reference."""
         if self._boot_n < 4:
             self.boot_spread_db = float("nan")
             return
@@ -417,8 +401,7 @@ class LiveLoop:
         return fault
 
     def _no_chirp(self, X: np.ndarray) -> bool:
-        """After the boot a frame that does not repeat the last usable one (:func:`chirp_coherence` below
-        :data:`MIN_COHERENCE`) is skipped (True); most of a :data:`CHIRP_CHECK_S` window so: :class:`InputUnusable`."""
+        """After the boot, skip a frame that does not repeat the last usable one; most of a window so: :class:`InputUnusable`."""
         prev, self._prev_spectrum = self._prev_spectrum, X
         if prev is None:
             return False
@@ -495,14 +478,9 @@ class LiveLoop:
 def run_loops(loops: list[LiveLoop], source: AudioSource, *, duration_s: float | None = None,
               max_chirps: int | None = None, idle_timeout_s: float = 2.0, watchdog_s: float | None = 3.0,
               stop=None) -> list[dict]:
-    """Feed every block of one source to several loops (one per link of a multi-link rig).
-
-    Ends at ``duration_s`` of wall clock or of stream time, whichever comes first (a source with ``realtime = False``,
-    the ``--fast`` simulation: stream time only), after ``max_chirps``, on Ctrl-C, when ``stop`` is set, or when a
-    finite source ends.  Nothing for ``watchdog_s``: :class:`DeviceLost` (or the exception that ended the source's
-    producer, :func:`sonicskin.acquire.blocks`); audio without a usable chirp for ``watchdog_s``, or no chirp in it:
-    :class:`InputUnusable`.  A block is waited for at most ``min(0.1, idle_timeout_s)`` s.
-    """
+    """Feed every block of one source to several loops (one per link).  Ends at ``duration_s`` (wall clock or stream
+    time), ``max_chirps``, Ctrl-C, ``stop``, or a finite source's end; nothing for ``watchdog_s``: :class:`DeviceLost`;
+    audio without a usable chirp for ``watchdog_s``: :class:`InputUnusable`."""
     t_last_status = started = time.perf_counter()
     cpu0, lost_seen = time.process_time(), 0.0
     stream_s = 0.0

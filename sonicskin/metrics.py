@@ -1,5 +1,4 @@
-"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval
-every report quotes."""
+"""Evaluation metrics of the paper's Sec. V (accuracy, confusion, distance CDF, Table I) and the confidence interval every report quotes."""
 
 from __future__ import annotations
 
@@ -20,8 +19,7 @@ def error_cdf(err_cm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) -> dict:
-    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm
-    and < 3 cm)."""
+    """Accuracy, confusion matrix, and surface-distance errors between predicted and true markers (share < 2 cm and < 3 cm)."""
     y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
     if y_true.shape != y_pred.shape:
         raise ValueError(f"{y_true.size} true labels but {y_pred.size} predictions")
@@ -38,8 +36,7 @@ def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) 
 
 
 def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
-    """Table I: RMSE, standard deviation of the error, and the zero-lag normalised cross-correlation
-    ``sum(p g) / sqrt(sum(p^2) sum(g^2))`` (1: identical traces)."""
+    """Table I: RMSE, std of the error and the zero-lag normalised cross-correlation (1: identical traces)."""
     g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
     if g.shape != p.shape:
         raise ValueError(f"{g.size} true forces but {p.size} predictions")
@@ -55,8 +52,7 @@ def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
 
 
 def speed_ratio(t_s: float, t_ref_s: float) -> str:
-    """How a time ``t_s`` compares with ``t_ref_s`` in words: ``"2.5x faster"``, ``"1.4x slower"``
-    (never a ratio below 1 called faster), or ``"as fast"`` within 5 %."""
+    """``"2.5x faster"``, ``"1.4x slower"`` or ``"as fast"`` (within 5 %) for ``t_s`` against ``t_ref_s``."""
     r = float(t_ref_s) / float(t_s)
     if abs(r - 1) < 0.05:
         return "as fast"
@@ -64,8 +60,7 @@ def speed_ratio(t_s: float, t_ref_s: float) -> str:
 
 
 def t_interval(x, bounds: tuple[float, float] = (-math.inf, math.inf), *, level: float = 0.95) -> list[float]:
-    """The Student-t interval of the mean of ``x`` at ``level`` (``[lo, hi]``), cut to the ``bounds`` the quantity
-    cannot leave (an accuracy stays in [0, 1]); ``[nan, nan]`` below two values."""
+    """Student-t interval of the mean of ``x`` at ``level``, cut to ``bounds``; ``[nan, nan]`` below two values."""
     from scipy import stats
 
     x = np.asarray(x, float).ravel()

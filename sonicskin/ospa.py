@@ -15,14 +15,8 @@ __all__ = ["OSPA", "select_bins"]
 
 
 class OSPA(SelectorMixin, BaseEstimator):
-    """Keep the ``gamma`` spectral bins most sensitive to touch and least sensitive to motion (paper Alg. 1).
-
-    After the matched filter (``allowed``, e.g. ``rig.allowed_mask``; ``None``: every bin), the touch variance
-    ``TV(f) = Var_t SR(t, f)`` over touch chirps ``X`` (Eq. 3), the moving variance ``MV(f)`` over no-touch chirps
-    ``X_moving`` recorded while the robot moves (1 without them: the largest touch variance wins), and the
-    variance-contesting vector ``VC = MV / TV`` (Eq. 4, ``vc_``, ``inf`` on disallowed bins); ``selected_`` holds the
-    ``gamma`` bins of smallest ``VC``, best first.
-    """
+    """Keep the ``gamma`` spectral bins most sensitive to touch and least sensitive to motion (paper Alg. 1): ``VC =
+    MV / TV`` (Eq. 3, 4, ``vc_``, ``inf`` on disallowed bins); ``selected_`` holds the bins of smallest ``VC``, best first."""
 
     def __init__(self, gamma: int = 300, allowed: np.ndarray | None = None):
         self.gamma = gamma

@@ -96,13 +96,11 @@ def parity_failure(what: str, original: str, parity: dict, n_checked: int, fix: 
 
 
 def require_parity(parity: dict, what: str, original: str, n_checked: int, how: str) -> dict:
-    """``parity`` (of :func:`decisions_parity`) without its verdict, or :class:`ParityError`: one line
-    (:func:`parity_failure`) ending "onnxruntime <version> runs the graph ``how``"."""
+    """``parity`` without its verdict, or one-line :class:`ParityError` ending "onnxruntime <version> runs the graph ``how``"."""
     if not parity.pop("ok"):
         import onnxruntime
 
-        raise ParityError(parity_failure(what, original, parity, n_checked,
-                                         f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
+        raise ParityError(parity_failure(what, original, parity, n_checked, f"onnxruntime {onnxruntime.__version__} runs the graph {how}"))
     return parity
 
 

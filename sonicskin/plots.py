@@ -1,9 +1,5 @@
-"""Figure pieces shared by the reports (``compare``, ``evaluate``): the user's location names,
-labelled confusion matrices, error CDFs over the whole distribution, force predicted vs true.
-
-Every panel names its axes and colourbars; two models drawn in one panel differ in colour, line
-style and width, and a note says when their curves coincide (so one never hides the other).
-"""
+"""Figure pieces shared by the reports (``compare``, ``evaluate``).  Two models drawn in one panel differ in colour,
+line style and width, and a note says when their curves coincide (so one never hides the other)."""
 
 from __future__ import annotations
 
@@ -32,8 +28,7 @@ def pyplot():
 
 
 def location_names(data: str | Path | None, layout) -> list[str]:
-    """The user's names of ``layout``'s locations, in layout order: the labels an imported dataset
-    was recorded with (``dataset.json`` ``source.labels``, e.g. ``A1``...``C2``), else the ids."""
+    """The user's names of ``layout``'s locations (an imported dataset's labels), else the ids."""
     labels: dict = {}
     if data is not None:
         try:
@@ -64,8 +59,7 @@ def confusion_panel(fig, ax, confusion, names: list[str], title: str):
 
 
 def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization error CDF") -> None:
-    """Error CDF of each model over its whole range (the axis ends past the largest error), with the
-    2 and 3 cm thresholds in the legend.  Identical curves are said so in the legend."""
+    """Error CDF of each model over its whole range, the 2 and 3 cm thresholds in the legend."""
     emax = 0.0
     first = None
     lowest = 1.0  # the smallest share any curve shows past x = 0: the y-axis starts just below it
@@ -95,8 +89,7 @@ def cdf_panel(ax, errors: dict[str, np.ndarray], title: str = "localization erro
 
 
 def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], reason: str = "") -> None:
-    """Predicted vs true force of each model (touch chirps), with the ideal line; without a force
-    sensor (no finite true force) the panel says so instead."""
+    """Predicted vs true force of each model, with the ideal line; without a force sensor the panel says so."""
     ax.set(xlabel="true force (N)", ylabel="predicted force (N)", title="force: predicted vs true")
     drawn = False
     hi = 0.0
@@ -114,8 +107,7 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
         drawn = True
     if not drawn:
         why = reason.removeprefix("absent: ") if reason else "no force sensor (the data has no measured force)"
-        ax.text(0.5, 0.5, "n/a: " + why.replace(" (", "\n("), ha="center", va="center",
-                transform=ax.transAxes, fontsize=10, wrap=True)
+        ax.text(0.5, 0.5, "n/a: " + why.replace(" (", "\n("), ha="center", va="center", transform=ax.transAxes, fontsize=10, wrap=True)
         ax.set_xticks([]); ax.set_yticks([])
         return
     hi = 1.05 * hi or 1.0
@@ -153,8 +145,7 @@ def force_panel(ax, points: dict[str, tuple[np.ndarray, np.ndarray] | None], rea
 
 
 def detection_panel(ax, detection: dict[str, dict], title: str = "touch detection") -> None:
-    """False touches (hands-off chirps called a touch) and missed touches (touch chirps not called one) of each model
-    as bars with their values; a model whose detection is not measurable on this data says why instead."""
+    """False and missed touches of each model as bars; a model whose detection is not measurable says why."""
     kinds = [("false_touch_rate", "false touches\n(share of hands-off chirps)"),
              ("missed_touch_rate", "missed touches\n(share of touch chirps)")]
     ok = {n: d for n, d in detection.items() if d and "false_touch_rate" in d}

@@ -1,13 +1,8 @@
 """``sonicskin record``: the guided one-shot training session on a robot (paper Sec. III-A).
 
-The recorder prompts the user through hands off (Alg. 2's calibration), hands off while the robot moves (OSPA's
-moving variance), then each location in turn, and writes the received stream and per-chirp labels as it goes, one
-part per prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was
-received.  ``--resume`` records only the locations the dataset has no touch chirps for yet.  On the simulated
-device a simulated person follows the prompts (:func:`person_timeline`) and touch rows carry where the finger
-really was.  Force comes from a :class:`ForceSource`: a CSV log, a serial sensor, the simulated sensor, or none
-(NaN: location only).
-"""
+The recorder prompts hands off, hands off while the robot moves, then each location in turn, writing one part per
+prompt (Ctrl-C loses at most the prompt in progress); a chirp's label is the prompt showing when it was received.
+On the simulated device a simulated person follows the prompts (:func:`person_timeline`)."""
 
 from __future__ import annotations
 
@@ -100,8 +95,7 @@ class SerialForce(ForceSource):
 
 
 class TimelineForce(ForceSource):
-    """The simulated device's sensors: the person's force plus 0.02 N of noise and where the finger really is, for the
-    simulated person's ``timeline`` whose chirp 0 starts at stream sample ``chirp0_sample``."""
+    """The simulated device's sensors: the person's force (plus 0.02 N of noise) and where the finger really is."""
 
     def __init__(self, timeline, chirp0_sample: int, fs_hz: float, n_chirp: int, seed: int = 0):
         self.tl, self.c0, self.fs, self.L = timeline, chirp0_sample, fs_hz, n_chirp
@@ -128,12 +122,10 @@ class TimelineForce(ForceSource):
 
 def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration_s: float = 3.0, moving_s: float = 10.0,
                   touch_s: float = 3.0, gap_s: float = 1.0, passes: int = 1) -> list[tuple[str, int, int, str]]:
-    """Prompts as ``(segment, location, n_chirps, text)``, in recording order; ``passes`` times over the locations
-    (two or more let model selection validate on presses not trained on, see :mod:`sonicskin.selection`)."""
+    """Prompts as ``(segment, location, n_chirps, text)`` in recording order, ``passes`` times over the locations."""
     out = [("calibration", -1, rig.seconds_to_chirps(calibration_s), f"hands off the robot for {calibration_s:g} s")]
     if moving_s > 0:
-        out.append(("moving", -1, rig.seconds_to_chirps(moving_s),
-                    f"start the robot moving; hands off for {moving_s:g} s"))
+        out.append(("moving", -1, rig.seconds_to_chirps(moving_s), f"start the robot moving; hands off for {moving_s:g} s"))
     for k in range(int(passes)):
         for loc in locations:
             x, y = layout.coords(np.array([loc]))[0]  # where the marker is: x around / across, y along the link
@@ -145,16 +137,8 @@ def make_schedule(layout: Layout, locations: list[int], rig: Rig, *, calibration
 
 
 class Recorder:
-    """Record a schedule from a source into a dataset session.
-
-    Prompt ``i`` covers ``n_i`` chirp periods of the stream, starting where prompt ``i - 1`` ended; each chirp is
-    labelled from the prompt whose span holds it (a chirp the framing skips never shifts the prompts after it), a
-    touch prompt's chirps with the location after ``settle_s`` (the user's reaction time); each prompt is written as
-    one part when it ends.  ``source``: a started :class:`sonicskin.acquire.AudioSource`; ``schedule``: from
-    :func:`make_schedule`; ``force``: a :class:`ForceSource` (with ``contact_cm(t_s)``, the simulated device, touch
-    rows get the true finger position); ``watchdog_s``: no audio for this long ends the recording
-    (:class:`sonicskin.acquire.DeviceLost`).
-    """
+    """Record a schedule from a source into a dataset session, one part per prompt.  Each chirp is labelled from the
+    prompt whose span holds it (a skipped chirp never shifts the prompts after it), a touch prompt's after ``settle_s``."""
 
     def __init__(self, writer: DatasetWriter, session: str, source: AudioSource, schedule, force: ForceSource, *,
                  moving_level: float = 1.0, prompt=None, settle_s: float = 0.3, watchdog_s: float = 3.0):
@@ -178,8 +162,7 @@ class Recorder:
         return row
 
     def run(self) -> dict:
-        """Record every prompt; returns ``chirps``, ``parts``, ``complete`` and ``wall_s``.  On Ctrl-C the prompt in
-        progress is dropped (``interrupted_at``) and every finished one stays on disk."""
+        """Record every prompt (``chirps``, ``parts``, ``complete``, ``wall_s``); on Ctrl-C finished prompts stay on disk."""
         rig, L = self.rig, self.rig.n_chirp
         framer = Framer(rig_chirp(rig))
         stream: list[np.ndarray] = []       # samples not yet written
@@ -238,14 +221,12 @@ class Recorder:
         complete = seg_i >= len(self.schedule)
         if complete:
             self.w.finish_session(self.session, {"n_chirps": self.chirps_written, "prompts": len(self.schedule)})
-        return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete,
-                "wall_s": time.perf_counter() - t_wall}
+        return {"chirps": self.chirps_written, "parts": self.parts_written, "complete": complete, "wall_s": time.perf_counter() - t_wall}
 
 
 @contextlib.contextmanager
 def _sigint_deferred():
-    """Hold Ctrl-C until the block is done, then raise :class:`KeyboardInterrupt` (cffi would swallow it inside
-    libsndfile's callbacks, cutting a part short); outside the main thread, nothing."""
+    """Hold Ctrl-C until the block is done (cffi would swallow it inside libsndfile's callbacks); main thread only."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -262,12 +243,8 @@ def _sigint_deferred():
 
 
 def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int = 1):
-    """What the simulated person does, chirp by chirp, given the prompts of ``schedule`` in order: a one-session
-    :class:`sonicskin.sim.Timeline`.  Each prompt is a segment of exactly its length; the robot moves only during the
-    ``moving`` prompt; each touch prompt is one press of the scenario's first subject at the prompted marker.
-    ``lead_chirps`` no-touch chirps go in front (the stream starts inside chirp 0), so the person is never ahead of
-    a prompt and at most one chirp behind it.
-    """
+    """What the simulated person does, chirp by chirp, given the prompts of ``schedule``: a one-session timeline.
+    ``lead_chirps`` no-touch chirps go in front, so the person is never ahead of a prompt and at most one chirp behind."""
     layout = scenario.make_layout()
     rng = np.random.default_rng([seed, 17])
     subject = int(scenario.subjects[0])
@@ -298,11 +275,9 @@ def person_timeline(scenario, rig: Rig, schedule, *, seed: int, lead_chirps: int
 
 
 def simulated_device(scenario, rig: Rig, schedule, *, session_index: int, realtime: bool = False, offset: int = 4321):
-    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``; the
-    scenario's link, the person's presses drawn anew per session, the robot moving only when prompted to."""
+    """The simulated rig with a simulated person who follows ``schedule``: ``(source, force, timeline)``."""
     moving = any(seg == "moving" for seg, *_ in schedule)
-    psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index,
-                           motion={**scenario.motion, "enabled": moving})
+    psc = scenario.replace(sessions=1, seed=scenario.seed + 500 + session_index, motion={**scenario.motion, "enabled": moving})
     offset %= rig.n_chirp
     tl = person_timeline(psc, rig, schedule, seed=psc.seed, lead_chirps=1 if offset else 0)
     src = open_source(rig, SIM, [Link()], play=lambda _: (Simulator(psc, rig), tl), realtime=realtime, offset=offset)
@@ -319,8 +294,7 @@ MIN_TOUCH_CHIRPS = 3  # a location with fewer touch chirps than this is recorded
 
 
 def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, tuple[int, int]]:
-    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset; ``touch`` are those
-    that train as a touch there (force >= ``min_force_n``, or no force sensor), as ``fit-svm`` counts them."""
+    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset, as ``fit-svm`` counts them."""
     ds = Dataset(root)
     out: dict[int, tuple[int, int]] = {}
     for s in ds.sessions:
@@ -335,15 +309,13 @@ def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, 
 
 
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
-    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset (an interrupted
-    prompt has no finished part; a press under ``min_force_n`` throughout has no touch chirp)."""
+    """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset."""
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
 def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
                       gap_s: float) -> None:
-    """Refuse prompt lengths whose audio (one prompt's, float32, and its copy) or simulated timeline would not fit
-    in memory, before anything is opened or written."""
+    """Refuse prompt lengths whose audio or simulated timeline would not fit in memory, before anything is opened."""
     for name, v in (("calibration-s", calibration_s), ("moving-s", moving_s), ("touch-s", touch_s), ("gap-s", gap_s)):
         if not np.isfinite(v):
             raise ValueError(f"--{name} must be a finite number of seconds, got {v!r}")
@@ -361,12 +333,9 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
                    touch_s: float = 3.0, gap_s: float = 1.0, force_csv=None, force_serial=None, tx: int = 0, rx: int = 0,
                    min_force_n: float = 0.5, passes: int = 1, artifact: str | Path | None = None, prompt=None, log=None,
                    report=None, link=None) -> dict:
-    """``sonicskin record``: one guided session into the dataset ``out`` (``link``: an arm's, its artifact records it).
-    With ``resume`` only the requested locations without touch chirps yet are prompted.  ``artifact``: once every marker
-    has been pressed, the SVM artifact trained on everything recorded so far is written there (what ``fit-svm``
-    writes), so ``record`` then ``live`` is the whole bring-up.  Returns :meth:`Recorder.run`'s figures plus ``session`` and ``locations``
-    (``{"locations": []}`` when nothing is missing).
-    """
+    """``sonicskin record``: one guided session into the dataset ``out``; with ``artifact``, the SVM artifact trained on
+    everything recorded so far once every marker is pressed.  Returns :meth:`Recorder.run`'s figures plus ``session``
+    and ``locations`` (``{"locations": []}`` when nothing is missing)."""
     log = log or (lambda text: print(text, file=sys.stderr, flush=True))
     out = Path(out)
     layout = scenario.make_layout()
@@ -412,8 +381,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
         log(f"{out}: resuming: recording {len(todo)} missing location(s): " + ", ".join(f"{v} ({why(v)})" for v in todo))
     session = next_session(out)
-    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s,
-                             passes=passes)
+    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s, passes=passes)
     if simulated(device):
         src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
     log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
@@ -451,8 +419,7 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
 
 
 def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
-    """One-shot training on the simulated link (cached under ``root``), as ``record`` + ``fit-svm`` on a real rig, for
-    a run without an artifact; says first what it does, where and about how long (a later run reuses it)."""
+    """One-shot training on the simulated link (cached under ``root``) for a run without an artifact."""
     log = log or (lambda m: print(m, file=sys.stderr))
     art = root / f"artifacts/sim-{scenario.name}-svm"
     if (art / "skin.json").is_file():

@@ -1,9 +1,5 @@
-"""Rig description: sample rate, chirp, bands and the touch-location layout.
-
-A *rig* is everything about the hardware a model depends on: the sample rate, the transmitted chirp (Eq. 1) and the
-bands the matched filter of OSPA step 1 drops.  Loaded from YAML (:func:`resolve_config`) and stored in every
-dataset and artifact, so a model never runs on a rig it was not trained for.
-"""
+"""Rig description: sample rate, chirp (Eq. 1), the bands OSPA step 1 drops, and the touch-location layout.  Stored
+in every dataset and artifact, so a model never runs on a rig it was not trained for."""
 
 from __future__ import annotations
 
@@ -36,8 +32,7 @@ CONFIG_KINDS = ("rigs", "scenarios", "links", "arms", "train")
 
 
 def config_dir() -> Path:
-    """The folder bare config names resolve in: the wheel's package data ``sonicskin/configs``, else (a source
-    checkout) the repository's ``configs/`` next to the package."""
+    """The folder bare config names resolve in: the wheel's ``sonicskin/configs``, else the checkout's ``configs/``."""
     shipped = importlib.resources.files(__package__) / "configs"
     if shipped.is_dir():
         return Path(str(shipped))  # pip installs wheels unpacked, so this is a real folder
@@ -52,8 +47,7 @@ def config_names(kind: str) -> list[str]:
 
 
 def resolve_config(name_or_path: str | Path, kind: str) -> Path:
-    """The YAML file a config argument refers to: a bare name is a shipped config (:func:`config_names`), a file name
-    or path is read as it stands; :class:`FileNotFoundError` (listing the known names) otherwise."""
+    """The YAML file a config argument refers to (a bare name is a shipped config); else :class:`FileNotFoundError`."""
     text = str(name_or_path)
     p = Path(name_or_path)
     if isinstance(name_or_path, Path) or p.suffix in (".yaml", ".yml") or "/" in text or "\\" in text or p.is_file():
@@ -73,8 +67,7 @@ MAX_YAML_BYTES = 4 * 2**20  # a config is a page of settings; more is not a conf
 
 
 def load_yaml(path: str | Path) -> dict[str, Any]:
-    """Read a YAML mapping of plain values; a one-line :class:`ConfigError` naming the file for anything else (too
-    large, not UTF-8, a syntax error with its line, an object-building tag, a key given twice)."""
+    """Read a YAML mapping of plain values; else one :class:`ConfigError` line naming the file."""
     import yaml
 
     path = Path(path)
@@ -143,14 +136,9 @@ RIG_REQUIRED = ("fs_hz", "f_lo_hz", "f_hi_hz", "n_chirp")
 
 @dataclasses.dataclass(frozen=True)
 class Rig:
-    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).
-
-    ``fs_hz``: the interface's sample rate; ``f_lo_hz``, ``f_hi_hz``: the chirp's band; ``n_chirp``: samples per
-    chirp, one FFT frame (20480 = 106.7 ms); ``pwm_hz``: centres of the motor-PWM bands the matched filter drops,
-    ``pwm_halfwidth_hz`` wide each side (3.25 kHz leaves the paper's 5014 bins in 20-80 kHz); ``amplitude``: the
-    transmitted peak, full scale 1; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp (imported
-    recordings), one period of float32 samples in base64 (``None``: Eq. 1).
-    """
+    """Acquisition parameters of one transmitter/receiver pair (the paper's are the defaults).  ``n_chirp``: samples per
+    chirp, one FFT frame; ``pwm_hz``: centres of the motor-PWM bands the matched filter drops, ``pwm_halfwidth_hz``
+    each side; ``sweep_b64``: a transmitted sweep other than Eq. 1's chirp, one period of float32 in base64."""
 
     fs_hz: float = 192_000.0
     f_lo_hz: float = 20_000.0
@@ -297,8 +285,7 @@ class Rig:
 
 @dataclasses.dataclass(frozen=True)
 class Layout:
-    """Predefined touch locations: ids and coordinates in cm on the unrolled surface (``x_cm`` around the
-    circumference, ``y_cm`` along the axis); with ``circumference_cm`` distances wrap around it."""
+    """Touch locations: ids and coordinates in cm on the unrolled surface (with ``circumference_cm`` distances wrap)."""
 
     ids: tuple[int, ...]
     xy_cm: np.ndarray  # (n, 2)
@@ -349,8 +336,7 @@ class Layout:
     @classmethod
     def rings(cls, counts: tuple[int, ...] = (16, 15), spacing_cm: float = 1.2,
               circumference_cm: float | None = None, x0_cm: float = 0.0, y0_cm: float = 0.0) -> Layout:
-        """Rows of markers (``counts`` per row) ``spacing_cm`` apart, every other row shifted by half a spacing; the
-        default, 16 + 15 = 31 markers 1.2 cm apart, is the paper's touch area (Fig. 10) around a link."""
+        """Rows of markers ``spacing_cm`` apart, every other shifted by half; the default 16 + 15 is the paper's (Fig. 10)."""
         xy = []
         for row, n in enumerate(counts):
             shift = 0.5 * spacing_cm * (row % 2)
@@ -366,10 +352,8 @@ class Layout:
         return cls(ids=tuple(range(len(xy))), xy_cm=xy, circumference_cm=circumference_cm)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"ids": list(self.ids), "xy_cm": self.xy_cm.round(6).tolist(),
-                "circumference_cm": self.circumference_cm}
+        return {"ids": list(self.ids), "xy_cm": self.xy_cm.round(6).tolist(), "circumference_cm": self.circumference_cm}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Layout:
-        return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float),
-                   circumference_cm=d.get("circumference_cm"))
+        return cls(ids=tuple(d["ids"]), xy_cm=np.asarray(d["xy_cm"], float), circumference_cm=d.get("circumference_cm"))

@@ -1,9 +1,6 @@
 """Touch on the robot's own bus, live: :mod:`sonicskin.rosbag`'s messages as ROS 2 topics over DDS (``live --ros2``,
-with ``cyclonedds``) and as Foxglove WebSocket channels on 127.0.0.1 (``live --foxglove``, with ``foxglove-sdk``): the
-optional extra ``sonicskin[ros]``, imported only when asked for.  DDS as a ROS 2 node speaks it (topic ``/x`` is
-``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_``, ROS 2's QoS; Cyclone's configuration: ``CYCLONEDDS_URI``); a
-Foxglove client subscribing to a latched topic gets its message again.  How to subscribe: docs/robot-frame.md.
-"""
+``cyclonedds``) and as Foxglove WebSocket channels on 127.0.0.1 (``live --foxglove``), imported only when asked for.
+DDS as a ROS 2 node speaks it (topic ``/x`` is ``rt/x``, type ``pkg/msg/T`` is ``pkg::msg::dds_::T_``); docs/robot-frame.md."""
 
 from __future__ import annotations
 
@@ -29,8 +26,7 @@ def _need(module: str, option: str, package: str):
 
 @functools.cache
 def dds_type(name: str):
-    """The cyclonedds type of ROS 2 message ``pkg/msg/Type`` (or ``pkg/Type``), named ``pkg::msg::dds_::Type_`` as rosidl
-    names it."""
+    """The cyclonedds type of ROS 2 message ``pkg/msg/Type`` (or ``pkg/Type``), named ``pkg::msg::dds_::Type_`` as rosidl names it."""
     from cyclonedds.idl import make_idl_struct
     from cyclonedds.idl import types as t
 
@@ -118,8 +114,7 @@ class FoxglovePublisher(Publisher):
                         pub._channels[m[0]].log(encode(m[1], m[2]), log_time=m[3])
 
         try:
-            self.server = fg.start_server(name="sonicskin", host="127.0.0.1", port=port, context=self._ctx,
-                                          server_listener=Relatch())
+            self.server = fg.start_server(name="sonicskin", host="127.0.0.1", port=port, context=self._ctx, server_listener=Relatch())
         except RuntimeError as e:  # FoxgloveError: Failed to bind port: Address already in use
             raise SonicskinError(f"--foxglove {port}: cannot serve on 127.0.0.1:{port} ({str(e).split(': ', 1)[-1]}); pick "
                                  f"another port, or 0 for any free one") from None
@@ -139,8 +134,7 @@ class FoxglovePublisher(Publisher):
 
 
 def open_buses(ros2=None, foxglove=None) -> list[Publisher]:
-    """The live publishers asked for: ``ros2`` a domain id (``True``: ROS_DOMAIN_ID, else 0), ``foxglove`` a port
-    (``True``: 8765; 0: any free)."""
+    """The live publishers asked for: ``ros2`` a domain id (``True``: ROS_DOMAIN_ID), ``foxglove`` a port (``True``: 8765)."""
     port = FOXGLOVE_PORT if foxglove is True else int(foxglove) if isinstance(foxglove, str) and foxglove.isdigit() else foxglove
     if foxglove is not None and not (is_number(port, integer=True) and 0 <= port <= 65535):
         raise SonicskinError(f"--foxglove {brief(foxglove)}: give a TCP port 1-65535 (or 0 for any free one, or --foxglove "

@@ -1,12 +1,8 @@
 """Touch as ROS 2 messages, the same in the MCAP file and on the live buses (:mod:`sonicskin.ros2`), without ROS.
 
-A :class:`Publisher` makes a run's messages (topics, types and rates: docs/robot-frame.md); a subclass sends them.  The
-definitions are package data (``sonicskin/msg``: ROS 2's, and the ``sonicskin_msgs`` package a ROS 2 workspace builds).
-:class:`McapEventWriter` writes an MCAP file in 1 MiB zstd chunks, each closed and flushed after at most a second of
-stream or wall time, so a process killed hard loses at most its last second (:func:`recover` restores the rest); it
-refuses an existing file unless ``overwrite=True``, locks its file (``flock``) from the start and removes it again when
-dropped before its first message; an ``OSError`` (a full disk) is one line naming the file.
-"""
+A :class:`Publisher` makes a run's messages (docs/robot-frame.md); a subclass sends them.  :class:`McapEventWriter`
+writes 1 MiB zstd chunks, each closed and flushed after at most a second, so a process killed hard loses at most its
+last second (:func:`recover` restores the rest)."""
 
 from __future__ import annotations
 
@@ -36,8 +32,7 @@ try:
 except ImportError:  # not POSIX: a second writer on one file is not refused
     fcntl = None
 
-__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover",
-           "urdf_joints"]
+__all__ = ["Publisher", "McapEventWriter", "MARKER_TOPIC", "topic_for", "topics", "definition", "encode", "recover", "urdf_joints"]
 
 _SEP = "=" * 80
 _PRIMITIVES = set("bool byte char int8 uint8 int16 uint16 int32 uint32 int64 uint64 float32 float64 string".split())
@@ -64,8 +59,7 @@ def _texts() -> dict[str, str]:
 
 
 def fields(name: str) -> list[tuple[str, str, str | None]]:
-    """The fields of ``pkg/Type`` (or ``pkg/msg/Type``) as ``(type, name, array)``: the type a primitive or ``pkg/Type``,
-    the array None, ``""`` (a sequence) or its length."""
+    """The fields of ``pkg/Type`` as ``(type, name, array)``: array None, ``""`` (a sequence) or its length."""
     name = name.replace("/msg/", "/")
     out = []
     for line in _texts()[name].splitlines():
@@ -87,8 +81,7 @@ def _uses(name: str, seen: dict) -> dict:
 
 @functools.cache
 def definition(name: str) -> str:
-    """``name``'s definition as MCAP's ``ros2msg`` schemas hold it: its text, then each type it uses after a line of 80
-    ``=`` and ``MSG: pkg/Type`` (``name``: ``"geometry_msgs/msg/PointStamped"`` or ``"geometry_msgs/PointStamped"``)."""
+    """``name``'s definition as MCAP's ``ros2msg`` schemas hold it: its text, then each type it uses."""
     key = name.replace("/msg/", "/")
     return _texts()[key] + "".join(f"{_SEP}\nMSG: {t}\n{_texts()[t]}" for t in _uses(key, {}))
 
@@ -171,8 +164,7 @@ def topics(frames: list[str]) -> dict[str, str]:
 
 
 class Publisher:
-    """The messages of a run (module docstring), sent by a subclass's ``_send(topic, type, msg, ns, seq)``;
-    ``t0_unix_s``: the wall-clock time of the stream's ``t_s = 0``.  Thread-safe: the loops of all links share one."""
+    """The messages of a run, sent by a subclass's ``_send``; thread-safe: the loops of all links share one."""
 
     name, kind = "sonicskin", "the publisher"  # as errors name it
 
@@ -217,8 +209,7 @@ class Publisher:
 
     # -- the robot ----------------------------------------------------------------------------------------------------
     def announce(self, frames: list[str], urdf: str | Path | None = None) -> None:
-        """Before the run: open every topic of the links in ``frames`` (a live bus's subscribers match them before the
-        first message), and read the arm's ``urdf`` (``/robot_description``, ``/tf_static``, :meth:`joints`)."""
+        """Before the run: open every topic of the links in ``frames`` and read the arm's ``urdf``."""
         if urdf is not None:
             self._urdf = Path(urdf).read_text()
             self._joints = urdf_joints(self._urdf)
@@ -228,8 +219,7 @@ class Publisher:
     _open = _end = staticmethod(lambda *args: None)  # a bus opens a topic's writer or channel; ends
 
     def start(self) -> None:
-        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state
-        given before it."""
+        """``/robot_description`` and ``/tf_static`` (every joint at zero) at the stream's start, then the joint state given before it."""
         t = self._t0_ns
         if self._urdf is not None:
             self.static = [("/robot_description", STRING, {"data": self._urdf}, t),
@@ -244,8 +234,7 @@ class Publisher:
         self._call(send)
 
     def joints(self, positions: dict[str, float], t_unix_s: float | None = None) -> None:
-        """``/joint_states`` and the ``/tf`` of those joints at ``positions`` (joint name -> rad or m), stamped
-        ``t_unix_s`` (default: now; before the stream starts: at its start), so a viewer moves the arm."""
+        """``/joint_states`` and ``/tf`` of joints at ``positions`` (rad or m) at ``t_unix_s`` (default: now)."""
         moving = sorted(n for n, j in self._joints.items() if j["type"] in ("revolute", "continuous", "prismatic"))
         if not moving:
             raise SonicskinError("joint states move the joints of the arm's URDF, and this run has none (an arm file with "
@@ -266,8 +255,7 @@ class Publisher:
 
     # -- the skin -----------------------------------------------------------------------------------------------------
     def contact(self, lp, t_s: float, p) -> None:
-        """The Contact of live loop ``lp``'s link at one chirp (``p`` None while calibrating): at each touched chirp and
-        each change of state, else when :data:`IDLE_S` of stream time have passed since its last one."""
+        """The Contact of ``lp``'s link at one chirp: at each touch and change of state, else every :data:`IDLE_S`."""
         state = CALIBRATING if p is None else TOUCHED if lp.touching else FREE  # the loop's press rule
         surf, lay = lp.surface, lp.rt.layout
         last = self._last.get(surf.frame_id)
@@ -336,8 +324,7 @@ class Publisher:
 
     # -- life cycle -------------------------------------------------------------------------------------------------
     def close(self) -> None:
-        """Delete the markers of links still touched (at their last touch's stamp, so a viewer shows no stale contact),
-        then end (idempotent)."""
+        """Delete the markers of links still touched (no stale contact in a viewer), then end (idempotent)."""
         with self._lock:
             if self._closed:
                 return
@@ -363,8 +350,7 @@ class Publisher:
 
 
 class McapEventWriter(Publisher):
-    """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager); ``t0_unix_s``: the wall-clock time
-    of ``t_s = 0``; ``overwrite``: replace an existing file (else refused)."""
+    """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager; an existing file only with ``overwrite``)."""
 
     kind = "the MCAP writer"
 
@@ -456,8 +442,7 @@ def _abandon(file, created: Path | None) -> None:
 
 
 def recover(src: str | Path, dst: str | Path) -> int:
-    """Copy the messages of ``src``, an MCAP file whose writer died before its summary, into the complete file ``dst``:
-    every message up to the first record cut off.  Returns their number."""
+    """Copy the messages of an MCAP file whose writer died into the complete file ``dst``; returns their number."""
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer

@@ -1,9 +1,5 @@
-"""Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches.
-
-:class:`SkinRuntime` checks an artifact (``skin.json`` and the ONNX models it names) against the rig it is asked to
-run on and against its integrity (checksums, bindings, digest, probes: :func:`sonicskin.integrity.check_integrity`)
-before anything runs.
-"""
+"""Run a deployment artifact with onnxruntime only (no torch): frames or features -> touches, after checking it against
+the rig and its integrity (:func:`sonicskin.integrity.check_integrity`)."""
 
 from __future__ import annotations
 
@@ -28,9 +24,7 @@ __all__ = ["ArtifactError", "SkinRuntime", "Stream", "Predictions", "ARTIFACT_FO
 
 
 class SkinRuntime:
-    """Load ``folder`` and serve its ``model``; ``rig`` and ``layout`` (``None``: not checked) must be the artifact's,
-    else :class:`ArtifactError`; ``threads``: onnxruntime intra-op threads.
-    """
+    """Load ``folder`` and serve its ``model``; ``rig`` and ``layout`` (``None``: not checked) must be the artifact's."""
 
     def __init__(self, folder: str | Path, model: str = kinds.NETWORK, *, rig: Rig | None = None, layout: Layout | None = None,
                  threads: int = 1):
@@ -88,8 +82,7 @@ class SkinRuntime:
         return log_magnitude_db(frames, self.rig)
 
     def inputs(self, X_band: np.ndarray, *, reference: np.ndarray | None = None) -> np.ndarray:
-        """Model inputs from band features: the artifact's bins, minus ``reference`` (over the band
-        or over the bins) in ``relative`` mode.  Streams get their reference from :meth:`stream`."""
+        """Model inputs from band features: the artifact's bins, minus ``reference`` in ``relative`` mode."""
         X = band_rows(X_band, self.rig.n_band)[:, list(self.spec.bins)]
         if self.spec.mode == "absolute":
             return X
@@ -119,6 +112,5 @@ class SkinRuntime:
         return self.session.run(None, {self.input_name: x})
 
     def predict_inputs(self, inputs: np.ndarray, *, score_reference: np.ndarray | None = None) -> Predictions:
-        """Predictions from model inputs (see :meth:`inputs`), outside a stream: Alg. 2's ``S_c`` is
-        ``score_reference``, or the training session's (:class:`sonicskin.head.SVMHead`)."""
+        """Predictions from model inputs outside a stream (``S_c``: ``score_reference`` or the training session's)."""
         return self.head.decide(self.run(inputs), np.asarray(inputs, np.float32), score_reference=score_reference)

@@ -1,11 +1,7 @@
 """Network vs SVM over several simulator seeds and training seeds, with a paired confidence interval.
 
-Every scenario is simulated with each of ``sim_seeds`` (cached under ``cache``), both models are trained on its
-training split (the network once per ``train_seeds``), exported to one artifact and evaluated by replaying each
-test session as the live loop runs it.  The paired difference is net minus SVM on the same data; the unit of the
-interval is the simulator seed (per seed the network's mean over its training seeds minus the SVM's), a Student t
-interval over those differences.
-"""
+The paired difference is net minus SVM on the same data; the unit of the interval is the simulator seed (the
+network's mean over its training seeds minus the SVM's), a Student t interval over those differences."""
 
 from __future__ import annotations
 
@@ -73,8 +69,7 @@ def boot_relative(t, rig) -> np.ndarray:
 
 
 def plain_floors(t, rig, *, train, test, min_force_n: float = 0.5) -> dict:
-    """The floors on the feature table ``t`` (sessions ``train`` fit, ``test`` score); keys ``<floor>_accuracy`` and
-    ``svr_force_rmse_n``/``mean_force_rmse_n`` (absent without a force sensor)."""
+    """The plain floors on the feature table ``t``: ``<floor>_accuracy`` and the force RMSEs (without sensor: absent)."""
     from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import Normalizer, StandardScaler
@@ -107,8 +102,7 @@ def plain_floors(t, rig, *, train, test, min_force_n: float = 0.5) -> dict:
 
 
 def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print, **overrides) -> Dataset:
-    """Scenario ``name`` simulated with ``seed`` on ``rig`` (default: jaco) under ``cache/<name>-seed<seed>``
-    (``cache/<rig>/<name>-seed<seed>`` for another rig; made on first use).  ``overrides`` replace scenario fields."""
+    """Scenario ``name`` simulated with ``seed`` under ``cache`` (made on first use); ``overrides`` replace scenario fields."""
     rig = rig or Rig.load("jaco")
     path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
@@ -122,8 +116,7 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
 
 
 def _split(t, test_subjects=None, val: bool = False) -> Split:
-    """One-shot: the first session trains, the later ones test (``test_subjects``: those people's); ``val``: the next
-    session validates, then a refit on both."""
+    """One-shot: the first session trains, the later ones test; ``val``: the next validates, then a refit on both."""
     if test_subjects:
         sp = Split.make(t, test_subjects=test_subjects)
         return sp if val else Split(sp.train + sp.val, (), sp.test)
@@ -131,11 +124,9 @@ def _split(t, test_subjects=None, val: bool = False) -> Split:
 
 
 def _floors(ds: Dataset, t, split) -> dict:
-    """The plain floors on the same split (:func:`plain_floors`): ``accuracy`` (SVC), ``lda_accuracy``,
-    ``normalized_svc_accuracy``, ``force_rmse_n`` (pooled SVR), ``force_rmse_constant_n`` (the training mean)."""
+    """The plain floors on the same split (:func:`plain_floors`) under the names the summaries use."""
     f = plain_floors(t, ds.rig, train=list(split.train) + list(split.val), test=list(split.test))
-    out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"],
-           "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
+    out = {"accuracy": f["svc_accuracy"], "lda_accuracy": f["lda_accuracy"], "normalized_svc_accuracy": f["normalized_svc_accuracy"]}
     if "svr_force_rmse_n" in f:
         out.update(force_rmse_n=f["svr_force_rmse_n"], force_rmse_constant_n=f["mean_force_rmse_n"])
     return out
@@ -143,9 +134,7 @@ def _floors(ds: Dataset, t, split) -> dict:
 
 def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | None, log, select: bool = True,
               train_stride: int = 1, val: bool = False) -> list[dict]:
-    """Every model on one simulated dataset through the one fit, the network per training seed, each exported to
-    ``work`` and its test sessions replayed.  ``select``: options chosen on the training presses (else the paper's);
-    ``val``: the next session validates, then a refit on both; ``train_stride`` k: every k-th training chirp."""
+    """Every model on one simulated dataset through the one fit, each exported to ``work`` and its test sessions replayed."""
     quiet_log = lambda m: None  # noqa: E731
     t = load_features_cached(ds, progress=False)
     split = _split(t, SCENARIOS.get(name, {}).get("test_subjects"), val)
@@ -185,8 +174,7 @@ def _one_seed(name: str, ds: Dataset, train_seeds, work: Path, *, epochs: int | 
 
 
 def summarize(runs: dict[int, list[dict]]) -> dict:
-    """Mean and std per model (std over every run), and the paired net - SVM difference with its 95 % t
-    interval over simulator seeds (the network averaged over its training seeds within a seed)."""
+    """Mean and std per model, and the paired net - SVM difference with its 95 % t interval over simulator seeds."""
     out = {}
     for m in METRICS:
         net = np.array([r[NETWORK][m] for rows in runs.values() for r in rows], float)
@@ -204,8 +192,7 @@ def summarize(runs: dict[int, list[dict]]) -> dict:
 def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 1), cache: str | Path = "data/seeds",
                   out: str | Path = "reports/compare-seeds", epochs: int | None = None, select: bool = True,
                   rig: Rig | None = None, val: bool = False, log=print) -> dict:
-    """Run every scenario over ``sim_seeds`` x ``train_seeds``; returns per-run metrics and summaries.  ``val``: the
-    second session validates and every model is refitted on both (the protocol of a user who recorded two passes)."""
+    """Run every scenario over ``sim_seeds`` x ``train_seeds`` (``val``: the second session validates, then a refit on both)."""
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
         raise ValueError(f"unknown scenario(s) {unknown}; the comparison knows {sorted(SCENARIOS)}")

@@ -1,13 +1,8 @@
 """Model selection on the user's own presses: gamma, C, kernel width, force model and detection threshold.
 
-The paper's defaults (gamma = 300 bins, C = 10, ``gamma="scale"``, Fourier-1 force per location) are chosen here by
-validation on the *training* data only: on a validation session when there is one
-(:class:`~sklearn.model_selection.PredefinedSplit`), else by cross-validation over *passes* (the k-th press of every
-location forms pass k, so one press is never on both sides), else the paper's values with a warning.  A *press* is
-a run of consecutive touch chirps at one location within one session and segment (:func:`press_ids`); test sessions
-never reach this module.  The search is :class:`~sklearn.model_selection.GridSearchCV` over a
-``Pipeline([ospa, scale, width, svc])``; its choice and a compact ``cv_results_`` table are returned as JSON data.
-"""
+The paper's defaults are chosen here by validation on the *training* data only: on a validation session when there
+is one, else by cross-validation over *passes* (the k-th press of every location), else the paper's values with a
+warning.  A *press* is a run of touch chirps at one location within one session and segment (:func:`press_ids`)."""
 
 from __future__ import annotations
 
@@ -47,8 +42,7 @@ MAX_FOLDS = 5
 
 # -- presses ---------------------------------------------------------------------------------------
 def press_ids(location: np.ndarray, session: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
-    """One id per press: a run of consecutive chirps (in stream order) at one location >= 0 within one
-    session and segment.  No-touch chirps get -1.  Ids count up from 0 in order of appearance."""
+    """One id per press (consecutive chirps at one location within one session and segment), from 0; no-touch: -1."""
     loc = np.asarray(location)
     key = [np.asarray(session).astype(str)]
     if segment is not None:
@@ -88,8 +82,7 @@ def gamma_grid(n_allowed: int, lo: int = 100, n: int = 5) -> list[int]:
 
 # -- estimators --------------------------------------------------------------------------------------
 class MovingVarOSPA(OSPA):
-    """:class:`~sonicskin.ospa.OSPA` with the moving variance ``MV`` given at construction (so a
-    grid search can refit it on every fold from the touch chirps alone).  ``moving_var=None``: MV = 1."""
+    """:class:`~sonicskin.ospa.OSPA` with ``MV`` given at construction, so a grid search refits it from touch chirps alone."""
 
     def __init__(self, gamma: int = 300, allowed: np.ndarray | None = None, moving_var: np.ndarray | None = None):
         super().__init__(gamma=gamma, allowed=allowed)
@@ -103,8 +96,7 @@ class MovingVarOSPA(OSPA):
 
 
 class KernelWidth(TransformerMixin, BaseEstimator):
-    """Multiply standardised inputs by ``sqrt(factor)``: an RBF SVC with ``gamma="scale"`` after it has
-    ``gamma = factor / n_features``, the kernel width as a fraction of scikit-learn's default."""
+    """Multiply standardised inputs by ``sqrt(factor)``: an RBF SVC with ``gamma="scale"`` then has ``factor / n_features``."""
 
     def __init__(self, factor: float = 1.0):
         self.factor = factor
@@ -137,8 +129,7 @@ class FourierPerLocation(RegressorMixin, BaseEstimator):
 
 
 class PooledRidge(RegressorMixin, BaseEstimator):
-    """One linear model over every location: the touch's relative bins (columns 2:) and the location
-    (one-hot), standardised, ridge ``alpha``.  Exported as plain coefficients (:class:`PooledForce`)."""
+    """One ridge over every location: the touch's relative bins (columns 2:) and the location one-hot, standardised."""
 
     def __init__(self, alpha: float = 10.0):
         self.alpha = alpha
@@ -156,8 +147,7 @@ class PooledRidge(RegressorMixin, BaseEstimator):
 # -- cross-validation ----------------------------------------------------------------------------------
 def make_cv(passes: np.ndarray, val: np.ndarray | None = None, location: np.ndarray | None = None
             ) -> tuple[PredefinedSplit | None, str]:
-    """The splitter and its description (or ``None`` and why not): folds over ``passes`` (as many as the fewest any
-    ``location`` has), ``val`` rows scored but never trained on."""
+    """The splitter (folds over ``passes``, ``val`` rows scored but never trained on) and its description, or ``None`` and why."""
     if val is not None and np.any(val):
         if np.all(val):
             return None, "every chirp is in the validation session"
@@ -218,8 +208,7 @@ def _plain(v):
 def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np.ndarray, *, val: np.ndarray | None = None,
                      moving_var: np.ndarray | None = None, gammas: list[int] | None = None, max_chirps: int = 600,
                      val_name: str = "", n_bins_fallback: int | None = None, log=None) -> dict:
-    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps ``X`` (every usable bin), labels ``y``,
-    press ids and passes, and ``val`` rows; the choice as JSON data (``status`` "validated" or "fallback")."""
+    """Choose OSPA's gamma, C and the RBF kernel width on touch chirps; the choice as JSON data."""
     X, y, press, passes = np.asarray(X), np.asarray(y), np.asarray(press), np.asarray(passes)
     n_feat = X.shape[1]
     gammas = list(dict.fromkeys(min(int(g), n_feat) for g in (gammas or gamma_grid(n_feat))))
@@ -265,9 +254,7 @@ def select_localizer(X: np.ndarray, y: np.ndarray, press: np.ndarray, passes: np
 
 
 def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
-    """Accuracy against presses per location (1..k) from the user's own data: with ``val`` rows, trained on the first
-    k passes and scored on ``val``; without, each held-out pass scored after training on k others.  Returns sizes,
-    mean accuracy and a verdict on whether one more pass would help."""
+    """Accuracy against presses per location (1..k) from the user's own data, and whether one more pass would help."""
     sizes, acc, spread = [], [], []
     if val is not None and np.any(val):
         n_pass = int(passes[~val].max()) + 1
@@ -297,8 +284,7 @@ def learning_curve_by_pass(est, X, y, passes, press, *, val=None) -> dict:
         verdict = "one point only: record one more pass over the markers to see the trend"
     how = ("trained on the first k passes, scored on the validation session" if val is not None and np.any(val) else
            f"{n_pass} passes recorded: each point trains on k of them and scores on one held out, so k stops at {n_pass - 1}")
-    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict,
-            "passes_recorded": n_pass, "how": how}
+    return {"presses_per_location": sizes, "accuracy": acc, "std": spread, "verdict": verdict, "passes_recorded": n_pass, "how": how}
 
 
 # -- force ------------------------------------------------------------------------------------------------
@@ -307,8 +293,7 @@ def force_design(E: np.ndarray, location: np.ndarray, inputs: np.ndarray) -> np.
 
 
 def select_force(E, location, inputs, force, press, passes, *, val=None, val_name: str = "", log=None) -> dict:
-    """Choose between the paper's per-location Fourier-1 and a pooled ridge model (alpha grid) by
-    press-grouped validation (RMSE on presses not trained on)."""
+    """Choose the paper's per-location Fourier-1 or a pooled ridge by RMSE on presses not trained on."""
     Z = force_design(E, location, inputs)
     F = np.asarray(force, float)
     cv, how = make_cv(passes, val, np.asarray(location))
@@ -325,8 +310,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     pipe = Pipeline([("model", FourierPerLocation())])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        search = GridSearchCV(pipe, grid, cv=cv, scoring="neg_root_mean_squared_error", refit=False,
-                              error_score=np.nan).fit(Z, F)
+        search = GridSearchCV(pipe, grid, cv=cv, scoring="neg_root_mean_squared_error", refit=False, error_score=np.nan).fit(Z, F)
     bp = search.best_params_
     best = clone(pipe).set_params(**bp)
     pred, tested = _oof(best, Z, F, cv)
@@ -346,8 +330,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
 
 # -- detection -------------------------------------------------------------------------------------------
 def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str) -> dict:
-    """Detection threshold by Youden's J on validation chirps: the lowest of the best, halfway between the two data
-    values around it (a perfect separation gives the middle of the gap)."""
+    """Detection threshold by Youden's J on validation chirps: the lowest of the best, halfway between two data values."""
     st, sq = np.asarray(stat_touch, float).ravel(), np.asarray(stat_quiet, float).ravel()
     if st.size == 0 or sq.size == 0:
         raise ValueError("need both touch and no-touch chirps to choose a detection threshold")
@@ -357,14 +340,12 @@ def select_threshold(stat_touch: np.ndarray, stat_quiet: np.ndarray, *, how: str
     fpr = (sq[None, :] >= cand[:, None]).mean(axis=1)
     j = tpr - fpr
     thr = float(cand[np.flatnonzero(j >= j.max() - 1e-12)[0]])  # candidates ascend: the lowest of the best
-    return {"how": how, "threshold": thr, "missed_touch_rate": float(np.mean(st < thr)),
-            "false_touch_rate": float(np.mean(sq >= thr))}
+    return {"how": how, "threshold": thr, "missed_touch_rate": float(np.mean(st < thr)), "false_touch_rate": float(np.mean(sq >= thr))}
 
 
 def detection_on_validation(X: np.ndarray, t, *, cls: np.ndarray, val_mask: np.ndarray, n_locations: int,
                             threshold: float) -> dict | None:
-    """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (every
-    no-touch chirp a negative, the session's own rest the reference); ``None`` without rest and touches there."""
+    """Missed and false touches of the input-RMS detector at ``threshold`` on the validation session (``None`` without)."""
     q, touch = quiet_mask(t) & val_mask, (cls < n_locations) & val_mask
     no_touch = (t["location"] < 0) & val_mask
     if q.sum() < 2 or not touch.any():
@@ -386,8 +367,7 @@ def training_rows(t, sessions, min_force_n: float = 0.5) -> tuple[np.ndarray, np
 
 def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str = "relative", min_force_n: float = 0.5,
                           log=print, max_chirps: int = 600) -> dict:
-    """Choose gamma, C and kernel width on the ``train_sessions`` (and ``val_sessions``) of a features table (only
-    their rows are read), on the model inputs over every usable bin (``mode``)."""
+    """Choose gamma, C and kernel width on the training (and validation) sessions of a features table, only their rows read."""
     use = np.isin(t["session"], list(train_sessions) + list(val_sessions))
     tt = t.select(use)
     allowed = np.flatnonzero(rig.allowed_mask)
@@ -411,8 +391,7 @@ def select_gamma_on_table(t, rig, *, train_sessions, val_sessions=(), mode: str 
 def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarray, val_mask: np.ndarray | None,
                      n_locations: int, location_ids, selection: dict | None = None, min_force_n: float = 0.5,
                      key: str = "localizer", log=print) -> dict:
-    """The rest of the choice once the model inputs ``X`` are fixed: C and kernel width (unless ``selection`` has
-    them), the force model and the detection threshold, on the rows of ``train_mask``/``val_mask`` only."""
+    """The rest of the choice once the inputs are fixed (C, kernel width, force, threshold), on the train/val rows only."""
     sel = dict(selection or {})
     val_mask = np.zeros(len(X), bool) if val_mask is None else np.asarray(val_mask, bool)
     seg = t["segment"] if "segment" in t.labels else None
@@ -442,8 +421,7 @@ def select_on_inputs(X: np.ndarray, t, *, cls: np.ndarray, train_mask: np.ndarra
 
 
 def save_learning_curve(sel: dict, path, *, title: str = "") -> bool:
-    """The learning curve of a localizer's selection (``select_localizer``'s) as a PNG (accuracy vs presses per
-    location); False without one."""
+    """The learning curve of a localizer's selection as a PNG; False without one."""
     lc = (sel or {}).get("learning_curve")
     if not lc or not lc["accuracy"]:
         return False

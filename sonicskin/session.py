@@ -1,8 +1,5 @@
-"""One run: a skin on an audio source, opened in one place for ``sonicskin live`` and :func:`sonicskin.listen`
-(``record`` and ``check`` open their device here too).  :func:`open_run` opens an artifact, or an arm whose links
-each have theirs (a single artifact is an arm of one link, so each check of a run is written once), on the
-simulated device or an audio interface; :func:`open_source` is the one place a device opens.
-"""
+"""One run: a skin (an artifact, or an arm whose links each have theirs) on an audio source, opened in one place for
+``live``, :func:`sonicskin.listen`, ``record`` and ``check``; :func:`open_source` is the one place a device opens."""
 
 from __future__ import annotations
 
@@ -40,8 +37,7 @@ def simulated(device) -> bool:
 
 
 def arm_file_of(path) -> Path | None:
-    """The arm file a path names: a ``.yaml`` file with ``links:``, or a folder holding ``arm.yaml`` (what ``fit-svm
-    --links`` writes); ``None`` for anything else (a single-link artifact folder)."""
+    """The arm file a path names (a ``.yaml`` with ``links:``, or a folder holding ``arm.yaml``), else ``None``."""
     p = Path(path)
     if p.is_dir() and (p / ARM_FILE).is_file():
         return p / ARM_FILE
@@ -51,8 +47,7 @@ def arm_file_of(path) -> Path | None:
 
 
 def load_config(load: Callable, what):
-    """A rig or scenario config (``load``: ``Rig.load``, ``Scenario.load``); a name that is no config is
-    :class:`ConfigNotFoundError` (still a FileNotFoundError)."""
+    """A rig or scenario config; a name that is no config is :class:`ConfigNotFoundError` (a FileNotFoundError)."""
     try:
         return load(what)
     except FileNotFoundError as e:
@@ -62,9 +57,7 @@ def load_config(load: Callable, what):
 def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], tuple[Simulator, Timeline]] | None = None,
                 blocksize: int = 1024, realtime: bool = True, drop_every: int | None = None, offset: int = 4321,
                 **interface) -> AudioSource:
-    """The audio source carrying ``links``: simulated, each link's wall plays ``play(link)``, a ``(simulator,
-    timeline)`` pair (:class:`~sonicskin.acquire.SimulatedSource`); else the audio interface ``device``
-    (:class:`~sonicskin.acquire.SoundDeviceSource`)."""
+    """The audio source carrying ``links``: simulated (each link's wall plays ``play(link)``), else the interface ``device``."""
     if simulated(device):
         sims, timelines = zip(*(play(lk) for lk in links))
         return acquire.SimulatedSource(list(sims), list(timelines), blocksize=blocksize, realtime=realtime,
@@ -79,8 +72,7 @@ def live_scenario(scenario: Scenario) -> Scenario:
 
 @dataclasses.dataclass(eq=False)
 class Run:
-    """An opened run: its links (one for a single artifact), a runtime per link, the one source carrying them;
-    :meth:`loops` gives it a live loop per link (and the live page), :meth:`run` runs them, once."""
+    """An opened run: its links, a runtime per link and the one source carrying them; :meth:`loops`, then :meth:`run`, once."""
 
     links: list[Link]
     runtimes: list[SkinRuntime]
@@ -107,8 +99,7 @@ class Run:
 
     def loops(self, *, emit: Callable[[str], None] | None = None, status: bool = False,
               on_event: Callable | None = None, view: bool | int | str | None = None) -> list[LiveLoop]:
-        """One :class:`~sonicskin.live.LiveLoop` per link (``emit``, ``status``, ``on_event`` as LiveLoop's; every event
-        and every link's contact state also to :attr:`publishers`), and with ``view`` (``True`` or a port) the live page."""
+        """One :class:`~sonicskin.live.LiveLoop` per link, every event also to :attr:`publishers`, and with ``view`` the live page."""
         def event(ev) -> None:
             for pub in self.publishers:
                 pub.write(ev)
@@ -130,8 +121,7 @@ class Run:
         return self.live
 
     def run(self, *, duration_s: float | None = None, watchdog_s: float | None = 3.0, stop=None) -> dict:
-        """Run the loops until ``duration_s``, ``stop``, Ctrl-C or a finite source's end (:func:`sonicskin.live.run_loops`);
-        returns :meth:`summary`, the MCAP file complete and the live page stopped however it ends."""
+        """Run the loops (:func:`sonicskin.live.run_loops`); the MCAP file is complete and the page stopped however it ends."""
         length = getattr(self.source, "length_s", None)  # a simulated session ends by itself
         if duration_s is not None and length is not None and duration_s > length and self.live:
             self.live[0].warn(f"the simulated session is {length:.1f} s long (one scripted session of touches per link): "
@@ -157,8 +147,7 @@ class Run:
                     gc.freeze()  # what the run opened is never scanned again by the collector
                     print(f"sonicskin: real-time scheduling: audio thread {self.granted['audio']}; processing thread "
                           f"{self.granted['processing']}", file=sys.stderr, flush=True)
-                return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s,
-                                              stop=stop))
+                return self.summary(run_loops(self.live, self.source, duration_s=duration_s, watchdog_s=watchdog_s, stop=stop))
 
     def summary(self, sums: list[dict]) -> dict:
         """The loops' summaries as ``sonicskin live`` prints them: keyed by link on an arm, else the one loop's."""
@@ -169,19 +158,9 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
              mcap=None, overwrite: bool = False, realtime: bool = False, ros2=None, foxglove=None) -> Run:
-    """Open a skin on a device.
-
-    ``artifact``: an artifact folder (one link: channels ``tx``/``rx``; simulated, it plays ``scenario`` (stationary),
-    whose layout must be the artifact's) or an arm (its arm file, or the folder ``fit-svm --links`` wrote).  ``links``: an arm or
-    links file (``live --links``), its links' artifacts the file's or ``link_artifacts``.  ``device``: ``"sim"``/
-    ``None`` (``fast``, ``drop_every``) or an interface.  ``rig``: default the arm file's, else the artifact's, else
-    jaco.  ``train(scenario, rig)``: the artifact of a simulated link without one (else a one-line error).
-    ``mcap``: the MCAP file each touch goes into (every link needs a frame; an existing file only with
-    ``overwrite``), opened and locked here.  ``ros2``: the same messages live on this DDS domain (``True``:
-    ROS_DOMAIN_ID, else 0); ``foxglove``: on Foxglove's WebSocket at this port (``True``: 8765; :mod:`sonicskin.ros2`).
-    ``realtime``: real-time scheduling of the audio and processing threads
-    (:func:`sonicskin.acquire.realtime_thread`; what they got: :attr:`Run.granted`, and one line on stderr).
-    """
+    """Open a skin (an artifact, an arm, or a links file with ``link_artifacts``) on a device (``"sim"``/``None`` or an
+    interface), with its outputs (``mcap``, ``ros2``, ``foxglove``) opened here.  ``train(scenario, rig)``: the artifact
+    of a simulated link without one.  ``realtime``: what the threads got is :attr:`Run.granted`."""
     check_blocksize(blocksize)
     sim = simulated(device)
     if realtime and fast and sim:
@@ -251,8 +230,7 @@ def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksi
 
 
 def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> None:
-    """An arm's link runs an artifact trained for it: one trained for another link or wall (what its ``training`` block
-    records, :func:`sonicskin.dataset.wall_record`) is refused; one that records neither (older) is warned about."""
+    """An arm's link runs an artifact trained for it: one for another link or wall is refused, one that records neither warned."""
     tr = rt.meta["training"]
     rec, wall = tr.get("link") if isinstance(tr.get("link"), dict) else {}, tr.get("wall")
     fix = (f"give each link its own artifact (--link-artifact DIR once per link, in the order "

@@ -1,12 +1,8 @@
 """A link's skin placed on its real surface: layout coordinates (cm, unrolled) -> point and normal in the link's frame.
 
-A :class:`LinkSurface` names the robot frame (``frame_id``, the URDF link) and the shape the skin covers, a tube
-(URDF ``<cylinder>``: ``y_cm`` along its z axis from the transmitter end, ``axis_from``; ``x_cm`` the arc length
-from ``theta0``) or a plate (URDF ``<box>``: the touched ``face``), with the shape's pose (``xyz``, ``rpy``) in that
-frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Built from a short
-YAML mapping (:meth:`LinkSurface.from_dict`) or a URDF link's collision (else visual) geometry
-(:meth:`LinkSurface.from_urdf`, with ``yourdfpy``).  Bad input raises :class:`SurfaceError`, one line.
-"""
+A :class:`LinkSurface` names the robot frame and the shape the skin covers (a tube or a plate) with its pose in that
+frame; the conventions are the contract between a layout and the robot (docs/robot-frame.md).  Bad input raises
+:class:`SurfaceError`, one line."""
 
 from __future__ import annotations
 
@@ -76,8 +72,7 @@ class LinkSurface:
             if not (math.isfinite(d) and (d > 0 or (k == "thickness_m" and d == 0))):
                 raise SurfaceError(f"{self.kind} {k} must be a positive number of metres, got {brief(d)}")
         pose = np.array(self.pose, dtype=float)
-        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3),
-                                                                                     atol=1e-6):
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose)) or not np.allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-6):
             raise SurfaceError("pose must be a finite 4x4 rigid transform (a rotation and a translation)")
         pose.setflags(write=False)
         if self.axis_from not in ("-z", "+z"):
@@ -106,8 +101,7 @@ class LinkSurface:
         return 100 * (2 * math.pi * self.dims_m[0] if self.kind == "tube" else self.dims_m[0])
 
     def point_normal(self, xy_cm) -> tuple[np.ndarray, np.ndarray]:
-        """Layout coordinates ``(n, 2)`` in cm -> contact points ``(n, 3)`` in m and unit outward normals ``(n, 3)``, both
-        in the link frame."""
+        """Layout coordinates ``(n, 2)`` cm -> contact points ``(n, 3)`` m and unit outward normals, in the link frame."""
         xy = np.asarray(xy_cm, dtype=float)
         if xy.ndim == 1:
             xy = xy[None]
@@ -131,8 +125,7 @@ class LinkSurface:
         return p @ R.T + t, nrm @ R.T
 
     def point_normal_one(self, x_cm: float, y_cm: float) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-        """:meth:`point_normal` of one contact, as tuples, in plain floats (the live loop calls it for every event of every
-        link: a tenth of the batched call's cost, the same numbers to rounding)."""
+        """:meth:`point_normal` of one contact in plain floats, for every live event (a tenth of the batched call's cost)."""
         x, y = x_cm / 100, y_cm / 100
         if self.kind == "tube":
             r, L = self.dims_m
@@ -152,8 +145,7 @@ class LinkSurface:
         return tuple(tuple(float(v) for v in row) for row in self.pose[:3, :3]), tuple(float(v) for v in self.pose[:3, 3])
 
     def check_layout(self, layout) -> None:
-        """Raise :class:`SurfaceError` when ``layout`` does not fit on this surface: another circumference than the
-        tube's, or a marker off the surface."""
+        """Raise :class:`SurfaceError` when ``layout`` does not fit (another circumference, a marker off the surface)."""
         xy = np.asarray(layout.xy_cm, dtype=float)
         wid, length = self.width_cm, 100 * self.length_m
         what = f"the {self.kind} of {self.frame_id}"
@@ -191,9 +183,7 @@ class LinkSurface:
     # -- constructors -----------------------------------------------------------------------------------------------
     @classmethod
     def from_dict(cls, d: Any, where: str = "surface", base_dir: str | Path | None = None) -> LinkSurface:
-        """A surface from a short YAML mapping (keys: docs/robot-frame.md), checked strictly (``where`` prefixes the
-        error line); a URDF link ``{urdf: PATH, frame: LINK}`` is read relative to ``base_dir``.
-        """
+        """A surface from a short YAML mapping (docs/robot-frame.md), checked strictly; a URDF path relative to ``base_dir``."""
         if not isinstance(d, dict):
             raise SurfaceError(f"{where}: a surface is a mapping like {{frame: forearm_link, kind: tube, radius_m: 0.0375, "
                                f"length_m: 0.25}}, got {type(d).__name__}")
@@ -240,8 +230,7 @@ class LinkSurface:
 
     @classmethod
     def from_urdf(cls, path: str | Path, link_name: str, **overrides) -> LinkSurface:
-        """The surface of URDF link ``link_name``: its collision (else visual) cylinder or box and that geometry's
-        origin; ``overrides``: ``theta0_deg``, ``axis_from`` (tube) or ``face`` (plate), which a URDF does not say."""
+        """The surface of URDF link ``link_name`` (its collision, else visual, cylinder or box); ``overrides`` what a URDF lacks."""
         path = Path(path)
         if not path.is_file():
             raise SurfaceError(f"{path}: no such URDF file")

@@ -1,8 +1,6 @@
-"""One setting for the threads sonicskin's numerical work uses (torch, scipy.fft workers, BLAS/OpenMP), so that on
-a shared robot computer training and the live loop do not fight over every core (``benchmarks/bench_threads.py``).
-The count: :func:`configure` (``sonicskin --threads N``), else ``SONICSKIN_THREADS``, else half the cores (1-4).  The
-live loop's onnxruntime session uses one thread whatever this says.
-"""
+"""One setting for the threads sonicskin's numerical work uses (torch, scipy.fft, BLAS/OpenMP), so training and the
+live loop do not fight over every core: :func:`configure` (``--threads N``), else ``SONICSKIN_THREADS``, else half
+the cores (1-4).  The live loop's onnxruntime session uses one thread whatever this says."""
 
 from __future__ import annotations
 
@@ -49,8 +47,7 @@ def fft_workers() -> int:
 
 
 def configure(n: int | str | None = None) -> int:
-    """Fix the thread count for this process and the ones it starts (BLAS/OpenMP pools of the loaded libraries,
-    torch's intra-op threads, the ``*_NUM_THREADS`` variables); returns it."""
+    """Fix the thread count for this process and the ones it starts (BLAS/OpenMP, torch, ``*_NUM_THREADS``); returns it."""
     global _configured
     n = get() if n is None else _parse(str(n), "--threads")
     _configured = n

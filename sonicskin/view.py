@@ -1,22 +1,10 @@
 """A live view of the skin in a web browser: the arm in 3D with each touch and its force, each link's surface
-unrolled (the bring-up panel), the last events, the drift state.
+unrolled, the last events, the drift state.
 
-:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``: no CDN, nothing from the internet) and
-two JSON endpoints on ``127.0.0.1`` from a fixed pool of :data:`POOL_THREADS` handler threads::
-
-    GET /            the page
-    GET /links.json  once per page load: each link's name, kind, surface size, markers (cm), and its frame and
-                     shape in metres (a :class:`~sonicskin.surface.LinkSurface`); the arm's URDF (which places them)
-    GET /state.json  what changes: the touch on each link (and its point and normal in the link's frame), each link's
-                     status and presses, the last events, a sequence number
-
-The page polls ``/state.json`` every 100 ms (a short stateless request: ``stop()`` never waits on an open
-connection, a page survives a restart of the server).  The live loop calls :meth:`ViewServer.push_event` and
-:meth:`ViewServer.set_status` from its own thread; both copy into the shared state under a lock the HTTP threads
-snapshot under, so the loop never waits on a browser (:func:`attach_view` wires a
-:class:`~sonicskin.live.LiveLoop`).  A dropped, unstopped view stops serving when it is garbage collected.  Frames:
-as in :mod:`sonicskin.events`; the page draws ``x`` to the right and ``y`` up, every link at one scale.
-"""
+:class:`ViewServer` serves one self-contained page (``sonicskin/view.html``, nothing from the internet) on
+``127.0.0.1``: ``/`` the page, ``/links.json`` the links' geometry and the arm's URDF (once per load), ``/state.json``
+what changes (polled every 100 ms, so ``stop()`` never waits on an open connection).  The live loop's calls copy
+into the shared state under a lock, so it never waits on a browser.  Frames: as in :mod:`sonicskin.events`."""
 
 from __future__ import annotations
 
@@ -41,8 +29,7 @@ from .errors import SonicskinError, brief, is_number
 from .events import TouchEvent, parse_event
 from .rig import Layout
 
-__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port",
-           "STATUS_KEYS"]
+__all__ = ["LinkView", "ViewServer", "loop_status", "attach_view", "view_loops", "parse_view_port", "STATUS_KEYS"]
 
 #: The keys :meth:`ViewServer.set_status` accepts (all optional), with their meaning on the page.
 STATUS_KEYS = {
@@ -67,9 +54,7 @@ def _finite(x) -> float | None:
 
 @dataclasses.dataclass(frozen=True)
 class LinkView:
-    """One link as the page draws it: ``name``, ``layout``, ``kind`` (tube or plate; ``None``: a tube when the layout
-    has a circumference), the surface's ``length_cm``/``width_cm`` (``None``: around the markers), ``tx_cm``, ``rx_cm``.
-    """
+    """One link as the page draws it: name, layout, kind, surface size and transducers (cm)."""
 
     name: str
     layout: Layout
@@ -130,8 +115,7 @@ def _page() -> bytes:
 
 
 class _Server(http.server.HTTPServer):
-    """An HTTP server whose requests a fixed pool of daemon threads answers (``ThreadingHTTPServer`` started one
-    thread per connection, an idle one kept forever); a backlog beyond four per thread is closed unanswered."""
+    """An HTTP server answered by a fixed pool of daemon threads; a backlog beyond four per thread is closed unanswered."""
 
     def __init__(self, address, handler, family, threads: int = POOL_THREADS):
         self.address_family = family
@@ -220,8 +204,7 @@ class _Handler(http.server.BaseHTTPRequestHandler):
 
 
 class ViewServer:
-    """Serve the live view of ``links`` on ``http://host:port/`` (port 0: any free; :attr:`url`); :meth:`push_event`
-    and :meth:`set_status` may be called from any thread.  A context manager, or :meth:`start` / :meth:`stop`."""
+    """Serve the live view of ``links`` on ``http://host:port/`` (:attr:`url`); its setters may be called from any thread."""
 
     def __init__(self, links: list[LinkView], host: str = "127.0.0.1", port: int = 0, *, n_events: int = N_EVENTS,
                  urdf: str | None = None):
@@ -284,8 +267,7 @@ class ViewServer:
         self._server.timeout = 0.2  # how soon the serving thread sees stop()
         self._stopped = threading.Event()
         weakref.finalize(self, self._stopped.set)  # dropped without stop(): stop serving all the same
-        self._thread = threading.Thread(target=_serve, args=(self._server, self._stopped), name="sonicskin-view",
-                                        daemon=True)
+        self._thread = threading.Thread(target=_serve, args=(self._server, self._stopped), name="sonicskin-view", daemon=True)
         self._thread.start()
         return self
 
@@ -304,8 +286,7 @@ class ViewServer:
         self.stop()
 
     def _host_ok(self, host_header: str) -> bool:
-        """On a loopback address only requests naming it or localhost (a page from elsewhere that renamed a host to
-        127.0.0.1, DNS rebinding, cannot read the events)."""
+        """On a loopback address only requests naming it or localhost (DNS rebinding cannot read the events)."""
         if not self._loopback:
             return True
         host = host_header.rsplit(":", 1)[0] if not host_header.endswith("]") else host_header
@@ -330,8 +311,7 @@ class ViewServer:
         return name
 
     def push_event(self, ev: TouchEvent | dict | str) -> None:
-        """Show one event (a :class:`~sonicskin.events.TouchEvent`, its dict or its JSON line): a ``touch`` sets the
-        link's touch, a ``release`` clears it; both join the list of the last events."""
+        """Show one event (a TouchEvent, its dict or JSON line): a ``touch`` sets the link's touch, a ``release`` clears it."""
         if isinstance(ev, (str, bytes)):
             ev = parse_event(ev)
         elif isinstance(ev, dict):
@@ -386,8 +366,7 @@ class ViewServer:
 
 # -- wiring to the live loop ------------------------------------------------------------------------------------------
 def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
-    """The status :meth:`ViewServer.set_status` shows for a :class:`~sonicskin.live.LiveLoop` at stream time ``t_s``
-    (``None``: the last event's)."""
+    """The status :meth:`ViewServer.set_status` shows for a live loop at stream time ``t_s`` (``None``: the last event's)."""
     stream = loop.stream
     ref = stream.reference
     drift = stream.drift
@@ -401,8 +380,7 @@ def loop_status(loop, t_s: float | None = None) -> dict[str, Any]:
 
 
 def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
-    """Show ``loop``'s events and status in ``view`` (every ``every_s`` of stream time, and at each new reference),
-    chaining the loop's ``on_event`` and ``on_chirp``; the loop's link must be one of the view's, or the view shows one."""
+    """Show ``loop``'s events and status in ``view``, chaining the loop's ``on_event`` and ``on_chirp``."""
     name = loop.link_name
     view._link_of(name, f"the loop of link {brief(name)}" if name else "the loop")  # fails now, not at the first event
     prev_event, prev_chirp = loop.on_event, loop.on_chirp
@@ -426,9 +404,7 @@ def attach_view(view: ViewServer, loop, *, every_s: float = 0.5) -> None:
 
 def view_loops(loops, *, links: list[LinkView] | None = None, scenarios: list | None = None, host: str = "127.0.0.1",
                port: int = 0, urdf=None) -> ViewServer:
-    """Serve a started view of the live loops (one per link), each attached: drawn as ``links``, or from
-    ``scenarios`` (``(name, scenario)`` per loop), else each loop's artifact layout named by its link; each on its
-    loop's surface, the arm placed by ``urdf`` (a path)."""
+    """Serve a started view of the live loops (one per link), each attached, the arm placed by ``urdf``."""
     loops = list(loops)
     if links is None and scenarios:
         links = [LinkView.from_scenario(name, sc, lp.surface) for (name, sc), lp in zip(scenarios, loops)]

@@ -1,10 +1,7 @@
 """Lightning training of the networks in ``models``: ``sonicskin train --config configs/train/<name>.yaml``.
 
-Reproducibility: a given seed trains bit-identical weights on one machine with one thread count (deterministic torch
-algorithms; ``MKL_CBWR=AUTO,STRICT``, set here unless the environment sets it, before torch's first BLAS call, so MKL
-does not pick code paths by memory alignment).  Other thread counts, CPUs or torch/MKL versions can give slightly
-different weights.
-"""
+A given seed trains bit-identical weights on one machine with one thread count (deterministic torch algorithms;
+``MKL_CBWR=AUTO,STRICT``, set here before torch's first BLAS call unless the environment sets it)."""
 
 import os
 

@@ -1,15 +1,8 @@
 """Augmentation along what varies between presses at one marker, measured from the user's own session.
 
-With one press per marker the network sees one cloud of chirps per marker.  :class:`Augmenter` draws new touch
-chirps along the nuisance directions a later press will move along, each measured from the training session
-itself or fixed by physics, never from a test session (sizes: :data:`AUGMENTATIONS`): ``press``, a chirp moved
-toward (or past) another chirp of the same press, ``x_i + lam (x_j - x_i)`` (a firmer or softer moment);
-``strength``, the relative spectrum scaled by ``exp(N(0, sigma))`` (a small touch's change is linear in the finger's
-impedance); ``aim``, moved toward a neighbouring marker's mean pattern (the fingertip landing off the marker);
-``stretch``, resampled at ``f (1 + s)`` (warm-up stretches the wall's modes); ``gain`` and ``tilt``, a constant and a
-frequency-linear dB offset; ``motion``, a hands-off chirp of the moving robot (minus their mean) added at a random
-level.  All work on relative dB over every usable bin; the model's inputs are selected afterwards.
-"""
+:class:`Augmenter` draws new touch chirps along the nuisance directions a later press will move along, each measured
+from the training session itself or fixed by physics, never from a test session (:data:`AUGMENTATIONS`).  All work
+on relative dB over every usable bin; the model's inputs are selected afterwards."""
 
 from __future__ import annotations
 
@@ -24,8 +17,7 @@ AUGMENTATIONS = {"press": 0.5, "strength": 0.25, "aim": 0.15, "stretch": 1e-3, "
 
 
 def neighbour_rings(positions_cm, K: int, circumference_cm: float | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances
-    in cm; around a tube of ``circumference_cm`` the distance along the circumference is the shorter way round."""
+    """Each marker's nearest ring of neighbours (at most 4, within 1.5 x the nearest distance) and their distances (cm)."""
     P = np.asarray(positions_cm, np.float64)
     if P.shape != (K, 2):
         raise ValueError(f"positions_cm must be ({K}, 2), one (x, y) per marker in label order, got {P.shape}")
@@ -46,8 +38,7 @@ class Augmenter:
     """Draws one augmented copy of every training touch chirp per call: ``X`` (n, D) relative dB over every usable
     bin, ``y`` marker labels and ``press`` ids per chirp; draws returned over ``cols``.  ``freqs_hz`` (D,) for
     ``stretch`` and ``tilt``; ``X_rest`` (m, D) hands-off chirps for ``motion``; ``positions_cm`` (K, 2) in the order
-    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off).
-    """
+    of ``np.unique(y)`` (and ``circumference_cm``) for ``aim``; ``sizes``: :data:`AUGMENTATIONS` (zero: off)."""
 
     def __init__(self, X, y, press, *, cols=None, freqs_hz=None, X_rest=None, positions_cm=None,
                  circumference_cm: float | None = None, sizes: dict | None = None):
@@ -123,9 +114,7 @@ class Augmenter:
 
 
 def make_augmenter(data, rows: np.ndarray, *, n_cols: int | None = None, sizes: dict | None = None):
-    """The augmenter of one training session's touch chirps (a :class:`sonicskin.fit.TrainingData`'s ``rows``), every
-    nuisance measured there, over the data's inputs, drawn over the first ``n_cols``; and for each of the ``rows``
-    its row in the augmenter (-1: not a touch chirp)."""
+    """The augmenter of one training session's touch chirps, and each of ``rows``' row in it (-1: not a touch chirp)."""
     t = data.table
     rows = np.asarray(rows, bool)
     n_loc = data.n_locations

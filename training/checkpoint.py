@@ -1,9 +1,5 @@
-"""Load a training checkpoint without running code from it.
-
-A Lightning ``.ckpt`` is a pickle; :func:`load_checkpoint` reads it with ``torch.load(weights_only=True)`` (tensors
-and plain containers; numpy's scalar and dtype allow-listed for older checkpoints), then rebuilds the module from
-its hyper-parameters and state dict.  Anything else in the file is refused with one line.
-"""
+"""Load a training checkpoint without running code from it: ``torch.load(weights_only=True)`` (numpy's scalar and
+dtype allow-listed for older checkpoints), then the module rebuilt from its hyper-parameters; anything else refused."""
 
 from __future__ import annotations
 
@@ -55,8 +51,7 @@ def _first_line(e: BaseException) -> str:
 
 
 def load_checkpoint(path: str | Path) -> SkinLitModule:
-    """A :class:`SkinLitModule` (on CPU, eval mode, ``.meta`` set) from a ``sonicskin train`` checkpoint; a one-line
-    :class:`CheckpointError` for anything else (nothing in the file is executed)."""
+    """A :class:`SkinLitModule` (CPU, eval, ``.meta`` set) from a checkpoint; else one-line :class:`CheckpointError`."""
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path} does not exist or is not a file; pass a .ckpt or a run folder")
@@ -78,8 +73,7 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
         raise CheckpointError(f"{path} is not a training checkpoint (it holds a {type(ckpt).__name__}); {HINT}")
     for key, kind in (("state_dict", dict), ("hyper_parameters", dict), ("sonicskin", dict)):
         if not isinstance(ckpt.get(key), kind):
-            what = "has no sonicskin metadata; train it with `sonicskin train`" if key == "sonicskin" else \
-                f"has no {key}; {HINT}"
+            what = "has no sonicskin metadata; train it with `sonicskin train`" if key == "sonicskin" else f"has no {key}; {HINT}"
             raise CheckpointError(f"{path} {what}")
     missing = sorted(set(META_KEYS) - set(ckpt["sonicskin"]))
     if missing:
@@ -102,8 +96,7 @@ def load_checkpoint(path: str | Path) -> SkinLitModule:
 
 
 def _check_meta(meta: dict, lit: SkinLitModule, path: Path) -> None:
-    """The sonicskin metadata with the artifact schema's own checks (rig, layout, features), and against the
-    network it describes (input width = bins, outputs = locations): one line naming the field."""
+    """The sonicskin metadata with the artifact schema's checks, and against the network it describes."""
     class Doc(_Doc):
         def fail(self, field, problem, fix=None):
             raise CheckpointError(f"{self.source}: its sonicskin metadata {field} {problem}; {HINT}")

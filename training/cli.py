@@ -1,10 +1,7 @@
 """``sonicskin train``: LightningCLI over SkinLitModule and SkinDataModule, configured by YAML.
 
-The console stays readable: third-party warnings and banners are silenced, and instead of
-Lightning's per-batch bars there is one bar over the epochs (on a terminal only) followed by the
-results.  ``--trainer.enable_progress_bar true`` / ``--trainer.enable_model_summary true`` bring
-Lightning's own back.
-"""
+Third-party warnings and banners are silenced; one bar over the epochs (on a terminal) replaces Lightning's per-batch
+bars (``--trainer.enable_progress_bar true`` / ``--trainer.enable_model_summary true`` bring Lightning's own back)."""
 
 from __future__ import annotations
 
@@ -35,8 +32,7 @@ PROG = "sonicskin train"
 
 @contextlib.contextmanager
 def quiet_third_party() -> Iterator[None]:
-    """Silence Lightning/torch/torchvision warnings and Lightning's info banners (GPU/TPU lines, the
-    seed, the litlogger tip) for the duration; errors still show."""
+    """Silence Lightning/torch/torchvision warnings and Lightning's info banners for the duration; errors still show."""
     names = ("lightning", "lightning.pytorch", "lightning.fabric", "lightning.pytorch.utilities.rank_zero",
              "lightning.fabric.utilities.rank_zero", "lightning.fabric.utilities.seed", "torch", "torchvision")
     loggers = [logging.getLogger(n) for n in (*names, "torch.onnx")]
@@ -57,8 +53,7 @@ def quiet_third_party() -> Iterator[None]:
 
 
 class EpochBar(L.Callback):
-    """One progress bar over the epochs with the validation metrics (shown on a terminal only), and
-    the final metrics kept in :attr:`results` for the caller to print."""
+    """One progress bar over the epochs (on a terminal only), the final metrics kept in :attr:`results`."""
 
     def __init__(self, stream=None):
         self.stream = stream
@@ -92,8 +87,7 @@ class EpochBar(L.Callback):
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        self.results = {"epochs": trainer.current_epoch, "train_time_s": time.perf_counter() - self._t0,
-                        **self._metrics(trainer)}
+        self.results = {"epochs": trainer.current_epoch, "train_time_s": time.perf_counter() - self._t0, **self._metrics(trainer)}
 
 
 # -- what a training YAML or option may name, and the ranges of its numbers --------------------------------------
@@ -154,8 +148,7 @@ def _yaml_file(path: str) -> object:
 
 
 def refuse_unlisted_classes(args: list[str]) -> None:
-    """Refuse, before jsonargparse parses anything, a ``class_path`` (in a ``--config`` file or an option)
-    that is not in :data:`ALLOWED_CLASSES`: nothing named by a file is imported before it is checked."""
+    """Refuse a ``class_path`` not in :data:`ALLOWED_CLASSES` before jsonargparse imports anything a file names."""
     import yaml
 
     i = 0
@@ -289,8 +282,7 @@ LOGGED = tuple(f"{stage}_{k}" for stage in ("val", "train") for k in ("loss", "a
 
 
 def check_monitors(callbacks) -> None:
-    """A checkpoint or early-stopping callback must watch a metric the module logs: a misspelt one ended the run
-    after its first epoch (EarlyStopping with a RuntimeError traceback)."""
+    """A checkpoint or early-stopping callback must watch a metric the module logs (a misspelt one ended the run)."""
     from lightning.pytorch.callbacks import EarlyStopping, ModelCheckpoint
 
     for cb in callbacks:
@@ -325,8 +317,7 @@ class SkinCLI(LightningCLI):
 
 
 def main(args: list[str] | None = None, run: bool = True) -> SkinCLI:
-    """``args`` as after ``sonicskin train``; with ``run`` the model is fitted (``cli.epoch_bar.results``).  A bad
-    option or value is a one-line :class:`sonicskin.errors.UsageError`, not jsonargparse's usage."""
+    """``args`` as after ``sonicskin train``; a bad option is a one-line :class:`sonicskin.errors.UsageError`."""
     from jsonargparse import ArgumentError
     from lightning.fabric.utilities.exceptions import MisconfigurationException
 

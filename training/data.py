@@ -22,8 +22,7 @@ __all__ = ["SkinDataModule"]
 
 
 def session_fingerprints(root: str | Path, sessions) -> dict[str, str]:
-    """sha256 of each session's ``session.json`` (the manifest binding its parts by their sha256): which recording a
-    checkpoint was trained on, so ``export --data`` can tell a copy of it from other data under the same names."""
+    """sha256 of each session's ``session.json``, so ``export --data`` can tell the recordings trained on from others."""
     return {str(s): hashlib.sha256((Path(root) / str(s) / "session.json").read_bytes()).hexdigest() for s in sessions}
 
 

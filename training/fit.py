@@ -1,10 +1,6 @@
 """The network as a model kind (:class:`NetTrainer`, the ``sonicskin.kinds`` entry point ``net``): trained in-process,
-its location layer, touch decision and force chosen on presses it did not train on, refitted with those choices on
-every labelled press, exported to ONNX (:mod:`sonicskin.export.onnx`).
-
-``sonicskin train`` (LightningCLI) trains the same module; ``sonicskin export`` hands the checkpoint's network to
-:meth:`NetTrainer.fit` (``model=``), so both paths end in the same choices and the same refit (:mod:`sonicskin.fit`).
-"""
+its choices made on presses it did not train on, refitted on every labelled press, exported to ONNX.
+``sonicskin export`` hands a checkpoint's network to :meth:`NetTrainer.fit` (``model=``), so both paths end alike."""
 
 from __future__ import annotations
 
@@ -36,8 +32,7 @@ SVM_FORCE = "the SVM's"
 #: (benchmarks/bench_default.py, stored result ``default``)
 UNVALIDATED_FORCE = SVM_FORCE
 
-__all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force",
-           "artifact_from_checkpoint"]
+__all__ = ["NetTrainer", "train_network", "choose_network_layer", "finish_network", "choose_force", "artifact_from_checkpoint"]
 
 
 class NetTrainer(NetKind):
@@ -48,14 +43,11 @@ class NetTrainer(NetKind):
     def fit(self, data, *, fitted, selection=None, log=print, model=None, seed: int = 0, epochs: int | None = None,
             select: bool = True, layer: dict | None = None, hparams: dict | None = None, train_time_s: float | None = None,
             **options) -> Fitted:
-        """Train on ``data``'s training rows (``options``: the module's hyperparameters), or finish ``model``, a trained
-        module (its ``hparams``, the ``layer`` it chose).  ``selection``: the choices of an earlier pass (a refit):
-        the same layer, hyperparameters, epochs, seed, touch decision and force, trained anew here."""
+        """Train on ``data``'s training rows, or finish ``model``, a trained module; ``selection``: an earlier pass's choices."""
         if selection is not None:
             return train_network(data, fitted=fitted, chosen=selection[NETWORK])
         if model is not None:
-            return finish_network(model, data, fitted=fitted, selection=layer, hparams=hparams, train_time_s=train_time_s,
-                                  seed=seed)
+            return finish_network(model, data, fitted=fitted, selection=layer, hparams=hparams, train_time_s=train_time_s, seed=seed)
         return train_network(data, fitted=fitted, select=select, seed=seed, epochs=epochs, layer=layer, **options)
 
     def export(self, fit, path, X_check):
@@ -68,10 +60,7 @@ def _plain_hparams(h) -> dict:
 
 def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epochs: int | None = None,
                   layer: dict | None = None, chosen: dict | None = None, **hparams) -> Fitted:
-    """Train the network on the training chirps of ``data`` in-process: its location layer chosen first
-    (:func:`choose_network_layer`; without validation the closed form), or ``layer`` given; ``chosen``: every choice of
-    an earlier pass, trained anew (a refit).  It reads the first inputs its layer asks for and trains on augmented
-    presses of its own training sessions; then :func:`finish_network`."""
+    """Train the network in-process: its location layer chosen first (or ``layer``), on augmented presses; then :func:`finish_network`."""
     n, X, cls, force = data.n_locations, data.X, data.cls, data.force
     train = data.rows("train")
     if chosen is not None:
@@ -90,25 +79,21 @@ def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epo
     t0 = time.perf_counter()
     if model is None:
         aug = make_augmenter(data, train) if hp.get("augment") else None
-        model = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug, fitted=fitted,
-                        **kw, **hp).model
+        model = fit_net(X[train], cls[train], force[train], n_locations=n, seed=int(seed), augmenter=aug, fitted=fitted, **kw, **hp).model
     train_s = time.perf_counter() - t0
     hparams_out = _plain_hparams({"n_in": int(X.shape[1]), "n_locations": n, **hp, "epochs": int(epochs or 40),
                                   "n_centres": int(model.kernel.centres.shape[0]) if model.kernel is not None else 0})
-    return finish_network(model, data, fitted=fitted, selection=layer, train_time_s=train_s, hparams=hparams_out,
-                          seed=seed, chosen=chosen)
+    return finish_network(model, data, fitted=fitted, selection=layer, train_time_s=train_s, hparams=hparams_out, seed=seed, chosen=chosen)
 
 
 def layer_folds(data):
-    """Where the network's location layer is validated (:meth:`sonicskin.fit.TrainingData.folds`, each with the
-    augmenter of its fit rows): ``([(fit rows, held-out rows, augmenter)], how)``."""
+    """Where the network's location layer is validated: ``([(fit rows, held-out rows, augmenter)], how)``."""
     folds, how = data.folds()
     return [(f, h, make_augmenter(data, f)) for f, h in folds], how
 
 
 def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
-    """The network's location layer chosen on presses it did not train on (:func:`training.quick.choose_layer`); the
-    closed form when nothing can validate."""
+    """The network's location layer chosen on presses it did not train on; the closed form when nothing can validate."""
     folds, how = layer_folds(data)
     if not folds:
         return {"location_layer": UNVALIDATED, "layer_how": f"{how}: not validated, the closed form"}
@@ -117,8 +102,7 @@ def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | Non
 
 
 def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
-    """``sonicskin train`` with ``model.layer: auto``: the module's location layer chosen as for an in-process network
-    (:func:`choose_network_layer`), set on it and recorded in its checkpoint's selection."""
+    """``model.layer: auto``: the layer chosen as for an in-process network, set on the module and in its selection."""
     datamodule.setup("fit")
     h = module.hparams
     data = datamodule.prepared
@@ -195,10 +179,7 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
 
 
 def choose_force(model, X, cls, force, *, val_rows, location_ids, svm=None, how: str = "validation") -> dict:
-    """The network's force chosen on presses neither was trained on (``val_rows``): ``svm``'s validated force model
-    (per-location Fourier-1 or a pooled ridge over the SVM's bins, fitted on the same training rows; the network's head
-    then applies it, :meth:`sonicskin.kinds.net.NetHead.force`) or the network's own force head, whichever has the lower
-    RMSE at the true marker (ties: the SVM's)."""
+    """The network's force head or the SVM's validated force model, whichever has the lower validation RMSE (ties: the SVM's)."""
     ids = np.asarray(location_ids)
     f = np.asarray(force, np.float64)
     vr = val_rows & (cls < len(ids)) & np.isfinite(f)
@@ -225,8 +206,7 @@ def svm_force(svm, X: np.ndarray, location) -> np.ndarray:
 
 
 def check_same_sessions(meta: dict, ds, ckpt) -> None:
-    """The dataset holds the sessions of the checkpoint's split and (where the checkpoint records them) the very
-    recordings, so the SVM trained here and the checkpoint's network see the same data."""
+    """The dataset holds the checkpoint's sessions and (where recorded) the very recordings it was trained on."""
     split = [s for k in ("train", "val", "test") for s in meta["split"][k]]
     missing = [s for s in split if s not in set(ds.sessions)]
     if missing:

@@ -114,14 +114,12 @@ class SkinLitModule(L.LightningModule):
         h = self.hparams
         n = self.n_model_in
         if h.layer == "lda":
-            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm,
-                              n_lda=h.n_lda)
+            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm, n_lda=h.n_lda)
         centres = h.n_centres if h.layer == "kernel" else 0
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 
     def init_closed_form(self, fitted: dict) -> None:
-        """Start a closed-form location layer as the artifact's fitted model (``fitted``: the SVM and LDA on this
-        network's training chirps): the kernel layer the SVM (its scaler the normalisation), the LDA layer the LDA."""
+        """Start a closed-form location layer as the artifact's fitted SVM (kernel layer) or LDA (LDA layer)."""
         h = self.hparams
         if h.layer == "kernel":
             pipe = fitted[BASELINE].model
@@ -173,8 +171,7 @@ class SkinLitModule(L.LightningModule):
         return self.model(x)
 
     def augmented(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, rows: torch.Tensor):
-        """The batch with augmented copies of ``aug_share`` of its touch chirps appended (their labels and forces);
-        ``rows``: each chirp's row among the training rows the augmenter knows."""
+        """The batch with augmented copies of ``aug_share`` of its touch chirps appended."""
         a = self.aug_rows[rows.cpu().numpy()]
         touch = np.flatnonzero(a >= 0)
         k = int(round(self.hparams.aug_share * touch.size))
@@ -188,8 +185,7 @@ class SkinLitModule(L.LightningModule):
 
     def loss_terms(self, x: torch.Tensor, cls: torch.Tensor, force: torch.Tensor, *, train: bool,
                    rows: torch.Tensor | None = None) -> dict:
-        """The joint loss and its parts on one batch (``train`` adds the input noise, label smoothing and, with an
-        augmenter and the batch's ``rows``, augmented touch chirps)."""
+        """The joint loss and its parts on one batch (``train``: input noise, label smoothing, augmented touch chirps)."""
         x = x[:, :self.n_model_in]
         if train and self.augmenter is not None and rows is not None:
             x, cls, force = self.augmented(x, cls, force, rows)
@@ -234,8 +230,7 @@ class SkinLitModule(L.LightningModule):
         self._step(batch, "test")
 
     def make_optimizer(self, epochs: int):
-        """AdamW (the kernel layer at ``kernel_lr``, frozen at 0; a frozen LDA layer has no parameters to train) with
-        a cosine schedule over ``epochs``."""
+        """AdamW (the kernel layer at ``kernel_lr``, frozen at 0) with a cosine schedule over ``epochs``."""
         h = self.hparams
         kernel = list(self.model.kernel.parameters()) if self.model.kernel is not None else []
         for q in kernel:

@@ -1,6 +1,5 @@
 """Train SkinNet on arrays in-process (no CLI, no checkpoints): model selection, refits, ``reproduce`` and ``seeds``;
-a plain torch loop (a Lightning ``Trainer`` costs more than the training itself on one session's chirps).
-"""
+a plain torch loop (a Lightning ``Trainer`` costs more than the training itself on one session's chirps)."""
 
 from __future__ import annotations
 
@@ -36,10 +35,7 @@ UNVALIDATED = "LDA (closed form)"
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
             batch_size: int = 128, fitted: dict | None = None, augmenter=None, **hparams):
-    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the
-    :class:`models.SkinNet`).  A ``layer`` ``"lda"`` or ``"kernel"`` starts as the artifact's model in ``fitted``;
-    ``augmenter``: ``(Augmenter, row -> augmenter row)``, used when ``augment`` is set.
-    """
+    """Fit on (X, cls, force) and return ``predict(X) -> (logits, force_all)`` as numpy (``predict.model``: the net)."""
     threads.apply_torch()  # sonicskin --threads / SONICSKIN_THREADS, not torch's every-core default
     torch.manual_seed(seed)
     np.random.seed(seed)
@@ -78,8 +74,7 @@ def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: i
 
 @contextlib.contextmanager
 def deterministic_torch():
-    """torch's deterministic algorithms for the block (the caller's setting restored after): the same seed, threads and
-    machine give bit-identical weights (see :mod:`training`)."""
+    """torch's deterministic algorithms for the block (restored after): same seed, threads and machine, same weights."""
     before, warn = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
     torch.use_deterministic_algorithms(True, warn_only=True)
     try:
@@ -96,10 +91,7 @@ def layer_hparams(name: str, *, n_in: int) -> dict:
 
 
 def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) -> dict:
-    """Each location layer of :data:`LAYERS` scored on the folds' held-out touch chirps (``folds``: ``[(fit rows,
-    held-out rows, augmenter)]``): the closed form by its own validation, each MLP trained on the fold's fit rows.
-    The best mean wins, compared at the printed whole percent (ties: the first in :data:`LAYERS`' order).  Returns the
-    choice with the winner's first-fold network (``"fold_model"``, trained on the training rows) when it trained one."""
+    """Each layer of :data:`LAYERS` scored on the folds' held-out touch chirps; the best mean at whole percent wins."""
     X, cls, force, n = data.X, data.cls, data.force, data.n_locations
     scores, models, widths = {}, {}, set()
     lda = (fitted[CLOSED_FORM].selection.get(CLOSED_FORM) or {}) if CLOSED_FORM in fitted else {}
@@ -115,8 +107,7 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
             if np.unique(cls[fit_rows & (cls < n)]).size < n:  # a location missing from the fold's training rows
                 accs = []
                 break
-            pred = fit_net(X[fit_rows], cls[fit_rows], force[fit_rows], n_locations=n, seed=seed, augmenter=aug,
-                           **{**kw, **hp})
+            pred = fit_net(X[fit_rows], cls[fit_rows], force[fit_rows], n_locations=n, seed=seed, augmenter=aug, **{**kw, **hp})
             accs.append(float(np.mean(pred(X[touch])[0][:, :n].argmax(1) == cls[touch])))
             if k == 0:
                 models[name] = pred.model
@@ -131,12 +122,9 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,
                     reference: np.ndarray, how: str) -> dict:
-    """The network's touch decision chosen on validation chirps (``logits`` of ``X``; ``touch``/``quiet`` masks),
-    each candidate run by the head the runtime runs (:meth:`sonicskin.kinds.net.NetHead.touch`): the SVM's input-RMS
-    detector (``threshold``, ``reference``: the network then detects exactly as the SVM does), or either of it and the
-    network's own touch logit (never a miss more than the SVM).  The lower balanced error wins, ties the SVM's.  The
-    head's logit alone, even recalibrated on the validation session, missed up to 18 % of a held-out rig's touches
-    where the SVM missed none (random seed 7015, issue 26), so it is reported, not chosen."""
+    """The network's touch decision chosen on validation chirps, each candidate run by the runtime's head: the SVM's
+    input-RMS detector, or either of it and the network's logit.  The lower balanced error wins, ties the SVM's.  The
+    logit alone missed up to 18 % of a held-out rig's touches (seed 7015, issue 26), so it is not a candidate."""
     reference = np.asarray(reference, np.float64).ravel()
     bins = min(DETECTOR_BINS, reference.size)
 

@@ -1,10 +1,7 @@
 """``sonicskin <verb>``: one command line for the simulated rig, datasets and models.
 
-:mod:`.parser` builds the grammar from light modules; each verb runs a function of :mod:`.data`, :mod:`.models`,
-:mod:`.live` or :mod:`.train` (torch), imported only when that verb runs.  A user error
-(:class:`sonicskin.errors.SonicskinError`, and the ``ValueError``/``OSError`` of bad files) is one line
-``sonicskin <verb>: error: <message>``, exit code 2 (``SONICSKIN_DEBUG=1``: its traceback); anything else is a bug.
-"""
+A user error (:class:`sonicskin.errors.SonicskinError`, and the ``ValueError``/``OSError`` of bad files) is one line
+``sonicskin <verb>: error: <message>``, exit code 2 (``SONICSKIN_DEBUG=1``: its traceback); anything else is a bug."""
 
 from __future__ import annotations
 
@@ -25,8 +22,7 @@ __all__ = ["build_parser", "main", "SonicskinError", "UsageError"]
 class _CtrlCInCallbacks:
     """Ctrl-C landing inside a C library's Python callback (soundfile's cffi ones cannot unwind it) is remembered
     (:attr:`swallowed`) and delivered again a moment later; :func:`main` reports an error that follows it as the
-    interruption it is.
-    """
+    interruption it is."""
 
     def __init__(self) -> None:
         self.swallowed = False

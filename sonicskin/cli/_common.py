@@ -17,8 +17,7 @@ from ..features import DEFAULT_N_BINS, FeatureSpec
 
 
 def check_split_options(a: argparse.Namespace) -> None:
-    """Split and Alg. 2 options that contradict each other, refused before any work.  ``--val none`` becomes an empty list
-    (no validation session), which every verb passes on as such (never the default split's)."""
+    """Split and Alg. 2 options that contradict each other, refused before any work (``--val none``: an empty list)."""
     val_opt = getattr(a, "val", None)
     if val_opt and any(v.lower() == "none" for v in val_opt):
         if len(val_opt) > 1:
@@ -49,8 +48,7 @@ def alg2_options(a: argparse.Namespace) -> dict:
 
 
 def resolve_n_bins(a: argparse.Namespace, data: str | Path | None, *, warn=None) -> int:
-    """The user's ``--n-bins`` (more than the dataset's usable bins: a usage error), or the default clamped to them
-    with a warning."""
+    """The user's ``--n-bins`` (more than the dataset's usable bins: a usage error), or the default clamped to them with a warning."""
     if data is None:
         return a.n_bins if a.n_bins is not None else DEFAULT_N_BINS
     n_allowed = int(Dataset(data).rig.allowed_mask.sum())
@@ -76,8 +74,7 @@ def writer_mode(a: argparse.Namespace) -> str:
 
 @contextlib.contextmanager
 def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
-    """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone
-    ``dataset.json``); what a previous run made is kept unless ``--overwrite`` replaced it, written parts are kept."""
+    """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone dataset.json)."""
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
     # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up

@@ -1,9 +1,5 @@
-"""The verbs without a model: ``simulate``, ``import-wav``, ``import-spectra`` (dataset writers), ``info`` and
-``devices``.  None of them loads scikit-learn, onnxruntime or matplotlib.
-
-Every writer takes ``--overwrite`` / ``--resume`` and leaves nothing behind when it fails before
-writing a part (:func:`._common.clean_on_failure`; the importers stage their whole output in a
-hidden folder and move it into place when complete)."""
+"""The verbs without a model: ``simulate``, ``import-wav``, ``import-spectra``, ``info`` and ``devices`` (no
+scikit-learn, onnxruntime or matplotlib).  A writer leaves nothing behind when it fails before writing a part."""
 
 from __future__ import annotations
 
@@ -71,8 +67,7 @@ def cmd_import_wav(a: argparse.Namespace) -> int:
 
 
 def cmd_import_spectra(a: argparse.Namespace) -> int:
-    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear,
-                   mode=writer_mode(a))
+    import_spectra(a.table, a.out, rig=Rig.load(a.rig) if a.rig else None, fs_hz=a.fs, frame=a.frame, linear=a.linear, mode=writer_mode(a))
     return 0
 
 

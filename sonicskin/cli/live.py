@@ -32,8 +32,7 @@ def _stdout_sink(line: str) -> None:
 
 
 def cmd_live(a: argparse.Namespace) -> int:
-    """One link (``--artifact``) or several on one interface (``--links``), simulated or an interface
-    (:func:`sonicskin.session.open_run`); without an artifact a simulated link is trained on the spot, once."""
+    """One link (``--artifact``) or several (``--links``); without an artifact a simulated link is trained on the spot, once."""
 
     check_blocksize(a.blocksize, "--blocksize")
     if a.lsl is not None and not a.lsl.strip():  # an LSL stream with an empty name cannot be found by any inlet
@@ -70,8 +69,7 @@ def cmd_live(a: argparse.Namespace) -> int:
                    foxglove=a.foxglove)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
-        print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)",
-              file=sys.stderr, flush=True)
+        print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)", file=sys.stderr, flush=True)
     for bus in run.buses:
         print(f"sonicskin live: {bus.kind} is on {bus.name}", file=sys.stderr, flush=True)
     lost = None
@@ -120,8 +118,7 @@ def cmd_record(a: argparse.Namespace) -> int:
 
 
 def _record_arm(a: argparse.Namespace) -> int:
-    """``record --links ARM --out DIR``: every link's guided session in turn (its TX/RX pair, its scenario's
-    markers) into ``DIR/<link>``, each with its artifact ``DIR/<link>-artifact`` unless --no-artifact."""
+    """``record --links ARM --out DIR``: every link's guided session in turn into ``DIR/<link>``, each with its artifact."""
     if a.tx or a.rx or a.scenario != "stationary" or a.locations or a.artifact:
         raise UsageError("record --links takes each link's channels and markers from the arm file and writes each link's "
                          "artifact next to its recording (OUT/<link>-artifact); drop --tx, --rx, --scenario, --locations "

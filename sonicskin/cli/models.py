@@ -29,8 +29,7 @@ TRAINING_OPTIONS = ("n_bins", "mode", "train", "test_subjects", "alpha_s", "beta
 
 
 def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
-    """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on
-    (the split code tests on every session not trained or validated on)."""
+    """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on."""
     if not a.test:
         return a.train, a.val
     sessions = Dataset(data).sessions
@@ -76,14 +75,12 @@ def cmd_fit_svm(a: argparse.Namespace) -> int:
         return _fit_svm_arm(a)
     n_bins = resolve_n_bins(a, a.data) if a.n_bins is not None else None  # None: chosen by validation
     with removed_on_failure(a.out):
-        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train,
-                           **alg2_options(a))
+        build_svm_artifact(a.data, a.out, n_bins=n_bins, mode=a.mode or "relative", train_sessions=a.train, **alg2_options(a))
     return 0
 
 
 def _fit_svm_arm(a: argparse.Namespace) -> int:
-    """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml,
-    the arm file that lists them (``live --links ART/arm.yaml``)."""
+    """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml."""
     rig, links = load_arm(a.links)
     data, out = Path(a.data), Path(a.out)
     absent = missing_datasets(links, data)
@@ -105,8 +102,7 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
 
 
 def cmd_compare(a: argparse.Namespace, extra: list[str]) -> int:
-    """``compare``: one verb, three entry points: ``--scenario`` (simulated datasets over seeds), ``--data`` with
-    ``--artifact`` (score a trained artifact) and ``--data`` alone (train both models, export, score)."""
+    """``compare``: ``--scenario`` (simulated), ``--data --artifact`` (score an artifact) or ``--data`` (train and score)."""
     if a.scenario:
         return _compare_scenarios(a)
     if a.links:
@@ -120,8 +116,7 @@ def _compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
 
 
 def _compare_arm(a: argparse.Namespace, extra: list[str]) -> int:
-    """``--links ARM --data DIR``: ``compare`` on every link (``DIR/<link>``; with ``--artifact ART``, the trained arm
-    folder or its arm.yaml, each link's artifact), one report per link under ``OUT/<link>``."""
+    """``--links ARM --data DIR``: ``compare`` on every link, one report per link under ``OUT/<link>``."""
     if not a.data:
         raise UsageError(f"compare --links {a.links} needs --data DIR, the folder of the links' datasets (DIR/<link>: "
                          f"`sonicskin simulate --links {a.links} --out DIR`)")
@@ -186,16 +181,14 @@ def _compare_artifact(a: argparse.Namespace, extra: list[str]) -> int:
     if not (artifact / "skin.json").is_file():
         raise FileNotFoundError(f"{artifact} is not a sonicskin artifact (no skin.json there); create one with "
                                 f"`sonicskin export` or `sonicskin fit-svm`, or drop --artifact to train both models")
-    if (extra or any(getattr(a, k) is not None for k in TRAINING_OPTIONS) or a.val is not None or not a.refit
-            or a.config != "moving"):
+    if (extra or any(getattr(a, k) is not None for k in TRAINING_OPTIONS) or a.val is not None or not a.refit or a.config != "moving"):
         raise UsageError("with --artifact the models are already trained; only --test chooses the sessions to "
                          "compare on (drop the training options or --artifact)")
     return _score_artifact(a, artifact, expected=True)
 
 
 def _score_artifact(a: argparse.Namespace, artifact: Path, *, expected: bool) -> int:
-    """Replay the test sessions (exactly ``--test`` when given) through ``artifact``, print and write the comparison;
-    ``expected``: print what model selection expected at training beside it."""
+    """Replay the test sessions through ``artifact``, print and write the comparison (``expected``: selection's estimate)."""
     res = compare_artifact(artifact, a.data, sessions=a.test)
     title = f"{Path(a.data).name}: " + " vs ".join(res["labels"][k] for k in res["models"])
     print(format_comparison(res, title))

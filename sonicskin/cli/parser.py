@@ -1,9 +1,5 @@
-"""The command line's grammar: every verb, its options and their value types.
-
-Building the parser imports nothing a verb runs: each verb names its implementation as ``"module:function"`` of
-this package (:mod:`.data`, :mod:`.models`, :mod:`.live`, and :mod:`.train` for the torch verbs), imported by
-:func:`sonicskin.cli.main` only when that verb runs.
-"""
+"""The command line's grammar: every verb, its options and their value types.  Each verb names its implementation as
+``"module:function"``, imported by :func:`sonicskin.cli.main` only when that verb runs."""
 
 from __future__ import annotations
 
@@ -99,8 +95,7 @@ def _verb(sub, name: str, func: str, *, help: str, description: str, add_help: b
 
 
 def add_model_options(p: argparse.ArgumentParser, *, train_default: str = "the first") -> None:
-    """The options every model verb shares (evaluate, fit-svm, train, export, compare): OSPA bins,
-    model inputs and the split of sessions / people."""
+    """The options every model verb shares: OSPA bins, model inputs and the split of sessions / people."""
     g = p.add_argument_group("model and split options (the same on evaluate, fit-svm, train, export, compare)")
     g.add_argument("--n-bins", type=positive_int, metavar="GAMMA",
                    help=f"OSPA gamma, the bins the SVM reads (default: chosen by validation in fit-svm, train, export and "
@@ -164,8 +159,7 @@ def _data_verbs(sub) -> None:
     rc.add_argument("--out", required=True, help="dataset folder")
     rc.add_argument("--device", default="sim",
                     help="'sim' (a simulated person follows the prompts) or an audio device name/index (default: sim)")
-    rc.add_argument("--scenario", default="stationary",
-                    help="layout of the markers (and the simulated link/person) (default: stationary)")
+    rc.add_argument("--scenario", default="stationary", help="layout of the markers (and the simulated link/person) (default: stationary)")
     rc.add_argument("--rig", help="rig name or YAML path (default: the --links arm file's rig, else jaco)")
     rc.add_argument("--links", metavar="ARM", help="record every link of an arm file in turn, each on its TX/RX pair with its markers, "
                                                    "into OUT/<link> (default: one link)")
@@ -227,8 +221,7 @@ def _model_verbs(sub) -> None:
                           "absolute keeps the training session's reference throughout.")
     e.add_argument("--data", required=True, help="dataset folder")
     e.add_argument("--out", help="report folder (default: reports/<dataset name>)")
-    e.add_argument("--no-ablations", action="store_true",
-                   help="skip the no-OSPA / no-calibration / total-energy runs (default: run them)")
+    e.add_argument("--no-ablations", action="store_true", help="skip the no-OSPA / no-calibration / total-energy runs (default: run them)")
     add_model_options(e)
 
     f = _verb(sub, "fit-svm", "models:cmd_fit_svm", help="SVM-only artifact from a recording, no torch needed",
@@ -286,8 +279,7 @@ def _model_verbs(sub) -> None:
                description="Simulate every dataset the paper's experiments need (cached under OUT/data), train both models, write PNG "
                            "figures and report.md with the paper's numbers beside ours.")
     rp.add_argument("--out", default="reports/reproduce", help="report folder (default: reports/reproduce)")
-    rp.add_argument("--quick", action="store_true",
-                    help="small datasets and short training: a few minutes on 2 cores (default: full size)")
+    rp.add_argument("--quick", action="store_true", help="small datasets and short training: a few minutes on 2 cores (default: full size)")
     rp.add_argument("--seeds", type=nonneg_int, nargs="+", metavar="K",
                     help="simulator seeds, each another simulated link and presses (default: 0 1 quick, 0 1 2 full)")
     rp.add_argument("--rig", default="jaco", help="the simulated rig, a name (jaco, fast) or a YAML path (default: jaco)")
@@ -409,8 +401,7 @@ def need_train_extra(verb: str) -> None:
 
 
 def verb_function(spec: str, verb: str = "train"):
-    """The function ``"module:function"`` of this package's CLI, its module imported now.  The torch verbs' module
-    (:mod:`.train`) needs the training extra: without it, ``verb`` is refused in one line."""
+    """The function ``"module:function"`` of this package's CLI, imported now (the torch verbs need the training extra)."""
     module, _, name = spec.partition(":")
     if module == "train":
         need_train_extra(verb)

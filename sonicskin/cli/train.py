@@ -95,8 +95,7 @@ def cmd_export(a: argparse.Namespace) -> int:
 
 
 def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None, refit: bool = True) -> None:
-    """:func:`sonicskin.training.fit.artifact_from_checkpoint` with one result line: torch.onnx's progress prints and third-party
-    warnings are dropped, a half-made artifact is removed, an unreadable checkpoint is one line (training.checkpoint refuses it)."""
+    """:func:`sonicskin.training.fit.artifact_from_checkpoint` with one result line and no third-party noise."""
     stdout = sys.stdout
     with removed_on_failure(out), quiet_third_party(), contextlib.redirect_stdout(io.StringIO()):
         artifact_from_checkpoint(ckpt, out, data=data, refit=refit, log=lambda msg: print(msg, file=stdout))
@@ -105,8 +104,7 @@ def export_quietly(ckpt: Path, out: str | Path, *, data: str | Path | None, refi
 def compare_trained(a: argparse.Namespace, extra: list[str]) -> int:
     """``compare --data``: train and export both models on the same split, then score the artifact."""
     run = Path(a.runs) / f"compare-{Path(a.data).name}"
-    args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run),
-                                   "--trainer.logger.init_args.save_dir", str(run)] + extra)
+    args = _train_args(a, a.data, ["--trainer.default_root_dir", str(run), "--trainer.logger.init_args.save_dir", str(run)] + extra)
     cli = train_main(args)
     if not cli.trainer.is_global_zero:  # DDP: rank zero exports and compares
         return 0

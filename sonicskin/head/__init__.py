@@ -1,10 +1,7 @@
 """One decision path: model outputs -> touch, location, position, force, confidence.
 
-:class:`Predictions` is the one record of per-chirp decisions; a model kind's head turns its ONNX outputs into them
-(:class:`ScoreHead` for the closed forms: Alg. 2's score offset, the touch detector, the force model);
-:class:`Stream` runs one stream chirp by chirp or replays a recording (band features -> bins -> Alg. 2 -> model ->
-head), for ``live``, ``listen()``, ``compare``, ``evaluate``, ``seeds`` and ``reproduce`` alike.
-"""
+:class:`Predictions` is the one record of per-chirp decisions; a model kind's head turns its ONNX outputs into them;
+:class:`Stream` runs one stream chirp by chirp or replays a recording, for every verb alike."""
 
 from .heads import DETECTOR_BINS, DETECTORS, Predictions, ScoreHead, input_rms, touch_statistic
 from .stream import Stream

@@ -61,12 +61,9 @@ class Predictions:
 
 def touch_statistic(V_cal: np.ndarray, n_locations: int, n_bins: int | None = None, *, detector: str = "input-rms"
                     ) -> np.ndarray:
-    """The touch statistic of calibrated score vectors ``V_cal = V - S_c`` (:meth:`ScoreHead.scores`):
-    ``input-rms`` (default), the RMS change (dB) of the first ``n_bins`` model inputs from the no-touch reference
-    (how far the bins moved is what a touch does physically; an RBF SVM gives the same scores to every input far
-    from its training touches, so a firm press at the location that wins at rest went unseen); ``paper``, the
-    calibrated per-location score ``max(S - S_c)``.
-    """
+    """The touch statistic of calibrated score vectors: ``input-rms`` (default), the RMS change (dB) of the first
+    ``n_bins`` inputs from the reference (an RBF SVM gives the same scores to every input far from its training
+    touches), or ``paper``, ``max(S - S_c)``."""
     V_cal = np.asarray(V_cal, np.float64)
     if detector == "paper":
         return np.max(V_cal[:, :n_locations], axis=1)
@@ -109,9 +106,7 @@ def centroid(w: np.ndarray, layout: Layout, k: int = 3) -> np.ndarray:
 
 
 class ScoreHead:
-    """The decisions of a closed-form model from its per-location scores ``S``: the argmax of the raw ``S``, the
-    detector on ``V - S_c`` (``V = [S, inputs]``), the force model there; a subclass gives ``S``, confidence, weights.
-    """
+    """The decisions of a closed-form model from its per-location scores ``S``; a subclass gives ``S`` and confidence."""
 
     calibrated = True  # Alg. 2 averages its score vectors (:meth:`scores`)
 
@@ -151,5 +146,4 @@ class ScoreHead:
         E = energy_db(inputs, np.arange(inputs.shape[1])) - self.energy_ref_db
         f = self.force_model.predict(E, self.ids[idx], inputs=inputs)
         f = np.where(touch, np.clip(f, 0, None), 0.0)
-        return Predictions(touch, self.ids[idx], centroid(self.weights(S), self.layout), f, self.confidence(S),
-                           V_cal[:, :self.K])
+        return Predictions(touch, self.ids[idx], centroid(self.weights(S), self.layout), f, self.confidence(S), V_cal[:, :self.K])

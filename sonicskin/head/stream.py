@@ -1,9 +1,5 @@
-"""One stream through one model: band features -> bins -> Alg. 2 reference -> model -> head.
-
-The live loop calls :meth:`Stream.frame` (or :meth:`Stream.chirp`) once per chirp; every offline report
-replays a recorded stream with :meth:`Stream.replay`, which gives the same decisions vectorised between
-reference refreshes.
-"""
+"""One stream through one model: band features -> bins -> Alg. 2 reference -> model -> head, chirp by chirp
+(:meth:`Stream.frame`) or replayed vectorised between reference refreshes (:meth:`Stream.replay`), same decisions."""
 
 from __future__ import annotations
 
@@ -36,16 +32,9 @@ def band_rows(X, n_band: int) -> np.ndarray:
 
 
 class Stream:
-    """Alg. 2's online reference and the per-chirp path of one model.
-
-    :meth:`chirp` and :meth:`replay` decide the reference with the same
-    :class:`~sonicskin.calibration.OnlineReference` (boot, then refreshes on chirps this model's own detector calls
-    no-touch); no label reaches it.  ``run``: ``inputs (n, len(spec.bins)) -> outputs`` (the ONNX graph); ``head``:
-    the kind's head (a ``calibrated`` head's scores are what Alg. 2 averages, any other reads the no-touch inputs);
-    ``spec``, ``rig``: the artifact's.  ``drift``: a :class:`~sonicskin.drift.DriftTracker` (or ``None``): every new
-    reference then also estimates the channel's frequency stretch, and every chirp and the reference are mapped back
-    onto the training frequency axis before the model.
-    """
+    """Alg. 2's online reference and the per-chirp path of one model: :meth:`chirp` and :meth:`replay` share one
+    :class:`~sonicskin.calibration.OnlineReference` fed by this model's own detector, no label.  ``run``: the ONNX graph;
+    ``drift``: a :class:`~sonicskin.drift.DriftTracker` mapping every chirp back onto the training frequency axis."""
 
     def __init__(self, run: Callable[[np.ndarray], list[np.ndarray]], head, spec, rig, *, drift=None):
         self.run, self.head, self.spec, self.rig, self.drift = run, head, spec, rig, drift
@@ -59,16 +48,14 @@ class Stream:
             self.reference = spec.reference(rig.chirps_per_s, relative=False, score_fn=self._on_reference)
 
     def _inputs(self, x: np.ndarray) -> np.ndarray:
-        """Model inputs of rows the reference holds: the bins as they are, or (drift tracking) band rows mapped back
-        onto the training axis, minus the reference in relative mode."""
+        """Model inputs of rows the reference holds (drift tracking: band rows mapped back), minus it in relative mode."""
         if self.drift is None:
             return self.reference.inputs(x)
         z = self.drift.warp_bins(x, self._bins)
         return z - self._ref_inputs if self.spec.mode == "relative" else z
 
     def _on_reference(self, block: np.ndarray) -> np.ndarray:
-        """A new reference took effect (its band rows ``block``): estimate the stretch from them, then the score
-        material Alg. 2 averages (the SVM's ``S_c``) on the warped axis."""
+        """A new reference took effect: estimate the stretch from its band rows, then the scores Alg. 2 averages (``S_c``)."""
         self.drift.update(block)
         self._ref_inputs = self.drift.warp_bins(self.reference.features, self._bins)
         inputs = self._inputs(block)
@@ -118,8 +105,7 @@ class Stream:
         return p
 
     def replay(self, X_band: np.ndarray, time_s: np.ndarray) -> Predictions:
-        """Every chirp of a recorded stream (n, n_band) in order, vectorised between reference refreshes, as :meth:`chirp`
-        gives them one at a time (boot chirps: ``calibrating``, no touch, location -1, NaN position)."""
+        """Every chirp of a recorded stream (n, n_band), vectorised between reference refreshes, as :meth:`chirp` gives them."""
         X = band_rows(X_band, self.rig.n_band)
         if self.drift is None:
             X = X[:, self.bins]

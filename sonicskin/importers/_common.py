@@ -21,8 +21,7 @@ class ImportDataError(SonicskinError):
 
 @contextlib.contextmanager
 def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
-    """Where to write and the DatasetWriter mode; moves a finished new dataset into place, removes a failed one.
-    ``out`` is locked for the whole import, so a second writer is refused before it touches the staging folder."""
+    """Where to write and the writer mode; ``out`` locked for the whole import, a finished dataset moved into place."""
     if mode not in ("create", "overwrite", "resume"):
         raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
     if out.exists() and not out.is_dir():

@@ -23,8 +23,7 @@ MARKER_SPREAD_CM = 1.0  # rows of one location whose x_cm/y_cm differ by more th
 
 
 def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=None, y_cm=None, rows=None) -> None:
-    """Label values at the door: force NaN (no sensor) or finite in [0, MAX_FORCE_N]; moving finite in [0, 1];
-    subject a whole number >= 0; coordinates NaN or finite.  ``rows``: names of the rows for the message."""
+    """Label values at the door: force, moving, subject and coordinates in range (``rows``: row names for the message)."""
     def first(mask, col, vals, want):
         mask = np.asarray(mask, bool)
         if mask.any():
@@ -42,8 +41,7 @@ def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=Non
         first(~((m >= 0) & (m <= 1)), "moving", moving, "the motion level is a number in [0, 1]")
     if subject is not None:
         v = np.asarray(subject, float)
-        first(~(np.isfinite(v) & (v >= 0) & (v < 2**31) & (v == np.round(v))), "subject", subject,
-              "a subject is a whole number >= 0")
+        first(~(np.isfinite(v) & (v >= 0) & (v < 2**31) & (v == np.round(v))), "subject", subject, "a subject is a whole number >= 0")
     for col, c in (("x_cm", x_cm), ("y_cm", y_cm)):
         if c is not None:
             v = np.asarray(c, float)
@@ -67,8 +65,7 @@ def _is_no_touch(v) -> bool:
 
 
 def label_layout(labels, x_cm=None, y_cm=None, *, where: str = "labels", log=print) -> tuple[np.ndarray, Layout, dict]:
-    """``(ids, layout, names)`` for a column of raw ``labels`` (integers, numbers or strings): each row's location
-    id (-1: no touch), one marker per distinct touch label (at ``x_cm``/``y_cm`` where given), and ``{id: label}``."""
+    """``(ids, layout, names)`` for raw ``labels``: each row's location id (-1: no touch), one marker per label, ``{id: label}``."""
     raw = np.asarray(labels)
     vals = [v.strip() if isinstance(v, str) else v for v in raw.tolist()]
     touch = np.array([not _is_no_touch(v) for v in vals], bool)
@@ -185,8 +182,7 @@ def _strict_float(text: str) -> float:
 
 
 def _read_labels(path: Path) -> list[dict]:
-    """The label CSV's rows, each checked: known columns (a misspelled optional one is refused, not ignored), one
-    value per column, plain numbers, finite times, values in range."""
+    """The label CSV's rows, each checked (a misspelled optional column is refused, not ignored)."""
     try:
         if path.stat().st_size > 256 * 2**20:
             raise ImportDataError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is not a label CSV of touch intervals")

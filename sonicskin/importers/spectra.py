@@ -19,16 +19,13 @@ from ._common import PEAK_LEVEL, ImportDataError, _first_touch, _staged, _write_
 from .labels import _check_values, label_layout
 
 # Sample rates of common audio interfaces, preferred in this order when the axis fits several equally.
-STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000,
-                     11_025, 22_050, 24_000)
+STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000, 11_025, 22_050, 24_000)
 MAX_SPAN_DB = 200.0  # dB between the quietest and the loudest value of a table of measured spectra
 
 
 def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: int | None = None,
                   log=print) -> Rig:
-    """The rig whose FFT bins are a table's frequency axis (spacing ``fs / frame``; without ``fs_hz``/``frame``
-    the lowest standard rate that fits), each column at its nearest bin; its band is the table's columns.
-    """
+    """The rig whose FFT bins are a table's frequency axis (without ``fs_hz``/``frame``: the lowest standard rate that fits)."""
     f = np.asarray(freqs_hz, float)
     if f.ndim != 1 or f.size < 2:
         raise ValueError(f"freqs_hz must list at least two frequencies, got shape {f.shape}")
@@ -99,8 +96,7 @@ def rig_from_axis(freqs_hz: np.ndarray, *, fs_hz: float | None = None, frame: in
 
 
 def _segments(touch: np.ndarray, moving: np.ndarray) -> np.ndarray:
-    """Segments of a session's rows: touches, the hands-off rows before the first touch as the boot calibration, the
-    later ones as no-touch chirps ("gap", or "moving" with the robot moving)."""
+    """Segments of a session's rows: touches, the rest before the first touch as the boot, later rest as no-touch."""
     later = np.arange(touch.size) >= _first_touch(touch)
     return np.where(touch, "touch", np.where(~later, "calibration", np.where(moving > 0, "moving", "gap")))
 
@@ -115,8 +111,7 @@ def _looks_linear(M: np.ndarray) -> bool:
 
 _TABLE_ARRAYS = ("freqs_hz", "magnitude_db", "location", "session", "x_cm", "y_cm", "force_n", "moving", "subject")
 def _check_array_names(table: Path) -> None:
-    """An array whose name is a near miss of one the importer reads (``force`` for ``force_n``, ``X_cm``) would be
-    ignored and its values silently lost: refused, naming the array it resembles."""
+    """Refuse an array whose name is a near miss of one the importer reads (``force`` for ``force_n``): it would be lost."""
     import zipfile
 
     try:
@@ -135,8 +130,7 @@ def _check_array_names(table: Path) -> None:
 
 def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None, fs_hz: float | None = None,
                    frame: int | None = None, linear: bool = False, mode: str = "create", log=print) -> Path:
-    """Import the ``.npz`` ``table`` of magnitude spectra into the dataset folder ``out``: ``rig`` instead of the one
-    of the axis, ``linear`` magnitudes (not dB), ``mode`` create/overwrite/resume."""
+    """Import the ``.npz`` ``table`` of magnitude spectra (``linear``: not dB) into the dataset folder ``out``."""
     table, out = Path(table), Path(out)
     _check_array_names(table)
     # Only the arrays this importer uses are read, each checked from its header first.

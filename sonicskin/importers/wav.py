@@ -72,8 +72,7 @@ def _sf_read(p: Path, what: str = "recording") -> tuple[np.ndarray, int]:
 
 
 def _repeats(x: np.ndarray) -> int | None:
-    """How many times a shorter period repeats within the periods ``x``: the most repeats k in 16..2 whose lag
-    ``n / k`` keeps 90 % of the circular autocorrelation (median over rows); ``None`` when none does."""
+    """How many times a shorter period repeats within the periods ``x`` (16..2, 90 % autocorrelation), or ``None``."""
     x = np.atleast_2d(np.asarray(x, np.float64))
     n = x.shape[1]
     r = scipy.fft.irfft(np.abs(scipy.fft.rfft(x, axis=1)) ** 2, n=n, axis=1)
@@ -84,9 +83,7 @@ def _repeats(x: np.ndarray) -> int | None:
 
 
 def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, channel: int = 0, channels: int = 1) -> None:
-    """A recording cut into sweep periods holds the sweep: consecutive periods repeat, no shorter period repeats, and
-    the repeating part has power in the sweep's band (else --period/--sweep/--chirp do not describe the file); no
-    sweep may be clipped."""
+    """A recording cut into sweep periods holds the sweep (else --period/--sweep/--chirp do not describe the file)."""
     n, L = frames.shape
     fix = "check --period/--chirp or --sweep (and that the file is the receiver's recording)"
     if n < 2:
@@ -146,8 +143,7 @@ def _check_received(frames: np.ndarray, rig: Rig, p: Path, *, offset: int = 0, c
 
 
 def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
-    """Whether label row ``r``'s interval holds no whole sweep but the start of the recording's last, incomplete one
-    (the sweep after the last whole frame, begun before the file ends)."""
+    """Whether label row ``r``'s interval holds only the start of the recording's last, incomplete sweep."""
     if not t.size:
         return False
     nxt = t[-1] + rig.period_s  # where the incomplete sweep starts
@@ -157,8 +153,7 @@ def _cut_short(r: dict, t: np.ndarray, n_samples: int, rig, fs: float) -> bool:
 def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, sweep_wav: str | Path | None = None,
                chirp_hz: tuple[float, float] | None = None, period_s: float | None = None, amplitude: float = 1.0,
                channel: int = 0, pwm_hz=(), pwm_halfwidth_hz: float = 0.0, mode: str = "create", log=print) -> Path:
-    """Import WAV recordings into a dataset folder; returns it.  ``mode``: ``"create"``, ``"overwrite"`` or
-    ``"resume"`` (keeps the recordings imported already); a failed import leaves no new dataset behind."""
+    """Import WAV recordings into a dataset folder and return it; a failed import leaves no new dataset behind."""
 
     wav_dir, labels, out = Path(wav_dir), Path(labels), Path(out)
     if not wav_dir.is_dir():

@@ -1,11 +1,7 @@
-"""Model kinds: what an artifact can deploy, one module each, one registry.
+"""Model kinds: what an artifact can deploy, one module each, one registry (:data:`KINDS`).
 
-A kind (:class:`ModelKind`) declares how it is fitted on a :class:`~sonicskin.fit.TrainingData` (its options chosen on
-the validation presses), exported to ONNX with its parity check, its ``skin.json`` entry, its head and the lines it
-prints; the writer, the schema, the integrity checks, ``compare``, ``--model``, ``seeds`` and ``reproduce`` iterate
-:data:`KINDS`.  Here: ``svm`` (:mod:`.svm`), ``lda`` (:mod:`.lda`) and the network's runtime half (:mod:`.net`); its
-fit and export need torch and come from the ``sonicskin.kinds`` entry point, loaded by :func:`get` only to fit one.
-"""
+``svm`` (:mod:`.svm`), ``lda`` (:mod:`.lda`) and the network's runtime half (:mod:`.net`); its fit and export need
+torch and come from the ``sonicskin.kinds`` entry point, loaded by :func:`get` only to fit one."""
 
 from __future__ import annotations
 
@@ -20,8 +16,7 @@ __all__ = ["ModelKind", "Fitted", "KINDS", "BASELINE", "NETWORK", "CLOSED_FORM",
 
 @dataclasses.dataclass
 class Fitted:
-    """One fitted model: its estimator, ``skin.json`` entry fields, the first ``n_in`` inputs it reads, what it chose
-    (``selection``) and its fit time."""
+    """One fitted model: its estimator, ``skin.json`` entry fields, inputs read, its choices and its fit time."""
 
     model: Any
     entry: dict
@@ -60,8 +55,7 @@ class ModelKind:
         raise NotImplementedError
 
     def fit(self, data, *, fitted: dict, selection: dict | None = None, log=print, **options) -> Fitted:
-        """Fit on the training rows of ``data``; ``selection``: its choices already made (a refit), else chosen here on
-        the validation rows (or the measured default when there are none)."""
+        """Fit on the training rows of ``data``; ``selection``: choices already made (a refit), else chosen here."""
         raise NotImplementedError
 
     def export(self, fit: Fitted, path, X_check) -> dict:

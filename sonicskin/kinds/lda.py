@@ -1,11 +1,7 @@
 """The closed-form model: shrinkage LDA on OSPA's best bins, each chirp's level removed or scaled to unit length.
 
-One within-marker covariance shared by every marker (Ledoit-Wolf shrunk, :class:`ShrinkageLDA`) learns what varies
-between two presses at one marker from all markers at once, which an RBF SVM with one press per marker cannot.
-Its bins (the first ``k`` in OSPA's order) and normalisation are chosen on the validation presses, else
-:data:`DEFAULTS`.  Its scores go through the SVM's head (:class:`~sonicskin.head.ScoreHead`), and the network's
-``lda`` location layer is this model, frozen.
-"""
+One within-marker covariance shared by every marker learns what varies between two presses at one marker from all
+markers at once, which an RBF SVM with one press per marker cannot.  The network's ``lda`` layer is this model, frozen."""
 
 from __future__ import annotations
 
@@ -40,8 +36,7 @@ DEFAULTS = {"relative": (1000, "unit"), "absolute": (None, "unit")}
 
 
 def ledoit_wolf_shrinkage_gram(Z: np.ndarray) -> float:
-    """Ledoit-Wolf shrinkage of the covariance of the centred rows ``Z`` (n, d) from the n x n Gram matrix:
-    :func:`sklearn.covariance.ledoit_wolf_shrinkage`'s value in O(n^2 d) instead of O(n d^2)."""
+    """Ledoit-Wolf shrinkage of the centred rows ``Z`` (n, d) from the Gram matrix: sklearn's value in O(n^2 d)."""
     n, d = Z.shape
     if d == 1 or n == 0:
         return 0.0
@@ -65,8 +60,7 @@ class ShrinkageLDA(LinearClassifierMixin, BaseEstimator):
     training samples, so 5,000 bins and a few hundred chirps take milliseconds instead of seconds and hundreds of MB.
     ``shrinkage``: "auto" (Ledoit-Wolf per class on standardised features) or a fixed value in [0, 1]; ``priors``:
     default the class proportions.  Fitted: ``classes_``, ``means_``, ``priors_``, ``shrinkage_`` (per class),
-    ``coef_``, ``intercept_``, ``n_features_in_``.
-    """
+    ``coef_``, ``intercept_``, ``n_features_in_``."""
 
     def __init__(self, shrinkage="auto", priors=None):
         self.shrinkage = shrinkage
@@ -156,8 +150,7 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
 
 
 def linear_scores(lda, margin: float = 8.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(W (K, d), b (K,), c (d,))``: the LDA's per-class scores ``(x - c) W' + b`` about the training centre ``c``,
-    scaled so that at the class means the best leads the second by ``margin`` (a confident, unsaturated softmax)."""
+    """``(W, b, c)``: the LDA's scores ``(x - c) W' + b``, scaled so the best leads the second by ``margin`` at the means."""
     W, b = np.asarray(lda.coef_, np.float64), np.asarray(lda.intercept_, np.float64)
     if W.shape[0] == 1:  # scikit-learn's binary convention: one row, positive for classes_[1]
         W, b = np.vstack([-W / 2, W / 2]), np.r_[-b / 2, b / 2]
@@ -186,8 +179,7 @@ def lda_candidates(n_in: int) -> list[tuple[int, str]]:
 
 
 def choose(data, log=None) -> dict:
-    """The bins and normalisation chosen on presses not trained on (:meth:`sonicskin.fit.TrainingData.folds`): the
-    best mean accuracy compared at whole percent, ties to the measured default; the default without folds."""
+    """The bins and normalisation chosen on presses not trained on (whole percent, ties to the default)."""
     n_in, n = data.X.shape[1], data.n_locations
     dk, dnorm = DEFAULTS[data.spec.mode]
     default = (n_in if dk is None else min(dk, n_in), dnorm)
@@ -215,8 +207,7 @@ def choose(data, log=None) -> dict:
 
 
 class LDAHead(ScoreHead):
-    """The LDA's decisions from its ONNX output (its per-location scores): location the best score, confidence its
-    probability (softmax), touch and force as the SVM's (:class:`~sonicskin.head.ScoreHead`)."""
+    """The LDA's decisions: location the best score, confidence its softmax, touch and force as the SVM's."""
 
     def location_scores(self, outputs):
         return np.asarray(outputs[0], np.float64)
@@ -261,8 +252,7 @@ class LDAKind(ModelKind):
         return Fitted(lda, {**entry, "norm": norm}, k, {"lda": sel}, time.perf_counter() - t0)
 
     def export(self, fit, path, X_check):
-        """The LDA as an ONNX graph (the normalisation, the centre, then one Gemm), then parity of its scores and location on
-        ``X_check`` against numpy's."""
+        """The LDA as an ONNX graph (normalisation, centre, one Gemm), then parity of its scores and location."""
         import onnx
         from onnx import TensorProto, helper, numpy_helper
 

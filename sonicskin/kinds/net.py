@@ -1,8 +1,5 @@
-"""The network's runtime half: its head (decisions from its ONNX outputs) and its ``skin.json`` entry.
-
-Fitting and exporting it needs torch: :mod:`sonicskin.training.kind` subclasses :class:`NetKind` with them and is
-registered through the ``sonicskin.kinds`` entry point (:func:`sonicskin.kinds.get` loads it only to fit one).
-"""
+"""The network's runtime half: its head and its ``skin.json`` entry (its fit and export need torch:
+:mod:`sonicskin.training.kind`, through the ``sonicskin.kinds`` entry point)."""
 
 from __future__ import annotations
 
@@ -32,8 +29,7 @@ class NetHead:
     """The network's decisions from its ONNX outputs ``[logits (n, N + 1), force (n, N)]``: touch by the entry's
     ``detector`` (:data:`NET_DETECTORS`; absent: ``p(touch) >= 0.5``), the most likely marker, the force there or (an
     entry with ``force``) the SVM's validated force model on the first ``force_bins`` inputs.  Training chooses the
-    detector and the force by calling :meth:`touch` and :meth:`force`, so what it chooses is what runs.
-    """
+    detector and the force by calling :meth:`touch` and :meth:`force`, so what it chooses is what runs."""
 
     calibrated = False  # Alg. 2 gives it the stream's no-touch inputs, not score vectors
 

@@ -24,9 +24,7 @@ __all__ = ["SVMKind", "SVMHead", "ovr_scores_from_ovo", "pairwise", "ovo_decisio
 
 
 def ovr_scores_from_ovo(ovo: np.ndarray, n_classes: int) -> np.ndarray:
-    """Per-class scores (n, K) from the pairwise SVM decision values ``ovo`` (libsvm pair order): scikit-learn's
-    ``decision_function_shape="ovr"`` transform, outside the model so the ONNX graph stays tiny.
-    """
+    """Per-class scores (n, K) from pairwise decision values: scikit-learn's ``ovr`` transform, outside the ONNX graph."""
     ovo = np.asarray(ovo, dtype=np.float64)
     if n_classes == 2 and ovo.ndim == 2 and ovo.shape[1] == 2:
         ovo = ovo[:, 0]  # skl2onnx's binary SVM output is [d, -d] with scikit-learn's d
@@ -67,8 +65,7 @@ def pairwise(ovo: np.ndarray, n_locations: int) -> np.ndarray:
 
 
 def ovo_decision(pipe, X: np.ndarray, block: int = 2048) -> np.ndarray:
-    """``pipe.decision_function(X)`` of a fitted scaler + RBF ``SVC(ovo)``, the kernel matrix one BLAS product per
-    block (libsvm's loop is 10-20x slower on thousands of bins); scikit-learn's up to float64 rounding."""
+    """``pipe.decision_function(X)`` of a scaler + RBF ``SVC(ovo)``, one BLAS product per block (10-20x libsvm's speed)."""
     svc = pipe[-1]
     Z = np.asarray(pipe[:-1].transform(X), np.float64)
     S = np.asarray(svc.support_vectors_, np.float64)
@@ -91,8 +88,7 @@ def ovo_decision(pipe, X: np.ndarray, block: int = 2048) -> np.ndarray:
 
 
 class SVMHead(ScoreHead):
-    """The SVM's decisions from its ONNX outputs ``[label, pairwise scores]`` (:class:`~sonicskin.head.ScoreHead`):
-    ``S`` are votes plus confidences, the confidence is the share of pairwise votes won."""
+    """The SVM's decisions: ``S`` are votes plus confidences, the confidence the share of pairwise votes won."""
 
     def location_scores(self, outputs):
         return ovr_scores_from_ovo(pairwise(outputs[1], self.K), self.K)
@@ -105,8 +101,7 @@ class SVMHead(ScoreHead):
 
 
 def fit_pipeline(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float = 10.0, kernel_width: float | None = None):
-    """Scaler + RBF ``SVC(decision_function_shape="ovo")`` on the touch chirps (``cls < n_locations``) of ``X``; RBF
-    gamma ``kernel_width / n_features`` on the standardised inputs (``None``: scikit-learn's ``"scale"``)."""
+    """Scaler + RBF ``SVC(ovo)`` on the touch chirps of ``X``, RBF gamma ``kernel_width / n_features`` (``None``: "scale")."""
     touch = cls < n_locations
     pipe = Pipeline([("scale", StandardScaler()), ("svc", SVC(kernel="rbf", C=C, decision_function_shape="ovo",
                                                               gamma="scale" if kernel_width is None else kernel_width / X.shape[1]))])
@@ -118,8 +113,7 @@ def fit_pipeline(X: np.ndarray, cls: np.ndarray, n_locations: int, *, C: float =
 
 
 def export_pipeline(pipe, path, X_check: np.ndarray) -> dict:
-    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check`` (location, scores, pairwise
-    decision values within :data:`~sonicskin.parity.PARITY_TOL`); :class:`~sonicskin.parity.ParityError` otherwise."""
+    """scikit-learn scaler + SVC(ovo) -> ONNX (2 nodes), then parity on ``X_check``."""
     import sklearn
     from skl2onnx import to_onnx
 
@@ -176,8 +170,7 @@ class SVMKind(ModelKind):
 
     def fit(self, data, *, fitted, selection=None, log=print, select: bool = True, C: float = 10.0,
             kernel_width: float | None = None, force_model: str = "fourier1", detector: str = "input-rms") -> Fitted:
-        """Scaler + SVC on the training touch chirps of ``data``'s first ``n_svm`` inputs, then its reference, detector
-        and force; ``select``: C, kernel width and force model validated, else the given (the paper's) values."""
+        """Scaler + SVC on the training touch chirps, then its reference, detector and force (``select``: validated)."""
         d = data.narrow(data.n_svm)
         train, val = d.rows("train"), d.rows("val")
         n = d.n_locations
@@ -217,8 +210,7 @@ class SVMKind(ModelKind):
             p, e = loc["params"], loc["estimate"]
             lo, hi = e["ci95"]
             ci = f", 95 % interval over presses {lo:.0%}-{hi:.0%}" if _finite(lo, hi) else ""
-            paper = (f"; the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%}" if loc.get("paper_accuracy") is not None
-                     else "")
+            paper = (f"; the paper's gamma 300 / C 10: {loc['paper_accuracy']:.0%}" if loc.get("paper_accuracy") is not None else "")
             out.append(f"chose gamma {p['n_bins']}, C {p['C']:g}, kernel width {p['kernel_width']:g} x 'scale' "
                        f"(validation accuracy {e['accuracy']:.0%} on {e['n_presses']} presses, {loc['how']}{ci}{paper})")
             lc = loc.get("learning_curve")

@@ -1,10 +1,7 @@
 """``sonicskin reproduce``: the paper's Sec. V on the simulated rig, SVM and network side by side.
 
-Every experiment (:mod:`.experiments`, sharing a :class:`~.context.Context` per simulator seed) trains both models on the
-same split of a simulated dataset (made on first use under ``<out>/data``) through the one fit, exports them,
-replays the test streams through the artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's.
-Without torch the network's columns read n/a; ``--quick`` shrinks every dataset and the network's training.
-"""
+Every experiment (:mod:`.experiments`) trains both models on the same split through the one fit, replays the test
+streams through the exported artifact and writes a PNG; ``report.md`` puts the numbers next to the paper's."""
 
 from __future__ import annotations
 
@@ -33,8 +30,7 @@ GROUPS = (("fig11",), ("fig6b", "table1", "fig13"), ("fig12",), ("fig16",))
 
 
 def default_jobs() -> int:
-    """Worker processes for ``reproduce``: the cores this process may use divided by the thread setting
-    (:mod:`sonicskin.threads`), at most 4 (each worker holds its datasets' features in memory)."""
+    """Worker processes for ``reproduce``: usable cores / the thread setting, at most 4 (each holds its datasets' features)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -55,8 +51,7 @@ def _simulate_task(out, quick, rig, seed, name, n_threads):
 
 
 def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
-    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`Context`).
-    Returns (seed, results, log lines, figures written, per-experiment (wall, CPU) seconds, sharing counts)."""
+    """Run experiments ``names`` of one simulator seed in one process (one shared :class:`Context`)."""
     if n_threads is not None:
         threads.configure(n_threads)
     lines: list[str] = []
@@ -76,9 +71,7 @@ def _experiment_task(out, quick, rig, seed, plots, names, n_threads, log=None):
 
 def reproduce(out: str | Path = "reports/reproduce", *, quick: bool = False, seeds=None, only=None, rig: Rig | None = None,
               log=print, jobs: int | None = None) -> dict:
-    """Run every experiment (or those in ``only``) once per simulator seed on ``rig`` and report each number's mean and
-    spread; ``jobs`` worker processes simulate the datasets, then run the experiments (the numbers do not depend on
-    ``jobs``)."""
+    """Run every experiment (or ``only``) per simulator seed and report each number's mean and spread (independent of ``jobs``)."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()

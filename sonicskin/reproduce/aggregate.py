@@ -8,8 +8,7 @@ __all__ = ["Spread", "aggregate", "pool"]
 
 
 class Spread(float):
-    """A mean over simulator seeds that remembers its spread: ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``,
-    ``float(x)`` the mean, ``x.values`` the per-seed numbers."""
+    """A mean over simulator seeds that remembers its spread: ``f"{x:.1%}"`` gives ``"95.1% +- 1.2%"``."""
 
     def __new__(cls, values):
         v = np.asarray(values, float)
@@ -25,8 +24,7 @@ class Spread(float):
 
 
 def aggregate(runs: list):
-    """Combine the results of several simulator seeds: numbers become :class:`Spread` (lists element-wise), confusion
-    matrices are summed, error lists pooled, anything else taken from the first seed."""
+    """Combine several seeds' results: numbers become :class:`Spread`, confusion matrices summed, error lists pooled."""
     first = runs[0]
     if isinstance(first, dict):
         return {k: aggregate([r[k] for r in runs]) for k in first if all(isinstance(r, dict) and k in r for r in runs)}

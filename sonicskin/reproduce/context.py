@@ -1,8 +1,5 @@
-"""What the experiments share: the simulated datasets of one simulator seed, and fitting and scoring a model the way
-it is deployed (the one fit, an exported artifact replayed through :class:`sonicskin.runtime.SkinRuntime`).  A model
-is fitted, exported and replayed once per (dataset, training chirps, bins, reference settings, seed) and shared by
-the experiments that use it.
-"""
+"""What the experiments share: the simulated datasets of one simulator seed, and each model fitted, exported and
+replayed as deployed once per (dataset, training chirps, bins, reference settings, seed)."""
 
 from __future__ import annotations
 
@@ -121,12 +118,10 @@ class Context:
 
     # -- data ------------------------------------------------------------------------------------------------------
     def dataset(self, name: str) -> Dataset:
-        """The simulated dataset ``name`` of the current simulator seed: seed ``k`` is another link
-        (``link_seed + k``: its irregularities) and other presses, noise and aims (``seed + 1000 k``)."""
+        """The simulated dataset ``name`` of the current seed ``k``: link ``link_seed + k``, presses and noise ``seed + 1000 k``."""
         path = self.out / "data" / ("" if self.rig.name == "jaco-link" else self.rig.name) / (
             name if self.sim_seed == 0 else f"{name}-seed{self.sim_seed}")
-        if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists()
-                                                             for s in Dataset(path).sessions):
+        if not (path / "dataset.json").is_file() or not all((path / s / "session.json").exists() for s in Dataset(path).sessions):
             scenario, over = datasets(self.quick)[name]
             d = {**Scenario.load(scenario).to_dict(), **(QUICK_SIZE if self.quick else {}), **over, "name": name}
             d["seed"] = int(d["seed"]) + 1000 * self.sim_seed
@@ -142,8 +137,7 @@ class Context:
         return self._tables[key]
 
     def bins(self, ds: Dataset, t: FeatureTable, train: np.ndarray, n: int) -> np.ndarray:
-        """OSPA's first ``n`` bins on the training rows: one stable order per (dataset, training rows), every gamma a
-        prefix of it (:class:`~sonicskin.ospa.OSPA` keeps the smallest-VC bins, stable sort)."""
+        """OSPA's first ``n`` bins on the training rows (one stable order per dataset and rows: every gamma a prefix)."""
         key = (str(ds.root), mask_key(train))
         have = self._orders.get(key)
         if have is None or len(have) < n:
@@ -152,8 +146,7 @@ class Context:
 
     def data(self, ds: Dataset, *, train: np.ndarray, bins, alpha_s: float = FeatureSpec.alpha_s, keep: np.ndarray | None = None,
              notches: bool = True, n_svm: int | None = None):
-        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows on ``bins`` (``keep``: only these
-        chirps train; ``notches=False``: no PWM notches; ``n_svm``: the SVM reads the first ``n_svm``)."""
+        """The :class:`~sonicskin.fit.TrainingData` of the sessions holding ``train`` rows on ``bins``."""
         t = self.table(ds)
         bins = np.asarray(bins, np.int64)
         key = _key(str(ds.root), mask_key(train), bins, alpha_s, None if keep is None else mask_key(keep), notches, n_svm)
@@ -170,8 +163,7 @@ class Context:
 
     # -- models ----------------------------------------------------------------------------------------------------
     def artifact(self, kind: str, data_key, *, seed: int = 0) -> Path:
-        """The exported artifact of model ``kind`` trained on ``data_key`` (:meth:`data`): the paper's SVM, or the network
-        as the package deploys it; each fitted and exported once."""
+        """The exported artifact of model ``kind`` trained on ``data_key``, each fitted and exported once."""
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, self.epochs if kind == NETWORK else 0)
         if key in self._arts:
@@ -194,8 +186,7 @@ class Context:
         return path
 
     def predict(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> Predictions:
-        """Predictions of the ``test`` rows of the data's table, replayed as the live loop runs: each session is a
-        stream (``one_stream``: the whole recording from power-on is one stream, sessions are gaps in it)."""
+        """Predictions of the ``test`` rows replayed as the live loop runs (``one_stream``: sessions are gaps in one stream)."""
         data, dkey = data_key
         key = (dkey, kind, seed if kind == NETWORK else 0, mask_key(test), one_stream)
         if key in self._preds:
@@ -211,8 +202,7 @@ class Context:
         return p
 
     def evaluate(self, kind: str, data_key, test: np.ndarray, *, seed: int = 0, one_stream: bool = False) -> dict:
-        """Localization, detection and force of the deployed model on the ``test`` rows
-        (:func:`sonicskin.compare.stream_metrics`, as ``compare`` reports them)."""
+        """Localization, detection and force of the deployed model on the ``test`` rows, as ``compare`` reports them."""
         data = data_key[0]
         p = self.predict(kind, data_key, test, seed=seed, one_stream=one_stream)
         te = data.table.select(test)
@@ -238,7 +228,6 @@ def first_session_split(ctx: Context, name: str):
 
 
 def deployed_data(ctx: Context, ds: Dataset, train: np.ndarray, **kw):
-    """The training data of the two models as the package deploys them: the SVM on OSPA's first 300 bins (the
-    paper's gamma), the network on every usable bin in OSPA's order (its location layer reads a validated prefix)."""
+    """The two models' training data as deployed: the SVM on OSPA's first 300 bins, the network on every usable bin."""
     t = ctx.table(ds)
     return ctx.data(ds, train=train, bins=ctx.bins(ds, t, train, int(ds.rig.allowed_mask.sum())), n_svm=300, **kw)

@@ -1,6 +1,5 @@
 """The paper's Sec. V experiments, one function each (:data:`sonicskin.reproduce.EXPERIMENTS`): a
-:class:`~.context.Context` of one simulator seed in, its numbers out, its figure written.
-"""
+:class:`~.context.Context` of one simulator seed in, its numbers out, its figure written."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ def fig6b(ctx: Context) -> dict:
     ds, t, train, test, bins = first_session_split(ctx, "moving")
     every = ctx.data(ds, train=train, bins=np.arange(ds.rig.n_band), notches=False)
     ospa = ctx.data(ds, train=train, bins=bins)
-    res = {k: {"all_bins": ctx.evaluate(k, every, test)["accuracy"], "ospa": ctx.evaluate(k, ospa, test)["accuracy"]}
-           for k in ctx.kinds}
+    res = {k: {"all_bins": ctx.evaluate(k, every, test)["accuracy"], "ospa": ctx.evaluate(k, ospa, test)["accuracy"]} for k in ctx.kinds}
     fig, ax = plt().subplots(figsize=(6, 3.5))
     x = np.arange(2)
     for i, k in enumerate(res):
@@ -84,8 +82,7 @@ def _per_session(ctx: Context, k: str, d, train: np.ndarray, sessions: list[str]
 
 
 def _drift_run(ctx: Context, name: str, axis: str, unit_s: float, rows):
-    """A drift dataset trained on its first session: the dataset, its later sessions, the training mask, OSPA's bins
-    and each later session's mean time (``axis``, ``unit_s`` seconds) and temperature over its ``rows(table)``."""
+    """A drift dataset trained on its first session, with each later session's mean time and temperature."""
     ds, t, train, _, bins = first_session_split(ctx, name)
     later = sorted(set(t["session"]))[1:]
     res: dict = {axis: [], "temperature_c": []}
@@ -113,8 +110,7 @@ def fig12(ctx: Context) -> dict:
 
 
 def draw_fig12(res: dict):
-    """Accuracy over time, one line per distinct curve: settings (model, updating interval) whose curves are identical
-    share one line and one legend entry, so no entry names a hidden line."""
+    """Accuracy over time, one line per distinct curve (identical curves share one line and legend entry)."""
     groups: dict = {}
     for key, v in res.items():
         if " alpha=" in key:
@@ -140,8 +136,7 @@ def _label(members) -> str:
     by: dict[str, list[str]] = {}
     for k, a in members:
         by.setdefault("no updating" if a == "never" else "every " + a, []).append(MODEL[k])
-    return "; ".join(f"{a} ({'both models' if len(set(ms)) == len(MODEL) else ', '.join(sorted(set(ms)))})"
-                     for a, ms in by.items())
+    return "; ".join(f"{a} ({'both models' if len(set(ms)) == len(MODEL) else ', '.join(sorted(set(ms)))})" for a, ms in by.items())
 
 
 def two_months(ctx: Context) -> dict:

@@ -71,10 +71,8 @@ def report(res: dict, ctx, runtime_s: float, seeds=(0,)) -> str:
     if "fig11" in res:
         r = res["fig11"]
         gs = sorted(next(iter(r.values())))
-        lines += ["## Fig. 11: accuracy vs gamma (paper: " + PAPER["fig11"] + ")\n", "| gamma | " + col + " |",
-                  "|---|" + "---|" * len(ks)]
-        lines += [f"| {g} | " + " | ".join(f"{np.mean(pool(r[k][g])):.1%} +- {np.std(pool(r[k][g])):.1%}" for k in ks) + " |"
-                  for g in gs]
+        lines += ["## Fig. 11: accuracy vs gamma (paper: " + PAPER["fig11"] + ")\n", "| gamma | " + col + " |", "|---|" + "---|" * len(ks)]
+        lines += [f"| {g} | " + " | ".join(f"{np.mean(pool(r[k][g])):.1%} +- {np.std(pool(r[k][g])):.1%}" for k in ks) + " |" for g in gs]
         lines += ["", "![](fig11.png)\n"]
     if "fig12" in res:
         r = res["fig12"]

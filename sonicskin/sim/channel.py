@@ -1,19 +1,9 @@
 """Acoustic channel of a thin-walled robot link: modal synthesis of bending (A0 Lamb) waves.
 
-The wall is a thin plate (a tube unrolled with periodic edges, or a flat plate), simply supported at its ends, with
-Mindlin dispersion.  The transfer function between two points is the modal sum
-
-    G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2),
-
-each point's mode shape averaged over its disc (``2 J1(k a) / (k a)``).  A finger is a contact patch of radius
-``a(F)`` with dynamic stiffness ``K(w) = i w c(F) - w^2 m(F) + k_c(F)``, split into P sub-contacts coupled exactly
-through the wall (a Woodbury update of the untouched response):
-
-    H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s,
-
-computed at a few contact radii per press and interpolated in radius (each chirp then costs O(bins)).  The physics
-and its sources: docs/simulator.md.
-"""
+A thin plate (a tube unrolled with periodic edges, or a flat plate) with Mindlin dispersion; the transfer function is
+the modal sum ``G(r, s, w) = sum_n phi_n(r) phi_n(s) / (w_n^2 (1 + i eta) - w^2)``.  A finger is a contact patch
+coupled through the wall by a Woodbury update, ``H_touched = G_rs - g_r^T (I + K G_pp)^{-1} K g_s``, computed at a
+few contact radii per press and interpolated.  The physics and its sources: docs/simulator.md."""
 
 from __future__ import annotations
 
@@ -29,8 +19,7 @@ __all__ = ["Material", "MATERIALS", "Geometry", "ChannelModel", "mindlin_omega",
 
 @dataclasses.dataclass(frozen=True)
 class Material:
-    """Wall material and thickness; ``kappa_per_k``: relative shift of every modal frequency per kelvin,
-    ``H_T(f) = H_0(f / (1 + kappa dT))`` (negative: a warmer wall rings lower); ``deta_per_k``: the loss factor's."""
+    """Wall material and thickness; ``kappa_per_k``: relative shift of every modal frequency per kelvin (negative: lower)."""
 
     name: str
     youngs_pa: float
@@ -115,11 +104,8 @@ class Geometry:
 
 class ChannelModel:
     """Green's functions of one link between transducers and contact points, on the rig's frequency grid (plus
-    ``margin_hz`` for the temperature stretch).  ``tx_m``, ``rx_m``: transducer centres on the unrolled surface (x
-    around, y along), m; ``transducer_fr_hz``, ``transducer_q``: the piezo's resonance (paper Sec. III-B);
-    ``irregularity``: relative random spread of the modal frequencies (manufacturing, fittings; it also splits a
-    perfect tube's mode pairs); ``seed`` fixes it: one seed is one physical link.
-    """
+    ``margin_hz`` for the temperature stretch).  Positions in m on the unrolled surface; ``irregularity``: relative
+    spread of the modal frequencies; ``seed`` fixes it: one seed is one physical link."""
 
     def __init__(self, rig: Rig, material: Material, geometry: Geometry, *, tx_m=(0.0, 0.025),
                  rx_m=(0.059, 0.225), transducer_radius_m: float = 5e-3, transducer_fr_hz: float = 28e3,
@@ -193,8 +179,7 @@ class ChannelModel:
         """Mass-normalised mode shapes at points (P, 2) in metres, shape (P, n_modes)."""
         x, y = np.asarray(pts_m, float)[:, :1], np.asarray(pts_m, float)[:, 1:2]
         along = np.sin(self.ky * y)
-        around = np.where(self.variant == 0, np.cos(self.kx * x),
-                          np.where(self.variant == 1, np.sin(self.kx * x), np.sin(self.kx * x)))
+        around = np.where(self.variant == 0, np.cos(self.kx * x), np.where(self.variant == 1, np.sin(self.kx * x), np.sin(self.kx * x)))
         return self.norm * around * along
 
     def modal_density_per_hz(self) -> float:
@@ -213,8 +198,7 @@ class ChannelModel:
         return np.matmul(w, M, out=out).view(np.complex64)
 
     def contact_greens(self, pts_m: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
-        """Green's functions (P, R, 3, n_f) complex64 ``[G_rc, G_cs, G_cc]`` of disc contacts at ``pts_m`` (P, 2) for
-        each radius in ``radii_m`` (R,)."""
+        """Green's functions (P, R, 3, n_f) complex64 ``[G_rc, G_cs, G_cc]`` of disc contacts at ``pts_m`` per radius."""
         phi_c = self.mode_shapes(pts_m)  # (P, n)
         A = disc_average(self.k, np.asarray(radii_m, float))  # (R, n)
         pa = phi_c[:, None, :] * A[None, :, :]  # (P, R, n)

@@ -1,11 +1,7 @@
 """Fingers and the people they belong to: contact patch, tissue impedance, press profiles.
 
-What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time: a gross contact patch
-of radius ``a = a_1N (F / 1 N)^n`` (Hertz-like, saturating); skin damping ``c = c_1N (F / 1 N)^q g(t)`` through
-the real contact of the ridges, which keeps growing while a press is held (``g(t) = 1 - (1 - r_0) exp(-t / tau)``);
-a pad stiffness ``k = k_1N (0.2 + 0.8 F / 1 N)``; and tissue mass growing with the patch.  The ranges and their
-sources (Serina et al., Dzidek et al., Pawluk & Howe): docs/simulator.md.
-"""
+What a fingertip presents to the wall at 20-80 kHz, and how it changes with force and time.  The ranges and their
+sources (Serina et al., Dzidek et al., Pawluk & Howe): docs/simulator.md."""
 
 from __future__ import annotations
 
@@ -18,8 +14,7 @@ __all__ = ["Subject", "make_subjects", "press_profile"]
 
 @dataclasses.dataclass(frozen=True)
 class Subject:
-    """One simulated person's finger: at 1 N its contact radius, tissue damping, mass and stiffness (growing as
-    ``F ** radius_exp``, ``F ** damping_exp``), the aim, the peak force and the real contact's growth while held."""
+    """One simulated person's finger: its contact and tissue at 1 N and how they grow with force, its aim and peak force."""
 
     name: str
     radius_1n_m: float
@@ -83,8 +78,7 @@ def make_subjects(n: int = 12, seed: int = 1234) -> list[Subject]:
 
 def press_profile(n_chirps: int, *, peak_n: float, rng: np.random.Generator, ramp_frac: float = 0.2,
                   wobble: float = 0.35) -> np.ndarray:
-    """Press-hold-release force trace in N over ``n_chirps`` chirps: a smooth ramp up, a hold
-    that wanders ("touch with varying force"), a ramp down to zero."""
+    """Press-hold-release force trace in N over ``n_chirps`` chirps: ramp up, a wandering hold, ramp down to zero."""
     t = np.linspace(0, 1, n_chirps)
     r = max(ramp_frac, 1.0 / n_chirps)
     env = np.clip(np.minimum(t / r, (1 - t) / r), 0, 1)

@@ -18,16 +18,14 @@ __all__ = ["simulate_dataset"]
 
 def simulate_dataset(scenario: Scenario, rig: Rig, out: str | Path, *, mode: str = "create",
                      progress: bool = True, log=print) -> dict:
-    """Render every session of ``scenario`` into the dataset ``out``, one stream each (starting at a random point of the
-    chirp train, parts of ``part_s`` seconds; ``mode="resume"`` keeps finished ones); returns timing figures."""
+    """Render every session of ``scenario`` into the dataset ``out``, one stream each; returns timing figures."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
     sim = Simulator(scenario, rig)
     setup_s = time.perf_counter() - t0
     tl = build_timeline(scenario, rig)
-    writer = DatasetWriter(out, rig, sim.layout, source={"kind": "simulator", "scenario": scenario.to_dict()},
-                           mode=mode)
+    writer = DatasetWriter(out, rig, sim.layout, source={"kind": "simulator", "scenario": scenario.to_dict()}, mode=mode)
     L = rig.n_chirp
     per_part = max(1, rig.seconds_to_chirps(scenario.part_s))
     sensor_rng = np.random.default_rng([scenario.seed, 11])

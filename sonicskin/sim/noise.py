@@ -1,9 +1,6 @@
-"""Additive noise of a moving robot, synthesised directly as rfft spectra of a frame (batch, n_chirp // 2 + 1):
-O(bins) per chirp.  Motor PWM: lines at ``m f_c +- n f_0`` (carrier harmonics with sidebands at the motor's
-electrical frequency, the carrier jittering, the amplitude following the current), each the exact DFT of a
-sinusoid that is not bin-centred; mechanical: ``1/f^alpha`` with its tail into the band, gear-mesh tones and rare
-impacts; sensor: white.
-"""
+"""Additive noise of a moving robot, synthesised directly as rfft spectra of a frame: O(bins) per chirp.  Motor PWM
+lines at ``m f_c +- n f_0`` (each the exact DFT of a sinusoid that is not bin-centred); mechanical ``1/f^alpha``,
+gear-mesh tones and rare impacts; sensor: white."""
 
 from __future__ import annotations
 
@@ -95,8 +92,7 @@ def _kernel_table(half_width_bins: int, n_fft: int) -> np.ndarray:
 
 def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int,
                           fs_hz: float, floor_rms: float = 0.0) -> np.ndarray:
-    """Noise of a moving robot for frames with motion ``level`` in [0, 1], (n, nb); ``floor_rms`` adds white
-    (sensor) noise in the same Gaussian draw as the mechanical noise."""
+    """Noise of a moving robot for frames with motion ``level`` in [0, 1], (n, nb), plus white ``floor_rms`` in one draw."""
     level = np.asarray(level, float)
     out = np.empty((level.size, n_fft // 2 + 1), np.complex64)
     draws = NoiseDraws(rng, level, cfg, n_fft=n_fft, fs_hz=fs_hz, floor_rms=floor_rms)
@@ -106,9 +102,7 @@ def motion_noise_spectrum(rng: np.random.Generator, level: np.ndarray, cfg: Nois
 
 
 class NoiseDraws:
-    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra a few rows at
-    a time (:meth:`fill`); ``buffers`` and ``work`` are scratch arrays kept between batches.
-    """
+    """Every random draw of :func:`motion_noise_spectrum` for a batch, made up front, turned into spectra by :meth:`fill`."""
 
     def __init__(self, rng: np.random.Generator, level: np.ndarray, cfg: NoiseConfig, *, n_fft: int, fs_hz: float,
                  floor_rms: float = 0.0, buffers: tuple[np.ndarray, np.ndarray] | None = None, work: dict | None = None):
@@ -228,8 +222,7 @@ class _ToneKernel:
             pad[...] = 0
         # windows[r, s] is pad[r, s:s + 2W]: a tone whose kernel starts at bin k0 + 1 - W (padded: k0 + 1)
         # is one contiguous row slice, so a scatter of a tone over frames copies whole rows.
-        windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W),
-                                                  strides=(pad.strides[0], pad.itemsize, pad.itemsize))
+        windows = np.lib.stride_tricks.as_strided(pad, shape=(n, self.nb + 1, 2 * W), strides=(pad.strides[0], pad.itemsize, pad.itemsize))
         rows = slice(start, start + n)
         k0, q, c = self.k0[rows], self.q[rows], self.c[rows]
         ar = np.arange(n)

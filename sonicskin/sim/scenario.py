@@ -1,12 +1,9 @@
 """Scenario configs: what happens on the simulated rig, chirp by chirp.
 
-A scenario (``configs/scenarios/<name>.yaml``) sets the link (material, geometry, transducer positions), the touch
-layout, who touches, how hard, whether the robot moves, and how the temperature evolves; :func:`build_timeline`
-turns it into a per-chirp table of ground truth, which :class:`sonicskin.sim.simulator.Simulator` renders.  Each
-*session* is one continuous recording: ``calibration_s`` of no-touch (Alg. 2's beta), ``moving_s`` of no-touch
-while the robot moves (when motion is on), then one press at each location (``repeats`` times, in random order)
-with ``gap_s`` between presses.  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed.
-"""
+A scenario (``configs/scenarios/<name>.yaml``) sets the link, the touch layout, who touches, how hard, whether the
+robot moves and the temperature; :func:`build_timeline` turns it into a per-chirp table of ground truth.  A session
+is ``calibration_s`` of no-touch, ``moving_s`` of no-touch while the robot moves, then one press at each location
+(``repeats`` times, in random order).  A scenario *family* (:class:`RandomFamily`) draws a whole scenario from a seed."""
 
 from __future__ import annotations
 
@@ -78,8 +75,7 @@ class Scenario:
 
     @classmethod
     def load(cls, name_or_path: str | Path, *, seed: int | None = None) -> Scenario:
-        """A scenario YAML, ``seed`` (presses, noise) replaced when given; a *family* (``family:``, e.g. ``random``)
-        draws a whole rig from ``seed`` (default: its first design seed, :class:`RandomFamily`)."""
+        """A scenario YAML, ``seed`` replaced when given; a *family* (``family:``) draws a whole rig from ``seed``."""
         d = load_yaml(resolve_config(name_or_path, "scenarios"))
         if "family" in d:
             fam = RandomFamily.from_dict(d)
@@ -127,8 +123,7 @@ class Scenario:
             return Layout.rings(tuple(lay.get("counts", (16, 15))), lay.get("spacing_cm", 1.2),
                                 circumference_cm=circ, x0_cm=lay.get("x0_cm", 0.0), y0_cm=lay.get("y0_cm", 0.0))
         if kind == "grid":
-            return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0),
-                               circumference_cm=circ)
+            return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0), circumference_cm=circ)
         raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(kind)}")
 
     @property
@@ -299,8 +294,7 @@ def _keys(what: str, d: dict, required, optional, kind: bool = False) -> None:
 
 
 def _field_values(what: str, d: dict, cls, *, positive, nonneg) -> None:
-    """Values of a mapping that overrides dataclass ``cls``: whole numbers >= 0 for its int fields, finite numbers for
-    its float fields (> 0 for ``positive``, >= 0 where ``nonneg(name)``).  Unknown keys are refused elsewhere."""
+    """Values overriding dataclass ``cls``: whole numbers >= 0 for int fields, finite numbers (> 0, >= 0 where asked) else."""
     kinds = {f.name: type(f.default) for f in dataclasses.fields(cls)}
     for k, v in d.items():
         if kinds.get(k) is int:
@@ -404,8 +398,7 @@ def layout_count(sc: Scenario) -> int:
 
 
 def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
-    """Chirps of the first session and of each other one, from the settings alone (what
-    :func:`build_timeline` will make)."""
+    """Chirps of the first session and of each other one, from the settings alone (what :func:`build_timeline` will make)."""
     n_loc = layout_count(sc)
     per = rig.seconds_to_chirps(sc.touch_s) + (rig.seconds_to_chirps(sc.gap_s) if sc.gap_s > 0 else 0)
     head = rig.seconds_to_chirps(sc.calibration_s) + (
@@ -416,8 +409,7 @@ def session_chirps(sc: Scenario, rig: Rig) -> tuple[int, int]:
 
 
 def check_size(sc: Scenario, rig: Rig) -> int:
-    """Refuse a scenario whose timeline or rendering would not fit in memory, before allocating anything (~256
-    bytes per chirp of ground truth, one rendering block of spectra and frames); returns the total number of chirps."""
+    """Refuse a scenario that would not fit in memory, before allocating anything; returns the total number of chirps."""
     first, other = session_chirps(sc, rig)
     total = first + (sc.sessions - 1) * other
     fix = "shorten the scenario (sessions, repeats, touch_s, gap_s, moving_s, calibration_s, part_s)"
@@ -433,8 +425,7 @@ def is_family(name_or_path: str | Path) -> bool:
 
 
 def family_seeds(name_or_path: str | Path = "random") -> dict[str, tuple[int, ...]]:
-    """The family's ``design`` seeds (free to develop on), ``heldout`` seeds (never tuned on) and ``previous``
-    (an earlier held-out set, seen by earlier rounds: evaluated, no longer unseen)."""
+    """The family's ``design`` seeds, ``heldout`` seeds (never tuned on) and ``previous`` (an earlier held-out set)."""
     fam = RandomFamily.from_dict(load_yaml(resolve_config(name_or_path, "scenarios")))
     return {"design": fam.design_seeds, "heldout": fam.heldout_seeds, "previous": fam.previous_seeds}
 
@@ -448,14 +439,9 @@ def _pair(v, what: str) -> tuple[float, float]:
 
 @dataclasses.dataclass(frozen=True)
 class RandomFamily:
-    """Rigs we did not design on: every seed draws another link, people, motion and warm-up, as an ordinary
-    :class:`Scenario`: a material of :data:`sonicskin.sim.channel.MATERIALS`, a tube or a plate of random size,
-    transducers near either end, the material's loss factor times a log-uniform factor, a random modal irregularity,
-    a grid of markers between the transducers, one person per session, motion on or off, a random ambient
-    temperature, warm-up and start time.  Every session presses each marker once: s000 trains, s001 validates, the
-    rest test.  ``design_seeds`` may be developed on; ``heldout_seeds`` are only ever evaluated
-    (``benchmarks/bench_random_rigs.py``).
-    """
+    """Rigs we did not design on: every seed draws another link, people, motion and warm-up as an ordinary
+    :class:`Scenario`.  s000 trains, s001 validates, the rest test; ``design_seeds`` may be developed on,
+    ``heldout_seeds`` are only ever evaluated (``benchmarks/bench_random_rigs.py``)."""
 
     family: str = "random"
     sessions: int = 4

@@ -1,7 +1,6 @@
 """Render a scenario's timeline into received audio, chirp by chirp, in batches: the untouched channel at the
 link's temperature, the finger's update when touched, the robot's motion, both transducers, the chirp spectrum, the
-noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation.
-"""
+noise, then one inverse FFT (a periodic chirp train through a linear channel) and 24-bit quantisation."""
 
 from __future__ import annotations
 
@@ -26,8 +25,7 @@ _BORN_CACHE: dict = {}  # the warm-up's Born terms of the last link (reproduce s
 
 
 class Simulator:
-    """The simulated rig of one scenario on ``rig``: the untouched received signal at ``target_rms`` of full scale,
-    quantised to ``quantize_bits`` (the paper's interface: 24; ``None``: float)."""
+    """The simulated rig of one scenario: untouched signal at ``target_rms`` of full scale, quantised to ``quantize_bits``."""
 
     def __init__(self, scenario: Scenario, rig: Rig, *, target_rms: float = 0.05, quantize_bits: int | None = 24):
         if scenario.material not in MATERIALS:
@@ -72,8 +70,7 @@ class Simulator:
 
     # -- helpers ----------------------------------------------------------------------
     def _stretch_index(self, dT: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f): every
-        modal frequency moves to ``f_n (1 + kappa dT)`` (kappa < 0: a warmer wall rings lower)."""
+        """Gather indices/weights for ``G_T(f) = G_0(f / (1 + kappa dT))`` on the channel grid, (n, n_f)."""
         f = self.channel.f_hz
         pos = (f[None, :] / (1 + self.material.kappa_per_k * dT[:, None]) - self._f0) / self._df
         pos = np.clip(pos, 0, f.size - 1.000001)
@@ -94,8 +91,7 @@ class Simulator:
     _Y_GRID = np.linspace(0.0, 1.0, 41)
 
     def temperatures(self, tl: Timeline) -> dict[str, np.ndarray]:
-        """Per chirp: the wall's mean rise ``dT`` and linear gradient ``dT_grad`` (K, +: motor end warmer), and the TX
-        and RX bond temperatures (C), the scenario's warm-up field around the label ``tl.temperature_c`` (the middle)."""
+        """Per chirp: the wall's mean rise ``dT``, its gradient ``dT_grad`` (K) and the TX and RX bond temperatures (C)."""
         T = self.scenario.temperature
         L = self.geometry.length_m
         ys = np.r_[self._Y_GRID, self.scenario.tx_cm[1] / 100 / L, self.scenario.rx_cm[1] / 100 / L, 0.5]
@@ -109,17 +105,13 @@ class Simulator:
 
     def transducers(self, tx_c: np.ndarray, rx_c: np.ndarray) -> np.ndarray:
         """Product of the TX and RX bond responses per chirp, (n, n_f) complex64."""
-        key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
-        u, inv = np.unique(key, axis=0, return_inverse=True)
-        f = self.channel.f_hz
-        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
-        return T2[inv.ravel()]
+        T2, inv = self._bond_rows(tx_c, rx_c)
+        return T2[inv]
 
     _DT_STEP_K = 1e-3  # temperatures closer than this share one stretch (0.003 bin at 80 kHz)
 
     def untouched(self, dT: np.ndarray, dT_grad: np.ndarray | None = None) -> np.ndarray:
-        """Untouched channel H_rs (n, n_f) at mean temperature offsets ``dT`` (n,) and the non-uniform parts ``dT_grad``
-        (n, 2) along the link (Legendre orders 1 and 2, :func:`~sonicskin.sim.thermal.project_field`)."""
+        """Untouched channel H_rs (n, n_f) at mean offsets ``dT`` and Legendre parts ``dT_grad`` (n, 2) along the link."""
         G, inv = self._untouched_rows(dT, dT_grad)
         return G[inv]
 
@@ -148,8 +140,7 @@ class Simulator:
         return G.astype(np.complex64, copy=False), inv.ravel()
 
     def channel_response(self, tl: Timeline, temps: dict | None = None, *, out: np.ndarray | None = None) -> np.ndarray:
-        """Noise-free channel H(f) on the channel grid for each chirp of ``tl``, (n, n_f) complex64
-        (written into ``out`` when given: the renderer reuses one buffer batch after batch)."""
+        """Noise-free channel H(f) for each chirp of ``tl``, (n, n_f) complex64, into ``out`` when given."""
         temps = self.temperatures(tl) if temps is None else temps
         dT = temps["dT"]
         Gu, inv = self._untouched_rows(dT, temps["dT_grad"])
@@ -172,8 +163,7 @@ class Simulator:
             theta0 = float(np.random.default_rng([self.scenario.seed, 13, int(ev)]).uniform(0, 2 * np.pi))
             presses.append((idx, who, a, g, occl, radii, [self._patch_points(centre, r, theta0) for r in radii]))
         if presses:
-            W = np.concatenate([self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses
-                                for r, pts in zip(radii, pl)])
+            W = np.concatenate([self.channel.patch_weights(pts, r / 2) for *_, radii, pl in presses for r, pts in zip(radii, pl)])
             rows = W.shape[0] // sum(len(p[5]) for p in presses)
             nf2 = 2 * self.channel.f_hz.size
             if self._G is None or self._G.size < W.shape[0] * nf2:
@@ -234,8 +224,7 @@ class Simulator:
 
     # -- rendering --------------------------------------------------------------------
     def render(self, tl: Timeline, *, rng: np.random.Generator | None = None, out: np.ndarray | None = None) -> np.ndarray:
-        """Received frames (n, n_chirp) float32 for the chirps of ``tl`` (one session), into ``out`` when given; an int32
-        ``out`` gets them as a 24-bit file holds them (libsndfile's float -> PCM_24), which generate writes as is."""
+        """Received frames (n, n_chirp) for ``tl``; an int32 ``out`` gets them as 24-bit codes (libsndfile's float -> PCM_24)."""
         if rng is None:
             rng = np.random.default_rng([self.scenario.seed, 3, int(tl.session[0]), int(tl.chirp[0])])
         rig = self.rig
@@ -250,7 +239,8 @@ class Simulator:
         noise = NoiseDraws(rng, tl.moving, self.noise, n_fft=rig.n_chirp, fs_hz=rig.fs_hz,
                            floor_rms=self.noise.sensor_rms, buffers=self._buffers, work=self._work)
         # Transducers x chirp x gain, per distinct pair of bond temperatures.
-        T2, inv = self._transducer_rows(temps["tx_c"], temps["rx_c"])
+        T2, inv = self._bond_rows(temps["tx_c"], temps["rx_c"])
+        T2 = T2 * (self.gain * self._S)
         out = np.empty((n, rig.n_chirp), np.float32) if out is None else out
         assert out.shape == (n, rig.n_chirp) and out.dtype in (np.float32, np.int32)
         pcm = out.dtype == np.int32
@@ -280,13 +270,12 @@ class Simulator:
 
     _CHUNK = 64  # frames per inverse FFT: keeps the spectra in cache
 
-    def _transducer_rows(self, tx_c: np.ndarray, rx_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Distinct rows of ``gain * T_tx * T_rx * S`` (u, n_f) complex64 and each chirp's row (n,)."""
+    def _bond_rows(self, tx_c: np.ndarray, rx_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distinct rows of ``T_tx * T_rx`` (u, n_f) complex64 and each chirp's row (n,)."""
         key = np.round(np.column_stack([tx_c, rx_c]) / self._DT_STEP_K)
         u, inv = np.unique(key, axis=0, return_inverse=True)
         f = self.channel.f_hz
-        T2 = self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K)
-        return T2 * (self.gain * self._S), inv.ravel()
+        return self.bond.response(f, u[:, 0] * self._DT_STEP_K) * self.bond.response(f, u[:, 1] * self._DT_STEP_K), inv.ravel()
 
 
 _WB_DTYPE = np.complex64
@@ -294,8 +283,7 @@ _WB_DTYPE = np.complex64
 
 def _woodbury(Gp: np.ndarray, K: np.ndarray, P: int) -> np.ndarray:
     """Change of H by a contact of ``P`` sub-contacts, ``-g_r^T (I + K G_pp)^{-1} K g_s`` (R, O, n_f), every P x P
-    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128).
-    """
+    system solved at once by Gaussian elimination over whole arrays (no pivoting, complex128)."""
     R, _, F = Gp.shape
     n_o = K.shape[1]
     iu, ju = np.triu_indices(P)

@@ -1,12 +1,9 @@
 """What moves with temperature on a warming robot link: the piezo's hot-melt bond and the wall.
 
-The disc (mass ``m``) sits on the bond layer (stiffness ``k = E* A / t``): a mounted resonance ``f_r = sqrt(k / m)
-/ 2 pi`` whose transmissibility ``(1 + i eta) / (1 + i eta - (f / f_r)^2)`` shapes both the drive and the pick-up;
-the EVA adhesive softens near its glass transition (``E'`` and ``tan delta`` move with ``T``), so ``f_r`` moves by
-``0.5 d ln E' / dT``.  The wall's modes move by ``kappa`` per kelvin (:data:`sonicskin.sim.channel.MATERIALS`).  The
-link warms from its motor end (:func:`warmup_field`: further, ``gradient``, and sooner, ``lag``, than the far end;
-both read qualitatively off the paper's Fig. 7).  The coefficients and their sources: docs/simulator.md.
-"""
+The disc sits on the bond layer: a mounted resonance ``f_r = sqrt(k / m) / 2 pi`` whose transmissibility shapes both
+the drive and the pick-up; the EVA adhesive softens near its glass transition, so ``f_r`` moves by
+``0.5 d ln E' / dT``.  The link warms from its motor end (:func:`warmup_field`, read qualitatively off the paper's
+Fig. 7).  The coefficients and their sources: docs/simulator.md."""
 
 from __future__ import annotations
 
@@ -58,8 +55,7 @@ def warmup_field(t_s: np.ndarray, y_frac: np.ndarray, *, warmup_c: float, tau_s:
 
 
 def project_field(field: np.ndarray, y_frac: np.ndarray, order: int = 2) -> np.ndarray:
-    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac`` in [0, 1]: ``c_0`` the mean, ``c_1`` the
-    linear part (+: motor end warmer), ``c_2`` ends vs middle."""
+    """Legendre coefficients (n, order + 1) of a field (n, m) on ``y_frac``: mean, linear part, ends vs middle."""
     x = 1 - 2 * np.asarray(y_frac, float)
     V = np.polynomial.legendre.legvander(x, order)  # (m, order + 1)
     coef, *_ = np.linalg.lstsq(V, np.asarray(field, float).T, rcond=None)
