@@ -249,6 +249,7 @@ class LiveLoop:
         self._drift_warned: str | None = None  # the drift tracker's last warning, said once
         self.touching, self._held = False, False  # a press is open; the chirp before was a held first chirp at 0 N
         self._press: dict[int, tuple[int, float, float]] = {}  # the open press: marker -> (chirps, x_cm, y_cm)
+        self.place: tuple[int, float, float] = (-1, math.nan, math.nan)  # the last chirp's (marker, x_cm, y_cm)
         self.events: list[TouchEvent] = []
         self.latencies_ms: list[float] = []
         self.skipped = {"nan": 0, "silent": 0, "clipped": 0, "dropout": 0, "constant": 0, "no_chirp": 0}
@@ -338,7 +339,7 @@ class LiveLoop:
             if self.surface is not None:
                 ev = attach_surface(ev, self.surface)
         self.touching = touch and not self._held
-        self.place = loc, x, y  # where this chirp says the touch is (a release: the press's marker)
+        self.place = loc, x, y  # a release: the press's marker
         if self.on_chirp is not None:  # after the press rule: a held chirp is untouched for them too
             self.on_chirp(t_s, p)
         self.latencies_ms.append((time.perf_counter() - t_ready) * 1e3)
