@@ -11,6 +11,8 @@ each session's labelled no-touch reference, or absolute as a table of touches on
 
 - the LDA kind's candidates (:func:`sonicskin.kinds.lda.lda_candidates`: 1000 bins or every bin, each chirp as
   measured, its level removed or at unit length);
+- the LDA candidate that folds inside the one session choose (each press's early chirps against its late ones, both
+  ways; issue 36 asks whether they rank the candidates as held-out presses do);
 - the package's SVM (C 10, ``gamma="scale"``, OSPA's 300 bins);
 - the network's MLP layers trained on augmented presses (``--no-net`` leaves them out);
 
@@ -42,6 +44,7 @@ from sonicskin.kinds.lda import DEFAULTS, candidate_name, fit_lda, lda_candidate
 from sonicskin.kinds.svm import fit_pipeline  # noqa: E402
 from sonicskin.metrics import t_interval  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
+from sonicskin.selection import press_ids  # noqa: E402
 from sonicskin.seeds import scenario_dataset  # noqa: E402
 from sonicskin.sim.scenario import family_seeds  # noqa: E402
 
@@ -51,10 +54,14 @@ def one_rig(ds, mode: str, net: bool) -> dict:
                 log=lambda *_: None)
     n = d.n_locations
     tr, te = d.rows("train") & (d.cls < n), d.rows("test") & (d.cls < n)
-    out = {}
+    out, inside = {}, {}
+    early = early_chirps(d, tr)
+    halves = [(tr & early, tr & ~early), (tr & ~early, tr & early)]
     for k, norm in lda_candidates(d.X.shape[1]):
         name = f"LDA, {candidate_name(k, d.X.shape[1], norm)}"
         out[name] = float(np.mean(fit_lda(d.X[tr], d.cls[tr], k, norm).predict(normalize(d.X[te][:, :k], norm)) == d.cls[te]))
+        inside[name] = np.mean([np.mean(fit_lda(d.X[a], d.cls[a], k, norm).predict(normalize(d.X[b][:, :k], norm)) == d.cls[b])
+                                for a, b in halves])
     svm = fit_pipeline(d.X[tr][:, :300], d.cls[tr], n)
     out["package SVM (300 bins)"] = float(np.mean(svm.predict(d.X[te][:, :300]) == d.cls[te]))
     if net:
@@ -94,8 +101,22 @@ def one_rig(ds, mode: str, net: bool) -> dict:
             for name, p in cand.items():
                 out[name] = float(np.sqrt(np.mean((np.clip(np.nan_to_num(p), 0, None) - F) ** 2)))
     dk, dnorm = DEFAULTS[mode]
-    out["default"] = out[f"LDA, {candidate_name(d.X.shape[1] if dk is None else min(dk, d.X.shape[1]), d.X.shape[1], dnorm)}"]
+    default = f"LDA, {candidate_name(d.X.shape[1] if dk is None else min(dk, d.X.shape[1]), d.X.shape[1], dnorm)}"
+    out["default"] = out[default]
+    # issue 36: folds inside the one session (each press's early chirps against its late ones), ties to the default
+    out["LDA chosen by early vs late chirps of each press"] = out[max(inside, key=lambda c: (round(100 * inside[c]), c == default))]
     return out
+
+
+def early_chirps(d, rows: np.ndarray) -> np.ndarray:
+    """The first half (in time) of the chirps of each press among ``rows``."""
+    t = d.table
+    pid = np.where(rows, press_ids(t["location"], t["session"], t["segment"] if "segment" in t.labels else None), -1)
+    early = np.zeros(len(pid), bool)
+    for p in np.unique(pid[pid >= 0]):
+        idx = np.flatnonzero(pid == p)
+        early[idx[: len(idx) // 2]] = True
+    return early
 
 
 def main(argv=None) -> int:
