@@ -72,7 +72,7 @@ class Listener:
         #: the opened run (:class:`sonicskin.session.Run`): its links, runtimes, source and live loops
         self.opened = open_run(artifact, device=device, model=model, scenario=scenario, rig=rig, tx=tx, rx=rx, fast=fast,
                                blocksize=blocksize, mcap=mcap, overwrite=overwrite, realtime=realtime, ros2=ros2,
-                               foxglove=foxglove)
+                               foxglove=foxglove, duration_s=duration_s)
         self.loops = self.opened.loops(emit=lambda line: None, on_event=self._on_event, view=view)
         self.source, self.runtime, self.loop = self.opened.source, self.opened.runtimes[0], self.loops[0]  # the first link's
         self.view_url = self.opened.view.url if self.opened.view is not None else None

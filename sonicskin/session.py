@@ -12,6 +12,8 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from . import acquire
 from .acquire import LOOP_PRIORITY, AudioSource, Link, check_blocksize, realtime_thread
 from .dataset import wall_record
@@ -65,9 +67,17 @@ def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], t
     return acquire.SoundDeviceSource(rig, device, links=links, blocksize=blocksize, **interface)
 
 
-def live_scenario(scenario: Scenario) -> Scenario:
-    """What a run plays on a simulated link: the same link (its ``link_seed``), a new person-session of scripted touches."""
-    return scenario.replace(seed=scenario.seed + 1000, sessions=1)
+def live_scenario(scenario: Scenario, rig: Rig | None = None, duration_s: float | None = None) -> Scenario:
+    """What a run plays on a simulated link: the same link (its ``link_seed``), a new person-session of scripted touches,
+    with every marker pressed often enough that the session lasts ``duration_s`` (on ``rig``) when it is given."""
+    sc = scenario.replace(seed=scenario.seed + 1000, sessions=1)
+    if rig is None or duration_s is None:
+        return sc
+    reps = sc.repeats if sc.train_repeats is None else sc.train_repeats
+    while (length := len(build_timeline(sc, rig)) / rig.chirps_per_s) < duration_s:  # the calibration span is fixed
+        reps = max(reps + 1, int(np.ceil(reps * duration_s / length)))
+        sc = sc.replace(repeats=reps, train_repeats=None)
+    return sc
 
 
 @dataclasses.dataclass(eq=False)
@@ -157,10 +167,12 @@ class Run:
 def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None, scenario=None, rig=None,
              tx: int = 0, rx: int = 0, fast: bool = False, blocksize: int = 1024, drop_every: int | None = None,
              link_artifacts: list | None = None, train: Callable[[Scenario, Rig], Path] | None = None,
-             mcap=None, overwrite: bool = False, realtime: bool = False, ros2=None, foxglove=None) -> Run:
+             mcap=None, overwrite: bool = False, realtime: bool = False, ros2=None, foxglove=None,
+             duration_s: float | None = None) -> Run:
     """Open a skin (an artifact, an arm, or a links file with ``link_artifacts``) on a device (``"sim"``/``None`` or an
     interface), with its outputs (``mcap``, ``ros2``, ``foxglove``) opened here.  ``train(scenario, rig)``: the artifact
-    of a simulated link without one.  ``realtime``: what the threads got is :attr:`Run.granted`."""
+    of a simulated link without one.  ``realtime``: what the threads got is :attr:`Run.granted`.  ``duration_s``: a
+    simulated session scripts presses for at least that long."""
     check_blocksize(blocksize)
     sim = simulated(device)
     if realtime and fast and sim:
@@ -195,7 +207,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         for pub in pubs:  # every link's topics, and the arm's URDF: /robot_description, /tf_static, set_joint_state
             pub.announce([lk.surface.frame_id for lk in lks], arm_urdf(spec))
         run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every,
-                    pubs[0] if mcap is not None else None)
+                    pubs[0] if mcap is not None else None, duration_s)
         run.buses = pubs[mcap is not None:]
         run.source.rt_sched = run.realtime = bool(realtime)
         return run
@@ -205,7 +217,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         raise
 
 
-def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer) -> Run:
+def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every, writer, duration_s) -> Run:
     arts = _artifacts(spec, lks, the_rig, link_artifacts, train if sim else None)
     runtimes = [SkinRuntime(Path(art), model or BASELINE, rig=lk.rig or the_rig) for lk, art in zip(lks, arts)]
     the_rig = the_rig or runtimes[0].rig
@@ -221,12 +233,14 @@ def _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksi
                              (f"train it on this link (`sonicskin fit-svm --links {spec} ...`)" if spec else
                               "run it on the scenario it was trained on (--scenario, scenario=), or train on this one"))
 
+    played = {lk.name: live_scenario(lk.scenario, lk.rig or the_rig, duration_s) for lk in lks}
+
     def play(lk: Link) -> tuple[Simulator, Timeline]:
-        sc, link_rig = live_scenario(lk.scenario), lk.rig or the_rig
+        sc, link_rig = played[lk.name], lk.rig or the_rig
         return Simulator(sc, link_rig), build_timeline(sc, link_rig)
 
     source = open_source(the_rig, device, lks, play=play, blocksize=blocksize, realtime=not fast, drop_every=drop_every)
-    return Run(lks, runtimes, source, the_rig, spec, [(lk.name, live_scenario(lk.scenario)) for lk in lks], mcap=writer)
+    return Run(lks, runtimes, source, the_rig, spec, list(played.items()), mcap=writer)
 
 
 def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> None:

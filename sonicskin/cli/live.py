@@ -66,7 +66,7 @@ def cmd_live(a: argparse.Namespace) -> int:
     run = open_run(a.artifact, links=a.links, device=a.device, model=a.model, scenario=a.scenario, rig=a.rig, tx=a.tx,
                    rx=a.rx, fast=a.fast, blocksize=a.blocksize, drop_every=a.drop_every, link_artifacts=a.link_artifact,
                    train=train_oneshot, mcap=a.mcap, overwrite=a.overwrite, realtime=a.realtime, ros2=a.ros2,
-                   foxglove=a.foxglove)
+                   foxglove=a.foxglove, duration_s=a.duration)
     loops = run.loops(emit=lambda line: [s(line) for s in sinks], status=not a.no_status, view=a.view)
     if run.view is not None:
         print(f"sonicskin live: the live view is at {run.view.url} (open it in a browser on this machine)", file=sys.stderr, flush=True)
