@@ -12,11 +12,13 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from . import kinds
 from .drift import DriftError, DriftTracker
 from .errors import ArtifactError, is_number
 from .features import MODES, FeatureSpec
-from .force import MODELS, PooledForce
+from .force import MODELS, PooledForce, PooledSVR
 from .rig import Layout, Rig
 
 __all__ = ["ArtifactError", "ARTIFACT_FORMAT", "ARTIFACT_VERSION", "READABLE_VERSIONS", "REEXPORT", "validate_skin", "nonfinite_field"]
@@ -210,8 +212,42 @@ def _check_pooled(doc: _Doc, pooled: Any, field: str, layout_ids: list[int], n_i
     doc.num(doc.get(pooled, "intercept", field), f"{field}.intercept", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
 
 
+def _matrix(doc: _Doc, v: Any, field: str, shape: tuple[int | None, ...], lo: float, hi: float) -> np.ndarray:
+    """A JSON list (of lists) of finite numbers in [lo, hi] of ``shape`` (None: any length), as an array."""
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        doc.fail(field, f"must be {'a list of equal-length lists' if len(shape) > 1 else 'a list'} of numbers")
+    if a.ndim != len(shape) or any(w is not None and n != w for n, w in zip(a.shape, shape)) or 0 in a.shape:
+        doc.fail(field, f"has shape {a.shape}, expected {tuple('n' if w is None else w for w in shape)} (non-empty)")
+    if not np.all(np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
+        doc.fail(field, f"must hold finite numbers in [{lo:g}, {hi:g}]")
+    return a
+
+
+def _check_svr(doc: _Doc, svr: Any, field: str, n_in: int | None) -> None:
+    svr = doc.obj(svr, field)
+    doc.keys(svr, {"mean", "scale", "gamma", "intercept", "dual", "support_vectors"}, field)
+    mean = _matrix(doc, doc.get(svr, "mean", field), f"{field}.mean", (None,), -MAX_ABS_COEF, MAX_ABS_COEF)
+    k = mean.size
+    if n_in is not None and k > n_in:
+        doc.fail(f"{field}.mean", f"has {k} values, more than the {n_in} inputs")
+    _matrix(doc, doc.get(svr, "scale", field), f"{field}.scale", (k,), 1e-300, MAX_ABS_COEF)
+    doc.num(doc.get(svr, "gamma", field), f"{field}.gamma", lo=1e-300, hi=MAX_ABS_COEF)
+    doc.num(doc.get(svr, "intercept", field), f"{field}.intercept", lo=-MAX_ABS_COEF, hi=MAX_ABS_COEF)
+    dual = _matrix(doc, doc.get(svr, "dual", field), f"{field}.dual", (None,), -MAX_ABS_COEF, MAX_ABS_COEF)
+    _matrix(doc, doc.get(svr, "support_vectors", field), f"{field}.support_vectors", (dual.size, k), -MAX_ABS_COEF,
+            MAX_ABS_COEF)
+
+
 def _check_force(doc: _Doc, force: Any, field: str, layout_ids: list[int], n_in: int | None = None) -> None:
     force = doc.obj(force, field)
+    if force.get("model") == PooledSVR.NAME:  # one RBF support-vector regression over the first inputs
+        doc.keys(force, {"model", "curves", "svr"}, field)
+        if doc.obj(doc.get(force, "curves", field), f"{field}.curves"):
+            doc.fail(f"{field}.curves", "must be empty for the pooled SVR force model")
+        _check_svr(doc, doc.get(force, "svr", field), f"{field}.svr", n_in)
+        return
     if force.get("model") == PooledForce.NAME:  # one linear model over the inputs and the location
         doc.keys(force, {"model", "curves", "pooled"}, field)
         if doc.obj(doc.get(force, "curves", field), f"{field}.curves"):

@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce", "PooledForce", "force_from_dict", "r2_score"]
+__all__ = ["energy_db", "CurveModel", "MODELS", "fit_curve", "PerLocationForce", "PooledForce", "PooledSVR", "POOLED",
+           "force_from_dict", "r2_score"]
 
 
 def energy_db(X_db: np.ndarray, bins: np.ndarray, ref_db: np.ndarray | None = None) -> np.ndarray:
@@ -170,9 +171,9 @@ class PerLocationForce:
         return {"model": self.model, "curves": {str(k): c.to_dict() for k, c in self.curves_.items()}}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> PerLocationForce | PooledForce:
-        if d.get("model") == PooledForce.NAME:
-            return PooledForce.from_dict(d)
+    def from_dict(cls, d: dict[str, Any]) -> PerLocationForce | PooledForce | PooledSVR:
+        if d.get("model") in POOLED:
+            return POOLED[d["model"]].from_dict(d)
         obj = cls(d["model"])
         obj.curves_ = {int(k): FittedCurve.from_dict(c) for k, c in d["curves"].items()}
         return obj
@@ -232,6 +233,61 @@ class PooledForce:
         return obj
 
 
-def force_from_dict(d: dict[str, Any]) -> PerLocationForce | PooledForce:
+class PooledSVR:
+    """One RBF support-vector regression for every location over the first inputs, each standardised: scikit-learn's
+    ``SVR()`` (C 1, epsilon 0.1 N, gamma "scale"), the pooled SVR floor of issue 36, kept as numbers so the runtime
+    evaluates it without scikit-learn (support vectors rounded to 1e-5 standard deviations before use, so what
+    validation scored is what runs)."""
+
+    NAME = "pooled-svr"
+
+    def __init__(self):
+        self.model = self.NAME
+
+    def fit(self, inputs: np.ndarray, F: np.ndarray, location: np.ndarray | None = None) -> PooledSVR:
+        from sklearn.svm import SVR
+
+        X, F = np.asarray(inputs, float), np.asarray(F, float)
+        if X.ndim != 2 or X.shape[0] != F.size or X.shape[0] < 2:
+            raise ValueError(f"inputs (n, B) and F must have n >= 2 rows, got {X.shape} and {F.size}")
+        self.mean_, sd = X.mean(axis=0), X.std(axis=0)
+        self.scale_ = np.where(sd > 0, sd, 1.0)  # StandardScaler's convention for a constant input
+        Z = (X - self.mean_) / self.scale_
+        self.gamma_ = float(1.0 / (Z.shape[1] * Z.var())) if Z.var() > 0 else 1.0  # gamma="scale"
+        r = SVR(gamma=self.gamma_).fit(Z, F)
+        self.sv_ = np.round(r.support_vectors_, 5)
+        self.dual_, self.intercept_ = r.dual_coef_.ravel().astype(float), float(r.intercept_[0])
+        return self
+
+    def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:
+        if inputs is None:
+            raise ValueError("the pooled SVR force model reads the model inputs; pass inputs=")
+        Z = (np.asarray(inputs, float)[:, :self.mean_.size] - self.mean_) / self.scale_
+        d2 = np.sum(Z * Z, axis=1)[:, None] + np.sum(self.sv_ ** 2, axis=1)[None, :] - 2.0 * Z @ self.sv_.T
+        return np.exp(-self.gamma_ * np.maximum(d2, 0.0)) @ self.dual_ + self.intercept_
+
+    def padded(self, n_in: int) -> PooledSVR:
+        return self  # it reads its first inputs only
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"model": self.NAME, "curves": {}, "svr": {
+            "mean": self.mean_.tolist(), "scale": self.scale_.tolist(), "gamma": self.gamma_, "intercept": self.intercept_,
+            "dual": self.dual_.tolist(), "support_vectors": self.sv_.tolist()}}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> PooledSVR:
+        p, obj = d["svr"], cls()
+        obj.mean_, obj.scale_ = np.asarray(p["mean"], float), np.asarray(p["scale"], float)
+        obj.gamma_, obj.intercept_ = float(p["gamma"]), float(p["intercept"])
+        obj.dual_ = np.asarray(p["dual"], float)
+        obj.sv_ = np.asarray(p["support_vectors"], float).reshape(obj.dual_.size, obj.mean_.size)
+        return obj
+
+
+#: the force models over every location, by their ``model`` name in ``skin.json``
+POOLED = {PooledForce.NAME: PooledForce, PooledSVR.NAME: PooledSVR}
+
+
+def force_from_dict(d: dict[str, Any]) -> PerLocationForce | PooledForce | PooledSVR:
     """The force model a ``skin.json`` force section describes (per-location curves or pooled)."""
     return PerLocationForce.from_dict(d)

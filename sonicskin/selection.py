@@ -18,7 +18,7 @@ from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
 from .features import FeatureSpec, quiet_mask, touch_mask
-from .force import PerLocationForce, PooledForce, energy_db
+from .force import PerLocationForce, PooledForce, PooledSVR, energy_db
 from .head import DETECTOR_BINS, touch_statistic
 from .metrics import t_interval
 from .ospa import OSPA
@@ -137,6 +137,18 @@ class PooledRidge(RegressorMixin, BaseEstimator):
     def fit(self, Z, y):
         Z = np.asarray(Z, float)
         self.model_ = PooledForce(alpha=self.alpha).fit(Z[:, 2:], np.asarray(y, float), Z[:, 1].astype(int))
+        return self
+
+    def predict(self, Z):
+        Z = np.asarray(Z, float)
+        return self.model_.predict(Z[:, 0], Z[:, 1].astype(int), inputs=Z[:, 2:])
+
+
+class PooledSVRCandidate(RegressorMixin, BaseEstimator):
+    """The pooled SVR floor as a candidate: an RBF SVR over the touch's standardised inputs (columns 2:)."""
+
+    def fit(self, Z, y):
+        self.model_ = PooledSVR().fit(np.asarray(Z, float)[:, 2:], np.asarray(y, float))
         return self
 
     def predict(self, Z):
@@ -293,7 +305,7 @@ def force_design(E: np.ndarray, location: np.ndarray, inputs: np.ndarray) -> np.
 
 
 def select_force(E, location, inputs, force, press, passes, *, val=None, val_name: str = "", log=None) -> dict:
-    """Choose the paper's per-location Fourier-1 or a pooled ridge by RMSE on presses not trained on."""
+    """Choose the paper's per-location Fourier-1, a pooled ridge or the pooled SVR by RMSE on presses not trained on."""
     Z = force_design(E, location, inputs)
     F = np.asarray(force, float)
     cv, how = make_cv(passes, val, np.asarray(location))
@@ -306,7 +318,8 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
         how = f"validation on {val_name or 'the validation session'}"
     else:
         cv = PredefinedSplit(passes % cv.get_n_splits())
-    grid = [{"model": [FourierPerLocation()]}, {"model": [PooledRidge()], "model__alpha": list(ALPHA_GRID)}]
+    grid = [{"model": [FourierPerLocation()]}, {"model": [PooledRidge()], "model__alpha": list(ALPHA_GRID)},
+            {"model": [PooledSVRCandidate()]}]
     pipe = Pipeline([("model", FourierPerLocation())])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -317,7 +330,7 @@ def select_force(E, location, inputs, force, press, passes, *, val=None, val_nam
     pr = press[tested]
     err = pred[tested] - F[tested]
     per_press = np.array([np.sqrt(np.mean(err[pr == p] ** 2)) for p in np.unique(pr)])
-    model = "pooled-ridge" if isinstance(bp["model"], PooledRidge) else "fourier1"
+    model = {PooledRidge: PooledForce.NAME, PooledSVRCandidate: PooledSVR.NAME}.get(type(bp["model"]), "fourier1")
     res = search.cv_results_
     fourier_rmse = float(-np.nanmax([s for p, s in zip(res["params"], res["mean_test_score"])
                                      if isinstance(p["model"], FourierPerLocation)]))

@@ -27,6 +27,7 @@ from sonicskin.compare import replay_sessions
 from sonicskin.dataset import Dataset
 from sonicskin.feature_cache import load_features_cached
 from sonicskin.features import FeatureSpec, quiet_mask
+from sonicskin.force import PooledSVR
 from sonicskin.fit import build_svm_artifact
 from sonicskin.integrity import artifact_digest, binding, check_layout, stamp_binding
 from sonicskin.rig import Layout, Rig
@@ -201,6 +202,19 @@ def _extra_curve(meta, _a):
     meta["models"]["svm"]["force"]["curves"]["99"] = _curve(meta)
 
 
+def _svr_force(edit=None):
+    """The SVM's force replaced by a pooled SVR over its inputs, then ``edit``-ed (its ``svr`` numbers)."""
+    def fn(meta, _a):
+        n_in = meta["models"]["svm"]["n_in"]
+        rng = np.random.default_rng(0)
+        d = PooledSVR().fit(rng.normal(size=(30, n_in)), rng.uniform(0, 5, 30)).to_dict()
+        if edit is not None:
+            edit(d["svr"], n_in)
+        meta["models"]["svm"]["force"] = d
+    return fn
+
+
+SVR_FIELD = "models.svm.force.svr"
 SVM = "models.svm"
 MUTATIONS = [
     # features
@@ -318,6 +332,17 @@ MUTATIONS = [
     ("training-missing-split", "svm", _delete("training.split"), "training.split is missing"),
     ("training-test-not-list", "svm", _set("training.split.test", "s000"), "training.split.test"),
     ("sonicskin-version-number", "svm", _set("sonicskin_version", 0.1), "sonicskin_version"),
+    # the pooled SVR force model (issue 36): its numbers are bound to each other and to the inputs
+    ("svr-ragged", "svm", _svr_force(lambda v, n: v["support_vectors"][0].pop()), f"{SVR_FIELD}.support_vectors"),
+    ("svr-dual-short", "svm", _svr_force(lambda v, n: v["dual"].pop()), f"{SVR_FIELD}.support_vectors has shape"),
+    ("svr-more-than-the-inputs", "svm", _svr_force(lambda v, n: v.update(mean=v["mean"] + [0.0], scale=v["scale"] + [1.0])),
+     f"{SVR_FIELD}.mean has"),
+    ("svr-huge", "svm", _svr_force(lambda v, n: v["dual"].__setitem__(0, 1e300)), f"{SVR_FIELD}.dual must hold finite"),
+    ("svr-scale-zero", "svm", _svr_force(lambda v, n: v["scale"].__setitem__(0, 0.0)), f"{SVR_FIELD}.scale"),
+    ("svr-gamma-string", "svm", _svr_force(lambda v, n: v.update(gamma="0.1")), f"{SVR_FIELD}.gamma"),
+    ("svr-missing", "svm", _svr_force(lambda v, n: v.pop("support_vectors")), f"{SVR_FIELD}.support_vectors is missing"),
+    ("svr-curves", "svm", _do(lambda m, a: (_svr_force()(m, a), m["models"]["svm"]["force"].__setitem__("curves", {"0": 1}))),
+     "models.svm.force.curves must be empty"),
 ]
 MUTATIONS += [(f"missing-{k}", "svm", _delete(k), f"{k} is missing")
               for k in ("format", "version", "sonicskin_version", "rig", "layout", "features", "min_force_n", "training",
@@ -352,6 +377,17 @@ def test_malformed_skin_json_is_refused(art, name, mangle, field):
     text = mangle((art / "skin.json").read_text())
     (art / "skin.json").write_bytes(text.encode("utf-8", "surrogateescape"))
     _refused(art, "svm", field)
+
+
+def test_a_pooled_svr_force_loads_and_predicts_what_it_was_fitted_to(art):
+    """A well-formed pooled SVR force, sealed as a writer seals it, loads; the runtime's force is the model's."""
+    meta = _meta(art)
+    _svr_force()(meta, art)
+    _reseal(art, meta)
+    rt = SkinRuntime(art, "svm")
+    want = PooledSVR.from_dict(meta["models"]["svm"]["force"])
+    x = np.random.default_rng(1).normal(size=(3, meta["models"]["svm"]["n_in"]))
+    np.testing.assert_allclose(rt.head.force_model.predict(None, np.zeros(3, int), inputs=x), want.predict(None, None, inputs=x))
 
 
 def test_mutation_count():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from cli_helpers import reseal
 
-from sonicskin.force import PerLocationForce, PooledForce
+from sonicskin.force import PerLocationForce, PooledForce, PooledSVR
 from sonicskin.selection import (
     PAPER,
     gamma_grid,
@@ -104,6 +104,33 @@ def test_pooled_force_wins_when_force_is_shared_across_locations_and_round_trips
     back = PerLocationForce.from_dict(json.loads(json.dumps(pf.to_dict())))
     assert isinstance(back, PooledForce)
     np.testing.assert_allclose(back.predict(E, loc, inputs=inputs), pf.predict(E, loc, inputs=inputs), rtol=1e-12)
+
+
+def test_the_pooled_svr_wins_where_force_bends_the_spectrum_nonlinearly_and_runs_as_scikit_learns():
+    """Force that saturates the inputs (a firm press changes little more): neither a ridge nor a per-location energy
+    curve follows it, the pooled SVR does (issue 36: the SVR floor is a candidate); its numbers in skin.json predict
+    what scikit-learn's StandardScaler + SVR() predicts."""
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVR
+
+    rng = np.random.default_rng(2)
+    n_loc, n_pass, per = 4, 3, 25
+    loc = np.repeat(np.tile(np.arange(n_loc), n_pass), per)
+    F = rng.uniform(0.5, 10, loc.size)
+    w = rng.normal(0, 1, 30)
+    inputs = np.outer(np.tanh((F - 5) / 1.5), w) * 3 + np.outer(np.cos(F), rng.normal(0, 1, 30)) + rng.normal(0, 0.2, (loc.size, 30))
+    E = 10 * np.log10(np.mean(10 ** (inputs / 10), axis=1))
+    press = press_ids(loc, np.zeros(loc.size, int))
+    sel = select_force(E, loc, inputs, F, press, press_passes(press, loc), log=lambda m: None)
+    ridge = min(r["rmse_n"] for r in sel["cv"] if r["model"] == "PooledRidge")
+    assert sel["model"] == "pooled-svr" and sel["estimate"]["rmse_n"] < min(ridge, sel["fourier1_rmse_n"])
+    m = PooledSVR().fit(inputs, F)
+    back = PerLocationForce.from_dict(json.loads(json.dumps(m.to_dict())))
+    assert isinstance(back, PooledSVR)
+    wider = np.column_stack([inputs, rng.normal(size=(loc.size, 5))])  # it reads its first inputs only
+    got = back.predict(E, loc, inputs=wider)
+    np.testing.assert_allclose(got, make_pipeline(StandardScaler(), SVR()).fit(inputs, F).predict(inputs), atol=1e-3)
 
 
 @pytest.mark.slow

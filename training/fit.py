@@ -15,7 +15,7 @@ from sonicskin.dataset import Dataset, Split
 from sonicskin.errors import ArtifactError
 from sonicskin.features import FeatureSpec
 from sonicskin.fit import fit_artifact, prepare, summary_lines
-from sonicskin.force import PooledForce, energy_db, force_from_dict
+from sonicskin.force import POOLED, energy_db, force_from_dict
 from sonicskin.head import DETECTOR_BINS
 from sonicskin.integrity import check_layout, check_rig
 from sonicskin.kinds import BASELINE, NETWORK, Fitted
@@ -195,7 +195,7 @@ def choose_force(model, X, cls, force, *, val_rows, location_ids, svm=None, how:
 
 def has_force(svm) -> bool:
     """The SVM has a force model (its data had a force sensor)."""
-    return svm is not None and bool(svm.entry["force"]["curves"] or svm.entry["force"]["model"] == PooledForce.NAME)
+    return svm is not None and bool(svm.entry["force"]["curves"] or svm.entry["force"]["model"] in POOLED)
 
 
 def svm_force(svm, X: np.ndarray, location) -> np.ndarray:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..calibration import TouchDetector
-from ..force import PerLocationForce, PooledForce, energy_db
+from ..force import POOLED, PerLocationForce, energy_db
 from ..head import DETECTOR_BINS, DETECTORS, touch_statistic
 
 __all__ = ["score_entry", "check_score_entry", "SCORE_KEYS"]
@@ -35,9 +35,10 @@ def score_entry(S: np.ndarray, X: np.ndarray, cls: np.ndarray, force: np.ndarray
     ids = np.asarray(location_ids)
     has_f = touch & np.isfinite(force)  # recordings without a force sensor carry NaN forces
     if has_f.sum() >= 8 and len(np.unique(cls[has_f])) == n_locations and np.ptp(force[has_f]) > 0:
-        if force_model == PooledForce.NAME:
+        if force_model in POOLED:  # over the first force_cols inputs and (the ridge) the location
             k = X.shape[1] if force_cols is None else min(int(force_cols), X.shape[1])
-            fm = PooledForce(force_alpha).fit(X[has_f][:, :k], force[has_f], ids[cls[has_f]]).padded(X.shape[1])
+            fm = POOLED[force_model](*([force_alpha] if force_model == "pooled-ridge" else [])).fit(
+                X[has_f][:, :k], force[has_f], ids[cls[has_f]]).padded(X.shape[1])
         else:
             fm = PerLocationForce(force_model).fit(energy_db(X[has_f], all_bins) - e_ref, force[has_f], ids[cls[has_f]])
     else:

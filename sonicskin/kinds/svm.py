@@ -223,7 +223,8 @@ class SVMKind(ModelKind):
         if f.get("status") == "validated":
             lo, hi = f["estimate"]["press_rmse_ci95"]
             ci = f", mean per-press RMSE 95 % interval {lo:.2f}-{hi:.2f} N" if _finite(lo, hi) else ""
-            name = f"pooled ridge (alpha {f['alpha']:g})" if f["model"] == "pooled-ridge" else "per-location Fourier-1"
+            name = {"pooled-ridge": f"pooled ridge (alpha {f.get('alpha') or 0:g})", "pooled-svr": "pooled SVR"}.get(
+                f["model"], "per-location Fourier-1")
             out.append(f"force: {name}, expected RMSE {f['estimate']['rmse_n']:.2f} N on presses not trained on ({f['how']}"
                        f"{ci}; Fourier-1 {f['fourier1_rmse_n']:.2f} N, a constant {f['constant_rmse_n']:.2f} N)")
         elif f.get("reason"):
