@@ -67,12 +67,17 @@ def open_source(rig: Rig, device, links: list[Link], *, play: Callable[[Link], t
     return acquire.SoundDeviceSource(rig, device, links=links, blocksize=blocksize, **interface)
 
 
+#: the longest session of scripted presses a simulated run plays (its ground truth is built ahead, a chirp a row)
+MAX_SCRIPTED_S = 3600.0
+
+
 def live_scenario(scenario: Scenario, rig: Rig | None = None, duration_s: float | None = None) -> Scenario:
     """What a run plays on a simulated link: the same link (its ``link_seed``), a new person-session of scripted touches,
     with every marker pressed often enough that the session lasts ``duration_s`` (on ``rig``) when it is given."""
     sc = scenario.replace(seed=scenario.seed + 1000, sessions=1)
     if rig is None or duration_s is None:
         return sc
+    duration_s = min(duration_s, MAX_SCRIPTED_S)  # longer: the run says the session's length and ends with it
     reps = sc.repeats if sc.train_repeats is None else sc.train_repeats
     while (length := len(build_timeline(sc, rig)) / rig.chirps_per_s) < duration_s:  # the calibration span is fixed
         reps = max(reps + 1, int(np.ceil(reps * duration_s / length)))

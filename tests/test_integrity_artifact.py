@@ -190,12 +190,12 @@ def _set(path, value):
 
 
 def _force_coef_edit(meta, _rig):
-    """One coefficient of the SVM's force model, whichever model selection chose (per-location curves or pooled)."""
+    """One coefficient of the SVM's force model, whichever model selection chose (per-location curves, pooled ridge or SVR)."""
     f = meta["models"]["svm"]["force"]
     if f.get("curves"):
         c = f["curves"]["1"]["coef"]
     else:
-        c = f["pooled"]["coef"]
+        c = f["pooled"]["coef"] if "pooled" in f else f["svr"]["dual"]
     c[0] = c[0] * 1.5 + 0.1
 
 
@@ -227,7 +227,8 @@ DOC_EDITS = [
     *[(f"layout-ids-permuted-{''.join(map(str, o))}", _layout_edit(_permute(o)), ("net", "svm"),
        r"layout.ids are not the location ids {f} was trained with \(the model's ids") for o in ((1, 0, 2), (2, 1, 0), (1, 2, 0))],
     ("layout-ids-renumbered", _set("layout.ids", [5, 6, 7]), ("net", "svm"),
-     "force.curves must have one curve per layout id|force.pooled.loc_coef must have one value per layout id"),
+     "force.curves must have one curve per layout id|force.pooled.loc_coef must have one value per layout id|"
+     r"layout.ids are not the location ids {f} was trained with \(3 not among the model's"),  # a pooled SVR has no ids
     ("layout-spacing-1.5cm", _layout_edit(_scale_xy(1.5 / 1.2)), ("net", "svm"), r"layout.xy_cm differs from the marker positions"),
     ("layout-one-marker-moved", _set("layout.xy_cm.1.1", lambda v: v + 0.5), ("net", "svm"), "layout.xy_cm differs"),
     ("layout-tube", _set("layout.circumference_cm", 23.5), ("net", "svm"), r"layout differs from the layout {f} was trained with"),
