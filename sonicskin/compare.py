@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+import os
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from . import kinds
 from .artifact import load_skin
-from .dataset import Dataset, FeatureTable, write_file
+from .dataset import Dataset, FeatureTable, wall_record, write_file
 from .feature_cache import load_features_cached
 from .features import touch_mask
 from .integrity import check_layout, check_rig
@@ -162,7 +164,15 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     res["split"] = {"train": list(split["train"]), "val": list(split["val"]), "test": test,
                     **({"refit": True} if meta["training"].get("refit") else {})}
     res["test_sessions"] = test
-    res["trained_on_test"] = sorted(set(test) & (set(split["train"]) | set(split["val"])))
+    wall = meta["training"].get("wall")
+    here = wall_record(ds.meta.get("source"), ds.rig, ds.layout)
+    if isinstance(wall, dict) and wall.get("sha256") != here["sha256"]:
+        what = (f"another {here['what']} (its wall fingerprint differs: another link or simulated wall)"
+                if here["what"] == wall.get("what") else f"another wall ({here['what']}; trained on {wall.get('what')})")
+        warnings.warn(f"dataset {ds.root} was recorded on {what} than {art} was trained on: these are the artifact's "
+                      f"numbers on a wall it never saw, not its accuracy", stacklevel=2)
+    own = os.path.realpath(ds.root) == os.path.realpath(meta["training"]["data"])  # session names are only names
+    res["trained_on_test"] = sorted(set(test) & (set(split["train"]) | set(split["val"]))) if own else []
     te = t.select(np.isin(t["session"], test))
     detection = all(m.get("detection", True) for m in meta["models"].values())  # False: trained on touches only
     for k, rt in rts.items():

@@ -301,6 +301,10 @@ class DatasetWriter:
         lock = writer_lock(self.root)
         lock.__enter__()
         weakref.finalize(self, lock.__exit__, None, None, None)
+        if not meta_path.exists() and any(p.name != ".cache" for p in self.root.iterdir()):
+            # (an artifact, a project folder: --overwrite would later empty it as a dataset)
+            raise FileExistsError(f"{self.root} holds files but no dataset; write the dataset into a new or empty "
+                                  f"folder (choose another --out)")
         if meta_path.exists():
             if mode == "create":
                 raise FileExistsError(f"{self.root} already holds a dataset; pass --resume to continue it "

@@ -349,6 +349,18 @@ class Publisher:
         self.close()
 
 
+#: the first bytes of every MCAP file (the MCAP specification's magic, version 0)
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _head(path: Path) -> bytes:
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MCAP_MAGIC))
+    except OSError:
+        return b""
+
+
 class McapEventWriter(Publisher):
     """Write the run's ROS 2 messages into the MCAP file ``path`` (a context manager; an existing file only with ``overwrite``)."""
 
@@ -361,6 +373,9 @@ class McapEventWriter(Publisher):
         self.path, self.name = Path(path), str(path)
         super().__init__(t0_unix_s=t0_unix_s, log=log)
         created = not (overwrite and self.path.exists())
+        if overwrite and self.path.is_file() and _head(self.path) not in (b"", MCAP_MAGIC):
+            raise SonicskinError(f"{path} is not an MCAP recording (an arm file, a skin.json, a URDF?): --overwrite "
+                                 f"replaces an earlier recording only; choose another file for --mcap")
         try:  # O_EXCL: an existing file (an earlier recording, an arm.yaml) is never replaced unasked
             fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | (0 if overwrite else os.O_EXCL), 0o644)
         except FileExistsError:

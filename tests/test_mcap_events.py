@@ -228,9 +228,16 @@ def test_an_existing_file_is_refused_unless_overwrite(tmp_path):
         McapEventWriter(arm, t0_unix_s=T0)
     assert str(e.value) == f"{arm}: the file exists; pass --overwrite (overwrite=True) to replace it, or choose another file"
     assert arm.read_text() == "name: trained\n"
-    with McapEventWriter(arm, t0_unix_s=T0, overwrite=True) as w:
+    with pytest.raises(SonicskinError) as e:  # --overwrite replaces an earlier recording, never an arm file
+        McapEventWriter(arm, t0_unix_s=T0, overwrite=True)
+    assert str(e.value) == (f"{arm} is not an MCAP recording (an arm file, a skin.json, a URDF?): --overwrite replaces an "
+                            f"earlier recording only; choose another file for --mcap")
+    assert arm.read_text() == "name: trained\n"
+    earlier = tmp_path / "earlier.mcap"
+    McapEventWriter(earlier, t0_unix_s=T0).close()
+    with McapEventWriter(earlier, t0_unix_s=T0, overwrite=True) as w:
         w.write(_events()[0])
-    assert len(read_ros2_messages(arm)) == 5  # a touch, and its marker deleted on close
+    assert len(read_ros2_messages(earlier)) == 5  # a touch, and its marker deleted on close
     for bad, shown in ((5, "5"), ("", "''")):  # mcap=5 opened file descriptor 5; '' wrote nothing
         with pytest.raises(SonicskinError, match=f"^the MCAP file must be a file path, got {shown}$"):
             McapEventWriter(bad, t0_unix_s=T0)
@@ -283,11 +290,12 @@ def test_a_writer_whose_run_never_started_leaves_no_stub(tmp_path):
     del w
     gc.collect()
     assert not path.exists()
-    path.write_bytes(b"an earlier recording")
+    earlier = b"\x89MCAP0\r\n and an earlier recording"
+    path.write_bytes(earlier)
     w = McapEventWriter(path, t0_unix_s=T0, overwrite=True)
     del w
     gc.collect()
-    assert path.read_bytes() == b"an earlier recording"
+    assert path.read_bytes() == earlier
     w = McapEventWriter(tmp_path / "d.mcap", t0_unix_s=0)  # made (its file claimed) before the stream starts ...
     w.t0_unix_s = T0  # ... which sets the clock
     w.write(_events()[0])

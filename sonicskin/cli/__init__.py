@@ -8,6 +8,7 @@ from __future__ import annotations
 import _thread
 import contextlib
 import os
+import signal
 import sys
 import threading
 import warnings
@@ -40,14 +41,25 @@ class _CtrlCInCallbacks:
 
     @contextlib.contextmanager
     def installed(self):
+        """The hook, and SIGTERM (a supervisor stopping the sensor) made a Ctrl-C: every file is closed as on Ctrl-C."""
         self._previous = sys.unraisablehook
         sys.unraisablehook = self._hook
+        main_thread = threading.current_thread() is threading.main_thread()
+        term = signal.signal(signal.SIGTERM, self._terminate) if main_thread else None
         try:
             yield self
         finally:
             sys.unraisablehook = self._previous
+            if main_thread:
+                signal.signal(signal.SIGTERM, term)
             if self._timer is not None:
                 self._timer.cancel()
+
+    def _terminate(self, signum, frame) -> None:
+        self.terminated = True
+        raise KeyboardInterrupt
+
+    terminated = False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,8 +82,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
     def interrupted() -> int:
-        print(f"\n{verb}: interrupted; everything written so far is kept", file=sys.stderr)
-        return 130
+        how = "terminated (SIGTERM)" if ctrl_c.terminated else "interrupted"
+        print(f"\n{verb}: {how}; everything written so far is kept", file=sys.stderr)
+        return 143 if ctrl_c.terminated else 130
 
     ctrl_c = _CtrlCInCallbacks()
     try:

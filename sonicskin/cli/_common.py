@@ -77,13 +77,14 @@ def clean_on_failure(out: str | Path, mode: str) -> Iterator[Path]:
     """Remove ``out`` again when this run fails before it wrote a single part (a retry is not blocked by a lone dataset.json)."""
     out = Path(out)
     existed = out.is_dir() and any(out.iterdir()) or out.is_file()
+    was_dataset = (out / "dataset.json").is_file()  # a folder of other files is never removed (its files are the user's)
     # The folder's writer lock first: a run refused because another process writes ``out`` leaves before the clean-up
     # below could remove that run's files (two `simulate --out X` at once used to end with no dataset at all).
     with writer_lock(out):
         try:
             yield out
         except BaseException:
-            if out.is_dir() and (not existed or mode == "overwrite") and not any(out.glob("*/part-*.csv")):
+            if out.is_dir() and (not existed or mode == "overwrite" and was_dataset) and not any(out.glob("*/part-*.csv")):
                 shutil.rmtree(out, ignore_errors=True)
             raise
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,10 +21,17 @@ class ImportDataError(SonicskinError):
 
 
 @contextlib.contextmanager
-def _staged(out: Path, mode: str) -> Iterator[tuple[Path, str]]:
-    """Where to write and the writer mode; ``out`` locked for the whole import, a finished dataset moved into place."""
+def _staged(out: Path, mode: str, inputs=()) -> Iterator[tuple[Path, str]]:
+    """Where to write and the writer mode; ``out`` locked for the whole import, a finished dataset moved into place.
+    ``inputs``: the files and folders read, never inside an ``out`` that --overwrite replaces."""
     if mode not in ("create", "overwrite", "resume"):
         raise ValueError(f"mode must be create, overwrite or resume, got {mode!r}")
+    where = Path(os.path.realpath(out))
+    for p in inputs:
+        q = Path(os.path.realpath(p))
+        if mode == "overwrite" and (q == where or where in q.parents):
+            raise FileExistsError(f"{p} lies inside --out {out}: --overwrite would replace the import's own input; "
+                                  f"choose an --out elsewhere")
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"{out} exists and is not a dataset; choose another --out or remove it")
     refuse_inside_dataset(out, "a dataset")

@@ -219,7 +219,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
     source = {"kind": "import-spectra", "from": str(table.resolve()), "gain_db": round(gain_db, 6),
               "labels": {str(k): v for k, v in names.items()}}
     L = rig.n_chirp
-    with _staged(out, mode) as (root, wmode):
+    with _staged(out, mode, inputs=[table]) as (root, wmode):
         w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
         for s in sorted(set(sessions)):
             if w.session_done(s):

@@ -217,7 +217,7 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
         if isinstance(old, dict) and old.get("labels_sha256") != source["labels_sha256"]:
             raise ImportDataError(f"cannot resume {out}: {labels} changed since the import began; pass --overwrite to import "
                                   f"every recording with the new labels")
-    with _staged(out, mode) as (root, wmode):
+    with _staged(out, mode, inputs=[wav_dir, labels, *files]) as (root, wmode):
         w = DatasetWriter(root, rig, layout, source=source, mode=wmode)
         done = 0
         recordings: dict[str, str] = {}  # sha256 of a channel's samples -> file

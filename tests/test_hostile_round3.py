@@ -1,0 +1,110 @@
+"""What a third hostile pass found (issue 37, after the first fixes): writers that emptied a folder of the user's own
+files, an import that deleted its own input, a recording left unreadable by SIGTERM, scores on another wall reported as
+the artifact's, an arm trained on another arm's data, and a --duration that overflowed."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from cli_helpers import assert_one_line_error, run
+
+from sonicskin.rig import Rig
+from sonicskin.session import MAX_SCRIPTED_S, live_scenario
+from sonicskin.sim import Scenario, build_timeline
+
+
+def test_simulate_refuses_a_folder_of_other_files_so_overwrite_never_empties_it(capsys, tmp_path, cli_files):
+    """simulate --out V wrote its dataset beside the user's files; a later --overwrite then deleted them all."""
+    v = tmp_path / "V"
+    (v / "src").mkdir(parents=True)
+    (v / "important.txt").write_text("keep")
+    for extra in ([], ["--overwrite"]):
+        line = assert_one_line_error(*run(capsys, ["simulate", "--scenario", cli_files["scenario"], "--rig", cli_files["rig"],
+                                                   "--out", v, *extra])[::2], "simulate")
+        assert line == (f"sonicskin simulate: error: {v} holds files but no dataset; write the dataset into a new or empty "
+                        f"folder (choose another --out)")
+    assert sorted(p.name for p in v.iterdir()) == ["important.txt", "src"] and (v / "important.txt").read_text() == "keep"
+
+
+def test_an_import_never_overwrites_the_folder_its_own_table_is_in(capsys, tmp_path):
+    from test_cli import _spectra_table
+
+    out = tmp_path / "ds"
+    _spectra_table(tmp_path / "t.npz")
+    assert run(capsys, ["import-spectra", "--table", tmp_path / "t.npz", "--out", out])[0] == 0
+    table = out / "touches.npz"
+    table.write_bytes((tmp_path / "t.npz").read_bytes())
+    line = assert_one_line_error(*run(capsys, ["import-spectra", "--table", table, "--out", out, "--overwrite"])[::2],
+                                 "import-spectra")
+    assert line == (f"sonicskin import-spectra: error: {table} lies inside --out {out}: --overwrite would replace the "
+                    f"import's own input; choose an --out elsewhere")
+    assert table.is_file()
+
+
+def test_sigterm_ends_live_as_ctrl_c_does(tmp_path, cli_files):
+    """A supervisor stopping the sensor (SIGTERM) ended it at once: exit 143, no summary, and an --mcap recording no
+    reader opened.  SIGTERM is now a Ctrl-C: the run ends as at the end of its duration, every file closed (the MCAP
+    writer is closed on that path: tests/test_mcap_events.py)."""
+    p = subprocess.Popen([sys.executable, "-m", "sonicskin", "live", "--artifact", str(cli_files["artifact"]), "--rig",
+                          str(cli_files["rig"]), "--scenario", str(cli_files["scenario"]), "--duration", "60", "--no-status"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = p.stdout.readline()  # the first event: the run is under way
+        assert json.loads(first)["kind"] in ("touch", "release"), first
+        time.sleep(0.5)
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=60)
+    finally:
+        p.kill()
+    assert p.returncode == 0, err
+    assert "Traceback" not in err and json.loads(err.strip().splitlines()[-1])["summary"]["chirps"] > 0
+
+
+def test_compare_says_when_the_data_is_of_another_wall_and_names_no_trained_session(capsys, tmp_path, cli_files):
+    """An artifact scored on a dataset of another wall (same size, another link) gave 63 % as its accuracy, with a
+    note that the test session had trained it: session names were compared, not datasets."""
+    other = tmp_path / "other"
+    assert run(capsys, ["simulate", "--scenario", cli_files["scenario"], "--rig", cli_files["rig"], "--out", other,
+                        "--set", "link_seed=77", "--set", "seed=77", "--quiet"])[0] == 0
+    code, out, err = run(capsys, ["compare", "--data", other, "--artifact", cli_files["artifact"], "--test", "s000",
+                                  "--out", tmp_path / "cmp"])
+    assert code == 0, err
+    assert (f"warning: dataset {other} was recorded on another " in err and "its wall fingerprint differs" in err
+            and "not its accuracy" in err)
+    assert "trained or validated this artifact" not in out
+    code, out, err = run(capsys, ["compare", "--data", cli_files["data"], "--artifact", cli_files["artifact"], "--test",
+                                  "s000", "--out", tmp_path / "cmp2"])
+    assert code == 0 and "s000 trained or validated this artifact: not a held-out test" in out
+    assert "another" not in err
+
+
+def test_fit_svm_refuses_an_arm_whose_data_is_of_other_walls(capsys, tmp_path):
+    arm = tmp_path / "arm.yaml"
+    arm.write_text("name: one\nrig: fast\nlinks:\n  - {name: a, tx: 0, rx: 0, scenario: {base: stationary, sessions: 2, "
+                   "train_repeats: 1, touch_s: 1.0, link_seed: 1, layout: {kind: rings, counts: [3], spacing_cm: 1.2}}}\n")
+    assert run(capsys, ["simulate", "--links", arm, "--out", tmp_path / "data", "--quiet"])[0] == 0
+    arm.write_text(arm.read_text().replace("link_seed: 1", "link_seed: 2"))  # another link: the data is not of its wall
+    line = assert_one_line_error(*run(capsys, ["fit-svm", "--links", arm, "--data", tmp_path / "data", "--out",
+                                               tmp_path / "art"])[::2], "fit-svm")
+    assert line.startswith(f"sonicskin fit-svm: error: link 'a': {tmp_path / 'data' / 'a'} was recorded on another wall (")
+    assert line.endswith(f"simulate this arm's links first (`sonicskin simulate --links {arm} --out DIR`) and train on DIR")
+    assert not (tmp_path / "art").exists()
+
+
+@pytest.mark.parametrize("duration", [1e308, 1e6])
+def test_a_huge_duration_scripts_at_most_an_hour(duration, cli_files):
+    """--duration 1e308 on the simulated device raised OverflowError while scripting the presses."""
+    rig, sc = Rig.load(cli_files["rig"]), Scenario.load(cli_files["scenario"])
+    length = len(build_timeline(live_scenario(sc, rig, duration), rig)) / rig.chirps_per_s
+    assert MAX_SCRIPTED_S <= length < 1.2 * MAX_SCRIPTED_S
+
+
+def test_the_process_keeps_no_sigterm_handler_after_a_verb(capsys):
+    before = signal.getsignal(signal.SIGTERM)
+    run(capsys, ["info"])
+    assert signal.getsignal(signal.SIGTERM) is before
