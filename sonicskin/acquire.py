@@ -254,6 +254,8 @@ def blocks(source: AudioSource, *, watchdog_s: float | None = 3.0, poll_s: float
     source.  Raises the producer's exception, and :class:`DeviceLost` when nothing arrives for ``watchdog_s`` while
     the producer does not compute either (a slow render is not a stall)."""
     t_alive, cpu_seen = time.perf_counter(), None
+    if watchdog_s is not None:  # one block is blocksize / fs of stream: never call a device dead before two could come
+        watchdog_s = max(watchdog_s, 2.0 * getattr(source, "blocksize", 0) / source.rig.fs_hz)
     while True:
         block = source.read(timeout=poll_s)
         if block is None and source.finished is not None and source.finished.is_set():

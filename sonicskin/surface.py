@@ -244,6 +244,20 @@ class LinkSurface:
         if twice:  # yourdfpy would keep the last one silently
             raise SurfaceError(f"{path}: two <link> elements are named {brief(twice[0])}; a URDF names each link once: "
                                "rename or remove one")
+        for el in root.iter("origin"):  # poses reach /tf_static and every touch point: finite numbers only
+            for att in ("xyz", "rpy"):
+                v = el.get(att)
+                try:
+                    ok = v is None or (len(nums := [float(t) for t in v.split()]) == 3 and all(map(math.isfinite, nums)))
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise SurfaceError(f"{path}: an <origin {att}={brief(v)}> is not three finite numbers; fix the URDF")
+        for j in root.findall("joint"):
+            parent, child = (j.find(k).get("link") if j.find(k) is not None else None for k in ("parent", "child"))
+            if parent is not None and parent == child:
+                raise SurfaceError(f"{path}: joint {brief(j.get('name'))} has link {brief(parent)} as both its parent and "
+                                   "its child; a joint connects two links")
         try:
             import yourdfpy
         except ImportError:  # the optional extra (pyproject: urdf)

@@ -65,7 +65,7 @@ TINY = {"base": "stationary", "layout": {"kind": "rings", "counts": [3, 2], "spa
      "urdf 'nowhere.urdf' does not exist next to it"),
     ([{"name": "a", "tx": 0, "rx": 0, "scenario": {**TINY, "layout": {"kind": "rings", "counts": [3, 2], "spacing_cm": 1.2,
                                                                        "x0_cm": 2.4, "y0_cm": 40.0}}}], {},
-     "link 'a': scenario: layout marker 0 at (2.4, 40) cm lies outside the tube (y 0..25 cm)"),
+     "link 'a': scenario: layout marker 0 at (2.4, 40) cm lies outside the tube (x 0..23.56 round it, y 0..25 cm)"),
     ([{"name": "a", "tx": 0, "rx": 0, "frame": "wrist_link",
        "scenario": {**TINY, "geometry": {"kind": "tube", "radius_cm": 3.75, "length_cm": 25.0}}}], {"urdf": "arm6.urdf"},
      "link 'a': the layout's circumference 23.5619 cm is not that of the tube of wrist_link"),

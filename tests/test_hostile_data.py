@@ -627,3 +627,18 @@ def test_times_in_minutes_get_a_warning(src, inp, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the clean labels: no such warning
         import_wav(rec, labels, tmp_path / "clean", **_chirp(src["rig"]), **QUIET)
+
+
+def test_a_recording_without_label_rows_is_imported_as_hands_off_with_a_warning(src, inp, tmp_path):
+    """Every row of one recording dropped from the labels: it became a session of rest, without a word."""
+    from sonicskin.dataset import Dataset
+
+    rec, labels, rows = inp
+    last = rows[-1][0]
+    _write(labels, [r for r in rows if r[0] != last])
+    with pytest.warns(UserWarning, match=rf"labels.csv has no row for {last}: imported as hands-off \(no touch in it\); "
+                                         r"if a recording holds presses, add their rows"):
+        import_wav(rec, labels, tmp_path / "o", **_chirp(src["rig"]), **QUIET)
+    ds = Dataset(tmp_path / "o")
+    t = ds.features(progress=False)
+    assert (t["location"][t["session"] == ds.sessions[-1]] < 0).all() and (t["location"] >= 0).any()

@@ -108,3 +108,65 @@ def test_the_process_keeps_no_sigterm_handler_after_a_verb(capsys):
     before = signal.getsignal(signal.SIGTERM)
     run(capsys, ["info"])
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_the_watchdog_waits_for_two_blocks_of_a_large_blocksize():
+    """--blocksize 1048576 (5.5 s a block at 192 kHz) with the 3 s watchdog: a healthy simulated device was called dead
+    before its first block could arrive."""
+    from sonicskin.acquire import DeviceLost, blocks
+
+    class Silent:  # a source that never delivers: the watchdog must still wait two blocks' time
+        rig, blocksize, finished, error = Rig(fs_hz=192000, n_chirp=1024, pwm_hz=()), 57600, None, None
+        stall_text = "no audio for {s:g} s"
+
+        def read(self, timeout):
+            time.sleep(timeout)
+
+        def producer_cpu_s(self):
+            return None
+
+    t0 = time.perf_counter()
+    with pytest.raises(DeviceLost, match=r"^no audio for 0\.6 s$"):
+        for _ in blocks(Silent(), watchdog_s=0.05, poll_s=0.01):
+            pass
+    assert time.perf_counter() - t0 >= 0.6
+
+
+URDF = """<robot name="r">
+  <link name="base"/>
+  <link name="l1"><collision><origin xyz="0 0 0.1" rpy="0 0 0"/><geometry><cylinder radius="0.04" length="0.3"/></geometry>
+  </collision></link>
+  <joint name="j1" type="fixed"><parent link="{parent}"/><child link="l1"/><origin xyz="{xyz}" rpy="0 0 0"/></joint>
+</robot>"""
+
+
+@pytest.mark.parametrize("parent, xyz, message", [
+    ("base", "0 0 nan", "an <origin xyz='0 0 nan'> is not three finite numbers; fix the URDF"),
+    ("base", "0 0", "an <origin xyz='0 0'> is not three finite numbers; fix the URDF"),
+    ("base", "0 0 1e999", "an <origin xyz='0 0 1e999'> is not three finite numbers; fix the URDF"),
+    ("l1", "0 0 0", "joint 'j1' has link 'l1' as both its parent and its child; a joint connects two links"),
+])
+def test_a_urdf_with_non_finite_poses_or_a_joint_onto_itself_is_refused(tmp_path, parent, xyz, message):
+    """NaN joint origins were accepted and reached /tf_static in the MCAP recording."""
+    from sonicskin.surface import LinkSurface, SurfaceError
+
+    path = tmp_path / "r.urdf"
+    path.write_text(URDF.format(parent=parent, xyz=xyz))
+    with pytest.raises(SurfaceError) as e:
+        LinkSurface.from_urdf(path, "l1")
+    assert str(e.value) == f"{path}: {message}"
+    path.write_text(URDF.format(parent="base", xyz="0 0 0.2"))
+    assert LinkSurface.from_urdf(path, "l1").kind == "tube"
+
+
+@pytest.mark.parametrize("layout, message", [
+    ("{kind: rings, counts: [100, 100]}", "layout marker 20 at (24, 0) cm lies outside the tube (x 0..23.56 round it, "
+                                          "y 0..25 cm); move the layout (x0_cm, y0_cm, spacing_cm) or use fewer markers"),
+    ("{kind: rings, counts: [1000, 1000]}", "scenario 'stationary': layout has 2000 markers, more than 1000"),
+])
+def test_a_layout_off_the_wall_or_too_large_is_refused_at_once(capsys, tmp_path, layout, message):
+    """Markers wrapped five times round a tube and coincided (exit 0); a million of them ran for minutes."""
+    line = assert_one_line_error(*run(capsys, ["simulate", "--scenario", "stationary", "--out", tmp_path / "d", "--set",
+                                               f"layout={layout}"])[::2], "simulate")
+    assert line.startswith(f"sonicskin simulate: error: {message}")
+    assert not (tmp_path / "d").exists()

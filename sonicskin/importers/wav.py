@@ -196,6 +196,11 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
         _check_intervals(rows, labels, p.name, infos[p].frames / fs, rig.period_s)
     # Times in minutes (or ms read as s by a spreadsheet) still fall inside the recordings: a hint, not a refusal.
     ends = [max((r["end_s"] for r in rows if r["file"] == p.name), default=None) for p in files]
+    unlabelled = [p.name for p, e in zip(files, ends) if e is None]
+    if unlabelled:  # (a hands-off recording is a session without a touch; a forgotten one would read as one)
+        warnings.warn(f"{labels} has no row for {', '.join(unlabelled[:5])}{' ...' if len(unlabelled) > 5 else ''}: imported "
+                      f"as hands-off (no touch in {'it' if len(unlabelled) == 1 else 'them'}); if a recording holds "
+                      f"presses, add their rows", stacklevel=2)
     if all(e is None or e < 0.2 * infos[p].frames / fs for p, e in zip(files, ends)):
         last = max(e for e in ends if e is not None)
         longest = max(files, key=lambda p: infos[p].frames)

@@ -116,15 +116,22 @@ class Scenario:
             raise ValueError(f"loss_factor is the wall's eta, 0 < eta < 1, got {self.loss_factor}")
 
     def make_layout(self) -> Layout:
+        """The markers (:func:`validate` checks that they lie on the wall)."""
         lay = dict(self.layout)
         kind = lay.pop("kind", "rings")
         circ = self.circumference_cm
+        if (n := layout_count(self)) > MAX_MARKERS:
+            raise ValueError(f"scenario {brief(self.name)}: layout has {n} markers, more than {MAX_MARKERS}; one link's skin "
+                             f"holds tens of markers")
         if kind == "rings":
-            return Layout.rings(tuple(lay.get("counts", (16, 15))), lay.get("spacing_cm", 1.2),
-                                circumference_cm=circ, x0_cm=lay.get("x0_cm", 0.0), y0_cm=lay.get("y0_cm", 0.0))
-        if kind == "grid":
-            return Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0), circumference_cm=circ)
-        raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(kind)}")
+            layout = Layout.rings(tuple(lay.get("counts", (16, 15))), lay.get("spacing_cm", 1.2),
+                                  circumference_cm=circ, x0_cm=lay.get("x0_cm", 0.0), y0_cm=lay.get("y0_cm", 0.0))
+        elif kind == "grid":
+            layout = Layout.grid(lay["nx"], lay["ny"], lay["spacing_cm"], lay.get("x0_cm", 0.0), lay.get("y0_cm", 0.0),
+                                 circumference_cm=circ)
+        else:
+            raise ValueError(f"layout kind must be 'rings' or 'grid', got {brief(kind)}")
+        return layout
 
     @property
     def circumference_cm(self) -> float | None:
@@ -137,6 +144,10 @@ class Scenario:
         t = np.asarray(t_s, float)
         return (T.get("ambient_c", 23.0) + T.get("warmup_c", 0.0) * (1 - np.exp(-t / T.get("warmup_tau_s", 5400.0)))
                 + T.get("swing_c", 0.0) * np.sin(2 * np.pi * t / T.get("swing_period_s", 86400.0)))
+
+
+#: markers one simulated link may hold (a layout of 10^6 built for minutes before anything was checked)
+MAX_MARKERS = 1000
 
 
 @dataclasses.dataclass
@@ -375,13 +386,13 @@ def _check_parts(sc: Scenario) -> None:
     if layout_count(sc) <= 10_000:  # building a huge layout here would cost what check_size guards against
         xy = sc.make_layout().xy_cm
         length = g["length_cm"]
-        width = None if kind == "tube" else g["width_cm"]
-        out = (xy[:, 1] < 0) | (xy[:, 1] > length) | ((xy[:, 0] < 0) | (xy[:, 0] > width) if width is not None else False)
+        width = sc.circumference_cm if kind == "tube" else g["width_cm"]  # round a tube, x past it lands on other markers
+        out = (xy[:, 1] < 0) | (xy[:, 1] > length) | (xy[:, 0] < 0) | (xy[:, 0] > width + 1e-9)
         if np.any(out):
             k = int(np.flatnonzero(out)[0])
             raise ValueError(f"layout marker {k} at ({xy[k, 0]:g}, {xy[k, 1]:g}) cm lies outside the {kind} "
-                             f"({'x 0..' + format(width, 'g') + ', ' if width is not None else ''}y 0..{length:g} cm); "
-                             f"move the layout (x0_cm, y0_cm, spacing_cm)")
+                             f"(x 0..{width:.4g}{' round it' if kind == 'tube' else ''}, y 0..{length:g} cm); "
+                             f"move the layout (x0_cm, y0_cm, spacing_cm) or use fewer markers")
 
 
 def layout_count(sc: Scenario) -> int:
