@@ -27,8 +27,8 @@ from sonicskin.compare import replay_sessions
 from sonicskin.dataset import Dataset
 from sonicskin.feature_cache import load_features_cached
 from sonicskin.features import FeatureSpec, quiet_mask
-from sonicskin.force import PooledSVR
 from sonicskin.fit import build_svm_artifact
+from sonicskin.force import PooledSVR
 from sonicskin.integrity import artifact_digest, binding, check_layout, stamp_binding
 from sonicskin.rig import Layout, Rig
 from sonicskin.runtime import ArtifactError, SkinRuntime
