@@ -24,13 +24,15 @@ from .errors import check_memory, is_number
 from .fit import build_svm_artifact
 from .live import Framer
 from .rig import Layout, Rig
+from .selection import press_ids
 from .session import SIM, open_source, simulated
 from .sim import Simulator, build_timeline, generate
 from .sim.finger import make_subjects, press_profile
 from .sim.scenario import SEGMENTS, Timeline, _motion_level
 
 __all__ = ["ForceSource", "CsvForce", "SerialForce", "TimelineForce", "NoForce", "Recorder", "make_schedule",
-           "person_timeline", "simulated_device", "location_chirps", "recorded_locations", "record_session", "train_oneshot"]
+           "person_timeline", "simulated_device", "location_chirps",
+           "location_presses", "recorded_locations", "record_session", "train_oneshot"]
 
 # One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
 # an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
@@ -308,6 +310,24 @@ def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, 
     return out
 
 
+def location_presses(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, int]:
+    """Per location: its presses (runs of chirps there within a session) of at least :data:`MIN_TOUCH_CHIRPS` touch chirps."""
+    ds = Dataset(root)
+    out: dict[int, int] = {}
+    for s in ds.sessions:
+        labs = [ds._read_labels(ds.root / s / f"part-{p:05d}.csv") for p in ds.parts(s)]
+        if not labs:
+            continue
+        loc, f = np.concatenate([lb["location"] for lb in labs]), np.concatenate([lb["force_n"] for lb in labs])
+        press = press_ids(loc, np.zeros(loc.size, int))
+        use = (f >= min_force_n) | np.isnan(f)
+        for p in np.unique(press[press >= 0]):
+            run = press == p
+            if np.sum(run & use) >= MIN_TOUCH_CHIRPS:
+                out[int(loc[run][0])] = out.get(int(loc[run][0]), 0) + 1
+    return out
+
+
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
     """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset."""
     return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
@@ -368,44 +388,54 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": scenario.name}, mode=mode)
     new_dataset = new_dataset or overwrite
     todo = wanted
-    if resume:
-        have = location_chirps(out, min_force_n=min_force_n)
-        todo = [v for v in wanted if have.get(v, (0, 0))[1] < MIN_TOUCH_CHIRPS]
-        if not todo:
-            log(f"{out}: all {len(wanted)} requested locations have touch chirps; nothing to do")
-            return {"locations": []}
+    if resume:  # what is missing of --passes presses per location (a press: >= MIN_TOUCH_CHIRPS touch chirps)
+        have, chirps = location_presses(out, min_force_n=min_force_n), location_chirps(out, min_force_n=min_force_n)
+        short = {v: passes - have.get(v, 0) for v in wanted if have.get(v, 0) < passes}
 
         def why(v: int) -> str:
-            n, t = have.get(v, (0, 0))
-            return f"labelled but only {t} of {n} chirps pressed at >= {min_force_n:g} N" if n else "not recorded"
+            n, t = chirps.get(v, (0, 0))
+            return (f"{have[v]} of {passes} presses" if have.get(v) else
+                    f"labelled but only {t} of {n} chirps pressed at >= {min_force_n:g} N" if n else "not recorded")
 
-        log(f"{out}: resuming: recording {len(todo)} missing location(s): " + ", ".join(f"{v} ({why(v)})" for v in todo))
-    session = next_session(out)
-    schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s, passes=passes)
-    if simulated(device):
-        src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
-    log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
-        f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s")
-    rec = Recorder(writer, session, src, schedule, force, prompt=prompt)
-    try:
-        with src:
-            res = rec.run()
-    except BaseException as exc:
-        if rec.parts_written == 0 and new_dataset:  # nothing recorded: leave no dataset that blocks a retry
-            if new_dir:
-                shutil.rmtree(out, ignore_errors=True)
-            else:
-                shutil.rmtree(out / session, ignore_errors=True)
-                (out / "dataset.json").unlink(missing_ok=True)
-            kept = f"nothing was recorded, so the new dataset {out} is removed"
+        if short:
+            log(f"{out}: resuming: recording {sum(short.values())} missing press(es) at {len(short)} location(s): "
+                + ", ".join(f"{v} ({why(v)})" for v in short))
+            todo, passes = [v for k in range(max(short.values())) for v in wanted if short.get(v, 0) > k], 1  # pass by pass
         else:
-            kept = (f"{rec.parts_written} finished prompts ({rec.chirps_written} chirps) are kept in {out / session}; "
-                    f"`--resume` records what is missing")
-        if isinstance(exc, KeyboardInterrupt):
-            log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
-        raise
+            log(f"{out}: all {len(wanted)} requested locations have {passes} press{'es' if passes > 1 else ''}; nothing "
+                f"to record")
+            if artifact is None or (Path(artifact) / "skin.json").is_file():
+                return {"locations": []}
+            todo = []  # the run that recorded them was stopped before it wrote its artifact: write it now
     report = report or (lambda text: print(text, flush=True))
-    report(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
+    res, session = {"chirps": 0, "parts": 0}, None
+    if todo:
+        session = next_session(out)
+        schedule = make_schedule(layout, todo, rig, calibration_s=calibration_s, moving_s=moving_s, touch_s=touch_s, gap_s=gap_s,
+                                 passes=passes)
+        if simulated(device):
+            src, force, _ = simulated_device(scenario, rig, schedule, session_index=int(session[1:]), realtime=realtime)
+        log(f"recording session {session} of {out}: locations {' '.join(map(str, todo))}, "
+            f"{sum(n for _, _, n, _ in schedule) * rig.period_s:.0f} s")
+        rec = Recorder(writer, session, src, schedule, force, prompt=prompt)
+        try:
+            with src:
+                res = rec.run()
+        except BaseException as exc:
+            if rec.parts_written == 0 and new_dataset:  # nothing recorded: leave no dataset that blocks a retry
+                if new_dir:
+                    shutil.rmtree(out, ignore_errors=True)
+                else:
+                    shutil.rmtree(out / session, ignore_errors=True)
+                    (out / "dataset.json").unlink(missing_ok=True)
+                kept = f"nothing was recorded, so the new dataset {out} is removed"
+            else:
+                kept = (f"{rec.parts_written} finished prompts ({rec.chirps_written} chirps) are kept in {out / session}; "
+                        f"`--resume` records what is missing")
+            if isinstance(exc, KeyboardInterrupt):
+                log(f"interrupted{f' during {rec.interrupted_at[3]!r}' if rec.interrupted_at else ''}: {kept}")
+            raise
+        report(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
     if artifact is not None:
         missing = sorted(set(layout.ids) - recorded_locations(out, min_force_n=min_force_n))
         if missing:

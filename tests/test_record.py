@@ -19,7 +19,8 @@ from cli_helpers import reseal
 
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
-from sonicskin.record import CsvForce, location_chirps, recorded_locations
+from sonicskin.record import CsvForce, location_chirps, location_presses, recorded_locations
+from sonicskin.selection import press_ids
 from sonicskin.sim import Scenario
 
 # Short prompts keep a session at ~120 chirps (3 s of hands-off: Alg. 2's beta for relative features).
@@ -134,17 +135,21 @@ def test_interrupt_at_a_random_moment_then_resume(tmp_path, small, monkeypatch, 
     if before:  # what was kept before the interruption is intact and true
         assert_real_presses(out, sorted(before))
     n_before = ds.read_session("s000")[0].shape[0]
-    # Resume records exactly the missing locations and says which.
+    # Resume records exactly the missing presses of the three passes (record's default) and says which.
+    have = location_presses(out)
+    short = {v: 3 - have.get(v, 0) for v in want if have.get(v, 0) < 3}
     assert main([*args, "--resume"]) == 0
-    missing = [v for v in want if v not in before]
-    assert f"recording {len(missing)} missing location(s): {missing[0]} (" in capsys.readouterr().err
+    assert (f"resuming: recording {sum(short.values())} missing press(es) at {len(short)} location(s): "
+            f"{next(iter(short))} (") in capsys.readouterr().err
     _, lab1 = Dataset(out).read_session("s001")
-    assert sorted(set(lab1["location"][lab1["location"] >= 0])) == missing
+    got = press_ids(lab1["location"], np.zeros(len(lab1["location"]), int))
+    pressed = [int(lab1["location"][got == k][0]) for k in np.unique(got[got >= 0])]
+    assert sorted(pressed) == sorted(v for v, k in short.items() for _ in range(k))
     assert Dataset(out).read_session("s000")[0].shape[0] == n_before  # nothing recorded before is lost
     assert_real_presses(out, want)
-    assert recorded_locations(out) == set(want)
+    assert recorded_locations(out) == set(want) and location_presses(out) == dict.fromkeys(want, 3)
     assert main([*args, "--resume"]) == 0
-    assert "nothing to do" in capsys.readouterr().err
+    assert "all 6 requested locations have 3 presses; nothing to record" in capsys.readouterr().err
     # The two sessions together train an SVM over every location.
     art = tmp_path / "art"
     assert main(["fit-svm", "--data", str(out), "--out", str(art), "--n-bins", "40"]) == 0
@@ -325,3 +330,24 @@ def test_record_writes_the_deployable_artifact_then_live_runs_it(tmp_path, small
     assert rt.layout.ids == Dataset(rec).layout.ids and "drift" in rt.meta
     assert main(["live", "--artifact", str(art), "--scenario", small, "--fast", "--duration", "8"]) == 0
     assert '"kind": "touch"' in capsys.readouterr().out  # the scripted presses become touch events
+
+
+def test_a_run_stopped_while_writing_its_artifact_is_resumed_by_writing_it(tmp_path, small, capsys, monkeypatch):
+    """Interrupted after the last prompt, while fitting: no artifact, and --resume said "nothing to do" for ever."""
+    import sonicskin.record as record
+
+    rec, art = tmp_path / "rec", tmp_path / "rec-artifact"
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(record, "build_svm_artifact", stopped)
+    assert main(["record", "--out", str(rec), "--scenario", small, *FAST]) == 130
+    monkeypatch.undo()
+    assert not art.exists() and location_presses(rec) == dict.fromkeys(range(6), 3)
+    capsys.readouterr()
+    assert main(["record", "--out", str(rec), "--scenario", small, *FAST, "--resume"]) == 0
+    err, out = capsys.readouterr()[::-1]
+    assert "all 6 requested locations have 3 presses; nothing to record" in err
+    assert (art / "skin.json").is_file() and f"deploy it: sonicskin live --artifact {art}" in out
+    assert Dataset(rec).sessions == ["s000"]  # nothing recorded again
