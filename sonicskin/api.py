@@ -92,6 +92,9 @@ class Listener:
 
     # -- control -------------------------------------------------------------------------
     def start(self) -> Listener:
+        """Start listening (again while it runs: nothing more); a stopped Listener does not start again."""
+        if self._stop.is_set():
+            raise SonicskinError("this Listener was stopped and its source closed; make a new Listener to listen again")
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="sonicskin-listener", daemon=True)
             self._thread.start()

@@ -127,6 +127,9 @@ def load_links(name_or_path, rig: Rig) -> list[Link]:
     urdf = None
     if _text(cfg.get("urdf"), "urdf", where) is not None:
         urdf = where.parent / cfg["urdf"]
+        if urdf.is_dir():
+            raise ConfigError(f"{where}: urdf {brief(cfg['urdf'])} is a folder ({urdf}); give the URDF file's path, "
+                              f"relative to the arm file")
         if not urdf.is_file():
             raise ConfigNotFoundError(f"{where}: urdf {brief(cfg['urdf'])} does not exist next to it ({urdf}); give its path "
                                     f"relative to the arm file")

@@ -170,3 +170,16 @@ def test_a_layout_off_the_wall_or_too_large_is_refused_at_once(capsys, tmp_path,
                                                f"layout={layout}"])[::2], "simulate")
     assert line.startswith(f"sonicskin simulate: error: {message}")
     assert not (tmp_path / "d").exists()
+
+
+def test_a_stopped_listener_says_it_does_not_start_again(cli_files):
+    """start() after stop() did nothing, silently: a script waiting for events waited for ever."""
+    from sonicskin.api import Listener
+    from sonicskin.errors import SonicskinError
+
+    lst = Listener(cli_files["artifact"], rig=cli_files["rig"], scenario=cli_files["scenario"], fast=True, duration_s=2)
+    assert lst.start() is lst and lst.start() is lst  # a second start while it runs: nothing more
+    lst.stop()
+    with pytest.raises(SonicskinError, match="^this Listener was stopped and its source closed; make a new Listener to "
+                                             "listen again$"):
+        lst.start()

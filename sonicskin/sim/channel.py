@@ -115,7 +115,11 @@ class ChannelModel:
         self.tx_m, self.rx_m = np.asarray(tx_m, float), np.asarray(rx_m, float)
         for name, p in (("tx_m", self.tx_m), ("rx_m", self.rx_m)):
             if not (0 <= p[1] <= geometry.length_m and (geometry.kind == "tube" or 0 <= p[0] <= geometry.width_m)):
-                raise ValueError(f"{name}={tuple(p)} lies outside the {geometry.kind} surface")
+                key = {"tx_m": "tx_cm", "rx_m": "rx_cm"}[name]
+                raise ValueError(f"the {'transmitter' if name == 'tx_m' else 'receiver'} disc at ({100 * p[0]:.4g}, "
+                                 f"{100 * p[1]:.4g}) cm lies off the {geometry.kind} (y 0..{100 * geometry.length_m:.4g} cm"
+                                 + ("" if geometry.kind == "tube" else f", x 0..{100 * geometry.width_m:.4g} cm")
+                                 + f"); set the scenario's {key} on the wall, or give the wall its real size")
         f = rig.freqs_hz
         sel = (f >= rig.f_lo_hz - margin_hz) & (f <= min(rig.f_hi_hz + margin_hz, rig.fs_hz / 2))
         self.bins = np.flatnonzero(sel)
