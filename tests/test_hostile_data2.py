@@ -300,11 +300,19 @@ def test_import_spectra_keeps_later_rest_rows_as_no_touch_chirps(five, tmp_path)
         assert np.array_equal(loc, src["location"][src["session"] == s])
 
 
-def test_a_full_disk_names_the_file(cli_files, capsys, tmp_path):
+def test_a_full_disk_names_the_file(cli_files, capsys, tmp_path, monkeypatch):
     """`[Errno 28] No space left on device` and no path: /dev/full stands in for the full disk."""
+    from sonicskin.dataset import DatasetWriter
+
     out = tmp_path / "sim"
-    (out / "s000").mkdir(parents=True)
-    (out / "s000" / "part-00000.flac.tmp").symlink_to("/dev/full")  # the part's temporary file lands on a full device
+    made = DatasetWriter.__init__
+
+    def then_full(self, *a, **k):  # the new dataset's first part's temporary file lands on a full device
+        made(self, *a, **k)
+        (out / "s000").mkdir()
+        (out / "s000" / "part-00000.flac.tmp").symlink_to("/dev/full")
+
+    monkeypatch.setattr(DatasetWriter, "__init__", then_full)
     code, _, err = run(capsys, ["simulate", "--scenario", cli_files["scenario"], "--rig", cli_files["rig"], "--out", out,
                                 "--quiet"])
     assert assert_one_line_error(code, err, "simulate") == (
