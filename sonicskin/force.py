@@ -236,10 +236,13 @@ class PooledForce:
 class PooledSVR:
     """One RBF support-vector regression for every location over the first inputs, each standardised: scikit-learn's
     ``SVR()`` (C 1, epsilon 0.1 N, gamma "scale"), the pooled SVR floor of issue 36, kept as numbers so the runtime
-    evaluates it without scikit-learn (support vectors rounded to 1e-5 standard deviations before use, so what
+    evaluates it without scikit-learn (support vectors rounded to 1e-4 standard deviations before use, so what
     validation scored is what runs)."""
 
     NAME = "pooled-svr"
+    #: at most this many inputs (OSPA's first) and training chirps (evenly spaced): its support vectors are stored in
+    #: skin.json, once per model that uses it (every bin of a wide rig made a 95 MB skin.json)
+    MAX_INPUTS, MAX_ROWS = 300, 1500
 
     def __init__(self):
         self.model = self.NAME
@@ -247,15 +250,18 @@ class PooledSVR:
     def fit(self, inputs: np.ndarray, F: np.ndarray, location: np.ndarray | None = None) -> PooledSVR:
         from sklearn.svm import SVR
 
-        X, F = np.asarray(inputs, float), np.asarray(F, float)
+        X, F = np.asarray(inputs, float)[:, :self.MAX_INPUTS], np.asarray(F, float)
         if X.ndim != 2 or X.shape[0] != F.size or X.shape[0] < 2:
             raise ValueError(f"inputs (n, B) and F must have n >= 2 rows, got {X.shape} and {F.size}")
+        if X.shape[0] > self.MAX_ROWS:
+            keep = np.unique(np.round(np.linspace(0, X.shape[0] - 1, self.MAX_ROWS)).astype(int))
+            X, F = X[keep], F[keep]
         self.mean_, sd = X.mean(axis=0), X.std(axis=0)
         self.scale_ = np.where(sd > 0, sd, 1.0)  # StandardScaler's convention for a constant input
         Z = (X - self.mean_) / self.scale_
         self.gamma_ = float(1.0 / (Z.shape[1] * Z.var())) if Z.var() > 0 else 1.0  # gamma="scale"
         r = SVR(gamma=self.gamma_).fit(Z, F)
-        self.sv_ = np.round(r.support_vectors_, 5)
+        self.sv_ = np.round(r.support_vectors_, 4)
         self.dual_, self.intercept_ = r.dual_coef_.ravel().astype(float), float(r.intercept_[0])
         return self
 
