@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import _thread
 import contextlib
+import multiprocessing
 import os
 import signal
 import sys
@@ -57,6 +58,8 @@ class _CtrlCInCallbacks:
 
     def _terminate(self, signum, frame) -> None:
         self.terminated = True
+        for child in multiprocessing.active_children():  # the verb's workers: a Ctrl-C reaches them too
+            child.terminate()
         raise KeyboardInterrupt
 
     terminated = False
