@@ -12,7 +12,7 @@ import numpy as np
 
 from . import kinds
 from .artifact import load_skin
-from .dataset import Dataset, FeatureTable, wall_record, write_file
+from .dataset import Dataset, FeatureTable, other_wall, wall_record, write_file
 from .feature_cache import load_features_cached
 from .features import touch_mask
 from .integrity import check_layout, check_rig
@@ -164,11 +164,8 @@ def compare_artifact(artifact: str | Path, data: str | Path | None = None, *, se
     res["split"] = {"train": list(split["train"]), "val": list(split["val"]), "test": test,
                     **({"refit": True} if meta["training"].get("refit") else {})}
     res["test_sessions"] = test
-    wall = meta["training"].get("wall")
-    here = wall_record(ds.meta.get("source"), ds.rig, ds.layout)
-    if isinstance(wall, dict) and wall.get("sha256") != here["sha256"]:
-        what = (f"another {here['what']} (its wall fingerprint differs: another link or simulated wall)"
-                if here["what"] == wall.get("what") else f"another wall ({here['what']}; trained on {wall.get('what')})")
+    what = other_wall(meta["training"].get("wall"), wall_record(ds.meta.get("source"), ds.rig, ds.layout), "this dataset's")
+    if what:
         warnings.warn(f"dataset {ds.root} was recorded on {what} than {art} was trained on: these are the artifact's "
                       f"numbers on a wall it never saw, not its accuracy", stacklevel=2)
     own = os.path.realpath(ds.root) == os.path.realpath(meta["training"]["data"])  # session names are only names

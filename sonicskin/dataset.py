@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from .dsp import frame_stream, log_magnitude_db, rig_chirp
-from .errors import SonicskinError, check_memory, is_number
+from .errors import SonicskinError, brief, check_memory, is_number
 from .rig import MAX_FS_HZ, MAX_LOCATIONS, MAX_N_CHIRP, Layout, Rig
 
 __all__ = ["FORMAT", "VERSION", "COLUMNS", "SEGMENTS", "SAFE_NAME", "MANIFEST_VERSION", "DatasetError", "DatasetWriter",
@@ -83,6 +83,21 @@ def wall_record(source, rig: Rig, layout: Layout) -> dict:
     else:
         what, text = {"rig": rig.to_dict(), "layout": layout.to_dict()}, f"recorded on rig {rig.name}, {len(layout)} markers"
     return {"sha256": hashlib.sha256(json.dumps(what, sort_keys=True, default=str).encode()).hexdigest()[:16], "what": text}
+
+
+def link_wall(scenario, rig: Rig, layout: Layout) -> dict:
+    """:func:`wall_record` of a simulated link (its scenario)."""
+    return wall_record({"kind": "simulator", "scenario": scenario.to_dict()}, rig, layout)
+
+
+def other_wall(recorded, here: dict, this: str = "this one's") -> str | None:
+    """How the wall ``recorded`` (a :func:`wall_record`; anything else: not recorded) differs from ``here``, said for a
+    message ("another wall (...)"); None when it is the same wall or was not recorded."""
+    if not isinstance(recorded, dict) or recorded.get("sha256") == here["sha256"]:
+        return None
+    if recorded.get("what") == here["what"]:
+        return f"another {here['what']} (its wall fingerprint differs: another link or simulated wall)"
+    return f"another wall ({brief(recorded.get('what'))}; {this}: {here['what']})"
 
 
 def unique_keys(pairs) -> dict:

@@ -174,6 +174,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
     rows = []
     for s in sorted(set(te["session"])):
         sel = (te["session"] == s) & scored
+        if not sel.any():  # a hands-off session: nothing to score over time
+            continue
         rows.append({"session": s, "minutes": float(te["time_s"][sel].mean() / 60),
                      "temperature_c": float(te["temperature_c"][sel].mean()),
                      "accuracy": float(np.mean(p.location[sel] == loc[sel])),

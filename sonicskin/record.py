@@ -26,13 +26,13 @@ from .live import Framer
 from .rig import Layout, Rig
 from .selection import press_ids
 from .session import SIM, open_source, simulated
-from .sim import Simulator, build_timeline, generate
+from .sim import Simulator, generate
 from .sim.finger import make_subjects, press_profile
-from .sim.scenario import SEGMENTS, Timeline, _motion_level
+from .sim.scenario import SEGMENTS, Timeline, _motion_level, session_chirps
 
 __all__ = ["ForceSource", "CsvForce", "SerialForce", "TimelineForce", "NoForce", "Recorder", "make_schedule",
-           "person_timeline", "simulated_device", "location_chirps",
-           "location_presses", "recorded_locations", "record_session", "train_oneshot"]
+           "person_timeline", "simulated_device", "location_counts",
+           "recorded_locations", "record_session", "train_oneshot"]
 
 # One-shot training's cost, measured on the shipped stationary scenario (3,097 chirps of 20,480 samples, jaco): 118 s on
 # an idle 2-core machine (278 s at load 5), 199 MB of 24-bit FLAC (3.1 bytes per sample: received noise barely compresses).
@@ -295,42 +295,28 @@ def next_session(root: Path) -> str:
 MIN_TOUCH_CHIRPS = 3  # a location with fewer touch chirps than this is recorded again by --resume
 
 
-def location_chirps(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, tuple[int, int]]:
-    """Per location: ``(labelled, touch)`` chirps in the finished parts of a dataset, as ``fit-svm`` counts them."""
+def location_counts(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, tuple[int, int, int]]:
+    """Per location, in the finished parts of a dataset: ``(labelled chirps, touch chirps, presses)`` as ``fit-svm``
+    counts them; a press is a run of chirps there within a session with at least :data:`MIN_TOUCH_CHIRPS` touch chirps."""
     ds = Dataset(root)
-    out: dict[int, tuple[int, int]] = {}
-    for s in ds.sessions:
-        for p in ds.parts(s):
-            lab = ds._read_labels(ds.root / s / f"part-{p:05d}.csv")
-            loc, f = lab["location"], lab["force_n"]
-            use = (f >= min_force_n) | np.isnan(f)
-            for v in np.unique(loc[loc >= 0]):
-                n, t = out.get(int(v), (0, 0))
-                out[int(v)] = (n + int(np.sum(loc == v)), t + int(np.sum((loc == v) & use)))
-    return out
-
-
-def location_presses(root: str | Path, *, min_force_n: float = 0.5) -> dict[int, int]:
-    """Per location: its presses (runs of chirps there within a session) of at least :data:`MIN_TOUCH_CHIRPS` touch chirps."""
-    ds = Dataset(root)
-    out: dict[int, int] = {}
+    out: dict[int, tuple[int, int, int]] = {}
     for s in ds.sessions:
         labs = [ds._read_labels(ds.root / s / f"part-{p:05d}.csv") for p in ds.parts(s)]
         if not labs:
             continue
         loc, f = np.concatenate([lb["location"] for lb in labs]), np.concatenate([lb["force_n"] for lb in labs])
-        press = press_ids(loc, np.zeros(loc.size, int))
-        use = (f >= min_force_n) | np.isnan(f)
-        for p in np.unique(press[press >= 0]):
-            run = press == p
-            if np.sum(run & use) >= MIN_TOUCH_CHIRPS:
-                out[int(loc[run][0])] = out.get(int(loc[run][0]), 0) + 1
+        press, use = press_ids(loc, np.zeros(loc.size, int)), (f >= min_force_n) | np.isnan(f)
+        for v in np.unique(loc[loc >= 0]):
+            at = loc == v
+            k = sum(int(np.sum((press == p) & use) >= MIN_TOUCH_CHIRPS) for p in np.unique(press[at]))
+            n, t, c = out.get(int(v), (0, 0, 0))
+            out[int(v)] = (n + int(at.sum()), t + int(np.sum(at & use)), c + k)
     return out
 
 
 def recorded_locations(root: str | Path, *, min_force_n: float = 0.5, min_chirps: int = MIN_TOUCH_CHIRPS) -> set[int]:
     """Locations with at least ``min_chirps`` touch chirps in the finished parts of a dataset."""
-    return {v for v, (_, t) in location_chirps(root, min_force_n=min_force_n).items() if t >= min_chirps}
+    return {v for v, (_, t, _) in location_counts(root, min_force_n=min_force_n).items() if t >= min_chirps}
 
 
 def check_record_size(rig: Rig, n_locations: int, *, calibration_s: float, moving_s: float, touch_s: float,
@@ -389,12 +375,12 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
     new_dataset = new_dataset or overwrite
     todo = wanted
     if resume:  # what is missing of --passes presses per location (a press: >= MIN_TOUCH_CHIRPS touch chirps)
-        have, chirps = location_presses(out, min_force_n=min_force_n), location_chirps(out, min_force_n=min_force_n)
-        short = {v: passes - have.get(v, 0) for v in wanted if have.get(v, 0) < passes}
+        counts = location_counts(out, min_force_n=min_force_n)
+        short = {v: passes - counts.get(v, (0, 0, 0))[2] for v in wanted if counts.get(v, (0, 0, 0))[2] < passes}
 
         def why(v: int) -> str:
-            n, t = chirps.get(v, (0, 0))
-            return (f"{have[v]} of {passes} presses" if have.get(v) else
+            n, t, k = counts.get(v, (0, 0, 0))
+            return (f"{k} of {passes} presses" if k else
                     f"labelled but only {t} of {n} chirps pressed at >= {min_force_n:g} N" if n else "not recorded")
 
         if short:
@@ -457,7 +443,7 @@ def train_oneshot(scenario, rig: Rig, root: Path = Path("."), log=None) -> Path:
             f"train again)")
         return art
     data = root / f"data/sim-{scenario.name}-oneshot"
-    samples = len(build_timeline(scenario.replace(sessions=1), rig)) * rig.n_chirp
+    samples = session_chirps(scenario, rig)[0] * rig.n_chirp
     est_s = samples * ONESHOT_S_PER_SAMPLE
     took = f"about {est_s / 60:.0f} min" if est_s >= 90 else f"about {max(est_s, 1):.0f} s"
     log(f"no --artifact: training an SVM on the simulated {scenario.name!r} link first, once: {took} on an idle 2-core "

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import acquire
 from .acquire import LOOP_PRIORITY, AudioSource, Link, check_blocksize, realtime_thread
-from .dataset import wall_record
+from .dataset import link_wall, other_wall
 from .errors import ConfigNotFoundError, UsageError, brief
 from .kinds import BASELINE
 from .links import ARM_FILE, arm_urdf, load_arm
@@ -26,6 +26,7 @@ from .ros2 import open_buses
 from .rosbag import McapEventWriter, Publisher
 from .runtime import SkinRuntime
 from .sim import Scenario, Simulator, Timeline, build_timeline
+from .sim.scenario import session_chirps
 from .view import ViewServer, parse_view_port, view_loops
 
 __all__ = ["SIM", "simulated", "arm_file_of", "load_config", "open_source", "live_scenario", "Run", "open_run"]
@@ -79,7 +80,7 @@ def live_scenario(scenario: Scenario, rig: Rig | None = None, duration_s: float 
         return sc
     duration_s = min(duration_s, MAX_SCRIPTED_S)  # longer: the run says the session's length and ends with it
     reps = sc.repeats if sc.train_repeats is None else sc.train_repeats
-    while (length := len(build_timeline(sc, rig)) / rig.chirps_per_s) < duration_s:  # the calibration span is fixed
+    while (length := session_chirps(sc, rig)[0] / rig.chirps_per_s) < duration_s:  # the calibration span is fixed
         reps = max(reps + 1, int(np.ceil(reps * duration_s / length)))
         sc = sc.replace(repeats=reps, train_repeats=None)
     return sc
@@ -98,7 +99,7 @@ class Run:
     live: list[LiveLoop] = dataclasses.field(default_factory=list)  # the loops run() runs
     view: ViewServer | None = None
     mcap: McapEventWriter | None = None
-    realtime: bool = False  # real-time scheduling of the audio and processing threads; what they got: granted
+    # real-time scheduling of the audio and processing threads (``source.rt_sched``); what they got: granted
     granted: dict = dataclasses.field(default_factory=dict)
     buses: list[Publisher] = dataclasses.field(default_factory=list)  # the live ROS 2 (DDS) and Foxglove publishers
 
@@ -151,7 +152,7 @@ class Run:
                 pub.t0_unix_s = t0
                 pub.start()
             with self.source:
-                if self.realtime:  # the source's thread asks for itself as it starts (rt_sched); this thread processes
+                if self.source.rt_sched:  # the source's thread asks for itself as it starts; this thread processes
                     for _ in range(100):  # the audio thread's first callback (a device) or start (simulated)
                         if self.source.rt_granted is not None:
                             break
@@ -214,7 +215,7 @@ def open_run(artifact=None, *, links=None, device=SIM, model: str | None = None,
         run = _open(spec, lks, the_rig, sim, device, model, link_artifacts, train, blocksize, fast, drop_every,
                     pubs[0] if mcap is not None else None, duration_s)
         run.buses = pubs[mcap is not None:]
-        run.source.rt_sched = run.realtime = bool(realtime)
+        run.source.rt_sched = bool(realtime)
         return run
     except BaseException:
         for pub in pubs:
@@ -258,11 +259,9 @@ def _check_trained_for(spec, lk: Link, rt: SkinRuntime, links: list[Link]) -> No
         return warnings.warn(f"link {lk.name!r}: {rt.folder} does not record which link and wall it was trained for (an "
                              f"artifact from before sonicskin recorded them), so it is not checked against this link; {fix}",
                              stacklevel=4)
-    mine = wall_record({"kind": "simulator", "scenario": lk.scenario.to_dict()}, rt.rig, rt.layout) if lk.scenario else None
     other = [f"link {brief(rec['name'])}"] if rec.get("name") not in (None, lk.name) else []
     other += [f"frame {brief(rec['frame'])}"] if rec.get("frame") not in (None, lk.frame) else []
-    if mine and isinstance(wall, dict) and wall.get("sha256") != mine["sha256"]:
-        other.append(f"another wall ({brief(wall.get('what'))}; this link's: {mine['what']})")
+    other += [w for w in [lk.scenario and other_wall(wall, link_wall(lk.scenario, rt.rig, rt.layout), "this link's")] if w]
     if other:
         raise UsageError(f"link {lk.name!r}: {rt.folder} was trained for {' and '.join(other)}, not this link; {fix}")
 

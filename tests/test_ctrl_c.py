@@ -39,7 +39,7 @@ def test_ctrl_c_inside_a_soundfile_callback_interrupts_the_run(cli_files, tmp_pa
     rc, err = _evaluate_reading_through(_CtrlCInTell, cli_files, tmp_path, monkeypatch, capsys)
     assert _CtrlCInTell.hits == 1  # the interrupt did land inside the callback
     assert rc == 130, err
-    assert "sonicskin evaluate: interrupted; everything written so far is kept" in err
+    assert "sonicskin evaluate: interrupted; whatever it had written is kept" in err
     assert "Traceback" not in err and "Exception ignored" not in err and "unreadable" not in err, err
 
 

@@ -228,6 +228,31 @@ def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
 
 
 
+def test_evaluate_with_a_hands_off_test_session_scores_the_others_quietly(five, capsys, tmp_path):
+    """A test session without touches (every label row edited to hands-off) printed numpy's "Mean of empty slice"."""
+    data = tmp_path / "data"
+    shutil.copytree(five / "data", data)
+    for csv in sorted((data / "s003").glob("part-*.csv")):
+        lines = csv.read_text().splitlines()
+        head = lines[0].split(",")
+        i = {c: head.index(c) for c in ("location", "x_cm", "y_cm", "force_n", "segment")}
+        rows = []
+        for ln in lines[1:]:
+            r = ln.split(",")
+            r[i["location"]], r[i["x_cm"]], r[i["y_cm"]], r[i["force_n"]], r[i["segment"]] = "-1", "nan", "nan", "0", "gap"
+            rows.append(",".join(r))
+        csv.write_text("\n".join([lines[0], *rows]) + "\n")
+    from cli_helpers import reseal
+
+    reseal(data / "s003")
+    code, _, err = run(capsys, ["evaluate", "--data", data, "--train", "s000", "--val", "s001", "--test", "s002", "s003",
+                                "--n-bins", "40", "--out", tmp_path / "r"])
+    assert code == 0, err
+    assert "empty slice" not in err and "RuntimeWarning" not in err
+    over = json.loads((tmp_path / "r" / "report.json").read_text())["ablations"]["over_time"]
+    assert [r["session"] for r in over] == ["s002"]  # s003 has nothing to score
+
+
 # -- 27.7: a feature cache whose content was edited (its key kept) ---------------------------------------------------------
 def _rewrite_cache(path: Path, *, fix_digest: bool, **changes) -> None:
     from sonicskin.dataset import FeatureTable

@@ -91,7 +91,8 @@ def test_fit_svm_refuses_an_arm_whose_data_is_of_other_walls(capsys, tmp_path):
     arm.write_text(arm.read_text().replace("link_seed: 1", "link_seed: 2"))  # another link: the data is not of its wall
     line = assert_one_line_error(*run(capsys, ["fit-svm", "--links", arm, "--data", tmp_path / "data", "--out",
                                                tmp_path / "art"])[::2], "fit-svm")
-    assert line.startswith(f"sonicskin fit-svm: error: link 'a': {tmp_path / 'data' / 'a'} was recorded on another wall (")
+    assert line.startswith(f"sonicskin fit-svm: error: link 'a': {tmp_path / 'data' / 'a'} was recorded on another ")
+    assert "(its wall fingerprint differs: another link or simulated wall)" in line  # the same material and size
     assert line.endswith(f"simulate this arm's links first (`sonicskin simulate --links {arm} --out DIR`) and train on DIR")
     assert not (tmp_path / "art").exists()
 

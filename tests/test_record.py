@@ -19,9 +19,15 @@ from cli_helpers import reseal
 
 from sonicskin.cli import main
 from sonicskin.dataset import Dataset
-from sonicskin.record import CsvForce, location_chirps, location_presses, recorded_locations
+from sonicskin.record import CsvForce, location_counts, recorded_locations
 from sonicskin.selection import press_ids
 from sonicskin.sim import Scenario
+
+
+def location_presses(out) -> dict[int, int]:
+    """Presses per pressed location (``record --resume``'s count)."""
+    return {v: c[2] for v, c in location_counts(out).items() if c[2]}
+
 
 # Short prompts keep a session at ~120 chirps (3 s of hands-off: Alg. 2's beta for relative features).
 FAST = ["--fast", "--calibration-s", "3", "--moving-s", "0", "--touch-s", "1.2", "--gap-s", "0.3"]
@@ -172,7 +178,7 @@ def test_resume_records_a_location_that_was_labelled_but_not_pressed(tmp_path, s
                 r[head.index("force_n")] = "0.01"
         csv.write_text("\n".join([text[0], *(",".join(r) for r in rows)]) + "\n")
     reseal(out / "s000")  # a recording in which location 2 was not pressed, not a damaged one
-    assert location_chirps(out)[2][1] == 0 and recorded_locations(out) == {1}
+    assert location_counts(out)[2][1] == 0 and recorded_locations(out) == {1}
     capsys.readouterr()
     assert main([*args, "--resume"]) == 0
     assert "2 (labelled but only 0 of " in capsys.readouterr().err

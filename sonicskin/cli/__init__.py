@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def interrupted() -> int:
         how = "terminated (SIGTERM)" if ctrl_c.terminated else "interrupted"
-        print(f"\n{verb}: {how}; everything written so far is kept", file=sys.stderr)
+        print(f"\n{verb}: {how}; whatever it had written is kept", file=sys.stderr)
         return 143 if ctrl_c.terminated else 130
 
     ctrl_c = _CtrlCInCallbacks()

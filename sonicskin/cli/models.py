@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..compare import compare_artifact, format_comparison, save_comparison
-from ..dataset import Dataset, wall_record
+from ..dataset import Dataset, link_wall, other_wall, wall_record
 from ..errors import UsageError
 from ..evaluate import evaluate_svm, format_report, save_report
 from ..fit import build_svm_artifact, selection_lines
@@ -89,12 +89,11 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
                          f"simulate every link first (`sonicskin simulate --links {a.links} --out {data}`)")
     for lk in links:  # a simulated link's data is of its own wall (live refuses an artifact of another)
         ds = Dataset(data / lk.name)
-        theirs = wall_record(ds.meta.get("source"), ds.rig, ds.layout)
-        mine = wall_record({"kind": "simulator", "scenario": lk.scenario.to_dict()}, ds.rig, ds.layout) if lk.scenario else theirs
-        if mine["sha256"] != theirs["sha256"]:
-            raise UsageError(f"link {lk.name!r}: {data / lk.name} was recorded on another wall ({theirs['what']}) than this "
-                             f"link's ({mine['what']}); simulate this arm's links first (`sonicskin simulate --links "
-                             f"{a.links} --out DIR`) and train on DIR")
+        what = lk.scenario and other_wall(wall_record(ds.meta.get("source"), ds.rig, ds.layout),
+                                          link_wall(lk.scenario, ds.rig, ds.layout), "this link's")
+        if what:
+            raise UsageError(f"link {lk.name!r}: {data / lk.name} was recorded on {what}; simulate this arm's links "
+                             f"first (`sonicskin simulate --links {a.links} --out DIR`) and train on DIR")
     n_bins = None if a.n_bins is None else resolve_n_bins(a, data / links[0].name)
     arts = {}
     for lk in links:
