@@ -184,3 +184,21 @@ def test_a_stopped_listener_says_it_does_not_start_again(cli_files):
     with pytest.raises(SonicskinError, match="^this Listener was stopped and its source closed; make a new Listener to "
                                              "listen again$"):
         lst.start()
+
+
+@pytest.mark.parametrize("setting, expected", [
+    ("seed=-1", "sonicskin simulate: error: scenario seed must be a whole number >= 0, got -1"),
+    ("link_seed=-3", "sonicskin simulate: error: scenario link_seed must be a whole number >= 0, got -3"),
+    ('touch_s="1e-9"', "sonicskin simulate: error: scenario touch_s must be a finite number, got '1e-9' (YAML reads a "
+                       "number without a dot, 1e-9, as text: write 1.0e-9)")])
+def test_scenario_settings_are_refused_in_words_that_fit(capsys, tmp_path, setting, expected):
+    """numpy's "expected non-negative integer" for a negative seed; "must be a finite number, got '1e-9'" for 1e-9."""
+    code, _, err = run(capsys, ["simulate", "--scenario", "stationary", "--set", setting, "--out", tmp_path / "d"])
+    assert assert_one_line_error(code, err, "simulate") == expected and not (tmp_path / "d").exists()
+
+
+def test_a_number_without_a_dot_given_to_set_is_a_number():
+    from sonicskin.cli.parser import key_value
+
+    assert key_value("touch_s=1e-9") == ("touch_s", 1e-9) and key_value("gap_s=2E1") == ("gap_s", 20.0)
+    assert key_value("name='1e3'") == ("name", "1e3") and key_value("name=abc") == ("name", "abc")

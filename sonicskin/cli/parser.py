@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import importlib.util
 import math
@@ -82,6 +83,9 @@ def key_value(text: str) -> tuple[str, object]:
         value = yaml.safe_load(v)
     except yaml.YAMLError:
         raise argparse.ArgumentTypeError(f"{k.strip()}: {v!r} is not a YAML value") from None
+    if isinstance(value, str) and v.strip()[:1] not in "'\"":  # YAML 1.1 reads 1e-9 (no dot) as text
+        with contextlib.suppress(ValueError):
+            value = float(value)
     return k.strip(), value
 
 

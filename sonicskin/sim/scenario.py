@@ -257,6 +257,13 @@ def build_timeline(sc: Scenario, rig: Rig) -> Timeline:
     return Timeline(**arrays)
 
 
+def _float_text(v) -> bool:
+    try:
+        return isinstance(v, str) and bool(np.isfinite(float(v)))
+    except ValueError:
+        return False
+
+
 def _check_types(cls, d: dict) -> None:
     """Numbers where the scenario has numbers (finite), whole numbers where it has counts: one line each."""
     for f in dataclasses.fields(cls):
@@ -266,11 +273,12 @@ def _check_types(cls, d: dict) -> None:
         if isinstance(default, bool):
             continue
         if f.name in ("sessions", "repeats", "seed", "link_seed") or (f.name == "train_repeats" and v is not None):
-            if not is_number(v, integer=True):
-                raise ValueError(f"scenario {f.name} must be a whole number, got {brief(v)}")
+            if not is_number(v, integer=True) or (f.name.endswith("seed") and v < 0):
+                raise ValueError(f"scenario {f.name} must be a whole number{' >= 0' * f.name.endswith('seed')}, got {brief(v)}")
         elif isinstance(default, float):
             if not is_number(v):
-                raise ValueError(f"scenario {f.name} must be a finite number, got {brief(v)}")
+                hint = " (YAML reads a number without a dot, 1e-9, as text: write 1.0e-9)" if _float_text(v) else ""
+                raise ValueError(f"scenario {f.name} must be a finite number, got {brief(v)}{hint}")
         elif f.name in ("tx_cm", "rx_cm", "peak_force_n"):
             if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(is_number(x) for x in v)):
                 raise ValueError(f"scenario {f.name} must be a list of two finite numbers, got {brief(v)}")
