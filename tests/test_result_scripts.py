@@ -4,6 +4,7 @@ repository root, stdout captured), with ``--small`` where they measure: stdout i
 block, with the rows and physically sane numbers; progress goes to stderr."""
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -129,9 +130,10 @@ def test_bench_live(bench_work):
                   r"no crash\.$", out.strip())
     assert m, out
     over, relocks, chirps, clean, touch, touch_clean = map(int, m.groups())
-    assert over > 0 and 0 < relocks <= over and 0 < chirps < clean and 0 < touch <= touch_clean
+    assert over > 0 and 0 < relocks <= over and 0 < chirps < clean and 0 < touch <= touch_clean, out
     share = [float(x) for x in re.search(r"uses ([\d.]+)% / ([\d.]+)% of one core", out).groups()]
-    assert all(0 < s < 100 for s in share)
+    # the process's CPU over its wall time: its threads (audio, processing, ONNX) may use more than one core
+    assert all(0 < s <= 100 * os.cpu_count() for s in share), out
 
 
 @pytest.mark.slow
