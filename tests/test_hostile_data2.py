@@ -199,27 +199,29 @@ def test_simulate_and_fit_svm_into_a_dataset_folder_are_refused(cli_files, capsy
         [b for b in before if not b.startswith(".cache")]
 
 
-# -- 27.10: locations the training sessions never touched -----------------------------------------------------------------
-def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
-    data = tmp_path / "d"
-    shutil.copytree(five / "data", data)
-    ds = Dataset(data)
-    # s000 without its presses of marker 2: those rows become hands-off (the robot still)
-    for part in ds.parts("s000"):
-        csv = data / "s000" / f"part-{part:05d}.csv"
+def _hands_off(session, edit) -> None:
+    """Rewrite the label rows of ``session`` whose location ``edit`` accepts as hands-off, then reseal its manifest."""
+    from cli_helpers import reseal
+
+    for csv in sorted(session.glob("part-*.csv")):
         lines = csv.read_text().splitlines()
         head = lines[0].split(",")
         i = {c: head.index(c) for c in ("location", "x_cm", "y_cm", "force_n", "segment")}
         rows = []
         for ln in lines[1:]:
             r = ln.split(",")
-            if r[i["location"]] == "2":
+            if edit(r[i["location"]]):
                 r[i["location"]], r[i["x_cm"]], r[i["y_cm"]], r[i["force_n"]], r[i["segment"]] = "-1", "nan", "nan", "0", "gap"
             rows.append(",".join(r))
         csv.write_text("\n".join([lines[0], *rows]) + "\n")
-    from cli_helpers import reseal
+    reseal(session)
 
-    reseal(data / "s000")
+
+# -- 27.10: locations the training sessions never touched -----------------------------------------------------------------
+def test_evaluate_warns_about_locations_never_trained(five, capsys, tmp_path):
+    data = tmp_path / "d"
+    shutil.copytree(five / "data", data)
+    _hands_off(data / "s000", lambda loc: loc == "2")  # s000 without its presses of marker 2 (the robot still)
     code, _, err = run(capsys, ["evaluate", "--data", data, "--train", "s000", "--val", "s001", "--test", "s002",
                                 "--no-ablations", "--n-bins", "40", "--out", tmp_path / "r"])
     line = assert_one_line_error(code, err, "evaluate")
@@ -232,19 +234,7 @@ def test_evaluate_with_a_hands_off_test_session_scores_the_others_quietly(five, 
     """A test session without touches (every label row edited to hands-off) printed numpy's "Mean of empty slice"."""
     data = tmp_path / "data"
     shutil.copytree(five / "data", data)
-    for csv in sorted((data / "s003").glob("part-*.csv")):
-        lines = csv.read_text().splitlines()
-        head = lines[0].split(",")
-        i = {c: head.index(c) for c in ("location", "x_cm", "y_cm", "force_n", "segment")}
-        rows = []
-        for ln in lines[1:]:
-            r = ln.split(",")
-            r[i["location"]], r[i["x_cm"]], r[i["y_cm"]], r[i["force_n"]], r[i["segment"]] = "-1", "nan", "nan", "0", "gap"
-            rows.append(",".join(r))
-        csv.write_text("\n".join([lines[0], *rows]) + "\n")
-    from cli_helpers import reseal
-
-    reseal(data / "s003")
+    _hands_off(data / "s003", lambda loc: True)
     code, _, err = run(capsys, ["evaluate", "--data", data, "--train", "s000", "--val", "s001", "--test", "s002", "s003",
                                 "--n-bins", "40", "--out", tmp_path / "r"])
     assert code == 0, err
