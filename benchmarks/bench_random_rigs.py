@@ -37,7 +37,6 @@ import contextlib
 import io
 import json
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -98,11 +97,8 @@ def run_seed(seed: int, *, cache: Path, out: Path, rig_name: str, epochs: int | 
     from sonicskin.sim.scenario import Scenario
 
     t0 = time.perf_counter()
-    path = cache / f"random-seed{seed}"
-    want = json.loads(json.dumps(Scenario.load("random", seed=seed).to_dict()))
-    if (path / "dataset.json").is_file() and json.loads((path / "dataset.json").read_text()).get("source", {}).get("scenario") != want:
-        shutil.rmtree(path)  # drawn from an older family definition: simulate again
-    ds = scenario_dataset("random", seed, cache, rig=Rig.load(rig_name), log=lambda *_: None)
+    # simulated again when the cached one was made by other code, another family draw or another rig (its made-by stamp)
+    ds = scenario_dataset("random", seed, cache, rig=Rig.load(rig_name), log=log)
     sim_s = time.perf_counter() - t0
     rep = out / "compare" / f"random-{seed}"
     argv = ["compare", "--data", str(ds.root), "--train", *SPLIT["train"], *PROTOCOLS[protocol], "--test", *SPLIT["test"],
@@ -223,6 +219,7 @@ def format_markdown(res: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from sonicskin.seeds import run_code, stored_run
     from sonicskin.sim.scenario import family_seeds
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -233,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default="reports/random-rigs", help="report folder (default: reports/random-rigs)")
     p.add_argument("--rig", default="jaco", help="acquisition rig (default: jaco, the paper's)")
     p.add_argument("--epochs", type=int, help="network epochs (default: the training config's)")
-    p.add_argument("--resume", action="store_true", help="keep per-seed results already in OUT/seeds (default: recompute)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep per-seed results already in OUT/seeds made by the same code and settings (default: recompute)")
     p.add_argument("--protocol", choices=sorted(PROTOCOLS), default="refit",
                    help="refit: validate on s001, refit on s000 + s001 (default); oneshot: s000 alone, no validation")
     a = p.parse_args(argv)
@@ -250,10 +248,13 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for s in seeds:
         f = out / "seeds" / f"{s}.json"
-        if a.resume and f.is_file():
-            rows.append(json.loads(f.read_text()))
+        key = {"code": run_code(), "rig": a.rig, "epochs": a.epochs, "protocol": a.protocol}
+        stored = stored_run(f, key) if a.resume else None  # a seed made by other code or settings is run again
+        if stored is not None:
+            rows.append(stored)
             continue
-        row = run_seed(s, cache=Path(a.cache), out=out, rig_name=a.rig, epochs=a.epochs, protocol=a.protocol, log=print)
+        row = {**run_seed(s, cache=Path(a.cache), out=out, rig_name=a.rig, epochs=a.epochs, protocol=a.protocol, log=print),
+               "key": key}
         f.write_text(json.dumps(row, indent=1))
         rows.append(row)
         sys.stdout.flush()

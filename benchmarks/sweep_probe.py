@@ -18,7 +18,8 @@ affordable on 2 cores.
 
     python benchmarks/sweep_probe.py --out reports/probe            # both bands: ~1.5 h on 2 cores
     python benchmarks/sweep_probe.py --periods 106.7 13.3 --bands full --seeds 0 1 2
-Results are cached per configuration under OUT/runs (an interrupted sweep resumes); OUT/probe.md and
+Results are cached per configuration under OUT/runs (an interrupted sweep resumes; a run made by other code,
+see sonicskin.seeds.run_code, is run again); OUT/probe.md and
 OUT/probe.png summarise them.
 """
 
@@ -42,10 +43,16 @@ from bench_latency import run_rig  # noqa: E402
 from sonicskin.feature_cache import load_features_cached  # noqa: E402
 from sonicskin.ospa import select_bins  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
-from sonicskin.seeds import METRICS, _one_seed, _split, scenario_dataset  # noqa: E402
+from sonicskin.seeds import METRICS, _one_seed, _split, run_code, scenario_dataset, stored_run  # noqa: E402
 
 PAPER_N = 20480
 OVERRIDES = {"touch_s": 1.5, "gap_s": 0.5}
+
+
+def run_key(epochs: int | None) -> dict:
+    """What a stored configuration must have been run with to be resumed: the code (:func:`sonicskin.seeds.run_code`),
+    the epochs and the scenario overrides (the configuration itself is the file's name)."""
+    return {"code": run_code(), "epochs": epochs, "overrides": OVERRIDES}
 
 
 def probe_rig(period_ms: float, band: tuple[float, float] | None) -> Rig:
@@ -69,22 +76,24 @@ def ospa_region(ds) -> tuple[float, float]:
 def run_config(scenario: str, seed: int, period_ms: float, band: str, out: Path, *, epochs: int | None, log) -> dict:
     key = f"{scenario}-seed{seed}-{period_ms:g}ms-{band}"
     done = out / "runs" / f"{key}.json"
-    if done.is_file():
-        return json.loads(done.read_text())
+    want = run_key(epochs)
+    stored = stored_run(done, want, log)
+    if stored is not None:
+        return stored
     t0 = time.perf_counter()
     cache = out / "data"
     region = None
     if band == "ospa":
-        full = scenario_dataset(scenario, seed, cache, rig=probe_rig(period_ms, None), log=lambda *_: None, **OVERRIDES)
+        full = scenario_dataset(scenario, seed, cache, rig=probe_rig(period_ms, None), log=log, **OVERRIDES)
         region = ospa_region(full)
     rig = probe_rig(period_ms, region)
-    ds = scenario_dataset(scenario, seed, cache, rig=rig, log=lambda *_: None, **OVERRIDES)
+    ds = scenario_dataset(scenario, seed, cache, rig=rig, log=log, **OVERRIDES)
     stride = max(1, PAPER_N // rig.n_chirp)
     rows = _one_seed(scenario, ds, [0], out / "artifacts" / key, epochs=epochs, log=lambda *_: None, train_stride=stride)
     row = rows[0]
     res = {"scenario": scenario, "seed": seed, "period_ms": rig.n_chirp / rig.fs_hz * 1e3, "band": band,
            "f_lo_hz": rig.f_lo_hz, "f_hi_hz": rig.f_hi_hz, "n_chirp": rig.n_chirp, "train_stride": stride,
-           "net": row["net"], "svm": row["svm"], "wall_s": time.perf_counter() - t0}
+           "net": row["net"], "svm": row["svm"], "wall_s": time.perf_counter() - t0, "key": want}
     if seed == 0 and scenario == "stationary":
         lat = run_rig(rig, out / "artifacts" / key, "svm", scenario=scenario, seed=seed, presses=30, blocksize=256, log=log)
         res["latency"] = {k: lat[k] for k in ("p50_ms", "p95_ms", "max_ms", "missed", "presses", "false_touch_rate")}

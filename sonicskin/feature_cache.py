@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib.util
 import os
 import uuid
 import warnings
@@ -12,26 +13,39 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, dataset, dsp
+from . import __version__
 from .dataset import COLUMNS, Dataset, FeatureTable
 
-__all__ = ["load_features_cached"]
+__all__ = ["load_features_cached", "code_digest"]
 
 
-def _code_version() -> bytes:
-    """What the cached values depend on in the code: the package version and the modules that compute them."""
-    h = hashlib.sha256(f"sonicskin {__version__}".encode())
-    for mod in (dataset, dsp):
-        try:
-            h.update(Path(mod.__file__).read_bytes())
-        except (OSError, TypeError):  # a frozen build without sources: the version alone
-            h.update(mod.__name__.encode())
-    return h.digest()
+def code_digest(*modules: str) -> str:
+    """sha256 (16 hex digits) of the package version and every ``.py`` source of the named modules or packages.
+
+    A package counts every ``.py`` file under its folder, sorted, each with its path in the folder (a rename
+    changes the digest); a module is located by :func:`importlib.util.find_spec` (a package mapped from
+    another folder, such as ``sonicskin.training``, is read where it is)."""
+    h = hashlib.sha256(f"sonicskin {__version__}\n".encode())
+    for name in modules:
+        spec = importlib.util.find_spec(name)
+        if spec is None:
+            raise ModuleNotFoundError(f"no module named {name!r}", name=name)
+        h.update(f"module {name}\n".encode())
+        if spec.submodule_search_locations:  # a package: every source file under its folder(s)
+            files = [(Path(root), f) for root in spec.submodule_search_locations for f in Path(root).rglob("*.py")]
+        elif spec.origin and spec.origin.endswith(".py"):
+            files = [(Path(spec.origin).parent, Path(spec.origin))]
+        else:  # a frozen build or an extension module without sources: its name alone
+            files = []
+        for root, f in sorted(files, key=lambda rf: rf[1].relative_to(rf[0]).as_posix()):
+            data = f.read_bytes()
+            h.update(f"{f.relative_to(root).as_posix()} {len(data)}\n".encode() + data)
+    return h.hexdigest()[:16]
 
 
 def _signature(ds: Dataset) -> str:
     """Cache key of a dataset's features: sha256 of the code, ``dataset.json`` and every session's files."""
-    h = hashlib.sha256(_code_version())
+    h = hashlib.sha256(code_digest("sonicskin.dataset", "sonicskin.dsp").encode())  # the code that computes features
     h.update(ds.meta_sha256.encode())
     ds.check_distinct()  # a copied session: refused before a cache could hide it
     for s in ds.sessions:

@@ -6,6 +6,7 @@ network's mean over its training seeds minus the SVM's), a Student t interval ov
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import time
 from pathlib import Path
@@ -14,7 +15,7 @@ import numpy as np
 
 from .compare import replay_sessions, split_line, stream_metrics
 from .dataset import Dataset, Split
-from .feature_cache import load_features_cached
+from .feature_cache import code_digest, load_features_cached
 from .features import FeatureSpec, touch_mask
 from .fit import fit_models, prepare, write_artifact
 from .jsonio import json_safe
@@ -28,7 +29,7 @@ from .sim.generate import simulate_dataset
 from .sim.scenario import Scenario
 
 __all__ = ["SCENARIOS", "METRICS", "scenario_dataset", "compare_seeds", "summarize", "format_markdown", "save_seeds",
-           "plain_floors", "FLOOR_NAMES"]
+           "plain_floors", "FLOOR_NAMES", "RUN_CODE", "run_code", "stored_run"]
 
 # Scenario -> how it is split.  One-shot: the first session trains, every later session tests.
 SCENARIOS: dict[str, dict] = {
@@ -101,17 +102,76 @@ def plain_floors(t, rig, *, train, test, min_force_n: float = 0.5) -> dict:
             "fit_s": time.perf_counter() - t0}
 
 
+#: what a finished run executes: the package and the folders pyproject.toml maps into it (models/, training/ and export/
+#: sit at the top of the checkout, outside sonicskin/)
+RUN_CODE = ("sonicskin", "sonicskin.models", "sonicskin.training", "sonicskin.export")
+
+
+@functools.cache
+def run_code() -> str:
+    """:func:`code_digest` of :data:`RUN_CODE`, read once per process (close to the code it imported)."""
+    return code_digest(*RUN_CODE)
+
+
+@functools.cache
+def _sim_code() -> str:
+    return code_digest("sonicskin")
+
+
+def stored_run(path: Path, key: dict, log=print) -> dict | None:
+    """The finished run stored at ``path`` (a JSON object with ``"key"``) when its key is ``key``, which names the code
+    (:func:`run_code`); else ``None``, and one line says why a stored run is run again."""
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        doc = None
+    old = doc.get("key") if isinstance(doc, dict) else None
+    if old == json.loads(json.dumps(key)):
+        return doc
+    why = ("it names no code (stored before runs were keyed by it)" if not isinstance(old, dict) or "code" not in old
+           else f"it was made by other code ({old['code']}, now {key.get('code')})" if old["code"] != key.get("code")
+           else "it was made with other settings")
+    log(f"{path}: not resumed, {why}; running it again")
+    return None
+
+
+def _stamp_differs(path: Path, want: dict) -> str | None:
+    """Why the simulated dataset ``path`` was not made as ``want`` says (its ``.cache/made-by.json``), or ``None``."""
+    try:
+        have = json.loads((path / ".cache" / "made-by.json").read_text())
+    except (OSError, ValueError):
+        return "it has no readable .cache/made-by.json (made by an older sonicskin, or interrupted)"
+    if not isinstance(have, dict):
+        return "its .cache/made-by.json is not a JSON object"
+    for k, what in (("code", "other code"), ("scenario", "another scenario"), ("rig", "another rig")):
+        if have.get(k) != want[k]:
+            return f"it was made with {what}" + (f" ({have.get('code')}, now {want['code']})" if k == "code" else "")
+    return None
+
+
 def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None = None, log=print, **overrides) -> Dataset:
-    """Scenario ``name`` simulated with ``seed`` under ``cache`` (made on first use); ``overrides`` replace scenario fields."""
+    """Scenario ``name`` simulated with ``seed`` under ``cache`` (made on first use); ``overrides`` replace scenario fields.
+
+    A cached dataset is used only when its ``.cache/made-by.json`` names the code (:func:`code_digest` of
+    ``sonicskin``), the scenario and the rig asked for; otherwise it is simulated again (one line says why)."""
     rig = rig or Rig.load("jaco")
     path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
+    sc = Scenario.load(name, seed=int(seed))  # a family (random) draws another rig per seed
+    if overrides:
+        sc = sc.replace(**overrides)
+    want = json.loads(json.dumps({"code": _sim_code(), "scenario": sc.to_dict(), "rig": rig.to_dict()}))
     done = (path / "dataset.json").is_file() and Dataset(path).sessions and all(
         (path / s / "session.json").is_file() for s in Dataset(path).sessions)
-    if not done:
-        sc = Scenario.load(name, seed=int(seed))  # a family (random) draws another rig per seed
-        if overrides:
-            sc = sc.replace(**overrides)
+    why = _stamp_differs(path, want) if done else None
+    if why:
+        log(f"{path}: simulated again, {why}")
+    if not done or why:
+        (path / ".cache" / "made-by.json").unlink(missing_ok=True)  # stamped again only once whole
         simulate_dataset(sc, rig, path, mode="overwrite", progress=False, log=log)
+        (path / ".cache").mkdir(exist_ok=True)
+        (path / ".cache" / "made-by.json").write_text(json.dumps(want, indent=1) + "\n")
     return Dataset(path)
 
 
@@ -206,12 +266,13 @@ def compare_seeds(scenarios: list[str], *, sim_seeds=(0, 1, 2), train_seeds=(0, 
         t0 = time.perf_counter()
         runs = {}
         for s in sim_seeds:
-            # Finished seeds are kept (an interrupted comparison resumes); delete runs/ to train again.
+            # Finished seeds are kept (an interrupted comparison resumes) while the code is the same; delete runs/ to train again.
             done = out / "runs" / f"{name}-seed{s}.json"
-            key = {"train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "select": bool(select), "rig": rig.to_dict(),
-                   "val": bool(val)}
-            if done.is_file() and json.loads(done.read_text())["key"] == key:
-                runs[int(s)] = json.loads(done.read_text())["rows"]
+            key = {"code": run_code(), "train_seeds": [int(x) for x in train_seeds], "epochs": epochs, "select": bool(select),
+                   "rig": rig.to_dict(), "val": bool(val)}
+            stored = stored_run(done, key, log)
+            if stored is not None:
+                runs[int(s)] = stored["rows"]
                 continue
             ds = scenario_dataset(name, s, cache, rig=rig, log=log)
             runs[int(s)] = _one_seed(name, ds, train_seeds, out / "artifacts" / f"{name}-seed{s}", epochs=epochs, log=log,
