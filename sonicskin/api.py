@@ -19,7 +19,7 @@ _END = object()
 
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
-                     realtime=False, on_event=None) -> None:
+                     realtime=False, overwrite=False, view=None, on_event=None) -> None:
     """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
@@ -36,9 +36,12 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
         raise SonicskinError(f"scenario must be a scenario name or YAML path (e.g. 'stationary'), got {scenario!r}")
     if not (rig is None or isinstance(rig, (str, Path))):
         raise SonicskinError(f"rig must be None (the artifact's own), a rig name or a YAML path, got {rig!r}")
-    for name, v in (("fast", fast), ("realtime", realtime)):
+    for name, v in (("fast", fast), ("realtime", realtime), ("overwrite", overwrite)):
         if not isinstance(v, bool):
             raise SonicskinError(f"{name} must be True or False, got {v!r}")
+    if not (view is None or isinstance(view, bool) or (is_number(view, integer=True) and 0 <= view <= 65535)):
+        raise SonicskinError(f"view must be True (any free port), a TCP port number 1-65535 (an int; 0: any free one) or "
+                             f"None/False (no page), got {view!r}")
     if not (on_event is None or callable(on_event)):
         raise SonicskinError(f"on_event must be a function called with each TouchEvent (or None), got {on_event!r}")
 
@@ -61,7 +64,8 @@ class Listener:
         from .session import open_run  # here: `import sonicskin` loads neither onnxruntime nor scikit-learn
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
-                         scenario=scenario, rig=rig, fast=fast, realtime=realtime, on_event=on_event)
+                         scenario=scenario, rig=rig, fast=fast, realtime=realtime, overwrite=overwrite, view=view,
+                         on_event=on_event)
         self._queue: queue.Queue = queue.Queue()
         self._user_cb = on_event
         self.duration_s, self.watchdog_s = duration_s, watchdog_s

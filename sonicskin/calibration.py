@@ -29,8 +29,8 @@ class OnlineReference:
       the detector says (:attr:`reboots`); a hand in its window is left out (:meth:`_at_rest`, :attr:`boot_touched`).
 
     With ``score_fn`` the reference also holds the mean model *scores* (:attr:`scores`, the SVM's ``S_c``).
-    ``labelled``: the ``touch`` flags are labels.  A ``t_s`` outside ``0 .. MAX_T_S`` is a
-    :class:`~sonicskin.errors.SonicskinError`, the reference unchanged."""
+    ``labelled``: the ``touch`` flags are labels.  A ``t_s`` outside ``0 .. MAX_T_S``, or features holding NaN or
+    infinite values, is a :class:`~sonicskin.errors.SonicskinError`, the reference unchanged."""
 
     def __init__(self, beta_chirps: int = 28, alpha_chirps: int | None = 11_250, chirps_per_s: float = 9.375, *,
                  relative: bool = True, score_fn: Callable[[np.ndarray], np.ndarray] | None = None,
@@ -130,6 +130,10 @@ class OnlineReference:
     def step(self, x: np.ndarray, t_s: float, touch: bool | None = None) -> bool:
         """Feed one chirp's features at ``t_s`` with its touch detection (``None`` in a boot); True when a new reference completed."""
         t_s = self._time(t_s)
+        x = np.asarray(x, np.float32)
+        if not np.isfinite(x).all():  # it would become the reference (a NaN in the boot window: every later input NaN)
+            raise SonicskinError("the chirp's features hold NaN or infinite values (a NaN, silent or clipped frame); skip "
+                                 "that chirp, as the live loop does")
         if self._gap(t_s) and self.features is not None:
             self._reboot()
             self.reboots += 1

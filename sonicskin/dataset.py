@@ -580,7 +580,7 @@ def check_meta(meta: Any, path: Path | str) -> tuple[Rig, Layout]:
         raise DatasetError(f"{path}: rig.pwm_hz must be a list of frequencies in Hz, got {r['pwm_hz']!r}")
     for k in ("name", "sweep_b64"):
         if r.get(k) is not None and not isinstance(r[k], str):
-            raise DatasetError(f"{path}: rig.{k} must be a text, got {r[k]!r}")
+            raise DatasetError(f"{path}: rig.{k} must be a string, got {r[k]!r}")
     lay = meta["layout"]
     ids, xy = lay.get("ids"), lay.get("xy_cm")
     if not (isinstance(ids, list) and 0 < len(ids) <= MAX_LOCATIONS and all(is_number(i, integer=True) and i >= 0 for i in ids)):

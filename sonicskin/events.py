@@ -46,10 +46,11 @@ EVENT_SCHEMA: dict[str, Any] = {
         "y_cm": {**_NUM_OR_NULL, "description": "along the link axis from the transmitter end, cm"},
         "force_n": {**_NUM_OR_NULL, "minimum": 0, "description": "normal force, N; 0 on release, null: no force model"},
         "confidence": {"type": "number", "minimum": 0, "maximum": 1},
-        "model": {"type": "string", "minLength": 1},
+        "model": {"type": "string", "minLength": 1, "pattern": r"\S"},
         "latency_ms": {"type": "number", "minimum": 0},
-        "link": {"type": "string", "description": "the link that sensed it (live --links); absent on a single link"},
-        "frame_id": {"type": "string", "minLength": 1,
+        "link": {"type": "string", "minLength": 1, "pattern": r"\S",
+                 "description": "the link that sensed it (live --links); absent on a single link"},
+        "frame_id": {"type": "string", "minLength": 1, "pattern": r"\S",
                      "description": "v2: the link's frame (its URDF link name); absent without a surface"},
         "point_m": {**_VEC3, "description": "v2: contact point [x, y, z] in the link frame, m"},
         "normal": {**_VEC3, "description": "v2: unit outward surface normal [x, y, z] at the point, link frame"},
@@ -161,8 +162,8 @@ def validate_event(d: Any) -> None:
                 raise EventError(f"{k} must be >= {rule['minimum']}, got {brief(x)}")
             if "maximum" in rule and x > rule["maximum"]:
                 raise EventError(f"{k} must be <= {rule['maximum']}, got {brief(x)}")
-        if isinstance(x, str) and len(x) < rule.get("minLength", 0):
-            raise EventError(f"{k} must be a non-empty string, got {brief(x)}")
+        if isinstance(x, str) and "minLength" in rule and not x.strip():  # "" or " ": no name (schema: minLength, pattern)
+            raise EventError(f"{k} must be a non-blank string, got {brief(x)}")
         if isinstance(x, list) and (len(x) != rule["minItems"] or not all(_type_ok(a, rule["items"]["type"]) for a in x)):
             raise EventError(f"{k} must be {rule['minItems']} numbers, got {brief(x)}")
     if ("point_m" in d) != ("normal" in d) or ("force_vec_n" in d and "normal" not in d) or ("normal" in d) > ("frame_id" in d):

@@ -31,10 +31,10 @@ _LINK_KEYS = {"name", "tx", "rx", "frame", "surface", "scenario", "artifact"}
 
 
 def _text(v, what: str, where) -> str | None:
-    """``v`` when it is ``None`` or a text, else one line naming it (never ``str()`` of a nested value)."""
+    """``v`` when it is ``None`` or a string, else one line naming it (never ``str()`` of a nested value)."""
     if v is None or isinstance(v, str):
         return v
-    raise ConfigError(f"{where}: {what} must be a text, got {brief(v)}")
+    raise ConfigError(f"{where}: {what} must be a string, got {brief(v)}")
 
 
 def _resolve(name_or_path) -> Path:

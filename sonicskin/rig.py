@@ -167,7 +167,7 @@ class Rig:
         if not all(np.isfinite(self.pwm_hz)):
             raise ConfigError(f"rig pwm_hz must be finite, got {list(self.pwm_hz)}")
         if not isinstance(self.name, str):
-            raise ConfigError(f"rig name must be a text, got {brief(self.name)}")
+            raise ConfigError(f"rig name must be a string, got {brief(self.name)}")
         if self.sweep_b64 is not None and not isinstance(self.sweep_b64, str):
             raise ConfigError("rig sweep_b64 must be a base64 text")
         nyq = self.fs_hz / 2

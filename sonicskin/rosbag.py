@@ -371,6 +371,9 @@ class McapEventWriter(Publisher):
         if not isinstance(path, (str, os.PathLike)) or not str(path):
             raise SonicskinError(f"the MCAP file must be a file path, got {brief(path)}")
         self.path, self.name = Path(path), str(path)
+        if self.path.is_dir():
+            raise SonicskinError(f"{path} is a directory: give --mcap (mcap=) the path of a file to record into, e.g. "
+                                 f"{self.path / 'run.mcap'}")
         super().__init__(t0_unix_s=t0_unix_s, log=log)
         created = not (overwrite and self.path.exists())
         if overwrite and self.path.is_file() and _head(self.path) not in (b"", MCAP_MAGIC):

@@ -259,3 +259,23 @@ def test_stream_time_is_checked_at_the_door_with_the_reference_unchanged(bad):
         assert len(before["_run"]) == len(after["_run"])
         if when == "boot":
             assert [ref.step(x, i / 10) for i in range(5)] == [False] * 4 + [True]  # the boot completes as if nothing
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_features_are_refused_with_the_reference_unchanged(bad):
+    """``step([nan, 1, 2], 0.0)`` in the boot was taken: the reference held NaN (Stream.chirp refused it, the class used
+    directly did not).  Now: one SonicskinError line in the boot and after it, nothing changed, the stream goes on."""
+    from sonicskin.errors import SonicskinError
+
+    ref = OnlineReference(5, 50, 10.0)
+    for when in ("boot", "running"):
+        for touch in (None, False, True):
+            with pytest.raises(SonicskinError) as e:
+                ref.step(np.array([bad, 1.0, 2.0]), 0.7 if when == "running" else 0.0, touch)
+            assert str(e.value) == ("the chirp's features hold NaN or infinite values (a NaN, silent or clipped frame); "
+                                    "skip that chirp, as the live loop does")
+        if when == "boot":
+            assert ref._run == [] and ref._last_t is None and not ref.ready
+            assert [ref.step(np.array([0.0, 1.0, 2.0]), i / 10) for i in range(5)] == [False] * 4 + [True]
+    np.testing.assert_array_equal(ref.features, [0.0, 1.0, 2.0])
+    assert ref.refreshes == 1 and ref._run == []

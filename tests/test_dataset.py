@@ -82,6 +82,18 @@ def test_bad_datasets_are_named(tiny, tmp_path, rig):
         simulate_dataset(Scenario(**{**TINY, "seed": 4}), rig, tiny, mode="resume", progress=False)
 
 
+def test_a_rig_name_that_is_no_string_is_named(tiny):
+    """dataset.json's rig.name / rig.sweep_b64 said "must be a text"; every other config says "must be a string"."""
+    from sonicskin.dataset import check_meta
+
+    for k in ("name", "sweep_b64"):
+        meta = json.loads((tiny / "dataset.json").read_text())
+        meta["rig"][k] = 5
+        with pytest.raises(DatasetError) as e:
+            check_meta(meta, "d/dataset.json")
+        assert str(e.value) == f"d/dataset.json: rig.{k} must be a string, got 5"
+
+
 def _cached_features(root: str, barrier) -> tuple[int, float]:
     from sonicskin.feature_cache import load_features_cached
 

@@ -59,8 +59,14 @@ def test_event_round_trip_and_nulls():
     # issue 37: a point in no frame, and a frame without a name, are no robot-frame contact
     ({"point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "point_m and normal come together with the frame_id they are in, "
                                                    "force_vec_n only with them (schema v2), got ['normal', 'point_m']"),
-    ({"frame_id": ""}, "frame_id must be a non-empty string, got ''"),
-    ({"frame_id": "", "point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "frame_id must be a non-empty string, got ''"),
+    ({"frame_id": ""}, "frame_id must be a non-blank string, got ''"),
+    ({"frame_id": "", "point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "frame_id must be a non-blank string, got ''"),
+    # a blank link or frame was taken: an event of no link, in a frame no tf tree has
+    ({"frame_id": " "}, "frame_id must be a non-blank string, got ' '"),
+    ({"frame_id": "\t\n", "point_m": [0, 0, 0.1], "normal": [0, 0, 1]}, "frame_id must be a non-blank string, got '\\t\\n'"),
+    ({"link": ""}, "link must be a non-blank string, got ''"),
+    ({"link": "  "}, "link must be a non-blank string, got '  '"),
+    ({"model": " "}, "model must be a non-blank string, got ' '"),
     ({"frame_id": ["f"]}, "frame_id must be string, got ['f']"),
 ])
 def test_validator_names_the_problem(change, msg):

@@ -380,6 +380,9 @@ LINK_CONFIGS = [
     ("rx-negative", "links:\n  - {name: a, tx: 0, rx: -3}\n", "link 0: rx must be a 0-based channel number (an integer "
                                                                ">= 0), got -3"),  # accepted
     ("links-a-mapping", "links: {name: a}\n", "a links config needs a non-empty 'links' list of {name, tx, rx}"),
+    # the arm's name said "must be a text", a link's "must be a string": one wording
+    ("arm-name-list", "name: [a, b]\nlinks:\n  - {name: a, tx: 0, rx: 0}\n", "name must be a string, got ['a', 'b']"),
+    ("link-name-list", "links:\n  - {name: [a], tx: 0, rx: 0}\n", "link 0: name must be a string, got ['a']"),
 ]
 
 

@@ -363,6 +363,13 @@ API_REFUSALS = [
     ({"scenario": 5}, "SonicskinError", "scenario must be a scenario name or YAML path (e.g. 'stationary'), got 5"),
     ({"rig": 5}, "SonicskinError", "rig must be None (the artifact's own), a rig name or a YAML path, got 5"),
     ({"fast": "no"}, "SonicskinError", "fast must be True or False, got 'no'"),
+    ({"overwrite": "no"}, "SonicskinError", "overwrite must be True or False, got 'no'"),
+    ({"view": "80"}, "SonicskinError", "view must be True (any free port), a TCP port number 1-65535 (an int; 0: any free "
+                     "one) or None/False (no page), got '80'"),
+    ({"view": 80.0}, "SonicskinError", "view must be True (any free port), a TCP port number 1-65535 (an int; 0: any free "
+                     "one) or None/False (no page), got 80.0"),
+    ({"view": 70000}, "SonicskinError", "view must be True (any free port), a TCP port number 1-65535 (an int; 0: any "
+                      "free one) or None/False (no page), got 70000"),
     ({"on_event": "print"}, "SonicskinError", "on_event must be a function called with each TouchEvent (or None), got "
                             "'print'"),
     ({"blocksize": 10**9}, "SonicskinError", "blocksize must be an integer from 1 to 1048576 (audio frames per block), "
@@ -382,6 +389,19 @@ def test_api_arguments_are_one_line_sonicskin_errors(cli_files, kw, kind, messag
         Listener(cli_files["artifact"], **kw)
     assert type(e.value).__name__ == kind and str(e.value) == message
     assert isinstance(e.value, FileNotFoundError) == (kind == "ConfigNotFoundError")
+
+
+def test_overwrite_no_replaces_no_recording(cli_files, tmp_path):
+    """``Listener(..., mcap="l.mcap", overwrite="no")`` took "no" as true and replaced the file; only a bool is taken."""
+    from sonicskin.api import Listener
+
+    earlier = tmp_path / "l.mcap"
+    earlier.write_bytes(b"an earlier recording")
+    for bad in ("no", 0, None):
+        with pytest.raises(SonicskinError) as e:
+            Listener(cli_files["artifact"], mcap=earlier, overwrite=bad)
+        assert str(e.value) == f"overwrite must be True or False, got {bad!r}"
+    assert earlier.read_bytes() == b"an earlier recording"
 
 
 def test_device_errors_are_sonicskin_errors_and_still_runtime_errors(cli_files):

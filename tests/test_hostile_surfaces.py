@@ -53,4 +53,4 @@ def test_an_alias_bomb_as_a_scenario_value_is_one_short_line(tmp_path):
     (tmp_path / "sc.yaml").write_text(f"name: s\nmaterial: {BOMB}\n")
     code, err = _cli(tmp_path, "simulate", "--scenario", "sc.yaml", "--out", "d", "--quiet")
     assert code == 2 and len(err.strip().splitlines()) == 1 and len(err) < 400, err[:2000]
-    assert "scenario material must be a text, got [['x', 'x', 'x', 'x', ...]" in err
+    assert "scenario material must be a string, got [['x', 'x', 'x', 'x', ...]" in err

@@ -243,6 +243,24 @@ def test_an_existing_file_is_refused_unless_overwrite(tmp_path):
             McapEventWriter(bad, t0_unix_s=T0)
 
 
+def test_a_directory_is_named_as_one_not_as_an_existing_file(tmp_path, monkeypatch):
+    """``mcap="."`` said "the file exists; pass --overwrite" of a folder (with overwrite: "Is a directory").  It says the
+    path is a directory and asks for a file path, through open_run (``Listener(mcap=)``, ``live --mcap``) too."""
+    from sonicskin.errors import SonicskinError
+    from sonicskin.session import open_run
+
+    monkeypatch.chdir(tmp_path)
+    for overwrite in (False, True):
+        with pytest.raises(SonicskinError) as e:
+            McapEventWriter(".", t0_unix_s=T0, overwrite=overwrite)
+        assert str(e.value) == ". is a directory: give --mcap (mcap=) the path of a file to record into, e.g. run.mcap"
+    with pytest.raises(SonicskinError) as e:
+        open_run(links="arm6", mcap=tmp_path)
+    assert str(e.value) == (f"{tmp_path} is a directory: give --mcap (mcap=) the path of a file to record into, e.g. "
+                            f"{tmp_path / 'run.mcap'}")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_second_writer_on_the_same_file_is_refused_while_the_first_is_open(tmp_path):
     """Two Listeners given one path both ran; the file held one writer's messages.  The first writer's flock refuses
     the second (even with overwrite=True), and is released when the first closes."""

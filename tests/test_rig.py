@@ -55,5 +55,5 @@ def test_a_rig_file_names_its_sample_rate_and_chirp(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "the rig lacks fs_hz" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     p.write_text("fs_hz: 48000\nf_lo_hz: 5000\nf_hi_hz: 20000\nn_chirp: 4096\npwm_hz: []\nname: [a, b]\n")
-    with pytest.raises(ValueError, match=r"rig name must be a text, got \['a', 'b'\]"):
+    with pytest.raises(ValueError, match=r"rig name must be a string, got \['a', 'b'\]"):
         Rig.load(p)

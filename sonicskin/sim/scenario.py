@@ -287,7 +287,7 @@ def _check_types(cls, d: dict) -> None:
                 raise ValueError(f"scenario subjects must be a non-empty list of whole numbers, got {brief(v)}")
         elif isinstance(f.default, str) or f.name == "name":
             if not isinstance(v, str):
-                raise ValueError(f"scenario {f.name} must be a text, got {brief(v)}")
+                raise ValueError(f"scenario {f.name} must be a string, got {brief(v)}")
         elif f.default is dataclasses.MISSING and not isinstance(v, dict):
             raise ValueError(f"scenario {f.name} must be a mapping {{key: value}}, got {brief(v)}")
 
