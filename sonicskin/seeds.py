@@ -113,9 +113,14 @@ def run_code() -> str:
     return code_digest(*RUN_CODE)
 
 
+#: what simulating a scenario executes (the simulator and the modules it imports): a cached dataset is made again when
+#: one of them changes, not when a model or a verb does
+SIM_CODE = ("sonicskin.sim", "sonicskin.rig", "sonicskin.dsp", "sonicskin.dataset", "sonicskin.errors", "sonicskin.threads")
+
+
 @functools.cache
 def _sim_code() -> str:
-    return code_digest("sonicskin")
+    return code_digest(*SIM_CODE)
 
 
 def stored_run(path: Path, key: dict, log=print) -> dict | None:
@@ -155,7 +160,7 @@ def scenario_dataset(name: str, seed: int, cache: str | Path, *, rig: Rig | None
     """Scenario ``name`` simulated with ``seed`` under ``cache`` (made on first use); ``overrides`` replace scenario fields.
 
     A cached dataset is used only when its ``.cache/made-by.json`` names the code (:func:`code_digest` of
-    ``sonicskin``), the scenario and the rig asked for; otherwise it is simulated again (one line says why)."""
+    :data:`SIM_CODE`), the scenario and the rig asked for; otherwise it is simulated again (one line says why)."""
     rig = rig or Rig.load("jaco")
     path = Path(cache) / ("" if rig.name == "jaco-link" else rig.name) / f"{name}-seed{seed}"
     sc = Scenario.load(name, seed=int(seed))  # a family (random) draws another rig per seed

@@ -72,3 +72,23 @@ def test_the_networks_frozen_kernel_is_the_artifacts_svm(cli_files):
         pipe, net = fits[kinds.BASELINE].model, fits[kinds.NETWORK].model
         np.testing.assert_allclose(net.kernel.centres.detach().numpy(), pipe[-1].support_vectors_, rtol=1e-6)
         np.testing.assert_allclose(net.mean.numpy(), pipe[0].mean_, rtol=1e-6)
+
+
+def test_without_a_validation_session_the_network_detects_touches_as_the_svm_does(cli_files, tmp_path):
+    """Nothing validates the network's own touch logit, so it is not OR-ed in, and the SVM's threshold is applied to
+    the RMS over the SVM's own bins (here 60 of the network's 250 inputs; over all 250 the network called every chirp
+    touched, as it did on the moving robot at short chirps where the SVM validated 100 bins, stored result ``probe``):
+    the network reports a touch exactly where the artifact's SVM does, on every test chirp through onnxruntime."""
+    pytest.importorskip("torch")
+    data = _data(cli_files, val=())
+    final, fits = fit_models(data, [kinds.NETWORK], log=lambda *_: None, options={kinds.NETWORK: {"epochs": 2}})
+    assert fits[kinds.NETWORK].selection[kinds.NETWORK]["detector"] == "input-rms"
+    assert fits[kinds.NETWORK].entry["detector"]["bins"] == fits[kinds.BASELINE].entry["detector_bins"] < data.X.shape[1]
+    write_artifact(final, tmp_path / "art", fits, log=lambda *_: None)
+    t = final.table
+    s = t["session"] == "s002"
+    pn = SkinRuntime(tmp_path / "art", kinds.NETWORK).replay(t.X[s], t["time_s"][s])
+    ps = SkinRuntime(tmp_path / "art", kinds.BASELINE).replay(t.X[s], t["time_s"][s])
+    run = ~pn.calibrating
+    assert run.sum() > 10 and 0 < pn.touch[run].mean() < 1
+    np.testing.assert_array_equal(pn.touch[run], ps.touch[run])

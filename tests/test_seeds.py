@@ -104,7 +104,7 @@ def test_a_cached_scenario_is_reused_only_with_its_made_by_stamp(tmp_path, monke
     ds = get()
     stamp = ds.root / ".cache" / "made-by.json"
     doc = json.loads(stamp.read_text())
-    assert doc["code"] == seeds.code_digest("sonicskin") and doc["scenario"]["sessions"] == 1 and doc["rig"]["name"] == "small"
+    assert doc["code"] == seeds.code_digest(*seeds.SIM_CODE) and doc["scenario"]["sessions"] == 1 and doc["rig"]["name"] == "small"
     assert len(made) == 1 and ds.sessions == ["s000"]
     get()
     assert len(made) == 1 and not any("simulated again" in m for m in lines)  # the matching stamp: reused
