@@ -19,7 +19,7 @@ _END = object()
 
 
 def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenario=None, rig=None, fast=False,
-                     realtime=False, overwrite=False, view=None, on_event=None) -> None:
+                     realtime=False, overwrite=False, view=None, foxglove=None, on_event=None) -> None:
     """The keywords of :class:`Listener`, one :class:`SonicskinError` line each, before the loop's thread meets them."""
     if not isinstance(artifact, (str, Path)):
         raise SonicskinError(f"artifact must be the path of an artifact folder, got {artifact!r}")
@@ -42,6 +42,9 @@ def _check_arguments(*, artifact, device, duration_s, watchdog_s, tx, rx, scenar
     if not (view is None or isinstance(view, bool) or (is_number(view, integer=True) and 0 <= view <= 65535)):
         raise SonicskinError(f"view must be True (any free port), a TCP port number 1-65535 (an int; 0: any free one) or "
                              f"None/False (no page), got {view!r}")
+    if not (foxglove is None or foxglove is True or (is_number(foxglove, integer=True) and 0 <= foxglove <= 65535)):
+        raise SonicskinError(f"foxglove must be True (port 8765), a TCP port number 1-65535 (an int; 0: any free one) or "
+                             f"None (no server), got {foxglove!r}")
     if not (on_event is None or callable(on_event)):
         raise SonicskinError(f"on_event must be a function called with each TouchEvent (or None), got {on_event!r}")
 
@@ -65,7 +68,7 @@ class Listener:
 
         _check_arguments(artifact=artifact, device=device, duration_s=duration_s, watchdog_s=watchdog_s, tx=tx, rx=rx,
                          scenario=scenario, rig=rig, fast=fast, realtime=realtime, overwrite=overwrite, view=view,
-                         on_event=on_event)
+                         foxglove=foxglove, on_event=on_event)
         self._queue: queue.Queue = queue.Queue()
         self._user_cb = on_event
         self.duration_s, self.watchdog_s = duration_s, watchdog_s

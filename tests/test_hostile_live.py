@@ -370,6 +370,10 @@ API_REFUSALS = [
                      "one) or None/False (no page), got 80.0"),
     ({"view": 70000}, "SonicskinError", "view must be True (any free port), a TCP port number 1-65535 (an int; 0: any "
                       "free one) or None/False (no page), got 70000"),
+    ({"foxglove": "8765"}, "SonicskinError", "foxglove must be True (port 8765), a TCP port number 1-65535 (an int; 0: any "
+                          "free one) or None (no server), got '8765'"),
+    ({"foxglove": False}, "SonicskinError", "foxglove must be True (port 8765), a TCP port number 1-65535 (an int; 0: any "
+                         "free one) or None (no server), got False"),
     ({"on_event": "print"}, "SonicskinError", "on_event must be a function called with each TouchEvent (or None), got "
                             "'print'"),
     ({"blocksize": 10**9}, "SonicskinError", "blocksize must be an integer from 1 to 1048576 (audio frames per block), "
