@@ -74,21 +74,22 @@ def test_the_networks_frozen_kernel_is_the_artifacts_svm(cli_files):
         np.testing.assert_allclose(net.mean.numpy(), pipe[0].mean_, rtol=1e-6)
 
 
-def test_without_a_validation_session_the_network_detects_touches_as_the_svm_does(cli_files, tmp_path):
-    """Nothing validates the network's own touch logit, so it is not OR-ed in, and the SVM's threshold is applied to
-    the RMS over the SVM's own bins (here 60 of the network's 250 inputs; over all 250 the network called every chirp
-    touched, as it did on the moving robot at short chirps where the SVM validated 100 bins, stored result ``probe``):
-    the network reports a touch exactly where the artifact's SVM does, on every test chirp through onnxruntime."""
+def test_the_networks_detector_thresholds_the_svms_statistic_over_the_svms_bins(cli_files, tmp_path):
+    """Without a validation session the network reports a touch where the SVM's input-RMS detector does or its own
+    logit does.  The SVM's threshold holds for the RMS over the SVM's own bins (here 60 of the network's 250 inputs):
+    applied over all 250, the network called every test chirp touched (as on the moving robot at short chirps, where
+    the SVM validated 100 bins: stored result ``probe``).  Through onnxruntime, on every test chirp."""
     pytest.importorskip("torch")
     data = _data(cli_files, val=())
     final, fits = fit_models(data, [kinds.NETWORK], log=lambda *_: None, options={kinds.NETWORK: {"epochs": 2}})
-    assert fits[kinds.NETWORK].selection[kinds.NETWORK]["detector"] == "input-rms"
+    assert fits[kinds.NETWORK].selection[kinds.NETWORK]["detector"] == "either"
     assert fits[kinds.NETWORK].entry["detector"]["bins"] == fits[kinds.BASELINE].entry["detector_bins"] < data.X.shape[1]
     write_artifact(final, tmp_path / "art", fits, log=lambda *_: None)
     t = final.table
     s = t["session"] == "s002"
     pn = SkinRuntime(tmp_path / "art", kinds.NETWORK).replay(t.X[s], t["time_s"][s])
     ps = SkinRuntime(tmp_path / "art", kinds.BASELINE).replay(t.X[s], t["time_s"][s])
-    run = ~pn.calibrating
-    assert run.sum() > 10 and 0 < pn.touch[run].mean() < 1
-    np.testing.assert_array_equal(pn.touch[run], ps.touch[run])
+    run, rest = ~pn.calibrating, ~pn.calibrating & (t["location"][s] < 0)
+    assert run.sum() > 10 and rest.sum() > 10
+    assert np.all(pn.touch[run] >= ps.touch[run])  # every touch the SVM reports, the network reports
+    assert pn.touch[rest].mean() <= ps.touch[rest].mean() + 0.1  # and its own logit adds few on rest chirps
