@@ -160,40 +160,50 @@ class SkinNet(nn.Module):
 # network: the trunk gives the touch probability and the force, the LDA where (``p(location k) = p(touch)
 # softmax(scores)_k``), so its location is exactly the LDA's.
 class LDASkinNet(SkinNet):
-    """:class:`SkinNet` whose location layer is a fixed linear map of the normalised inputs (``n_in -> (N + 1 logits,
-    N forces)``).  ``norm``: ``"none"``, ``"level"`` (each chirp's mean removed) or ``"unit"`` (unit length), as the
-    LDA was fitted.  ``n_trunk``: the trunk (touch and force) reads the first ``n_trunk`` inputs only (the best OSPA
-    bins, as the SVM's input-RMS detector does); ``n_lda``: the LDA the first ``n_lda`` (default all ``n_in``, which may
-    be more when the head's force model reads more bins).  Call :meth:`init_from_lda` before training."""
+    """:class:`SkinNet` whose location layer is a fixed linear map of views of the inputs (``n_in -> (N + 1 logits,
+    N forces)``): per view ``(k, norm)`` the first ``k`` inputs, normalised (``"none"``, ``"level"``: each chirp's mean
+    removed, ``"unit"``: unit length), as the LDA was fitted (:class:`sonicskin.kinds.lda.LDAViews`); the views' scores
+    summed.  ``n_trunk``: the trunk (touch and force) reads the first ``n_trunk`` inputs only (the best OSPA bins, as the
+    SVM's input-RMS detector does).  Call :meth:`init_from_lda` before training."""
 
     def __init__(self, n_in: int = 300, n_locations: int = 31, hidden: tuple[int, ...] = (128, 128),
-                 dropout: float = 0.1, input_dropout: float = 0.0, n_trunk: int | None = None, norm: str = "none",
-                 n_lda: int | None = None):
+                 dropout: float = 0.1, input_dropout: float = 0.0, n_trunk: int | None = None,
+                 views: tuple = ((None, "none"),)):
         super().__init__(min(n_in, n_trunk or n_in), n_locations, hidden, dropout, input_dropout, n_centres=0)
-        self.n_in, self.norm, self.n_lda = n_in, norm, int(min(n_lda or n_in, n_in))
+        self.n_in = n_in
+        self.views = [(int(min(k or n_in, n_in)), str(norm)) for k, norm in views]
         self.n_trunk = self.mean.numel()
-        self.lda = nn.Linear(self.n_lda, n_locations).requires_grad_(False)
-        self.register_buffer("centre", torch.zeros(self.n_lda))
+        self.lda = nn.ModuleList(nn.Linear(k, n_locations, bias=False).requires_grad_(False) for k, _ in self.views)
+        for i, (k, _) in enumerate(self.views):
+            self.register_buffer(f"centre{i}", torch.zeros(k))
+        self.register_buffer("lda_bias", torch.zeros(n_locations))
         self.location = nn.Linear(hidden[-1] if hidden else self.n_trunk, 1)  # the touch logit
         self.force = nn.Linear((hidden[-1] if hidden else self.n_trunk) + n_locations, n_locations)
 
-    def init_from_lda(self, W: np.ndarray, b: np.ndarray, c: np.ndarray) -> None:
-        """The LDA's scores ``(normalise(x) - c) W' + b`` (:func:`sonicskin.kinds.lda.linear_scores`)."""
+    def init_from_lda(self, parts, b) -> None:
+        """The LDA's scores ``sum over views of (normalise(x[:k]) - c) W' + b`` (:func:`sonicskin.kinds.lda.linear_views`)."""
+        if [(k, norm) for k, norm, _, _ in parts] != self.views:
+            raise ValueError(f"the LDA's views {[(k, n) for k, n, _, _ in parts]} are not the layer's {self.views}")
         with torch.no_grad():
-            self.centre.copy_(torch.as_tensor(c, dtype=torch.float32))
-            self.lda.weight.copy_(torch.as_tensor(W, dtype=torch.float32))
-            self.lda.bias.copy_(torch.as_tensor(b, dtype=torch.float32))
+            for i, (_, _, W, c) in enumerate(parts):
+                getattr(self, f"centre{i}").copy_(torch.as_tensor(c, dtype=torch.float32))
+                self.lda[i].weight.copy_(torch.as_tensor(W, dtype=torch.float32))
+            self.lda_bias.copy_(torch.as_tensor(b, dtype=torch.float32))
 
-    def normalized(self, x: torch.Tensor) -> torch.Tensor:
-        if self.norm == "level":
+    @staticmethod
+    def normalized(x: torch.Tensor, norm: str) -> torch.Tensor:
+        if norm == "level":
             return x - x.mean(1, keepdim=True)
-        if self.norm == "unit":
+        if norm == "unit":
             return x / torch.sqrt(torch.sum(x * x, 1, keepdim=True)).clamp_min(1e-12)
         return x
 
     def _forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         h = self.trunk(self.standardize(x[:, :self.n_trunk]))
         t = self.location(h)
-        place = torch.log_softmax(self.lda(self.normalized(x[:, :self.n_lda]) - self.centre), 1)
+        s = self.lda_bias
+        for i, (k, norm) in enumerate(self.views):
+            s = s + self.lda[i](self.normalized(x[:, :k], norm) - getattr(self, f"centre{i}"))
+        place = torch.log_softmax(s, 1)
         loc = self._logsig(t) + place
         return torch.cat([loc, self._logsig(-t)], 1), self.force(torch.cat([h, place.exp()], 1))

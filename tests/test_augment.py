@@ -110,24 +110,24 @@ def _with_rest(X, y, n_rest=20, seed=0):
     return Xa, cls, force, K
 
 
-@pytest.mark.parametrize("norm", ["none", "level", "unit"])
-def test_lda_net_places_touches_exactly_as_its_lda_and_exports(tmp_path, norm):
+@pytest.mark.parametrize("views", [[(None, "none")], [(None, "level")], [(None, "unit")], [(None, "none"), (12, "level"), (None, "unit")]])
+def test_lda_net_places_touches_exactly_as_its_lda_and_exports(tmp_path, views):
     """The network's closed-form layer is the artifact's LDA, frozen: after training its place is the LDA's on
     chirps the LDA is not sure of, and the export keeps it."""
     from sonicskin.models import LDASkinNet
 
     from sonicskin.kinds import Fitted
-    from sonicskin.kinds.lda import fit_lda, normalize
+    from sonicskin.kinds.lda import LDAViews
 
     X, y, press, _ = _session(K=4, per=8, seed=1)
     X = X[:, ::10]
     Xa, cls, force, K = _with_rest(X, y)
-    lda = fit_lda(X, y, X.shape[1], norm)
+    lda = LDAViews([(k or X.shape[1], norm) for k, norm in views]).fit(X, y)
     pred = fit_net(Xa, cls, force, n_locations=K, layer="lda", epochs=3, n_trunk=20,
-                   fitted={"lda": Fitted(lda, {"norm": norm}, X.shape[1], {})})
+                   fitted={"lda": Fitted(lda, {"views": lda.views}, X.shape[1], {})})
     assert isinstance(pred.model, LDASkinNet) and pred.model.n_trunk == 20
     Xq = X + 0.3 * np.random.default_rng(9).normal(size=X.shape)
-    np.testing.assert_array_equal(pred(Xq)[0][:, :K].argmax(1), lda.predict(normalize(Xq, norm)))
+    np.testing.assert_array_equal(pred(Xq)[0][:, :K].argmax(1), lda.predict(Xq))
     from sonicskin.export.onnx import export_net
 
     parity = export_net(pred.model, tmp_path / "net.onnx", Xa.astype(np.float32))

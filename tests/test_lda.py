@@ -12,7 +12,7 @@ from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from sonicskin import kinds
 from sonicskin.kinds import Fitted
-from sonicskin.kinds.lda import DEFAULTS, ShrinkageLDA, choose, fit_lda, ledoit_wolf_shrinkage_gram, normalize
+from sonicskin.kinds.lda import ENSEMBLE, LDAViews, ShrinkageLDA, choose, fit_lda, ledoit_wolf_shrinkage_gram, normalize
 
 
 def _blobs(K=5, n=60, d=200, seed=0):
@@ -65,21 +65,36 @@ def test_normalisations():
     np.testing.assert_array_equal(normalize(X, "none"), X)
 
 
-@pytest.mark.parametrize("norm", ["none", "level", "unit"])
+@pytest.mark.parametrize("views", [[(100, "none")], [(100, "level")], [(60, "unit")], [(100, "none"), (60, "level"), (100, "unit")]])
 @pytest.mark.parametrize("K", [2, 5])
-def test_onnx_graph_decides_as_numpy(tmp_path, norm, K):
-    """The LDA's ONNX graph (normalisation, then one Gemm) gives numpy's scores and the LDA's own predictions."""
+def test_onnx_graph_decides_as_numpy(tmp_path, views, K):
+    """The LDA's ONNX graph (per view its first bins, normalisation and one MatMul; the views summed) gives numpy's
+    scores and the LDA's own predictions."""
     import onnxruntime as ort
 
     X, y = _blobs(K, 80, 120, seed=4)
-    lda = fit_lda(X, y, 100, norm)
+    lda = LDAViews(views).fit(X[:, :100], y)
     kind = kinds.get("lda")
-    parity = kind.export(Fitted(lda, {"norm": norm}, 100, {}), tmp_path / "lda.onnx", X[:, :100].astype(np.float32))
+    parity = kind.export(Fitted(lda, {"views": views}, 100, {}), tmp_path / "lda.onnx", X[:, :100].astype(np.float32))
     assert parity["labels_equal"] and parity["max_abs_scores"] <= parity["scores_tol"]
     sess = ort.InferenceSession(str(tmp_path / "lda.onnx"), providers=["CPUExecutionProvider"])
     S = sess.run(None, {"inputs": X[:, :100].astype(np.float32)})[0]
     assert S.shape == (len(X), K)
-    np.testing.assert_array_equal(lda.classes_[S.argmax(1)], lda.predict(normalize(X[:, :100], norm)))
+    np.testing.assert_array_equal(lda.classes_[S.argmax(1)], lda.predict(X[:, :100]))
+
+
+def test_the_ensemble_sums_its_views_posteriors():
+    """The ensemble's scores are the sum of its views' scores (the product of their posteriors): a known answer from
+    scikit-learn's LDA of each view; one view alone is that view's LDA."""
+    from sklearn.discriminant_analysis import LinearDiscriminantAnalysis
+
+    X, y = _blobs(4, 80, 120, seed=5)
+    views = [(120, "none"), (50, "unit")]
+    want = sum(LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto").fit(normalize(X[:, :k], nm), y)
+               .decision_function(normalize(X[:, :k], nm)) for k, nm in views)
+    np.testing.assert_allclose(LDAViews(views).fit(X, y).decision_function(X), want, rtol=1e-6, atol=1e-6)
+    one = LinearDiscriminantAnalysis(solver="lsqr", shrinkage="auto").fit(X[:, :50], y)
+    np.testing.assert_array_equal(fit_lda(X, y, 50, "none").predict(X), one.predict(X[:, :50]))
 
 
 def _data(X, y, folds, mode="relative"):
@@ -87,17 +102,20 @@ def _data(X, y, folds, mode="relative"):
                            folds=lambda: (folds, "test folds"))
 
 
-def test_choice_finds_the_normalisation_a_gain_needs_and_defaults_without_folds():
-    """Markers differ in shape; the second half of the chirps carries another gain (a constant 8 dB offset): the LDA of the
-    chirps as measured is thrown off, the level-removed one sees through it (a known answer), and the choice is a
-    normalised one at the best validation score (ties to the default).  Without folds the measured default is taken."""
+def test_the_ensemble_sees_through_a_gain_its_as_measured_view_does_not():
+    """Markers differ in shape; the second half of the chirps carries another gain (a constant 8 dB offset): the LDA of
+    the chirps as measured is thrown off, the level-removed one sees through it (a known answer), and so does the
+    ensemble, whose validated accuracy is reported.  Without folds: the same views, not validated.  Absolute inputs:
+    every bin at unit length."""
     rng = np.random.default_rng(2)
     K, n, d = 4, 240, 60
     y = np.arange(n) % K
     half = np.arange(n) < n // 2
     X = rng.normal(size=(K, d))[y] + 0.2 * rng.normal(size=(n, d)) + np.where(half, 0.0, 8.0)[:, None]
+    assert np.mean(fit_lda(X[half], y[half], d, "none").predict(X[~half]) == y[~half]) < 0.8
+    assert np.mean(fit_lda(X[half], y[half], d, "level").predict(X[~half]) == y[~half]) > 0.95
     got = choose(_data(X, y, [(half, ~half), (~half, half)]))
-    assert got["scores"]["every bin, level removed"] > 0.95 and got["scores"]["every bin, as measured"] < 0.8
-    assert got["status"] == "validated" and got["norm"] != "none" and got["accuracy"] >= got["scores"]["every bin, level removed"] - 0.005
-    assert choose(_data(X, y, [])) | {"how": ""} == {"status": "default", "k": d, "norm": DEFAULTS["relative"][1],
-                                                     "name": "every bin, unit length", "how": ""}
+    assert got["status"] == "validated" and got["name"] == ENSEMBLE and got["accuracy"] > 0.95
+    assert got["views"] == [(d, "none"), (d, "level"), (d, "unit")]
+    assert choose(_data(X, y, [])) | {"how": ""} == {"status": "default", "name": ENSEMBLE, "how": "", "views": got["views"]}
+    assert choose(_data(X, y, [], mode="absolute"))["views"] == [(d, "unit")]

@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from sonicskin.models import LDASkinNet, SkinNet
 
 from sonicskin.kinds import BASELINE, CLOSED_FORM
-from sonicskin.kinds.lda import linear_scores
+from sonicskin.kinds.lda import linear_views
 
 from .augment import make_augmenter
 
@@ -67,11 +67,9 @@ class SkinLitModule(L.LightningModule):
         The network reads the first ``n_inputs`` inputs only (OSPA's best bins); ``None``: all ``n_in``.
     n_trunk : int
         LDA layer: the trunk (touch, force) reads the first ``n_trunk`` inputs, the LDA all of them.
-    norm : str
-        LDA layer: each chirp's normalisation before it (``none``, ``level``, ``unit``: the LDA's own).
-    n_lda : int, optional
-        LDA layer: the LDA reads the first ``n_lda`` inputs (its own bins); the network reads ``n_inputs`` >= them
-        (the SVM's force model, which its head may apply, reads the first gamma).
+    views : list of [k, norm]
+        LDA layer: the LDA's views (its first ``k`` inputs, normalised by ``norm``: ``none``, ``level``, ``unit``); the
+        network reads ``n_inputs`` >= every ``k`` (the SVM's force model, which its head may apply, reads the first gamma).
     augment : bool
         Train on augmented touch chirps too (:class:`training.augment.Augmenter`, set by the trainer).
     aug_share : float
@@ -91,7 +89,7 @@ class SkinLitModule(L.LightningModule):
                  noise_db: float = 0.3, input_dropout: float = 0.0, label_smoothing: float = 0.0,
                  kernel: bool | str = True, kernel_lr: float = 0.0, tau: float = 0.1, n_centres: int = 0,
                  rest_mix: float = 0.0, layer: str | None = None, n_inputs: int | None = None, n_trunk: int = 300,
-                 norm: str = "none", n_lda: int | None = None, augment: bool = False, aug_share: float = 0.5):
+                 views: list | None = None, augment: bool = False, aug_share: float = 0.5):
         super().__init__()
         self.save_hyperparameters()
         if layer is None:
@@ -114,7 +112,8 @@ class SkinLitModule(L.LightningModule):
         h = self.hparams
         n = self.n_model_in
         if h.layer == "lda":
-            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk, norm=h.norm, n_lda=h.n_lda)
+            return LDASkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_trunk=h.n_trunk,
+                              views=tuple(tuple(v) for v in (h.views or [[None, "none"]])))
         centres = h.n_centres if h.layer == "kernel" else 0
         return SkinNet(n, h.n_locations, tuple(h.hidden), h.dropout, h.input_dropout, n_centres=centres, tau=h.tau)
 
@@ -128,10 +127,10 @@ class SkinLitModule(L.LightningModule):
             self.model.init_from_svm(pipe)
         elif h.layer == "lda":
             lda, svm = fitted[CLOSED_FORM], fitted.get(BASELINE)
-            h.norm, h.n_lda = lda.entry["norm"], int(lda.n_in)
+            h.views = [list(v) for v in lda.model.views]
             h.n_inputs = max(int(lda.n_in), int(svm.n_in) if svm is not None else 0)
             self.model = self._build()
-            self.model.init_from_lda(*linear_scores(lda.model))
+            self.model.init_from_lda(*linear_views(lda.model))
 
     def setup(self, stage: str) -> None:
         dm = getattr(self.trainer, "datamodule", None)

@@ -21,15 +21,15 @@ __all__ = ["DEFAULTS", "LAYERS", "UNVALIDATED", "fit_net", "layer_hparams", "cho
 DEFAULTS = {"hidden": (128, 128), "dropout": 0.3, "weight_decay": 1e-2, "noise_db": 0.3, "layer": "mlp", "kernel_lr": 0.0}
 
 #: The network's location layers that validation chooses among (issue 36; ties at the printed whole percent go to the
-#: first listed).  ``LDA (closed form)`` is the artifact's own LDA (its bins and normalisation validated by
+#: first listed).  ``LDA (closed form)`` is the artifact's own LDA (the ensemble of its views,
 #: :mod:`sonicskin.kinds.lda`), frozen: its validation score is the LDA's.  The MLPs read every bin or the first 1000
 #: (OSPA order) and train on augmented presses (:mod:`training.augment`).  The SVM's copy (``model.layer: kernel``)
 #: and a single-session MLP lost to the LDA on the design rigs and are not candidates (benchmarks/bench_default.py).
 LAYERS = {"LDA (closed form)": {"layer": "lda", "augment": True, "n_inputs": None},
           "MLP, every bin": {"layer": "mlp", "augment": True, "n_inputs": None},
           "MLP, 1000 bins": {"layer": "mlp", "augment": True, "n_inputs": 1000}}
-#: the layer when nothing can validate (one press per marker and no validation session): the closed form, whose own
-#: default was measured across the random rig family (:data:`sonicskin.kinds.lda.DEFAULTS`)
+#: the layer when nothing can validate (one press per marker and no validation session): the closed form, measured across
+#: the random rig family (:data:`sonicskin.kinds.lda.ENSEMBLE`)
 UNVALIDATED = "LDA (closed form)"
 
 
