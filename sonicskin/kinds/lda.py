@@ -162,7 +162,7 @@ def normalize(X: np.ndarray, norm: str) -> np.ndarray:
 class LDAViews:
     """Shrinkage LDAs on views of each chirp (its first ``k`` inputs, normalised by ``norm``), their scores summed:
     the product of their posteriors.  One view is one LDA; the ensemble of every candidate view (:data:`ENSEMBLE`)
-    spares a choice that one press per marker cannot make reliably.  ``members_``: the fitted :class:`ShrinkageLDA`\ s."""
+    spares a choice that one press per marker cannot make reliably.  ``members_``: the fitted :class:`ShrinkageLDA` instances."""
 
     def __init__(self, views):
         self.views = [(int(k), str(norm)) for k, norm in views]
