@@ -145,10 +145,11 @@ def test_mlp_layer_learns_separable_markers():
     assert np.mean(logits[:, :K].argmax(1) == y) == 1.0
 
 
-def test_the_network_takes_the_svms_force_model_when_it_does_better_and_its_head_applies_it():
+def test_the_network_deploys_the_svms_force_model_reports_both_and_its_head_applies_it():
     """Force is linear in the first 5 inputs; the network's head (one epoch) knows nothing of it: on presses neither
-    was fitted on, the SVM's pooled ridge wins (a known answer), and the network's head then gives exactly its force."""
-    from sonicskin.training.fit import SVM_FORCE, choose_force, svm_force
+    was fitted on, the SVM's pooled ridge scores better (a known answer, reported), it is the network's force, and the
+    network's head then gives exactly its force; without an SVM force model the head's own force output is the force."""
+    from sonicskin.training.fit import SVM_FORCE, score_force, svm_force
 
     from sonicskin.force import PooledForce
     from sonicskin.kinds import Fitted
@@ -165,8 +166,13 @@ def test_the_network_takes_the_svms_force_model_when_it_does_better_and_its_head
     svm = Fitted(None, {"force": ridge.to_dict(), "energy_ref_db": 0.0}, 5, {})
     Xa, cls, force, _ = _with_rest(X[:40], y[:40])
     pred = fit_net(Xa, cls, np.r_[F_true[:40], np.zeros(20)], n_locations=K, layer="mlp", epochs=1)
-    res = choose_force(pred.model, X, y, F_true, val_rows=val, location_ids=np.arange(K), svm=svm)
+    res = score_force(pred.model, X, y, F_true, val_rows=val, location_ids=np.arange(K), svm=svm, how="validation on s001")
     assert res["force"] == SVM_FORCE and res["force_rmse"][SVM_FORCE] < 0.5 * res["force_rmse"]["head"]
+    assert res["force_how"].startswith("validation on s001: the SVM's ") and "head " in res["force_how"]
+    unvalidated = score_force(pred.model, X, y, F_true, val_rows=val, location_ids=np.arange(K), svm=svm)
+    assert unvalidated["force"] == SVM_FORCE and "force_rmse" not in unvalidated
+    no_sensor = score_force(pred.model, X, y, F_true, val_rows=val, location_ids=np.arange(K), svm=None, how="validation")
+    assert no_sensor["force"] == "head" and "no SVM force model" in no_sensor["force_how"]
     head = NetHead({"force": ridge.to_dict(), "force_bins": 5, "energy_ref_db": 0.0}, Layout.grid(3, 1, 1.0))
     lg, f_all = pred(X[val])
     p = head.decide([lg, f_all], X[val].astype(np.float32))
