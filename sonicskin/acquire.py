@@ -441,7 +441,9 @@ class _ProducerSource(_QueueSource):
         """The producer thread: an exception that ends it is kept for the consumer (:attr:`error`), which raises it."""
         try:
             self._rt_start()
-            chunks, pending, t_next = self._chunks(), None, time.perf_counter()
+            # The clock starts at the first block: the work before it (a simulated arm renders its first chunk, seconds
+            # on a slow PC) is the device booting, not stream time to catch up by flooding the queue.
+            chunks, pending, t_next = self._chunks(), None, None
             for n_block in itertools.count(1):
                 while (pending is None or len(pending) < self.blocksize) and not self._stop.is_set():
                     chunk = next(chunks, None)
@@ -458,7 +460,7 @@ class _ProducerSource(_QueueSource):
                 else:
                     self._deliver(block, wait=not self.realtime)
                 if self.realtime:
-                    t_next += len(block) / self.rig.fs_hz
+                    t_next = (time.perf_counter() if t_next is None else t_next) + len(block) / self.rig.fs_hz
                     time.sleep(max(0.0, t_next - time.perf_counter()))
             self.finished.set()
         except BaseException as e:  # handed to the consumer's thread
@@ -489,7 +491,10 @@ class SimulatedSource(_ProducerSource):
         n = min(len(t) for t in tls)
         self.sims, self.timelines = sims, [t if len(t) == n else t.select(np.arange(n)) for t in tls]
         self.sim, self.timeline = sims[0], self.timelines[0]
-        self.offset, self.chunk = int(offset) % self.rig.n_chirp, int(chunk_chirps)
+        # In real time a chunk is at most about a second of audio: the render holds the blocks back, and the producer
+        # then catches up faster than real time, so a long chunk (64 jaco chirps, 6.8 s) overfills the loop's queue.
+        self.offset = int(offset) % self.rig.n_chirp
+        self.chunk = max(1, min(int(chunk_chirps), round(1.0 / self.rig.period_s))) if realtime else int(chunk_chirps)
 
     @property
     def length_s(self) -> float:

@@ -162,6 +162,40 @@ def test_a_stall_shorter_than_the_queue_loses_nothing(cli_files):
     assert max(loop.latencies_ms) >= 400  # the chirps that waited in the queue: their latency says so
 
 
+class _SlowBoot(acquire._ProducerSource):
+    """A device whose first audio takes ``boot_s`` to produce (a simulated arm rendering its first chunk of six walls)."""
+
+    def __init__(self, rig, boot_s, seconds):
+        super().__init__(rig, 1024, realtime=True)
+        self.boot_s, self.n = boot_s, int(seconds * rig.fs_hz)
+
+    def _chunks(self):
+        time.sleep(self.boot_s)
+        yield np.zeros(self.n, np.float32)
+
+
+def test_a_slow_first_render_is_boot_time_not_stream_time_to_catch_up():
+    """The stream clock starts at the first block: after a 0.6 s boot the blocks still arrive at the sample rate, not
+    0.6 s of them at once (which overfilled the queue of a six-link simulated arm on a slow PC, dropping audio at 2.5 s)."""
+    rig = Rig.load("jaco")
+    src = _SlowBoot(rig, boot_s=0.6, seconds=0.5)
+    with src:
+        got = [b for b in iter(lambda: src.read(2.0), None)]
+    assert sum(len(b.samples) for b in got) == src.n and src.dropped_blocks == 0
+    stream_s = got[-1].start / rig.fs_hz  # how far in the stream the last block starts: 0.49 s
+    assert got[-1].t - got[0].t >= 0.8 * stream_s  # paced (a burst would deliver them within milliseconds)
+
+
+def test_a_real_time_simulated_device_renders_about_a_second_ahead(cli_files):
+    """Each render holds the blocks back for its duration, so in real time a chunk is at most about a second of audio
+    (jaco: 9 chirps, not the 64 = 6.8 s a run as fast as it goes renders at once)."""
+    from sonicskin.sim import Scenario, Simulator, build_timeline
+
+    rig, sc = Rig.load("jaco"), Scenario.load(cli_files["scenario"]).replace(sessions=1)
+    sim, tl = Simulator(sc, rig), build_timeline(sc, rig)
+    assert [acquire.SimulatedSource(sim, tl, realtime=rt).chunk for rt in (True, False)] == [9, 64]
+
+
 def test_latency_counts_from_the_blocks_arrival(cli_files):
     """latency_ms is from the arrival of the block that completes the chirp (Block.t) to its event: time waiting in the
     queue behind a slow loop counts, not only the processing."""
