@@ -263,13 +263,14 @@ class PooledSVR:
         r = SVR(gamma=self.gamma_).fit(Z, F)
         self.sv_ = np.round(r.support_vectors_, 4)
         self.dual_, self.intercept_ = r.dual_coef_.ravel().astype(float), float(r.intercept_[0])
+        self._sv_sq = np.sum(self.sv_ ** 2, axis=1)
         return self
 
     def predict(self, E: np.ndarray, location: np.ndarray, inputs: np.ndarray | None = None) -> np.ndarray:
         if inputs is None:
             raise ValueError("the pooled SVR force model reads the model inputs; pass inputs=")
         Z = (np.asarray(inputs, float)[:, :self.mean_.size] - self.mean_) / self.scale_
-        d2 = np.sum(Z * Z, axis=1)[:, None] + np.sum(self.sv_ ** 2, axis=1)[None, :] - 2.0 * Z @ self.sv_.T
+        d2 = np.sum(Z * Z, axis=1)[:, None] + self._sv_sq[None, :] - 2.0 * Z @ self.sv_.T  # per chirp in the live loop
         return np.exp(-self.gamma_ * np.maximum(d2, 0.0)) @ self.dual_ + self.intercept_
 
     def padded(self, n_in: int) -> PooledSVR:
@@ -287,6 +288,7 @@ class PooledSVR:
         obj.gamma_, obj.intercept_ = float(p["gamma"]), float(p["intercept"])
         obj.dual_ = np.asarray(p["dual"], float)
         obj.sv_ = np.asarray(p["support_vectors"], float).reshape(obj.dual_.size, obj.mean_.size)
+        obj._sv_sq = np.sum(obj.sv_ ** 2, axis=1)
         return obj
 
 
