@@ -93,3 +93,37 @@ def test_the_networks_detector_thresholds_the_svms_statistic_over_the_svms_bins(
     assert run.sum() > 10 and rest.sum() > 10
     assert np.all(pn.touch[run] >= ps.touch[run])  # every touch the SVM reports, the network reports
     assert pn.touch[rest].mean() <= ps.touch[rest].mean() + 0.1  # and its own logit adds few on rest chirps
+
+
+def test_refit_layer_trains_the_closed_form_where_validation_chose_an_mlp():
+    pytest.importorskip("torch")
+    from sonicskin.training.quick import UNVALIDATED, refit_layer
+
+    mlp = "MLP, every bin"
+    chosen = {"location_layer": mlp, "layer_how": "validation on s001", "hparams": {"layer": "mlp"},
+              "layer_scores": {UNVALIDATED: 0.60, mlp: 0.95}}
+    out = refit_layer(chosen)
+    assert out["location_layer"] == UNVALIDATED and out["hparams"] is None and out["layer_scores"] == chosen["layer_scores"]
+    assert out["layer_how"] == ("validation on s001; refitted on every press as the closed form, which gains more from "
+                                "a second press per marker")
+    # the closed form chosen, or a layer given by hand (no validation scores): the choice stands
+    assert refit_layer({**chosen, "location_layer": UNVALIDATED})["location_layer"] == UNVALIDATED
+    by_hand = refit_layer({k: v for k, v in chosen.items() if k != "layer_scores"})
+    assert by_hand["location_layer"] == mlp and by_hand["hparams"] == {"layer": "mlp"}
+
+
+def test_a_refit_deploys_the_closed_form_where_validation_chose_an_mlp(cli_files):
+    """Through the one fit: the first pass keeps the MLP it was given, the refit on s000 + s001 trains the closed form."""
+    pytest.importorskip("torch")
+    from sonicskin.models import LDASkinNet
+    from sonicskin.training.quick import UNVALIDATED
+
+    mlp = "MLP, every bin"
+    layer = {"location_layer": mlp, "layer_how": "test", "layer_scores": {UNVALIDATED: 0.9, mlp: 0.92}}
+    for refit, want in ((False, mlp), (True, UNVALIDATED)):
+        _, fits = fit_models(_data(cli_files), [kinds.NETWORK], refit=refit, log=lambda *_: None,
+                             options={kinds.NETWORK: {"epochs": 1, "layer": layer}})
+        sel = fits[kinds.NETWORK].selection[kinds.NETWORK]
+        assert sel["location_layer"] == want, sel["layer_how"]
+        assert isinstance(fits[kinds.NETWORK].model, LDASkinNet) == refit  # the deployed graph holds the LDA's weights
+    assert sel["layer_how"].startswith("test; refitted on every press as the closed form")

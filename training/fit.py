@@ -24,7 +24,7 @@ from sonicskin.kinds.net import NetKind
 from .augment import make_augmenter
 from .checkpoint import load_checkpoint
 from .data import session_fingerprints
-from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams
+from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams, refit_layer
 
 #: the network's force wherever the SVM has a force model (its validated per-location Fourier-1 or pooled ridge, or the
 #: unvalidated pooled ridge): trained on one session of each of the 30 design rigs of the random family (stored result
@@ -69,8 +69,7 @@ def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epo
     train = data.rows("train")
     if chosen is not None:
         seed, epochs = chosen.get("train_seed", seed), chosen.get("epochs", epochs)
-        layer = {"location_layer": chosen.get("location_layer", "as trained"), "layer_how": chosen.get("layer_how", ""),
-                 "hparams": chosen.get("hparams")}
+        layer = refit_layer(chosen)
     kw = {} if epochs is None else {"epochs": int(epochs)}
     here = layer is None and select
     if here:
@@ -117,7 +116,7 @@ def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
         h[k] = v
     module.model = module._build()
     if datamodule.meta is not None:
-        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in ("location_layer", "layer_how")}
+        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in ("location_layer", "layer_how", "layer_scores")}
     print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
     return res
 
