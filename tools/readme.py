@@ -393,6 +393,8 @@ def copy_figure(fig: Figure, folder: Path, root: Path = ROOT) -> Path:
     with Image.open(src) as im:
         if im.width > fig.width:
             im = im.resize((fig.width, round(im.height * fig.width / im.width)), Image.LANCZOS)
+        if im.mode == "RGBA" and im.getextrema()[3][0] == 255:  # opaque: an alpha channel adds bytes and nothing else
+            im = im.convert("RGB")
         im.save(dest, optimize=True)
     return dest
 
