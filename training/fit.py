@@ -116,7 +116,8 @@ def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
         h[k] = v
     module.model = module._build()
     if datamodule.meta is not None:
-        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in ("location_layer", "layer_how", "layer_scores")}
+        keep = ("location_layer", "layer_how", "layer_scores")  # the scores let export's refit apply refit_layer
+        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in keep if k in res}
     print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
     return res
 
