@@ -47,8 +47,8 @@ from sonicskin.kinds.lda import ENSEMBLE, LDAViews, candidate_name, lda_candidat
 from sonicskin.kinds.svm import fit_pipeline  # noqa: E402
 from sonicskin.metrics import t_interval  # noqa: E402
 from sonicskin.rig import Rig  # noqa: E402
-from sonicskin.selection import press_ids  # noqa: E402
 from sonicskin.seeds import scenario_dataset  # noqa: E402
+from sonicskin.selection import press_ids  # noqa: E402
 from sonicskin.sim.scenario import family_seeds  # noqa: E402
 
 

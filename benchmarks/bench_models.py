@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from sonicskin.dataset import Dataset
+from sonicskin.dsp import log_magnitude_db
 from sonicskin.runtime import SkinRuntime
 
 
@@ -95,8 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         for i in range(beta):
             st.frame(frames[i], t_s[i])
     rows = np.arange(beta, len(frames))
-    inputs = {k: st.reference.inputs(np.stack([rts[k].band_features(frames[r:r + 1])[0][st.bins] for r in rows[:64]]))
-              for k, st in streams.items()}
+    inputs = {k: st.reference.inputs(log_magnitude_db(frames[rows[:64]], rts[k].rig)[:, st.bins]) for k, st in streams.items()}
     n, warm = a.chirps, 30
     path = {k: np.empty(n) for k in rts}
     onnx = {k: np.empty(n) for k in rts}

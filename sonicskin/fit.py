@@ -45,6 +45,7 @@ class TrainingData:
     rig: Any = None        # the rig the artifact declares (default: the dataset's)
     n_svm: int | None = None  # the SVM reads the first n_svm bins (OSPA's gamma for it); default: every bin
     options: dict = dataclasses.field(default_factory=dict)  # how prepare() made it (refit() makes it again)
+    refit_follows: bool = False  # fit_models refits every model on training + validation next (a choice may skip work)
 
     def __post_init__(self):
         if self.rig is None:
@@ -180,6 +181,8 @@ def fit_models(data: TrainingData, wanted=(kinds.BASELINE,), *, refit: bool = Tr
     options = options or {}
     order = kinds.fit_order(wanted)
     fits: dict[str, kinds.Fitted] = {}
+    if refit and data.split.val:
+        data = dataclasses.replace(data, refit_follows=True)
     for name in order:
         fits[name] = kinds.get(name, fitting=True).fit(data, fitted=fits, log=log, **options.get(name, {}))
     if not (refit and data.split.val):

@@ -12,7 +12,6 @@ from . import kinds
 from .artifact import load_skin, read_model_file
 from .artifact_schema import ARTIFACT_FORMAT
 from .drift import DriftTracker
-from .dsp import log_magnitude_db
 from .errors import ArtifactError, is_number
 from .features import FeatureSpec
 from .head import Predictions, Stream
@@ -77,10 +76,6 @@ class SkinRuntime:
         self.drift = self.meta.get("drift")  # drift tracking's training reference (each stream tracks its own stretch)
 
     # -- features ----------------------------------------------------------------------
-    def band_features(self, frames: np.ndarray) -> np.ndarray:
-        """dB features of chirp-aligned frames (validated: length, NaN, silence, clipping)."""
-        return log_magnitude_db(frames, self.rig)
-
     def inputs(self, X_band: np.ndarray, *, reference: np.ndarray | None = None) -> np.ndarray:
         """Model inputs from band features: the artifact's bins, minus ``reference`` in ``relative`` mode."""
         X = band_rows(X_band, self.rig.n_band)[:, list(self.spec.bins)]

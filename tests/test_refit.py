@@ -127,3 +127,25 @@ def test_a_refit_deploys_the_closed_form_where_validation_chose_an_mlp(cli_files
         assert sel["location_layer"] == want, sel["layer_how"]
         assert isinstance(fits[kinds.NETWORK].model, LDASkinNet) == refit  # the deployed graph holds the LDA's weights
     assert sel["layer_how"].startswith("test; refitted on every press as the closed form")
+
+
+def test_with_a_refit_to_follow_the_network_trains_no_mlp_to_validate(cli_files, monkeypatch):
+    """The refit would train the closed form in any case: the validation pass chooses it without training MLP folds,
+    so its touch decision is chosen on the layer that is deployed."""
+    pytest.importorskip("torch")
+    import sonicskin.training.fit as tfit
+    from sonicskin.training.quick import UNVALIDATED
+
+    chose = []
+    real = tfit.choose_layer
+    monkeypatch.setattr(tfit, "choose_layer", lambda *a, **k: chose.append(1) or real(*a, **k))
+    for refit in (True, False):
+        chose.clear()
+        _, fits = fit_models(_data(cli_files), [kinds.NETWORK], refit=refit, log=lambda *_: None,
+                             options={kinds.NETWORK: {"epochs": 1}})
+        sel = fits[kinds.NETWORK].selection[kinds.NETWORK]
+        if refit:
+            assert not chose and sel["location_layer"] == UNVALIDATED
+            assert sel["layer_how"].startswith("the closed form: a refit on every labelled press follows")
+        else:
+            assert chose and sel["layer_how"].startswith("validation on s001")

@@ -96,7 +96,11 @@ def layer_folds(data):
 
 
 def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
-    """The network's location layer chosen on presses it did not train on; the closed form when nothing can validate."""
+    """The network's location layer chosen on presses it did not train on; the closed form when nothing can validate,
+    or when a refit follows (an MLP chosen here would be refitted as the closed form, :func:`refit_layer`: none is trained)."""
+    if data.refit_follows:
+        return {"location_layer": UNVALIDATED, "layer_how": "the closed form: a refit on every labelled press follows, "
+                "where it gains more from a second press per marker than an MLP"}
     folds, how = layer_folds(data)
     if not folds:
         return {"location_layer": UNVALIDATED, "layer_how": f"{how}: not validated, the closed form"}

@@ -130,7 +130,8 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
 
 def refit_layer(chosen: dict) -> dict:
     """The location layer a refit on every labelled press trains, from the validation pass's ``chosen``: the closed
-    form where validation chose an MLP (said in ``layer_how``); a layer given by hand (no scores) as it is."""
+    form where validation chose an MLP (``sonicskin train``'s checkpoint, chosen before ``export`` refits; said in
+    ``layer_how``); a layer given by hand (no scores) as it is."""
     layer = {"location_layer": chosen.get("location_layer", "as trained"), "layer_how": chosen.get("layer_how", ""),
              "hparams": chosen.get("hparams"), **({"layer_scores": chosen["layer_scores"]} if "layer_scores" in chosen else {})}
     if layer["location_layer"] == UNVALIDATED or layer["location_layer"] not in chosen.get("layer_scores", {}):

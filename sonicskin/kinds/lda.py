@@ -20,8 +20,8 @@ from ..parity import decisions_parity, ort_session, require_parity
 from . import BASELINE, Fitted, ModelKind, register
 from .closed import SCORE_KEYS, check_score_entry, score_entry
 
-__all__ = ["LDAKind", "LDAHead", "ShrinkageLDA", "LDAViews", "NORMS", "ENSEMBLE", "mode_views", "normalize", "linear_views", "view_scores", "fit_lda",
-           "lda_candidates", "ledoit_wolf_shrinkage_gram"]
+__all__ = ["LDAKind", "LDAHead", "ShrinkageLDA", "LDAViews", "NORMS", "ENSEMBLE", "mode_views", "normalize", "linear_views",
+           "view_scores", "fit_lda", "lda_candidates", "ledoit_wolf_shrinkage_gram"]
 
 #: per-chirp normalisations: none, the chirp's mean dB removed (a gain or a firmer press moves every bin alike),
 #: the chirp scaled to unit length (its shape, not its strength)
@@ -134,14 +134,6 @@ class ShrinkageLDA(LinearClassifierMixin, BaseEstimator):
         W = U / lam[None, :]                               # U diag(lam)^-1
         G = np.eye(U.shape[0]) + W @ U.T                   # I + U diag(lam)^-1 U'
         return Li_B - W.T @ np.linalg.solve(G, U @ Li_B)
-
-    def predict_proba(self, X):
-        from scipy.special import softmax
-
-        s = self.decision_function(X)
-        if s.ndim == 1:
-            s = np.column_stack([-s / 2, s / 2])
-        return softmax(s, axis=1)
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
