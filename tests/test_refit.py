@@ -95,38 +95,19 @@ def test_the_networks_detector_thresholds_the_svms_statistic_over_the_svms_bins(
     assert pn.touch[rest].mean() <= ps.touch[rest].mean() + 0.1  # and its own logit adds few on rest chirps
 
 
-def test_refit_layer_trains_the_closed_form_where_validation_chose_an_mlp():
-    pytest.importorskip("torch")
-    from sonicskin.training.quick import UNVALIDATED, refit_layer
-
-    mlp = "MLP, every bin"
-    chosen = {"location_layer": mlp, "layer_how": "validation on s001", "hparams": {"layer": "mlp"},
-              "layer_scores": {UNVALIDATED: 0.60, mlp: 0.95}}
-    out = refit_layer(chosen)
-    assert out["location_layer"] == UNVALIDATED and out["hparams"] is None and out["layer_scores"] == chosen["layer_scores"]
-    assert out["layer_how"] == ("validation on s001; refitted on every press as the closed form, which gains more from "
-                                "a second press per marker")
-    # the closed form chosen, or a layer given by hand (no validation scores): the choice stands
-    assert refit_layer({**chosen, "location_layer": UNVALIDATED})["location_layer"] == UNVALIDATED
-    by_hand = refit_layer({k: v for k, v in chosen.items() if k != "layer_scores"})
-    assert by_hand["location_layer"] == mlp and by_hand["hparams"] == {"layer": "mlp"}
-
-
-def test_a_refit_deploys_the_closed_form_where_validation_chose_an_mlp(cli_files):
-    """Through the one fit: the first pass keeps the MLP it was given, the refit on s000 + s001 trains the closed form."""
+def test_a_layer_given_by_hand_is_refitted_as_it_is(cli_files):
+    """A layer given by hand stands: the first pass and the refit on s000 + s001 both train it (the deployed graph an
+    MLP, not the closed form's ``LDASkinNet``)."""
     pytest.importorskip("torch")
     from sonicskin.models import LDASkinNet
-    from sonicskin.training.quick import UNVALIDATED
 
-    mlp = "MLP, every bin"
-    layer = {"location_layer": mlp, "layer_how": "test", "layer_scores": {UNVALIDATED: 0.9, mlp: 0.92}}
-    for refit, want in ((False, mlp), (True, UNVALIDATED)):
+    layer = {"location_layer": "MLP, every bin", "layer_how": "test"}
+    for refit in (False, True):
         _, fits = fit_models(_data(cli_files), [kinds.NETWORK], refit=refit, log=lambda *_: None,
                              options={kinds.NETWORK: {"epochs": 1, "layer": layer}})
         sel = fits[kinds.NETWORK].selection[kinds.NETWORK]
-        assert sel["location_layer"] == want, sel["layer_how"]
-        assert isinstance(fits[kinds.NETWORK].model, LDASkinNet) == refit  # the deployed graph holds the LDA's weights
-    assert sel["layer_how"].startswith("test; refitted on every press as the closed form")
+        assert (sel["location_layer"], sel["layer_how"]) == ("MLP, every bin", "test")
+        assert not isinstance(fits[kinds.NETWORK].model, LDASkinNet)
 
 
 def test_with_a_refit_to_follow_the_network_trains_no_mlp_to_validate(cli_files, monkeypatch):
@@ -149,3 +130,22 @@ def test_with_a_refit_to_follow_the_network_trains_no_mlp_to_validate(cli_files,
             assert sel["layer_how"].startswith("the closed form: a refit on every labelled press follows")
         else:
             assert chose and sel["layer_how"].startswith("validation on s001")
+
+
+def test_sonicskin_train_knows_whether_export_refits(cli_files):
+    """``sonicskin train`` chooses its layer before ``export`` refits: with a validation session the datamodule marks
+    that a refit follows (so the layer is the closed form), unless ``--no-refit`` (``--data.refit false``)."""
+    pytest.importorskip("lightning")
+    from sonicskin.training.data import SkinDataModule
+
+    from sonicskin.cli.parser import build_parser
+    from sonicskin.cli.train import lightning_overrides
+
+    for argv, follows in ((["--val", "s001"], True), (["--val", "s001", "--no-refit"], False), (["--val", "none"], False)):
+        a, _ = build_parser().parse_known_args(["train", "--data", str(cli_files["data"]), *argv])
+        over = lightning_overrides(a, 60)
+        assert ("--data.refit" in over) == ("--no-refit" in argv)
+        dm = SkinDataModule(str(cli_files["data"]), n_bins=60, train_sessions=["s000"],
+                            val_sessions=[] if "none" in argv else ["s001"], refit="--no-refit" not in argv)
+        dm.setup("fit")
+        assert dm.prepared.refit_follows is follows

@@ -54,12 +54,15 @@ class SkinDataModule(L.LightningDataModule):
         Alg. 2's refresh interval: the no-touch reference of relative inputs is renewed every ``alpha_s`` seconds.
     beta_s : float
         Alg. 2's reference length in seconds (shorter when some session has less rest).
+    refit : bool
+        ``export`` refits on the training and validation sessions (``--no-refit``: false); with a validation session
+        the network's layer is then the closed form (:func:`sonicskin.training.fit.choose_network_layer`).
     """
 
     def __init__(self, data: str, n_bins: int | None = None, mode: str = "relative", train_sessions: list[str] | None = None,
                  val_sessions: list[str] | None = None, test_subjects: list[int] | None = None,
                  min_force_n: float = 0.5, batch_size: int = 128, noise_db: float = 0.3,
-                 alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s):
+                 alpha_s: float = FeatureSpec.alpha_s, beta_s: float = FeatureSpec.beta_s, refit: bool = True):
         super().__init__()
         self.save_hyperparameters()
         meta = json.loads((Path(data) / "dataset.json").read_text()) if (Path(data) / "dataset.json").is_file() else None
@@ -98,6 +101,7 @@ class SkinDataModule(L.LightningDataModule):
         p = prepare(h.data, n_bins=h.n_bins, wide=True, mode=h.mode, train_sessions=h.train_sessions, val_sessions=h.val_sessions,
                     test_subjects=h.test_subjects, min_force_n=h.min_force_n, alpha_s=h.alpha_s, beta_s=h.beta_s,
                     log=lambda m: print(f"sonicskin: {m}"))
+        p.refit_follows = h.refit and bool(p.split.val)
         self.prepared = p
         _, self.fitted = fit_models(p, (CLOSED_FORM,), refit=False, log=lambda m: None)
         p.selection = {k: v for f in self.fitted.values() for k, v in f.selection.items()} | p.selection

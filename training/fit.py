@@ -24,7 +24,7 @@ from sonicskin.kinds.net import NetKind
 from .augment import make_augmenter
 from .checkpoint import load_checkpoint
 from .data import session_fingerprints
-from .quick import DEFAULTS, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams, refit_layer
+from .quick import DEFAULTS, REFIT_LAYER, UNVALIDATED, choose_detector, choose_layer, fit_net, layer_hparams
 
 #: the network's force wherever the SVM has a force model (its validated per-location Fourier-1 or pooled ridge, or the
 #: unvalidated pooled ridge): trained on one session of each of the 30 design rigs of the random family (stored result
@@ -69,7 +69,8 @@ def train_network(data, *, fitted: dict, select: bool = True, seed: int = 0, epo
     train = data.rows("train")
     if chosen is not None:
         seed, epochs = chosen.get("train_seed", seed), chosen.get("epochs", epochs)
-        layer = refit_layer(chosen)
+        layer = {"location_layer": chosen.get("location_layer", "as trained"), "layer_how": chosen.get("layer_how", ""),
+                 "hparams": chosen.get("hparams")}
     kw = {} if epochs is None else {"epochs": int(epochs)}
     here = layer is None and select
     if here:
@@ -97,9 +98,9 @@ def layer_folds(data):
 
 def choose_network_layer(data, *, fitted: dict, seed: int = 0, epochs: int | None = None, **hparams) -> dict:
     """The network's location layer chosen on presses it did not train on; the closed form when nothing can validate,
-    or when a refit follows (an MLP chosen here would be refitted as the closed form, :func:`refit_layer`: none is trained)."""
+    or when a refit on every labelled press follows (:data:`training.quick.REFIT_LAYER`: no MLP is trained)."""
     if data.refit_follows:
-        return {"location_layer": UNVALIDATED, "layer_how": "the closed form: a refit on every labelled press follows, "
+        return {"location_layer": REFIT_LAYER, "layer_how": "the closed form: a refit on every labelled press follows, "
                 "where it gains more from a second press per marker than an MLP"}
     folds, how = layer_folds(data)
     if not folds:
@@ -120,8 +121,7 @@ def choose_auto_layer(module, datamodule, *, epochs: int) -> dict:
         h[k] = v
     module.model = module._build()
     if datamodule.meta is not None:
-        keep = ("location_layer", "layer_how", "layer_scores")  # the scores let export's refit apply refit_layer
-        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in keep if k in res}
+        datamodule.meta.setdefault("selection", {})[NETWORK] = {k: res[k] for k in ("location_layer", "layer_how")}
     print(f"network location layer: {res['location_layer']} ({res['layer_how']})")
     return res
 
@@ -144,7 +144,7 @@ def finish_network(model, data, *, fitted: dict, selection: dict | None = None, 
     detection = svm is not None and svm.entry["detection"]
     # the SVM's detector: its threshold holds for the RMS over its own first (best) inputs, as many as it read
     n_det = min(int(svm.entry["detector_bins"]) if detection else DETECTOR_BINS, X.shape[1])
-    ref = np.zeros(n_det) if data.spec.mode == "relative" else X[train & q][:, :n_det].mean(axis=0)
+    ref = X[train & q][:, :n_det].mean(axis=0) if data.spec.mode == "absolute" and (train & q).any() else np.zeros(n_det)
     threshold = float(svm.entry["threshold"]) if detection else 0.0
     if chosen is not None:
         sel.update({k: v for k, v in chosen.items() if k in ("detector", "how", "detector_mode", "bias", "force", "force_how",

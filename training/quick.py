@@ -15,7 +15,7 @@ from sonicskin.kinds.net import NetHead
 
 from .module import SkinLitModule
 
-__all__ = ["DEFAULTS", "LAYERS", "UNVALIDATED", "fit_net", "layer_hparams", "choose_layer", "refit_layer",
+__all__ = ["DEFAULTS", "LAYERS", "UNVALIDATED", "REFIT_LAYER", "fit_net", "layer_hparams", "choose_layer",
            "choose_detector"]
 
 #: training.quick's hyperparameters (configs/train/*.yaml set the same for ``sonicskin train``).
@@ -32,13 +32,14 @@ LAYERS = {"LDA (closed form)": {"layer": "lda", "augment": True, "n_inputs": Non
 #: the layer when nothing can validate (one press per marker and no validation session): the closed form, measured across
 #: the random rig family (:data:`sonicskin.kinds.lda.ENSEMBLE`)
 UNVALIDATED = "LDA (closed form)"
-#: An MLP layer chosen by validation is not refitted: the refit on every labelled press trains the closed form.
+#: The layer where a refit on every labelled press follows validation: the closed form, and no MLP is trained to compare.
 #: Validation sees each layer trained on one press per marker; the refit gives the closed form's one shared
 #: within-marker covariance a second press per marker, which it lacked most where it validated worst.  Over 92 rigs we
 #: may develop on (design seeds 0-59 and the earlier held-out 7001-7032, ``--val s001``, refit) validation chose an MLP
 #: on 39; refitted there the closed form scored 98.0 % in the mean over all 92 against 97.8 % for the MLPs (paired
 #: +0.21 [-0.17, +0.59] points; the MLP better on 4 rigs, worse on 11), and keeping an MLP only where it validated 2,
 #: 5, 10 or 20 points above the closed form scored 97.7-98.0 %.  (Issue 36; per-rig rows in docs/models.md.)
+REFIT_LAYER = UNVALIDATED
 
 
 def fit_net(X: np.ndarray, cls: np.ndarray, force: np.ndarray, *, n_locations: int, epochs: int = 40, seed: int = 0,
@@ -126,19 +127,6 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
     best = max(scores, key=lambda k: (int(f"{scores[k]:.0%}"[:-1]), -order.index(k))) if scores else UNVALIDATED
     return {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
             "layer_scores": scores, "hparams": layer_hparams(best, n_in=X.shape[1]), "fold_model": models.get(best)}
-
-
-def refit_layer(chosen: dict) -> dict:
-    """The location layer a refit on every labelled press trains, from the validation pass's ``chosen``: the closed
-    form where validation chose an MLP (``sonicskin train``'s checkpoint, chosen before ``export`` refits; said in
-    ``layer_how``); a layer given by hand (no scores) as it is."""
-    layer = {"location_layer": chosen.get("location_layer", "as trained"), "layer_how": chosen.get("layer_how", ""),
-             "hparams": chosen.get("hparams"), **({"layer_scores": chosen["layer_scores"]} if "layer_scores" in chosen else {})}
-    if layer["location_layer"] == UNVALIDATED or layer["location_layer"] not in chosen.get("layer_scores", {}):
-        return layer
-    return {**layer, "location_layer": UNVALIDATED, "hparams": None,
-            "layer_how": f"{layer['layer_how']}; refitted on every press as the closed form, which gains more from a second "
-                         "press per marker"}
 
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,

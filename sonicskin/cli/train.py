@@ -150,4 +150,6 @@ def lightning_overrides(a: argparse.Namespace, n_bins: int | None) -> list[str]:
     for k in ("alpha_s", "beta_s"):
         if getattr(a, k) is not None:
             out += [f"--data.{k}", str(getattr(a, k))]
+    if not getattr(a, "refit", True):
+        out += ["--data.refit", "false"]
     return out
