@@ -228,7 +228,8 @@ def format_comparison(res: dict, title: str = "") -> str:
         ("error < 2 cm", lambda r: f"{r['localization']['within_2cm']:.1%}"),
         ("error < 3 cm", lambda r: f"{r['localization']['within_3cm']:.1%}"),
         ("continuous xy error (median)", lambda r: f"{r['continuous_error_cm']['median']:.2f} cm"),
-        ("force RMSE", lambda r: _or_na(r["force"], lambda d: f"{d['rmse_n']:.2f} N")),
+        ("force RMSE", lambda r: _or_na(r["force"], lambda d: f"{d['rmse_n']:.2f} N" + (
+            f" ({d['n']} of {d['n'] + d['n_unmeasured']} chirps with a force)" if d.get("n_unmeasured") else ""))),
         ("force sigma", lambda r: _or_na(r["force"], lambda d: f"{d['sigma_n']:.2f} N")),
         ("force cross-correlation", lambda r: _or_na(r["force"], lambda d: f"{d['xcorr']:.1%}")),
         ("false touches", lambda r: _or_na(r["detection"], lambda d: f"{d['false_touch_rate']:.2%}")),

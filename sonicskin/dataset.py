@@ -812,6 +812,10 @@ class Dataset:
                                f"session is labelled once, in order; restore the files or {REDO}")
         check_label_values(lab, self.layout, str(d))
 
+    def unfinished(self, sessions: list[str] | None = None) -> list[str]:
+        """Sessions without a ``session.json``: stopped before they were complete (``--resume`` records the rest)."""
+        return [s for s in sessions or self.sessions if not (self._session_dir(s) / "session.json").is_file()]
+
     def check_distinct(self, sessions: list[str] | None = None) -> None:
         """Refuse two sessions holding the same recording (a copied session counts twice): their first parts' FLAC compared."""
         seen: dict[str, str] = {}

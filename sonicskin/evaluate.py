@@ -14,7 +14,7 @@ import numpy as np
 from .calibration import OnlineReference
 from .compare import chirps_per_location, counts_line, coverage_note, replay_sessions, split_line, stream_metrics
 from .dataset import Dataset, FeatureTable, Split, write_file
-from .features import MIN_REST_CHIRPS, FeatureSpec, quiet_mask, rest_beta, touch_mask, usable_bins
+from .features import MIN_REST_CHIRPS, FeatureSpec, light_touches, quiet_mask, rest_beta, touch_mask, usable_bins
 from .fit import fit_artifact, prepare
 from .force import PerLocationForce, energy_db
 from .jsonio import json_safe
@@ -31,7 +31,7 @@ def split_sessions(table: FeatureTable, train_sessions: list[str]) -> tuple[Feat
     s = table["session"]
     unknown = set(train_sessions) - set(s)
     if unknown:
-        raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({sorted(set(s))})")
+        raise ValueError(f"training sessions {sorted(unknown)} are not in the dataset ({', '.join(sorted(set(s.tolist())))})")
     tr = np.isin(s, train_sessions)
     if tr.all():
         raise ValueError("every session is a training session; leave at least one to test on")
@@ -72,7 +72,8 @@ def evaluate_svm(ds: Dataset, *, train_sessions: list[str] | None = None, table:
         raise ValueError(f"training session(s) {', '.join(train_sessions)} touch {len(ds.layout) - len(never)} of the "
                          f"layout's {len(ds.layout)} locations (never trained: {', '.join(never[:12])}"
                          f"{', ...' if len(never) > 12 else ''}); the SVM needs a press at every location: train on "
-                         f"sessions that touch every location (--train)")
+                         f"sessions that touch every location (--train)" +
+                         (f"; {why}" if (why := light_touches(tr["force_n"], tr["location"] >= 0, min_force_n)) else ""))
     gamma = usable_bins(ds.rig, n_bins, log=lambda m: log(f"note: {m}"))
     cal = OnlineReference.from_seconds(beta_s=beta_s, alpha_s=alpha_s, chirps_per_s=ds.rig.chirps_per_s)
     beta = rest_beta(table, cal.beta, log=lambda m: log(f"note: {m}"))
@@ -187,7 +188,8 @@ def _ablations(ds, tr, te, p, offline, touch, svm: dict, data, paper_data, tmp: 
 def _force_line(F: dict, label: str = "force (E^O)") -> str:
     if F.get("measurable") is False:
         return f"  {label:13s} {F['reason']}"
-    return f"  {label:13s} RMSE {F['rmse_n']:.2f} N   sigma {F['sigma_n']:.2f} N   xcorr {F['xcorr']:.1%}"
+    part = f" (on the {F['n']} of {F['n'] + F['n_unmeasured']} chirps with a force)" if F.get("n_unmeasured") else ""
+    return f"  {label:13s} RMSE {F['rmse_n']:.2f} N   sigma {F['sigma_n']:.2f} N   xcorr {F['xcorr']:.1%}{part}"
 
 
 def format_report(res: dict) -> str:

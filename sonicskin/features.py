@@ -15,7 +15,7 @@ from .calibration import OnlineReference
 if TYPE_CHECKING:
     from .dataset import FeatureTable
 
-__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "training_targets", "usable_bins",
+__all__ = ["FeatureSpec", "relative_features", "quiet_mask", "touch_mask", "light_touches", "training_targets", "usable_bins",
            "rest_beta", "MIN_REST_CHIRPS"]
 
 MODES = ("absolute", "relative")
@@ -31,6 +31,16 @@ def touch_mask(t: FeatureTable, min_force_n: float = 0.5) -> np.ndarray:
     """Touch chirps: a location and a force of at least ``min_force_n`` (or no force sensor: NaN)."""
     f = t["force_n"]
     return (t["location"] >= 0) & ((f >= min_force_n) | np.isnan(f))
+
+
+def light_touches(force, touched, min_force_n: float = 0.5) -> str:
+    """Why most labelled touches would not count as touches (their force is below ``min_force_n``), or ""."""
+    f = np.asarray(force, float)[np.asarray(touched, bool)]
+    light = int(np.sum(f < min_force_n))
+    if not f.size or light <= f.size / 2:
+        return ""
+    return (f"{light} of the {f.size} labelled touch chirps have force_n below {min_force_n:g} N (median "
+            f"{np.nanmedian(f):.3g} N) and do not count as touches: force_n must be in newtons (empty: no force sensor)")
 
 
 @dataclasses.dataclass(frozen=True)

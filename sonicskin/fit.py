@@ -115,6 +115,10 @@ def prepare(data: str | Path | Dataset, *, n_bins: int | None = 300, mode: str =
     if split is None:
         split = Split.make(t, train_sessions=train_sessions, val_sessions=val_sessions, test_subjects=test_subjects,
                            allow_no_test=allow_no_test)
+    if unfinished := ds.unfinished([*split.train, *split.val]):
+        warnings.warn(f"{ds.root}: session(s) {', '.join(unfinished)} stopped before they were complete (no session.json): "
+                      f"training on what they hold; `sonicskin record --resume` (or `simulate --resume`) records the rest",
+                      stacklevel=2)
     selection: dict = {}
     tr = t.select(split.mask(t, "train"))
     given_bins = bins

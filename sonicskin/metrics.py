@@ -36,10 +36,14 @@ def localization_report(y_true: np.ndarray, y_pred: np.ndarray, layout: Layout) 
 
 
 def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
-    """Table I: RMSE, std of the error and the zero-lag normalised cross-correlation (1: identical traces)."""
+    """Table I: RMSE, std of the error and the zero-lag normalised cross-correlation (1: identical traces), on the
+    chirps with a measured force (``n``; ``n_unmeasured``: those without, a force sensor logging only part of the time)."""
     g, p = np.asarray(f_true, float), np.asarray(f_pred, float)
     if g.shape != p.shape:
         raise ValueError(f"{g.size} true forces but {p.size} predictions")
+    measured = ~np.isnan(g)
+    unmeasured = int(g.size - measured.sum())
+    g, p = g[measured], p[measured]
     e = p - g
     denom = np.sqrt(np.sum(p * p) * np.sum(g * g))
     return {
@@ -48,7 +52,7 @@ def force_report(f_true: np.ndarray, f_pred: np.ndarray) -> dict:
         "sigma_n": float(np.std(e)),
         "xcorr": float(np.sum(p * g) / denom) if denom > 0 else float("nan"),
         "r2": float(1 - np.sum(e ** 2) / np.sum((g - g.mean()) ** 2)) if g.size > 1 and np.ptp(g) > 0 else float("nan"),
-    }
+    } | ({"n_unmeasured": unmeasured} if unmeasured else {})
 
 
 def speed_ratio(t_s: float, t_ref_s: float) -> str:

@@ -9,7 +9,7 @@ from sklearn.base import BaseEstimator
 from sklearn.feature_selection import SelectorMixin
 from sklearn.utils.validation import check_is_fitted, validate_data
 
-from .features import quiet_mask, touch_mask, usable_bins
+from .features import light_touches, quiet_mask, touch_mask, usable_bins
 
 __all__ = ["OSPA", "select_bins"]
 
@@ -79,7 +79,8 @@ def select_bins(t, rig, n_bins: int | None = None, min_force_n: float = 0.5, *, 
     moving = (t["location"] < 0) & (t["moving"] > 0)
     ref = moving if moving.sum() >= 2 else quiet_mask(t)
     if touch.sum() < 2:
-        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}")
+        why = light_touches(t["force_n"], t["location"] >= 0, min_force_n)
+        raise ValueError(f"OSPA needs touch chirps in the training split; got {int(touch.sum())}" + (f" ({why})" if why else ""))
     gamma = usable_bins(rig, n_bins, log=log)
     X_ref = t.X[ref] if ref.sum() >= 2 else None
     return OSPA(gamma=gamma, allowed=rig.allowed_mask).fit(t.X[touch], X_moving=X_ref).selected_

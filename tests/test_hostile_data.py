@@ -642,3 +642,41 @@ def test_a_recording_without_label_rows_is_imported_as_hands_off_with_a_warning(
     ds = Dataset(tmp_path / "o")
     t = ds.features(progress=False)
     assert (t["location"][t["session"] == ds.sessions[-1]] < 0).all() and (t["location"] >= 0).any()
+
+
+def test_forces_in_the_wrong_unit_are_reported_and_named_when_nothing_can_train(src, tmp_path, capsys):
+    # Forces in kN (or a sensor's raw scale): every touch lighter than a press, so no chirp counts as a touch. The
+    # import warns, and training says why it has no touch chirps instead of only that it has none.
+    table = _table(src, tmp_path, force_n=lambda z: z["force_n"] / 1000)
+    with pytest.warns(UserWarning, match=r"t\.npz: (\d+) of the \1 labelled touch chirps have force_n below 0\.5 N .*"
+                                         r"force_n must be in newtons \(empty: no force sensor\)"):
+        import_spectra(table, tmp_path / "kn", **QUIET)
+    code, _, err = run(capsys, ["fit-svm", "--data", tmp_path / "kn", "--out", tmp_path / "art"])
+    line = assert_one_line_error(code, err, "fit-svm")
+    assert "OSPA needs touch chirps in the training split; got 0 (" in line and "must be in newtons" in line, line
+    # One force on every touch is a placeholder: no force sensor, localization only (not every touch dropped).
+    logged = []
+    out = import_spectra(_table(src, tmp_path, force_n=lambda z: np.zeros(len(z["location"]))), tmp_path / "zero",
+                         log=logged.append)
+    assert f"{tmp_path / 't.npz'}: force_n is 0 N on every touch, a placeholder: taken as no force sensor (localization only)" in logged
+    t = Dataset(out).features(progress=False)
+    assert np.isnan(t["force_n"][t["location"] >= 0]).all()
+
+
+def test_missing_label_and_sweep_files_are_named(src, inp, tmp_path):
+    rec, labels, rows = inp
+    _write(labels, rows)
+    msg = _refused(import_wav, rec, tmp_path / "gone.csv", tmp_path / "out", **_chirp(src["rig"]), **QUIET)
+    assert msg == f"{tmp_path / 'gone.csv'}: no such file; give the label CSV of touch intervals", msg
+    msg = _refused(import_wav, rec, labels, tmp_path / "out", sweep_wav=tmp_path / "gone.wav", **QUIET)
+    assert msg == f"{tmp_path / 'gone.wav'}: no such file", msg
+
+
+def test_training_on_an_unfinished_session_says_so(src, tmp_path, capsys):
+    shutil.copytree(src["root"] / "data", tmp_path / "d")
+    (tmp_path / "d" / "s001" / "session.json").unlink()  # stopped before it was complete
+    from sonicskin.fit import prepare
+    with pytest.warns(UserWarning, match=r"session\(s\) s001 stopped before they were complete .*--resume"):
+        prepare(tmp_path / "d", train_sessions=["s000", "s001"], allow_no_test=True, progress=False, log=lambda *_: None)
+    code, _, err = run(capsys, ["evaluate", "--data", tmp_path / "d", "--val", "s009"])
+    assert assert_one_line_error(code, err, "evaluate").endswith(f"session(s) s009 are not in {tmp_path / 'd'} (it has s000, s001)")

@@ -13,6 +13,7 @@ from sonicskin.cli import main
 from sonicskin.dataset import Dataset
 from sonicskin.dsp import rig_chirp
 from sonicskin.importers import import_spectra, import_wav, label_layout, rig_from_axis
+from sonicskin.importers._common import ImportDataError
 from sonicskin.rig import Rig
 from sonicskin.sim.generate import simulate_dataset
 from sonicskin.sim.scenario import Scenario
@@ -217,11 +218,16 @@ def test_spectra_import_is_all_or_nothing_and_resumes(tmp_path):
     assert Dataset(out).features(progress=False).X.shape == (60, 165)
 
 
-def test_spectra_import_warns_on_linear_magnitudes(tmp_path):
-    lin = 10 ** (np.load(_table(tmp_path / "t.npz"))["magnitude_db"] / 20)
-    table = _table(tmp_path / "lin.npz", magnitude_db=lin)
-    with pytest.warns(UserWarning, match="looks linear.*--linear"):
+def test_spectra_import_refuses_linear_magnitudes_without_linear(tmp_path):
+    db = np.load(_table(tmp_path / "t.npz"))["magnitude_db"]
+    # Spread over orders of magnitude, they would span thousands of "dB" and import as silence: refused.
+    table = _table(tmp_path / "lin.npz", magnitude_db=10 ** (db / 20))
+    with pytest.raises(ImportDataError, match=r"spans \d\.\d+e\+03 dB .*: they look like linear magnitudes: import with --linear"):
         import_spectra(table, tmp_path / "a", log=lambda *_: None)
+    assert not (tmp_path / "a").exists()
+    # Below 1 they span less than a dB: imported, with a warning.
+    with pytest.warns(UserWarning, match="looks linear.*--linear"):
+        import_spectra(_table(tmp_path / "small.npz", magnitude_db=10 ** ((db - 100) / 20)), tmp_path / "s", log=lambda *_: None)
     a = Dataset(import_spectra(table, tmp_path / "b", linear=True, log=lambda *_: None)).features(progress=False)
     ref = Dataset(import_spectra(tmp_path / "t.npz", tmp_path / "c", log=lambda *_: None))
     # --linear converts with 20 log10: the same dataset as the dB table, up to the normalising gain.

@@ -23,3 +23,10 @@ def test_force_report_table_one():
     assert force_report(g, g)["xcorr"] == pytest.approx(1.0)
     with pytest.raises(ValueError, match="4 true forces but 3 predictions"):
         force_report(g, g[:3])
+
+
+def test_force_report_scores_only_the_chirps_with_a_measured_force():
+    # A force sensor that logged part of the time: the chirps without a force are left out, and counted, not NaN.
+    r = force_report(np.array([1.0, np.nan, 3.0, np.nan]), np.array([1.5, 9.0, 2.5, 9.0]))
+    assert r["n"] == 2 and r["n_unmeasured"] == 2 and r["rmse_n"] == pytest.approx(0.5)
+    assert "n_unmeasured" not in force_report(np.array([1.0, 3.0]), np.array([1.5, 2.5]))

@@ -126,7 +126,7 @@ def choose_layer(data, *, folds, how: str, fitted: dict, seed: int = 0, **kw) ->
     order = list(LAYERS)
     best = max(scores, key=lambda k: (int(f"{scores[k]:.0%}"[:-1]), -order.index(k))) if scores else UNVALIDATED
     return {"location_layer": best, "layer_how": f"{how}: " + ", ".join(f"{k} {v:.0%}" for k, v in scores.items()),
-            "layer_scores": scores, "hparams": layer_hparams(best, n_in=X.shape[1]), "fold_model": models.get(best)}
+            "hparams": layer_hparams(best, n_in=X.shape[1]), "fold_model": models.get(best)}
 
 
 def choose_detector(logits: np.ndarray, X: np.ndarray, touch: np.ndarray, quiet: np.ndarray, *, threshold: float,

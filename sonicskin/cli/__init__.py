@@ -86,7 +86,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def interrupted() -> int:
         how = "terminated (SIGTERM)" if ctrl_c.terminated else "interrupted"
-        print(f"\n{verb}: {how}; whatever it had written is kept", file=sys.stderr)
+        resume = "; run it again with --resume to finish it" if hasattr(a, "resume") else ""  # a verb that writes a dataset
+        print(f"\n{verb}: {how}; whatever it had written is kept{resume}", file=sys.stderr)
         return 143 if ctrl_c.terminated else 130
 
     ctrl_c = _CtrlCInCallbacks()

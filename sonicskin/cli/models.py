@@ -30,12 +30,12 @@ TRAINING_OPTIONS = ("n_bins", "mode", "train", "test_subjects", "alpha_s", "beta
 
 def _sessions_for_test(a: argparse.Namespace, data: str | Path) -> tuple[list[str] | None, list[str] | None]:
     """``--train/--val/--test`` as the train and val sessions that leave exactly ``--test`` to test on."""
-    if not a.test:
-        return a.train, a.val
     sessions = Dataset(data).sessions
-    unknown = sorted((set(a.test) | set(a.train or ()) | set(a.val or ())) - set(sessions))
+    unknown = sorted((set(a.test or ()) | set(a.train or ()) | set(a.val or ())) - set(sessions))
     if unknown:
         raise UsageError(f"session(s) {', '.join(unknown)} are not in {data} (it has {', '.join(sessions)})")
+    if not a.test:
+        return a.train, a.val
     rest = [s for s in sessions if s not in a.test]
     train = a.train or rest[:1]
     if not train:

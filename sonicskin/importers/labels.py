@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dataset import MAX_ABS_CM, MAX_FORCE_N
+from ..features import light_touches
 from ..rig import MAX_LOCATIONS, Layout
 from ._common import ImportDataError
 
@@ -46,6 +47,20 @@ def _check_values(where: str, *, force=None, moving=None, subject=None, x_cm=Non
         if c is not None:
             v = np.asarray(c, float)
             first(~np.isnan(v) & ~(np.abs(v) <= MAX_ABS_CM), col, c, "a coordinate is empty/NaN or a finite number of cm")
+
+
+def touch_forces(force, touched, *, where: str, log=print) -> np.ndarray:
+    """The labelled touches' forces as training reads them: one value on every touch is a placeholder (no force sensor:
+    NaN), and most touches lighter than a press are reported (a unit other than newtons?)."""
+    f = np.array(force, float)
+    touched = np.asarray(touched, bool)
+    known = f[touched & np.isfinite(f)]
+    if known.size >= 2 and np.ptp(known) == 0:
+        log(f"{where}: force_n is {known[0]:g} N on every touch, a placeholder: taken as no force sensor (localization only)")
+        f[touched] = np.nan
+    elif why := light_touches(f, touched):
+        warnings.warn(f"{where}: {why}", stacklevel=3)
+    return f
 
 
 def _as_number(v) -> float | None:
@@ -181,8 +196,10 @@ def _strict_float(text: str) -> float:
     return float(t)
 
 
-def _read_labels(path: Path) -> list[dict]:
+def _read_labels(path: Path, log=print) -> list[dict]:
     """The label CSV's rows, each checked (a misspelled optional column is refused, not ignored)."""
+    if not path.is_file():
+        raise ImportDataError(f"{path}: {'is a folder, not' if path.is_dir() else 'no such file; give'} the label CSV of touch intervals")
     try:
         if path.stat().st_size > 256 * 2**20:
             raise ImportDataError(f"{path}: {path.stat().st_size / 2**20:.0f} MB is not a label CSV of touch intervals")
@@ -252,8 +269,9 @@ def _read_labels(path: Path) -> list[dict]:
     _check_values(str(path), force=[d["force_n"] for d in out], moving=[d["moving"] for d in out],
                   subject=[d["subject"] for d in out],
                   x_cm=[d["x_cm"] for d in out], y_cm=[d["y_cm"] for d in out], rows=[f"line {d['line']}" for d in out])
-    for d in out:
-        d["subject"] = int(d["subject"])
+    forces = touch_forces([d["force_n"] for d in out], [not _is_no_touch(d["label"]) for d in out], where=str(path), log=log)
+    for d, f in zip(out, forces):
+        d["subject"], d["force_n"] = int(d["subject"]), float(f)
     return out
 
 

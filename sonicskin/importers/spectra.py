@@ -16,7 +16,7 @@ from ..dsp import chirp_spectrum
 from ..errors import check_memory
 from ..rig import Rig
 from ._common import PEAK_LEVEL, ImportDataError, _first_touch, _staged, _write_session
-from .labels import _check_values, label_layout
+from .labels import _check_values, label_layout, touch_forces
 
 # Sample rates of common audio interfaces, preferred in this order when the axis fits several equally.
 STANDARD_RATES_HZ = (48_000, 96_000, 192_000, 384_000, 44_100, 88_200, 176_400, 352_800, 8_000, 16_000, 32_000, 11_025, 22_050, 24_000)
@@ -161,14 +161,16 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
         if M.min() < 0:
             raise ValueError(f"{table}: --linear magnitudes cannot be negative (min {M.min():g}); are they dB already?")
         M = 20 * np.log10(np.maximum(M, 1e-12 * max(M.max(), 1e-300)))
-    elif _looks_linear(M):
+    lo, hi = np.unravel_index(int(np.argmin(M)), M.shape), np.unravel_index(int(np.argmax(M)), M.shape)
+    if not linear and M[hi] - M[lo] > MAX_SPAN_DB:
+        fix = ("they look like linear magnitudes: import with --linear (20 log10 |H|)" if _looks_linear(M) else
+               "fix the damaged rows")
+        raise ImportDataError(f"{table}: magnitude_db spans {M[hi] - M[lo]:.3g} dB (row {lo[0]}: {M[lo]:.3g}, row {hi[0]}: "
+                              f"{M[hi]:.3g}); measured spectra span less than {MAX_SPAN_DB:g} dB: {fix}")
+    if not linear and _looks_linear(M):
         why = "all <= 1" if M.max() <= 1 else "spread over orders of magnitude"
         warnings.warn(f"{table}: magnitude_db looks linear, not dB (all >= 0, {why}); "
                       f"if so, import with --linear (20 log10 |H|)", stacklevel=2)
-    lo, hi = np.unravel_index(int(np.argmin(M)), M.shape), np.unravel_index(int(np.argmax(M)), M.shape)
-    if not linear and M[hi] - M[lo] > MAX_SPAN_DB and not _looks_linear(M):  # linear-looking: warned above
-        raise ImportDataError(f"{table}: magnitude_db spans {M[hi] - M[lo]:.3g} dB (row {lo[0]}: {M[lo]:.3g}, row {hi[0]}: "
-                              f"{M[hi]:.3g}); measured spectra span less than {MAX_SPAN_DB:g} dB: fix the damaged rows")
     derived = rig is None
     if derived:
         rig = rig_from_axis(f, fs_hz=fs_hz, frame=frame, log=log)
@@ -182,7 +184,7 @@ def import_spectra(table: str | Path, out: str | Path, *, rig: Rig | None = None
                               f"(a fill value or a broadcast?)")
     ids, layout, names = label_layout(z["location"], z.get("x_cm"), z.get("y_cm"), where=str(table), log=log)
     sessions = np.asarray(z["session"]).astype(str)
-    force = np.asarray(z["force_n"], float) if "force_n" in z else np.full(n, np.nan)
+    force = touch_forces(z["force_n"], ids >= 0, where=str(table), log=log) if "force_n" in z else np.full(n, np.nan)
     if not np.isfinite(force[ids >= 0]).any():
         log("no force values (no force sensor): localization only; force is reported as absent")
     # Each row's magnitude on the rig's bins (rows of the derived rig map one to one; another rig interpolates).

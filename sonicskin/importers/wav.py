@@ -47,6 +47,8 @@ def sweep_rig(sweep: np.ndarray, fs_hz: float, *, pwm_hz=(), pwm_halfwidth_hz: f
 def _sf_info(p: Path):
     import soundfile as sf
 
+    if not p.is_file():
+        raise ImportDataError(f"{p}: {'is a folder, not an audio file' if p.is_dir() else 'no such file'}")
     try:
         return sf.info(str(p))
     except (RuntimeError, TypeError, ValueError, OSError) as e:  # soundfile.LibsndfileError is a RuntimeError
@@ -160,7 +162,7 @@ def import_wav(wav_dir: str | Path, labels: str | Path, out: str | Path, *, swee
         raise FileNotFoundError(f"{wav_dir}: no such folder of recordings")
     if sweep_wav is not None and (chirp_hz is not None or period_s is not None):
         raise ImportDataError("give the transmitted sweep one way: --sweep SWEEP.wav, or --chirp F_LO F_HI --period S; not both")
-    rows = _read_labels(labels)
+    rows = _read_labels(labels, log=log)
     files = sorted(p for p in wav_dir.iterdir() if p.suffix.lower() in (".wav", ".flac"))
     if not files:
         raise ValueError(f"{wav_dir}: no .wav or .flac recordings")
