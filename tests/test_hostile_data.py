@@ -680,3 +680,12 @@ def test_training_on_an_unfinished_session_says_so(src, tmp_path, capsys):
         prepare(tmp_path / "d", train_sessions=["s000", "s001"], allow_no_test=True, progress=False, log=lambda *_: None)
     code, _, err = run(capsys, ["evaluate", "--data", tmp_path / "d", "--val", "s009"])
     assert assert_one_line_error(code, err, "evaluate").endswith(f"session(s) s009 are not in {tmp_path / 'd'} (it has s000, s001)")
+
+
+@pytest.mark.parametrize("verb", ["evaluate", "compare", "fit-svm"])
+def test_an_out_that_is_a_file_is_refused_before_any_work(src, tmp_path, capsys, verb):
+    (tmp_path / "report").write_text("keep me")
+    code, out, err = run(capsys, [verb, "--data", src["root"] / "data", "--out", tmp_path / "report"])
+    line = assert_one_line_error(code, err, verb)
+    assert line.endswith(f"--out {tmp_path / 'report'} is a file; give a folder for what this writes (it is created)")
+    assert out == "" and (tmp_path / "report").read_text() == "keep me"  # nothing was trained or written

@@ -17,7 +17,11 @@ from ..features import DEFAULT_N_BINS, FeatureSpec
 
 
 def check_split_options(a: argparse.Namespace) -> None:
-    """Split and Alg. 2 options that contradict each other, refused before any work (``--val none``: an empty list)."""
+    """Split and Alg. 2 options that contradict each other, and an ``--out`` that is a file, refused before any work
+    (``--val none``: an empty list)."""
+    out = getattr(a, "out", None)
+    if out and Path(out).is_file():
+        raise UsageError(f"--out {out} is a file; give a folder for what this writes (it is created)")
     val_opt = getattr(a, "val", None)
     if val_opt and any(v.lower() == "none" for v in val_opt):
         if len(val_opt) > 1:
