@@ -102,6 +102,8 @@ class Listener:
         """Start listening (again while it runs: nothing more); a stopped Listener does not start again."""
         if self._stop.is_set():
             raise SonicskinError("this Listener was stopped and its source closed; make a new Listener to listen again")
+        if self._thread is not None and not self._thread.is_alive():  # it ran to its end (--duration, or its source ended)
+            raise SonicskinError("this Listener's run has ended and its source is closed; make a new Listener to listen again")
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name="sonicskin-listener", daemon=True)
             self._thread.start()

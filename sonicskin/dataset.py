@@ -75,7 +75,7 @@ WALL_KEYS = ("material", "geometry", "tx_cm", "rx_cm", "loss_factor", "channel",
 
 def wall_record(source, rig: Rig, layout: Layout) -> dict:
     """The wall a dataset was recorded on (``training.wall``): its scenario's :data:`WALL_KEYS`, else its rig and layout."""
-    sc = source.get("scenario") if isinstance(source, dict) and source.get("kind") == "simulator" else None
+    sc = source.get("scenario") if isinstance(source, dict) and source.get("kind") in ("simulator", "recorder") else None
     if isinstance(sc, dict):
         g = sc.get("geometry") if isinstance(sc.get("geometry"), dict) else {}
         what, text = {k: sc.get(k) for k in WALL_KEYS}, f"{sc.get('material')} {g.get('kind', 'tube')} " + " x ".join(

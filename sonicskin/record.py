@@ -371,7 +371,10 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
         force = CsvForce(force_csv) if force_csv else SerialForce(force_serial) if force_serial else NoForce()
     mode = "resume" if resume else ("overwrite" if overwrite else "create")
     new_dir, new_dataset = not out.exists(), not (out / "dataset.json").exists()
-    writer = DatasetWriter(out, rig, layout, source={"kind": "recorder", "layout_from": scenario.name}, mode=mode)
+    source = {"kind": "recorder", "layout_from": scenario.name}
+    if simulated(device):  # the wall the simulated device plays: a link's artifact trained on it runs on that link
+        source["scenario"] = scenario.to_dict()
+    writer = DatasetWriter(out, rig, layout, source=source, mode=mode)
     new_dataset = new_dataset or overwrite
     todo = wanted
     if resume:  # what is missing of --passes presses per location (a press: >= MIN_TOUCH_CHIRPS touch chirps)
@@ -423,10 +426,14 @@ def record_session(out: str | Path, rig: Rig, scenario, *, locations=None, devic
             raise
         report(f"wrote {res['chirps']} chirps in {res['parts']} parts to {out / session}")
     if artifact is not None:
-        missing = sorted(set(layout.ids) - recorded_locations(out, min_force_n=min_force_n))
-        if missing:
+        counts = location_counts(out, min_force_n=min_force_n)
+        missing = sorted(v for v in layout.ids if counts.get(int(v), (0, 0, 0))[1] < MIN_TOUCH_CHIRPS)
+        if missing:  # a press shorter than the force ramp is never firm enough: --resume alone would repeat it for ever
+            brief_ = len(set(missing) & set(todo))
+            hint = (f"; {brief_} of them were prompted in this run but gave fewer than {MIN_TOUCH_CHIRPS} chirps at >= "
+                    f"{min_force_n:g} N: press longer (--touch-s, now {touch_s:g} s)" if brief_ else "")
             report(f"no artifact yet: location(s) {', '.join(map(str, missing[:12]))}{', ...' if len(missing) > 12 else ''} "
-                   f"of the layout were never pressed; `--resume` records them, then the artifact is written")
+                   f"of the layout have no press yet{hint}; `--resume` records them, then the artifact is written")
         else:  # the skin trained on everything recorded so far, with what validation expects of it
             build_svm_artifact(out, artifact, min_force_n=min_force_n, progress=False, log=report,
                                training={"link": {"name": link.name, "frame": link.frame}} if link else None)

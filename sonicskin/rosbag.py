@@ -460,29 +460,45 @@ def _abandon(file, created: Path | None) -> None:
 
 
 def recover(src: str | Path, dst: str | Path) -> int:
-    """Copy the messages of an MCAP file whose writer died into the complete file ``dst``; returns their number."""
+    """Copy the messages of an MCAP file whose writer died into the new complete file ``dst``; returns their number."""
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
     from mcap.writer import CompressionType, Writer
 
+    src, dst = Path(src), Path(dst)
+    with open(src, "rb") as f:
+        if f.read(8) != b"\x89MCAP0\r\n":
+            raise SonicskinError(f"{src} is not an MCAP file (no MCAP magic at its start); give the .mcap that `live --mcap` wrote")
+    if dst.exists():
+        same = src.resolve() == dst.resolve()
+        raise SonicskinError(f"{dst} {'is the file to recover from' if same else 'exists'}; give a new OUT file (nothing was changed)")
     n, ids = 0, {}
-    with open(src, "rb") as f, open(dst, "wb") as out:
-        w = Writer(out, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-        w.start(profile="ros2", library="sonicskin recover")
-        with contextlib.suppress(Exception):  # the cut-off end: a partial record or chunk, whatever the reader says of it
-            for r in StreamReader(f, skip_magic=False).records:
-                if isinstance(r, Schema) and ("s", r.id) not in ids:
-                    ids["s", r.id] = w.register_schema(r.name, r.encoding, r.data)
-                elif isinstance(r, Channel) and r.id not in ids:
-                    ids[r.id] = w.register_channel(r.topic, r.message_encoding, ids.get(("s", r.schema_id), 0), r.metadata)
-                elif isinstance(r, Message):
-                    w.add_message(ids[r.channel_id], r.log_time, r.data, r.publish_time, r.sequence)
-                    n += 1
-        w.finish()
+    tmp = dst.with_name(f".{dst.name}.partial-{os.getpid()}")
+    try:
+        with open(src, "rb") as f, open(tmp, "wb") as out:
+            w = Writer(out, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+            w.start(profile="ros2", library="sonicskin recover")
+            with contextlib.suppress(Exception):  # the cut-off end: a partial record or chunk, whatever the reader says of it
+                for r in StreamReader(f, skip_magic=False).records:
+                    if isinstance(r, Schema) and ("s", r.id) not in ids:
+                        ids["s", r.id] = w.register_schema(r.name, r.encoding, r.data)
+                    elif isinstance(r, Channel) and r.id not in ids:
+                        ids[r.id] = w.register_channel(r.topic, r.message_encoding, ids.get(("s", r.schema_id), 0), r.metadata)
+                    elif isinstance(r, Message):
+                        w.add_message(ids[r.channel_id], r.log_time, r.data, r.publish_time, r.sequence)
+                        n += 1
+            w.finish()
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
     return n
 
 
 if __name__ == "__main__":  # python -m sonicskin.rosbag IN OUT
     if len(sys.argv) != 3 or not Path(sys.argv[1]).is_file():
         sys.exit("usage: python -m sonicskin.rosbag IN.mcap OUT.mcap: recover what a killed writer left in IN into OUT")
-    print(f"{sys.argv[2]}: {recover(*sys.argv[1:])} messages recovered from {sys.argv[1]}")
+    try:
+        print(f"{sys.argv[2]}: {recover(*sys.argv[1:])} messages recovered from {sys.argv[1]}")
+    except (OSError, SonicskinError) as e:
+        why = f"{e.filename}: {e.strerror}; give an OUT in a folder you can write" if isinstance(e, OSError) and e.strerror else e
+        sys.exit(f"python -m sonicskin.rosbag: error: {why}")

@@ -129,7 +129,12 @@ def test_whole_arm_simulate_fit_live_and_listen_in_the_link_frames(tmp_path, cap
     assert main(["simulate", "--links", str(f), "--out", str(tmp_path / "data"), "--quiet", "--sessions", "2"]) == 0
     assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "art"),
                  "--train", "s000"]) == 0
+    (tmp_path / "single").mkdir()
+    (tmp_path / "single" / "skin.json").write_text("{}")  # a single-link artifact: the arm used to be mixed into it
     capsys.readouterr()
+    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "data"), "--out", str(tmp_path / "single")]) == 2
+    assert "single holds a single-link artifact (skin.json); an arm's artifacts written there would mix" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "single").iterdir()) == ["skin.json"]
     # every link's artifact scored on its own later session, a report per link
     assert main(["compare", "--links", str(f), "--data", str(tmp_path / "data"), "--artifact", str(tmp_path / "art"),
                  "--test", "s001", "--out", str(tmp_path / "cmp")]) == 0
@@ -199,6 +204,11 @@ def test_record_an_arm_link_by_link(tmp_path, capsys):
     assert main(["record", "--links", str(f), "--out", str(tmp_path / "rec"), "--fast", "--passes", "1", "--no-artifact",
                  "--touch-s", "0.5", "--gap-s", "0.2", "--moving-s", "0", "--calibration-s", "1"]) == 0
     assert len(Dataset(tmp_path / "rec" / "a").layout) == 5 and len(Dataset(tmp_path / "rec" / "b").layout) == 4
+    # The command record prints next trains the arm: the simulated device's recordings are of each link's own wall
+    # (they were refused as "recorded on another wall", and so were the artifacts record writes).
+    capsys.readouterr()
+    assert main(["fit-svm", "--links", str(f), "--data", str(tmp_path / "rec"), "--out", str(tmp_path / "art")]) == 0, \
+        capsys.readouterr().err
     code = main(["record", "--links", str(f), "--out", str(tmp_path / "rec2"), "--tx", "1"])
     assert code == 2 and "record --links takes each link's channels and markers from the arm file" in capsys.readouterr().err
 

@@ -184,6 +184,15 @@ def test_a_stopped_listener_says_it_does_not_start_again(cli_files):
     with pytest.raises(SonicskinError, match="^this Listener was stopped and its source closed; make a new Listener to "
                                              "listen again$"):
         lst.start()
+    # A run that ended by itself (its duration) did not start again either, and said nothing: a controller restarting it
+    # waited for events for ever.
+    lst = Listener(cli_files["artifact"], rig=cli_files["rig"], scenario=cli_files["scenario"], fast=True, duration_s=1)
+    lst.start()
+    deadline = time.monotonic() + 120
+    while lst.running and time.monotonic() < deadline:
+        time.sleep(0.05)
+    with pytest.raises(SonicskinError, match="^this Listener's run has ended and its source is closed; make a new Listener"):
+        lst.start()
 
 
 @pytest.mark.parametrize("setting, expected", [

@@ -186,6 +186,20 @@ def test_a_writer_killed_hard_loses_at_most_its_last_second(tmp_path):
     assert all(t > last_ns - 1e9 for _, t, _ in whole[n:])  # what is lost: the last second only
     assert len(read_ros2_messages(tmp_path / "fixed.mcap")) == n  # a complete file
     assert CHUNK_BYTES == 1 << 20 and (tmp_path / "a.mcap").stat().st_size < 20_000  # zstd chunks: 90 events in 19 kB
+    # Recovering into the file itself wiped it (opened for writing before it was read), as did any existing OUT: refused,
+    # the file untouched; so is an input that is not MCAP.
+    from sonicskin.errors import SonicskinError
+
+    before = (tmp_path / "killed.mcap").read_bytes()
+    with pytest.raises(SonicskinError, match=r"killed\.mcap is the file to recover from; give a new OUT file \(nothing was changed\)"):
+        recover(tmp_path / "killed.mcap", tmp_path / "killed.mcap")
+    with pytest.raises(SonicskinError, match=r"fixed\.mcap exists; give a new OUT file"):
+        recover(tmp_path / "killed.mcap", tmp_path / "fixed.mcap")
+    assert (tmp_path / "killed.mcap").read_bytes() == before and len(read_ros2_messages(tmp_path / "fixed.mcap")) == n
+    (tmp_path / "notes.txt").write_text("not a bag")
+    with pytest.raises(SonicskinError, match=r"notes\.txt is not an MCAP file"):
+        recover(tmp_path / "notes.txt", tmp_path / "x.mcap")
+    assert not (tmp_path / "x.mcap").exists() and not list(tmp_path.glob(".*partial*"))
 
 
 def test_bad_arguments_are_one_line(tmp_path):

@@ -321,8 +321,13 @@ def test_record_writes_the_deployable_artifact_then_live_runs_it(tmp_path, small
     part = tmp_path / "part"
     assert main(["record", "--out", str(part), "--scenario", small, "--locations", "1", *FAST]) == 0
     out = capsys.readouterr().out
-    assert "no artifact yet: location(s) 0, 2, 3, 4, 5 of the layout were never pressed" in out
+    assert "no artifact yet: location(s) 0, 2, 3, 4, 5 of the layout have no press yet; `--resume` records them" in out
     assert not (tmp_path / "part-artifact").exists()
+    # Prompts shorter than the press's force ramp never count: --resume alone repeated them for ever; it says so.
+    assert main(["record", "--out", str(tmp_path / "short"), "--scenario", small, "--locations", "1", *FAST[:-4],
+                 "--touch-s", "0.3", "--gap-s", "0.3"]) == 0
+    assert ("have no press yet; 1 of them were prompted in this run but gave fewer than 3 chirps at >= 0.5 N: press "
+            "longer (--touch-s, now 0.3 s)") in capsys.readouterr().out
     rec = tmp_path / "rec"
     assert main(["record", "--out", str(rec), "--scenario", small, *FAST]) == 0
     out = capsys.readouterr().out

@@ -83,6 +83,9 @@ def _fit_svm_arm(a: argparse.Namespace) -> int:
     """``fit-svm --links ARM --data DIR --out ART``: one artifact per link (DIR/<link> -> ART/<link>) and ART/arm.yaml."""
     rig, links = load_arm(a.links)
     data, out = Path(a.data), Path(a.out)
+    if (out / "skin.json").exists():  # the arm's files would sit beside it, and `live --artifact OUT` would run the arm
+        raise UsageError(f"{out} holds a single-link artifact (skin.json); an arm's artifacts written there would mix with "
+                         f"it: choose an empty or new --out")
     absent = missing_datasets(links, data)
     if absent:
         raise UsageError(f"{data} has no dataset for links {absent} (expected {data}/<link>/dataset.json); record or "
