@@ -300,6 +300,13 @@ def _atomic_write_json(path: Path, obj: Any) -> None:
     _atomic_write_bytes(path, (json.dumps(obj, indent=2) + "\n").encode())
 
 
+def _settings(source) -> dict:
+    """What of a dataset's ``source`` a resumed writer must match: not a recording's ``scenario`` (the wall the simulated
+    device played, informative only; recordings made before sonicskin stored it have none)."""
+    src = source if isinstance(source, dict) else {}
+    return {k: v for k, v in src.items() if not (k == "scenario" and src.get("kind") == "recorder")}
+
+
 class DatasetWriter:
     """Create (``mode``: create, overwrite, resume) the dataset folder ``root`` and append checked session parts to it."""
 
@@ -329,7 +336,7 @@ class DatasetWriter:
             elif mode == "resume":
                 old = Dataset(self.root)
                 diffs = old.rig.mismatch(rig)
-                if diffs or old.layout != layout or old.meta.get("source") != json.loads(json.dumps(meta["source"])):
+                if diffs or old.layout != layout or _settings(old.meta.get("source")) != _settings(json.loads(json.dumps(meta["source"]))):
                     raise DatasetError(f"cannot resume {self.root}: it was made with other settings "
                                        f"({'; '.join(diffs) or 'layout or source differ'})")
         self.root.mkdir(parents=True, exist_ok=True)
